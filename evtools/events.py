@@ -1,0 +1,156 @@
+"""The event model: one dtype, one stream description, one validation.
+
+Every chunk in evtools is a 1-D array of :data:`EVENT_DTYPE`, sorted by ``t`` (ties allowed). The layout is
+AEDAT 4.0's ``Event`` struct (t int64 @0, x int16 @8, y int16 @10, on bool @12, itemsize 16), so AEDAT 4.0
+packets are read and written without copying field by field.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Iterable, Iterator
+
+import numpy as np
+
+from evtools.errors import InvalidEventsError
+
+EVENT_DTYPE = np.dtype(
+    {"names": ["t", "x", "y", "p"], "formats": ["<i8", "<i2", "<i2", "?"], "offsets": [0, 8, 10, 12], "itemsize": 16}
+)
+"""t: microseconds (int64); x: column, y: row (image convention, origin top-left); p: True = ON."""
+
+CHUNK_EVENTS = 1 << 20
+"""Events per chunk that readers aim for (about a million)."""
+
+MAX_SENSOR_SIDE = 32767
+"""x and y are int16."""
+
+
+@dataclass
+class StreamInfo:
+    """What is known about a stream before its first event.
+
+    Parameters
+    ----------
+    width, height : int
+        Sensor size in pixels; every event has ``0 <= x < width`` and ``0 <= y < height``.
+    format : str
+        Name of the format the stream was read from (``"aedat4"``, ``"hdf5"``, ...), or ``""``.
+    metadata : dict
+        Anything else the source said (camera name, time offset, skipped streams, ...).
+    """
+
+    width: int
+    height: int
+    format: str = ""
+    metadata: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        check_sensor_size(self.width, self.height)
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """(width, height)."""
+        return (self.width, self.height)
+
+
+def check_sensor_size(width: int, height: int) -> None:
+    """Raise :class:`InvalidEventsError` unless ``1 <= width, height <= 32767``."""
+    for name, value in (("width", width), ("height", height)):
+        if not 1 <= int(value) <= MAX_SENSOR_SIDE:
+            raise InvalidEventsError(f"sensor {name} {value} is not in 1..{MAX_SENSOR_SIDE}")
+
+
+def parse_sensor_size(text: str) -> tuple[int, int]:
+    """Parse ``"WxH"`` (e.g. ``"346x260"``) into ``(width, height)``."""
+    parts = text.lower().replace(",", "x").split("x")
+    try:
+        width, height = (int(part) for part in parts)
+    except ValueError:
+        raise InvalidEventsError(f"sensor size {text!r} is not of the form WIDTHxHEIGHT, e.g. 346x260") from None
+    check_sensor_size(width, height)
+    return width, height
+
+
+def empty_events(n: int = 0) -> np.ndarray:
+    """A zeroed chunk of ``n`` events."""
+    return np.zeros(n, dtype=EVENT_DTYPE)
+
+
+def make_events(t, x, y, p) -> np.ndarray:
+    """Build a chunk from four equally long columns (p: bool, or 0/1)."""
+    t = np.asarray(t)
+    out = np.empty(len(t), dtype=EVENT_DTYPE)
+    out["t"] = t
+    out["x"] = x
+    out["y"] = y
+    out["p"] = np.asarray(p) > 0
+    return out
+
+
+def concatenate(chunks: Iterable[np.ndarray]) -> np.ndarray:
+    """All chunks as one array (for tests and small streams only: memory grows with the stream)."""
+    chunks = list(chunks)
+    return join(chunks) if chunks else empty_events()
+
+
+def join(chunks: list[np.ndarray]) -> np.ndarray:
+    """``np.concatenate`` that keeps :data:`EVENT_DTYPE` (plain concatenate drops its padding to 13 bytes)."""
+    return np.concatenate(chunks, dtype=EVENT_DTYPE)
+
+
+def rechunk(chunks: Iterable[np.ndarray], size: int) -> Iterator[np.ndarray]:
+    """Re-cut a stream into chunks of exactly ``size`` events (the last one shorter), copying as little as possible."""
+    pending: list[np.ndarray] = []
+    held = 0
+    for chunk in chunks:
+        while len(chunk):
+            take = min(size - held, len(chunk))
+            pending.append(chunk[:take])
+            held += take
+            chunk = chunk[take:]
+            if held == size:
+                yield pending[0] if len(pending) == 1 else join(pending)
+                pending, held = [], 0
+    if held:
+        yield join(pending)
+
+
+class StreamChecker:
+    """Checks chunk after chunk that events lie on the sensor and that time never goes backwards.
+
+    The first offending event is reported by its index in the whole stream, so the user can find it.
+    """
+
+    def __init__(self, info: StreamInfo, name: str = "stream") -> None:
+        self.info = info
+        self.name = name
+        self.events_seen = 0
+        self.last_t: int | None = None
+
+    def check(self, chunk: np.ndarray) -> np.ndarray:
+        if chunk.dtype != EVENT_DTYPE and chunk.dtype.names == EVENT_DTYPE.names:
+            chunk = chunk.astype(EVENT_DTYPE)  # same fields, other padding (e.g. after np.concatenate)
+        if chunk.dtype != EVENT_DTYPE:
+            raise InvalidEventsError(f"{self.name}: chunk has dtype {chunk.dtype}, expected EVENT_DTYPE")
+        if len(chunk):
+            x, y, t = chunk["x"], chunk["y"], chunk["t"]
+            outside = (x < 0) | (x >= self.info.width) | (y < 0) | (y >= self.info.height)
+            if outside.any():
+                i = int(np.argmax(outside))
+                raise InvalidEventsError(
+                    f"{self.name}: event {self.events_seen + i} at (x={x[i]}, y={y[i]}) lies outside the "
+                    f"{self.info.width}x{self.info.height} sensor (give the right --sensor-size)"
+                )
+            previous = t[0] if self.last_t is None else self.last_t
+            backwards = np.diff(t, prepend=previous) < 0
+            if backwards.any():
+                i = int(np.argmax(backwards))
+                before = previous if i == 0 else t[i - 1]
+                raise InvalidEventsError(
+                    f"{self.name}: time goes backwards at event {self.events_seen + i} "
+                    f"({t[i]} us after {before} us)"
+                )
+            self.last_t = int(t[-1])
+        self.events_seen += len(chunk)
+        return chunk

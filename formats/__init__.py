@@ -1,0 +1,126 @@
+"""Readers and writers of event files; :func:`open_events` and :func:`create_events` are the two entry points."""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+from typing import Iterator
+
+import numpy as np
+
+from evtools.events import CHUNK_EVENTS, StreamChecker, StreamInfo
+from formats.errors import FormatError
+from formats.io import STDIO, Source, output_stream, same_file
+from formats.registry import FORMATS, PIPE_FORMAT, ReadOptions, WriteOptions, by_name, detect, from_extension
+
+__all__ = ["FORMATS", "EventStream", "FormatError", "ReadOptions", "WriteOptions", "create_events", "open_events"]
+
+log = logging.getLogger("evtools")
+
+
+class EventStream:
+    """An open input stream: ``info`` is known at once, iterating yields checked chunks of ``EVENT_DTYPE``."""
+
+    def __init__(self, source: Source, reader, format_name: str, check: bool = True) -> None:
+        self.source = source
+        self.name = source.name
+        self.reader = reader
+        self.info: StreamInfo = reader.info
+        self.info.format = format_name
+        self.checker = StreamChecker(self.info, self.name) if check else None
+
+    def __iter__(self) -> Iterator[np.ndarray]:
+        for chunk in self.reader:
+            if len(chunk) == 0:
+                continue
+            yield self.checker.check(chunk) if self.checker else chunk
+
+    def close(self) -> None:
+        close = getattr(self.reader, "close", None)
+        if close:
+            close()
+        self.source.close()
+
+    def __enter__(self) -> "EventStream":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def open_events(
+    path: str | os.PathLike | None = None,
+    *,
+    format: str | None = None,
+    sensor_size: tuple[int, int] | None = None,
+    chunk_events: int = CHUNK_EVENTS,
+    aedat2_layout: str | None = None,
+    check: bool = True,
+) -> EventStream:
+    """Open an event file (or ``-``/None for stdin) for streaming.
+
+    The format is recognised by its magic bytes, then by the file's extension; ``format`` overrides both.
+    ``check`` (default) raises :class:`evtools.InvalidEventsError` at the first event outside the sensor or
+    earlier than the one before it.
+    """
+    source = Source(path)
+    try:
+        if format:
+            fmt = by_name(format)
+        else:
+            fmt = detect(source.head, source.path)
+            if fmt is None:
+                if not source.head:
+                    raise FormatError(f"{source.name}: empty input, not an event stream")
+                raise FormatError(f"{source.name}: unknown format (no known magic bytes or extension); give --format")
+        if fmt.reader is None:
+            raise FormatError(f"{source.name}: {fmt.description} cannot be read")
+        options = ReadOptions(sensor_size=sensor_size, chunk_events=chunk_events, aedat2_layout=aedat2_layout)
+        reader = fmt.reader_class()(source, options)
+        return EventStream(source, reader, fmt.name, check)
+    except BaseException:
+        source.close()
+        raise
+
+
+def output_format(path: str | os.PathLike | None, format: str | None):
+    """The format to write: ``format`` if given, else by extension, else AEDAT 4.0 for stdout."""
+    if format:
+        fmt = by_name(format)
+    elif path is None or os.fspath(path) == STDIO:
+        fmt = by_name(PIPE_FORMAT)
+    else:
+        fmt = from_extension(os.fspath(path))
+        if fmt is None:
+            raise FormatError(f"{path}: cannot tell the output format from the extension; give --format")
+    if fmt.writer is None:
+        raise FormatError(f"{fmt.description} cannot be written (read-only format)")
+    return fmt
+
+
+@contextlib.contextmanager
+def create_events(
+    path: str | os.PathLike | None,
+    info: StreamInfo,
+    *,
+    format: str | None = None,
+    compression: str | None = None,
+    aedat2_layout: str | None = None,
+    inputs: tuple[str, ...] = (),
+):
+    """Write an event stream to ``path`` (``-``/None: stdout), atomically; yields a writer with ``write(chunk)``.
+
+    ``inputs`` are the paths being read, which the output may not overwrite.
+    """
+    fmt = output_format(path, format)
+    if path is not None and os.fspath(path) != STDIO:
+        for input_path in inputs:
+            if input_path and input_path != STDIO and same_file(os.fspath(path), input_path):
+                raise FormatError(f"{path}: output would overwrite the input; choose another -o")
+    options = WriteOptions(compression=compression, aedat2_layout=aedat2_layout)
+    writer_class = fmt.writer_class()
+    with output_stream(path, binary_name=fmt.description, needs_seek=fmt.writer_needs_seek) as stream:
+        writer = writer_class(stream, info, options)
+        yield writer
+        writer.close()

@@ -1,0 +1,172 @@
+"""Byte sources and sinks: paths or stdin/stdout, format sniffing without losing bytes, atomic output files."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import os
+import shutil
+import sys
+import tempfile
+from typing import BinaryIO, Iterator
+
+from formats.errors import FormatError
+
+HEAD_BYTES = 4096
+"""How many leading bytes format detection looks at."""
+
+STDIO = "-"
+
+
+class _PrefixedRaw(io.RawIOBase):
+    """A raw stream that first replays ``prefix`` and then reads ``raw``: lets us sniff a pipe and still read it whole."""
+
+    def __init__(self, prefix: bytes, raw: BinaryIO) -> None:
+        self._prefix = memoryview(prefix)
+        self._raw = raw
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, buffer) -> int:
+        if self._prefix.nbytes:
+            n = min(len(buffer), self._prefix.nbytes)
+            buffer[:n] = self._prefix[:n]
+            self._prefix = self._prefix[n:]
+            return n
+        return self._raw.readinto(buffer)
+
+
+class Source:
+    """An input: a file path or ``-`` for stdin, opened for binary reading, with its first bytes known.
+
+    Attributes
+    ----------
+    name : str
+        What messages call it (the path, or ``<stdin>``).
+    path : str or None
+        The file path, or None for stdin.
+    head : bytes
+        The first up to 4096 bytes, for format detection.
+    stream : BinaryIO
+        Reads the whole input from its first byte.
+    seekable : bool
+        True for regular files (readers may seek and re-read them).
+    """
+
+    def __init__(self, path: str | os.PathLike | None) -> None:
+        path = STDIO if path is None else os.fspath(path)
+        if path == STDIO:
+            self.name, self.path = "<stdin>", None
+            raw = sys.stdin.buffer.raw if hasattr(sys.stdin.buffer, "raw") else sys.stdin.buffer
+            self.head = _read_up_to(raw, HEAD_BYTES)
+            self.stream = io.BufferedReader(_PrefixedRaw(self.head, raw), buffer_size=1 << 20)
+            self.seekable = False
+        else:
+            self.name, self.path = path, path
+            if os.path.isdir(path):
+                raise FormatError(f"{path}: is a directory, not an event file")
+            try:
+                self.stream = open(path, "rb", buffering=1 << 20)
+            except FileNotFoundError:
+                raise FormatError(f"{path}: no such file") from None
+            except OSError as error:
+                raise FormatError(f"{path}: cannot open ({error.strerror})") from None
+            self.head = self.stream.read(HEAD_BYTES)
+            self.stream.seek(0)
+            self.seekable = True
+
+    def spooled(self) -> BinaryIO:
+        """A seekable stream of the whole input: the file itself, or stdin copied into a temporary file."""
+        if self.seekable:
+            return self.stream
+        spool = tempfile.TemporaryFile()
+        shutil.copyfileobj(self.stream, spool, 1 << 20)
+        spool.seek(0)
+        self.stream, self.seekable = spool, True
+        return spool
+
+    def close(self) -> None:
+        if self.path is not None or self.seekable:
+            self.stream.close()
+
+
+def _read_up_to(raw, n: int) -> bytes:
+    parts, got = [], 0
+    while got < n:
+        part = raw.read(n - got)
+        if not part:
+            break
+        parts.append(part)
+        got += len(part)
+    return b"".join(parts)
+
+
+def same_file(a: str, b: str) -> bool:
+    """True if paths ``a`` and ``b`` name the same existing file."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+@contextlib.contextmanager
+def output_stream(path: str | os.PathLike | None, *, binary_name: str, needs_seek: bool = False) -> Iterator[BinaryIO]:
+    """Open an output for binary writing: a file written atomically, or stdout for ``-``/None.
+
+    A file is written to a temporary name beside the target and renamed only when the block ends without an
+    error, so an interrupted run never leaves a half-written file under the real name. A binary stream is
+    never written to a terminal. ``needs_seek`` formats (HDF5) cannot go to stdout.
+    """
+    path = STDIO if path is None else os.fspath(path)
+    if path == STDIO:
+        if needs_seek:
+            raise FormatError(f"{binary_name} cannot be written to a pipe (it needs a seekable file): give -o FILE")
+        if sys.stdout.isatty():
+            raise FormatError(
+                f"refusing to write binary {binary_name} to a terminal: give -o FILE or pipe into another command"
+            )
+        sys.stdout.flush()
+        yield sys.stdout.buffer
+        sys.stdout.buffer.flush()
+        return
+    directory = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(directory):
+        raise FormatError(f"{path}: directory {directory} does not exist")
+    fd, tmp = tempfile.mkstemp(dir=directory, prefix="." + os.path.basename(path) + ".", suffix=".part")
+    try:
+        with os.fdopen(fd, "w+b", buffering=1 << 20) as stream:
+            yield stream
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+def resolve_sensor_size(source: Source, from_file, sensor_size, scan=None) -> tuple[int, int]:
+    """The sensor size of a stream: what the file says, else ``--sensor-size``, else inferred by ``scan()``.
+
+    ``from_file`` is (width, height) or None; ``sensor_size`` the user's (width, height) or None; ``scan`` a
+    callable returning (max x + 1, max y + 1) by reading a seekable file once (it must leave the stream where it
+    found it). Without any of them the stream cannot be read: the message asks for ``--sensor-size``.
+    """
+    import logging
+
+    if from_file is not None:
+        if sensor_size is not None and tuple(sensor_size) != tuple(from_file):
+            logging.getLogger("evtools").warning(
+                "%s: file says %dx%d, using --sensor-size %dx%d", source.name, *from_file, *sensor_size
+            )
+            return tuple(sensor_size)
+        return tuple(from_file)
+    if sensor_size is not None:
+        return tuple(sensor_size)
+    if scan is not None and source.seekable:
+        width, height = scan()
+        logging.getLogger("evtools").warning(
+            "%s: sensor size not stored in the file; inferred %dx%d from the events (give --sensor-size to set it)",
+            source.name, width, height,
+        )
+        return max(width, 1), max(height, 1)
+    raise FormatError(f"{source.name}: the file does not store the sensor size; give --sensor-size WxH")

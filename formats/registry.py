@@ -1,0 +1,130 @@
+"""The one table of formats: detection by magic bytes, then by extension, and dispatch to readers and writers.
+
+A reader class is built as ``Reader(source, options)`` from a :class:`formats.io.Source` and
+:class:`ReadOptions`; it sets ``self.info`` (a :class:`evtools.StreamInfo`) in ``__init__`` and yields chunks
+of ``EVENT_DTYPE`` from ``__iter__``, about ``options.chunk_events`` at a time, in file order. A writer class is
+built as ``Writer(stream, info, options)`` from a binary stream, the stream's info and :class:`WriteOptions`;
+``write(chunk)`` takes chunks and ``close()`` finishes the file (without closing ``stream``). The bytes written
+never depend on how the events were cut into chunks.
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+from dataclasses import dataclass
+from typing import Callable
+
+from evtools.events import CHUNK_EVENTS
+
+HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
+
+
+@dataclass(frozen=True)
+class ReadOptions:
+    sensor_size: tuple[int, int] | None = None
+    """(width, height) when the file does not say it (``--sensor-size``)."""
+    chunk_events: int = CHUNK_EVENTS
+    aedat2_layout: str | None = None
+    """AEDAT 2.0 address layout when the header has no ``# AEChip:`` line: dvs128, davis240 or davis346."""
+
+
+@dataclass(frozen=True)
+class WriteOptions:
+    compression: str | None = None
+    """Format-specific compression name (aedat4: none, lz4, zstd; hdf5: none, gzip, lzf, zstd); None = default."""
+    aedat2_layout: str | None = None
+    """AEDAT 2.0 layout to write: dvs128, davis240 or davis346; None = chosen from the sensor size."""
+
+
+@dataclass(frozen=True)
+class Format:
+    name: str
+    description: str
+    extensions: tuple[str, ...]
+    sniff: Callable[[bytes], bool]
+    reader: str | None  # "module:Class", imported on first use
+    writer: str | None
+    writer_needs_seek: bool = False
+
+    def reader_class(self):
+        return _load(self.reader)
+
+    def writer_class(self):
+        return _load(self.writer)
+
+
+def _load(spec: str):
+    module, name = spec.split(":")
+    return getattr(importlib.import_module(module), name)
+
+
+def _is_hdf5(head: bytes) -> bool:
+    # HDF5 allows a user block of 512, 1024, 2048, ... bytes before the superblock
+    return any(head[offset : offset + 8] == HDF5_MAGIC for offset in (0, 512, 1024, 2048))
+
+
+def _is_prophesee(head: bytes) -> bool:
+    return head.startswith(b"% ") and (b"evt" in head[:2048].lower())
+
+
+def _is_text(head: bytes, delimiter: bytes) -> bool:
+    try:
+        text = head.decode("ascii")
+    except UnicodeDecodeError:
+        return False
+    lines = [line for line in text.splitlines()[:8] if line.strip() and not line.startswith("#")]
+    if not lines:
+        return False
+    if delimiter == b",":
+        return all("," in line for line in lines[:-1] or lines)
+    return all("," not in line for line in lines)
+
+
+FORMATS: tuple[Format, ...] = (
+    Format("aedat4", "AEDAT 4.0 (DV, dv-processing)", (".aedat4",), lambda h: h.startswith(b"#!AER-DAT4.0"),
+           "formats.aedat4:Aedat4Reader", "formats.aedat4:Aedat4Writer"),
+    Format("aedat2", "AEDAT 2.0 (jAER)", (".aedat", ".dat"), lambda h: h.startswith(b"#!AER-DAT2"),
+           "formats.aedat2:Aedat2Reader", "formats.aedat2:Aedat2Writer"),
+    Format("aedat3", "AEDAT 3.1 (cAER, libcaer)", (".aedat3",), lambda h: h.startswith(b"#!AER-DAT3"),
+           "formats.aedat3:Aedat3Reader", None),
+    Format("hdf5", "HDF5 (DSEC, event_utils, v2e, evtools)", (".h5", ".hdf5", ".hdf"), _is_hdf5,
+           "formats.hdf5:Hdf5Reader", "formats.hdf5:Hdf5Writer", writer_needs_seek=True),
+    Format("prophesee", "Prophesee EVT 2.0 / 3.0 RAW", (".raw",), _is_prophesee,
+           "formats.prophesee:ProphesseeRawReader", None),
+    Format("csv", "CSV with a header (t,x,y,p)", (".csv",), lambda h: _is_text(h, b","),
+           "formats.text:TextReader", "formats.text:CsvWriter"),
+    Format("txt", "text t x y p, t in seconds (rpg events.txt, v2e)", (".txt",), lambda h: _is_text(h, b" "),
+           "formats.text:TextReader", "formats.text:TxtWriter"),
+)
+
+BY_NAME = {f.name: f for f in FORMATS}
+PIPE_FORMAT = "aedat4"
+"""The format of streams on pipes: AEDAT 4.0, uncompressed."""
+
+
+def by_name(name: str) -> Format:
+    from formats.errors import FormatError
+
+    try:
+        return BY_NAME[name.lower()]
+    except KeyError:
+        raise FormatError(f"unknown format {name!r}; known: {', '.join(BY_NAME)}") from None
+
+
+def detect(head: bytes, path: str | None) -> Format | None:
+    """The format of a file from its first bytes; then from its extension; None if neither tells."""
+    for fmt in FORMATS:
+        if fmt.sniff(head):
+            return fmt
+    return from_extension(path)
+
+
+def from_extension(path: str | None) -> Format | None:
+    if not path:
+        return None
+    extension = os.path.splitext(path)[1].lower()
+    for fmt in FORMATS:
+        if extension in fmt.extensions:
+            return fmt
+    return None
