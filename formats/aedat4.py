@@ -29,6 +29,8 @@ from formats.registry import ReadOptions, WriteOptions
 MAGIC = b"#!AER-DAT4.0\r\n"
 COMPRESSION_CODES = {"none": 0, "lz4": 1, "lz4-high": 2, "zstd": 3, "zstd-high": 4}
 COMPRESSION_XML = {0: "NONE", 1: "LZ4", 2: "LZ4_HIGH", 3: "ZSTD", 4: "ZSTD_HIGH"}
+WORD_MASK = np.array([(1 << 64) - 1, (1 << 40) - 1], dtype="<u8")
+"""Keeps t, x, y and on of an event's two 8-byte words and zeroes its padding, so output bytes are reproducible."""
 PACKET_EVENTS = 1 << 15
 """Events per packet the writer emits (512 KiB): large enough for speed, small enough for pipe latency."""
 
@@ -268,8 +270,9 @@ class Aedat4Writer:
     def _flush(self) -> None:
         if not self.held:
             return
-        events = self.pending[0] if len(self.pending) == 1 else join(self.pending)
-        body = _packet_prefix(len(events)) + np.ascontiguousarray(events, EVENT_DTYPE).tobytes()
+        events = np.ascontiguousarray(self.pending[0] if len(self.pending) == 1 else join(self.pending), EVENT_DTYPE)
+        words = events.view("<u8").reshape(-1, 2) & WORD_MASK  # a copy with the 3 padding bytes zeroed
+        body = _packet_prefix(len(events)) + words.tobytes()
         if self.compress is not None:
             body = self.compress(body)
         self.stream.write(struct.pack("<iI", 0, len(body)))

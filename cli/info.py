@@ -1,0 +1,58 @@
+"""``evtools info``: what is in an event file."""
+
+from __future__ import annotations
+
+import json
+
+import click
+
+from cli.options import aedat2_layout_option, input_format_option, json_option, sensor_size_option, wants_json
+from cli.progress import with_progress
+from evtools.summary import StreamSummary
+from formats import open_events
+
+
+@click.command()
+@click.argument("inputs", nargs=-1, metavar="FILE...", type=click.Path(dir_okay=False, allow_dash=True))
+@input_format_option
+@sensor_size_option
+@aedat2_layout_option
+@json_option
+def info(inputs, input_format, sensor_size, aedat2_layout, as_json):
+    """Format, sensor size, event count, time span, rate and ON fraction of each FILE (`-` = stdin)."""
+    rows = []
+    for path in inputs or ("-",):
+        with open_events(path, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as stream:
+            summary = StreamSummary()
+            for chunk in with_progress(stream, stream, f"reading {stream.name}"):
+                summary.add(chunk)
+            rows.append({"file": stream.name, **summary.as_dict(stream.info)})
+    if wants_json(as_json):
+        click.echo(json.dumps(rows if len(rows) > 1 else rows[0], indent=2, default=str))
+    else:
+        _print_table(rows)
+
+
+def _print_table(rows: list[dict]) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(show_header=True, header_style="bold")
+    table.add_column("")
+    for row in rows:
+        table.add_column(row["file"], overflow="fold")
+
+    def line(label, fmt):
+        table.add_row(label, *(fmt(row) for row in rows))
+
+    line("format", lambda r: r["format"])
+    line("sensor", lambda r: f"{r['width']} x {r['height']}")
+    line("events", lambda r: f"{r['events']:,}")
+    line("first t", lambda r: "-" if r["t_first_us"] is None else f"{r['t_first_us']:,} us")
+    line("last t", lambda r: "-" if r["t_last_us"] is None else f"{r['t_last_us']:,} us")
+    line("span", lambda r: f"{r['duration_s']:.6g} s")
+    line("rate", lambda r: f"{r['rate_hz'] / 1e6:.4g} Mev/s")
+    line("ON fraction", lambda r: "-" if r["on_fraction"] is None else f"{r['on_fraction']:.3f}")
+    line("source", lambda r: str(r["metadata"].get("source", "") or r["metadata"].get("chip", "") or "-"))
+    line("skipped", lambda r: ", ".join(r["metadata"].get("skipped_streams", [])) or "-")
+    Console().print(table)

@@ -1,0 +1,74 @@
+"""``evtools``: the command group; the one place that turns library errors into messages and exit codes."""
+
+from __future__ import annotations
+
+import logging
+import os
+import sys
+
+import click
+
+from cli import convert, info
+from evtools import __version__
+from evtools.errors import EvtoolsError
+
+EXIT_ERROR = 1
+EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE, what `cat` returns when `| head` closes the pipe
+EXIT_INTERRUPTED = 130
+
+
+class _StderrFormatter(logging.Formatter):
+    def format(self, record: logging.LogRecord) -> str:
+        return f"evtools: {record.levelname.lower()}: {record.getMessage()}"
+
+
+class EvtoolsGroup(click.Group):
+    """Runs a subcommand; an :class:`EvtoolsError` becomes one line on stderr and exit code 1, never a traceback."""
+
+    def invoke(self, ctx: click.Context):
+        try:
+            return super().invoke(ctx)
+        except EvtoolsError as error:
+            click.echo(f"evtools: error: {error}", err=True)
+            ctx.exit(EXIT_ERROR)
+        except BrokenPipeError:
+            # the reader went away (`| head`): stop quietly; point stdout at /dev/null so the final flush is silent
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            ctx.exit(EXIT_BROKEN_PIPE)
+        except KeyboardInterrupt:
+            click.echo("evtools: interrupted", err=True)
+            ctx.exit(EXIT_INTERRUPTED)
+        except MemoryError:
+            click.echo("evtools: error: out of memory", err=True)
+            ctx.exit(EXIT_ERROR)
+        except OSError as error:
+            if error.filename:
+                click.echo(f"evtools: error: {error.filename}: {error.strerror}", err=True)
+            else:
+                click.echo(f"evtools: error: {error.strerror or error}", err=True)
+            ctx.exit(EXIT_ERROR)
+
+
+@click.group(cls=EvtoolsGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="evtools")
+@click.option("-q", "--quiet", is_flag=True, help="Print errors only, no warnings.")
+def cli(quiet: bool) -> None:
+    """Event-camera (DVS) noise toolkit: read, convert, simulate, filter, estimate and correct event streams.
+
+    Every command reads a path or `-` (stdin) and writes `-o PATH` or stdout; pipes carry AEDAT 4.0.
+    """
+    logger = logging.getLogger("evtools")
+    if not logger.handlers:
+        handler = logging.StreamHandler(sys.stderr)
+        handler.setFormatter(_StderrFormatter())
+        logger.addHandler(handler)
+    logger.setLevel(logging.ERROR if quiet else logging.INFO)
+    logger.propagate = False
+
+
+cli.add_command(info.info)
+cli.add_command(convert.convert)
+
+
+def main() -> None:
+    cli(prog_name="evtools")

@@ -1,0 +1,36 @@
+"""Progress on stderr, shown only when stderr is a terminal (never in pipes, Makefiles or CI logs)."""
+
+from __future__ import annotations
+
+import os
+import sys
+from typing import Iterator
+
+import numpy as np
+
+
+def with_progress(chunks, stream, label: str) -> Iterator[np.ndarray]:
+    """Yield ``chunks`` unchanged, showing events done (and bytes read of a file) in a rich progress bar."""
+    if not sys.stderr.isatty():
+        yield from chunks
+        return
+    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+    total = os.path.getsize(stream.source.path) if stream.source.path else None
+    columns = [TextColumn("{task.description}"), BarColumn(), TextColumn("{task.fields[events]:,} events")]
+    if total:
+        columns.append(TimeRemainingColumn())
+    with Progress(*columns, transient=True, console=_stderr_console()) as progress:
+        task = progress.add_task(label, total=total, events=0)
+        events = 0
+        for chunk in chunks:
+            events += len(chunk)
+            position = stream.source.stream.tell() if total else None
+            progress.update(task, completed=position, events=events)
+            yield chunk
+
+
+def _stderr_console():
+    from rich.console import Console
+
+    return Console(stderr=True)

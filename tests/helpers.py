@@ -1,0 +1,34 @@
+"""Small helpers shared by the tests."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from evtools.events import EVENT_DTYPE, concatenate, make_events
+from formats import open_events
+
+
+def random_events(n: int, width: int = 346, height: int = 260, seed: int = 0, t0_us: int = 0) -> np.ndarray:
+    """``n`` random events, sorted by time (with ties), covering the whole sensor."""
+    rng = np.random.default_rng(seed)
+    t = t0_us + np.sort(rng.integers(0, max(1, 20 * n), n))
+    return make_events(t, rng.integers(0, width, n), rng.integers(0, height, n), rng.integers(0, 2, n))
+
+
+def read_all(path, **options):
+    """(info, events) of a whole file."""
+    with open_events(path, **options) as stream:
+        events = concatenate(stream)
+        return stream.info, events
+
+
+def cut(events: np.ndarray, cuts) -> list[np.ndarray]:
+    """``events`` split at the (unsorted, possibly repeated) indices ``cuts``."""
+    return np.split(events, sorted(int(c) % (len(events) + 1) for c in cuts))
+
+
+def assert_same_events(actual: np.ndarray, expected: np.ndarray) -> None:
+    assert actual.dtype == EVENT_DTYPE
+    assert len(actual) == len(expected)
+    for field in ("t", "x", "y", "p"):
+        np.testing.assert_array_equal(actual[field], expected[field], err_msg=f"field {field}")

@@ -1,0 +1,142 @@
+"""AEDAT 4.0: evtools' reader against `aedat` and dv-processing, its writer read back by both, chunk invariance."""
+
+import io
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from evtools.events import StreamInfo
+from formats import FormatError, create_events, open_events
+from formats.aedat4 import Aedat4Writer
+from formats.registry import WriteOptions
+from tests.conftest import data_file
+from tests.helpers import assert_same_events, cut, random_events, read_all
+
+COMPRESSIONS = ["none", "lz4", "zstd"]
+
+
+def test_reads_the_real_dvxplorer_recording_as_aedat_does(dvxplorer_events):
+    info, events = read_all(data_file("dvxplorer_sample.aedat4"))
+    assert (info.width, info.height, info.format) == (320, 240, "aedat4")
+    assert info.metadata["source"] == "DVXplorer_DXB00010"
+    assert sorted(info.metadata["skipped_streams"]) == ["imu", "triggers"]
+    assert_same_events(events, dvxplorer_events)
+
+
+def test_reads_the_real_recording_through_a_pipe(dvxplorer_events, monkeypatch):
+    """stdin is sniffed for its format and then read from its first byte."""
+    import sys
+
+    raw = data_file("dvxplorer_sample.aedat4").read_bytes()
+    monkeypatch.setattr(sys, "stdin", io.TextIOWrapper(io.BufferedReader(io.BytesIO(raw))))
+    info, events = read_all("-")
+    assert (info.width, info.height) == (320, 240)
+    assert_same_events(events, dvxplorer_events)
+
+
+def _write(path, events, size=(346, 260), compression="none"):
+    with create_events(path, StreamInfo(*size, metadata={"source": "test"}), compression=compression) as writer:
+        writer.write(events)
+
+
+@pytest.mark.parametrize("compression", COMPRESSIONS)
+def test_written_file_is_read_identically_by_aedat_and_dv_processing(tmp_path, compression):
+    import aedat
+    import dv_processing as dv
+
+    events = random_events(100_000, seed=1, t0_us=1_600_000_000_000_000)
+    path = tmp_path / f"out_{compression}.aedat4"
+    _write(path, events, compression=compression)
+
+    decoder = aedat.Decoder(str(path))
+    assert decoder.id_to_stream()[0] == {"type": "events", "width": 346, "height": 260}
+    by_aedat = np.concatenate([packet["events"] for packet in decoder if "events" in packet])
+    np.testing.assert_array_equal(by_aedat["t"].astype(np.int64), events["t"])
+    np.testing.assert_array_equal(by_aedat["x"], events["x"])
+    np.testing.assert_array_equal(by_aedat["y"], events["y"])
+    np.testing.assert_array_equal(by_aedat["on"], events["p"])
+
+    recording = dv.io.MonoCameraRecording(str(path))
+    assert recording.getEventResolution() == (346, 260)
+    batches = []
+    while recording.isRunning():
+        batch = recording.getNextEventBatch()
+        if batch is not None:
+            batches.append(batch.numpy())
+    by_dv = np.concatenate(batches)
+    np.testing.assert_array_equal(by_dv["timestamp"], events["t"])
+    np.testing.assert_array_equal(by_dv["x"], events["x"])
+    np.testing.assert_array_equal(by_dv["y"], events["y"])
+    np.testing.assert_array_equal(by_dv["polarity"].astype(bool), events["p"])
+    _, ours = read_all(path)
+    assert_same_events(ours, events)
+
+
+@pytest.mark.parametrize("compression", ["none", "lz4", "zstd"])
+def test_reads_a_file_written_by_dv_processing(tmp_path, compression):
+    import dv_processing as dv
+
+    events = random_events(50_000, width=640, height=480, seed=2, t0_us=1_000_000)
+    path = tmp_path / "dv.aedat4"
+    config = dv.io.MonoCameraWriter.Config("DVXplorer_test")
+    config.addEventStream((640, 480))
+    config.compression = {
+        "none": dv.CompressionType.NONE, "lz4": dv.CompressionType.LZ4, "zstd": dv.CompressionType.ZSTD,
+    }[compression]
+    writer = dv.io.MonoCameraWriter(str(path), config)
+    for part in np.array_split(events, 7):
+        store = dv.EventStore()
+        for t, x, y, p in zip(part["t"], part["x"], part["y"], part["p"]):
+            store.push_back(int(t), int(x), int(y), bool(p))
+        writer.writeEvents(store)
+    del writer  # closes the file and writes dv's index table
+    info, ours = read_all(path)
+    assert (info.width, info.height) == (640, 480)
+    assert info.metadata["source"] == "DVXplorer_test"
+    assert_same_events(ours, events)
+
+
+@settings(max_examples=25, deadline=None)
+@given(cuts=st.lists(st.integers(0, 200_000), max_size=6), compression=st.sampled_from(COMPRESSIONS))
+def test_bytes_written_do_not_depend_on_chunking(cuts, compression):
+    events = random_events(70_000, seed=4)
+    info = StreamInfo(346, 260)
+    one, many = io.BytesIO(), io.BytesIO()
+    writer = Aedat4Writer(one, info, WriteOptions(compression))
+    writer.write(events)
+    writer.close()
+    writer = Aedat4Writer(many, info, WriteOptions(compression))
+    for part in cut(events, cuts):
+        writer.write(part)
+    writer.close()
+    assert one.getvalue() == many.getvalue()
+
+
+@pytest.mark.parametrize("chunk_events", [1, 1000, 1 << 20])
+def test_reading_any_chunk_size_gives_the_same_events(tmp_path, chunk_events):
+    events = random_events(40_000, seed=5)
+    _write(tmp_path / "a.aedat4", events)
+    _, back = read_all(tmp_path / "a.aedat4", chunk_events=chunk_events)
+    assert_same_events(back, events)
+
+
+def test_empty_stream_round_trips(tmp_path):
+    _write(tmp_path / "empty.aedat4", random_events(0))
+    info, events = read_all(tmp_path / "empty.aedat4")
+    assert (info.width, info.height, len(events)) == (346, 260, 0)
+
+
+def test_truncated_packet_is_reported_with_its_offset(tmp_path):
+    _write(tmp_path / "a.aedat4", random_events(1000))
+    data = (tmp_path / "a.aedat4").read_bytes()
+    (tmp_path / "cut.aedat4").write_bytes(data[:-100])
+    with pytest.raises(FormatError, match=r"cut.aedat4: truncated AEDAT 4.0 packet at byte \d+"):
+        read_all(tmp_path / "cut.aedat4")
+
+
+def test_wrong_compression_name_is_an_error(tmp_path):
+    with pytest.raises(FormatError, match="unknown AEDAT 4.0 compression 'brotli'"):
+        _write(tmp_path / "a.aedat4", random_events(10), compression="brotli")
+    assert not (tmp_path / "a.aedat4").exists()

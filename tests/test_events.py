@@ -1,0 +1,62 @@
+"""The event model: dtype layout, sensor sizes, stream checks, re-chunking."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from evtools.errors import InvalidEventsError
+from evtools.events import EVENT_DTYPE, StreamChecker, StreamInfo, concatenate, make_events, parse_sensor_size, rechunk
+from tests.helpers import cut, random_events
+
+
+def test_dtype_is_the_aedat4_event_struct():
+    assert EVENT_DTYPE.itemsize == 16
+    assert [EVENT_DTYPE.fields[name][1] for name in "txyp"] == [0, 8, 10, 12]
+    assert [EVENT_DTYPE.fields[name][0].str for name in "txyp"] == ["<i8", "<i2", "<i2", "|b1"]
+
+
+def test_concatenate_keeps_the_dtype():
+    events = random_events(10)
+    assert concatenate([events[:3], events[3:]]).dtype == EVENT_DTYPE
+
+
+@pytest.mark.parametrize("text,size", [("346x260", (346, 260)), ("128X128", (128, 128)), ("640,480", (640, 480))])
+def test_parse_sensor_size(text, size):
+    assert parse_sensor_size(text) == size
+
+
+@pytest.mark.parametrize("text", ["0x10", "10", "axb", "40000x10", "-3x4"])
+def test_bad_sensor_size(text):
+    with pytest.raises(InvalidEventsError):
+        parse_sensor_size(text)
+
+
+def test_checker_reports_the_first_event_outside_the_sensor_by_stream_index():
+    checker = StreamChecker(StreamInfo(10, 10), "f.aedat4")
+    checker.check(make_events([1, 2], [0, 9], [0, 9], [1, 0]))
+    with pytest.raises(InvalidEventsError, match=r"f.aedat4: event 3 at \(x=10, y=0\) lies outside the 10x10"):
+        checker.check(make_events([3, 4], [1, 10], [1, 0], [1, 1]))
+
+
+def test_checker_reports_time_going_backwards_across_chunks():
+    checker = StreamChecker(StreamInfo(10, 10), "s")
+    checker.check(make_events([5, 7], [0, 0], [0, 0], [1, 1]))
+    with pytest.raises(InvalidEventsError, match=r"time goes backwards at event 2 \(6 us after 7 us\)"):
+        checker.check(make_events([6], [0], [0], [1]))
+
+
+def test_checker_accepts_ties():
+    checker = StreamChecker(StreamInfo(4, 4))
+    checker.check(make_events([1, 1, 1], [0, 1, 2], [0, 0, 0], [1, 0, 1]))
+    checker.check(make_events([1], [3], [3], [0]))
+    assert checker.events_seen == 4
+
+
+@settings(max_examples=50, deadline=None)
+@given(cuts=st.lists(st.integers(0, 1000), max_size=8), size=st.integers(1, 300))
+def test_rechunk_gives_fixed_sizes_whatever_the_input_cuts(cuts, size):
+    events = random_events(777, seed=3)
+    out = list(rechunk(cut(events, cuts), size))
+    assert all(len(chunk) == size for chunk in out[:-1]) and 0 < len(out[-1]) <= size
+    np.testing.assert_array_equal(concatenate(out), events)
