@@ -66,13 +66,13 @@ def open_events(
     """
     source = Source(path)
     try:
+        if not source.head:
+            raise FormatError(f"{source.name}: empty input, not an event stream")
         if format:
             fmt = by_name(format)
         else:
             fmt = detect(source.head, source.path)
             if fmt is None:
-                if not source.head:
-                    raise FormatError(f"{source.name}: empty input, not an event stream")
                 raise FormatError(f"{source.name}: unknown format (no known magic bytes or extension); give --format")
         if fmt.reader is None:
             raise FormatError(f"{source.name}: {fmt.description} cannot be read")
@@ -122,5 +122,12 @@ def create_events(
     writer_class = fmt.writer_class()
     with output_stream(path, binary_name=fmt.description, needs_seek=fmt.writer_needs_seek) as stream:
         writer = writer_class(stream, info, options)
-        yield writer
+        try:
+            yield writer
+        except BaseException:
+            # release the writer's hold on the stream (h5py crashes if its file object closes first); the
+            # half-written temporary file is then deleted by output_stream
+            with contextlib.suppress(Exception):
+                writer.close()
+            raise
         writer.close()

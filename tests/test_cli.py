@@ -1,0 +1,195 @@
+"""The command line as a user meets it: real processes, real pipes, exit codes, one-line errors, atomic outputs."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from evtools.events import StreamInfo
+from formats import create_events
+from formats.aedat4 import Aedat4Writer
+from formats.registry import WriteOptions
+from tests.conftest import data_file
+from tests.helpers import assert_same_events, random_events, read_all
+
+EVTOOLS = str(Path(sys.executable).with_name("evtools"))
+
+
+def run(*args, input=None, check=True) -> subprocess.CompletedProcess:
+    result = subprocess.run([EVTOOLS, *map(str, args)], input=input, capture_output=True, timeout=120)
+    if check and result.returncode != 0:
+        raise AssertionError(f"evtools {args} failed ({result.returncode}): {result.stderr.decode()}")
+    return result
+
+
+def assert_clean_error(result: subprocess.CompletedProcess, *needles: str) -> None:
+    """Exit 1, one line on stderr naming the problem, no traceback, nothing on stdout."""
+    stderr = result.stderr.decode()
+    assert result.returncode == 1, stderr
+    assert "Traceback" not in stderr
+    assert stderr.count("\n") == 1 and stderr.startswith("evtools: error: "), stderr
+    for needle in needles:
+        assert needle in stderr, stderr
+    assert result.stdout == b""
+
+
+@pytest.fixture
+def sample(tmp_path) -> tuple[Path, np.ndarray]:
+    events = random_events(20_000, seed=7, t0_us=5_000)
+    path = tmp_path / "sample.aedat4"
+    with create_events(path, StreamInfo(346, 260)) as writer:
+        writer.write(events)
+    return path, events
+
+
+def test_info_json_on_the_real_recordings():
+    result = run("info", data_file("dvxplorer_sample.aedat4"), data_file("dvs128_walk.aedat"), "--json")
+    first, second = json.loads(result.stdout)
+    assert (first["format"], first["width"], first["height"], first["events"]) == ("aedat4", 320, 240, 111_954)
+    assert first["metadata"]["skipped_streams"] == ["imu", "triggers"]
+    assert 0.4 < first["on_fraction"] < 0.6
+    assert (second["format"], second["width"], second["height"], second["events"]) == ("aedat2", 128, 128, 290_292)
+    assert second["duration_s"] == pytest.approx(25.1, abs=0.05)
+
+
+def test_info_prints_json_when_stdout_is_not_a_terminal(sample):
+    path, events = sample
+    summary = json.loads(run("info", path).stdout)
+    assert summary["events"] == len(events)
+    assert summary["t_first_us"] == events["t"][0] and summary["t_last_us"] == events["t"][-1]
+    assert summary["rate_hz"] == pytest.approx(len(events) / ((events["t"][-1] - events["t"][0]) * 1e-6))
+
+
+@pytest.mark.parametrize("ext", ["aedat4", "aedat", "h5", "csv", "txt"])
+def test_convert_round_trips_every_writable_format(sample, tmp_path, ext):
+    path, events = sample
+    run("convert", path, "-o", tmp_path / f"out.{ext}")
+    run("convert", tmp_path / f"out.{ext}", "-o", tmp_path / "back.aedat4", "--sensor-size", "346x260")
+    info, back = read_all(tmp_path / "back.aedat4")
+    assert (info.width, info.height) == (346, 260)
+    assert_same_events(back, events)
+
+
+def test_pipe_between_two_processes(sample, tmp_path):
+    path, events = sample
+    shell = f"'{EVTOOLS}' convert '{path}' - | '{EVTOOLS}' convert - -o '{tmp_path / 'b.h5'}'"
+    subprocess.run(["bash", "-o", "pipefail", "-c", shell], check=True, timeout=120)
+    info, back = read_all(tmp_path / "b.h5")
+    assert (info.width, info.height) == (346, 260)
+    assert_same_events(back, events)
+
+
+def test_real_recording_through_a_pipe_keeps_every_event(tmp_path, dvxplorer_events):
+    source = data_file("dvs128_walk.aedat")
+    shell = f"'{EVTOOLS}' convert '{source}' - | '{EVTOOLS}' convert - '{tmp_path / 'walk.csv'}'"
+    subprocess.run(["bash", "-o", "pipefail", "-c", shell], check=True, timeout=120)
+    _, direct = read_all(source)
+    _, piped = read_all(tmp_path / "walk.csv", sensor_size=(128, 128))
+    assert len(direct) == 290_292
+    assert_same_events(piped, direct)
+
+
+def test_closing_the_pipe_early_ends_quietly(sample):
+    path, _ = sample
+    shell = f"'{EVTOOLS}' convert '{path}' - | head -c 100 > /dev/null; echo ${{PIPESTATUS[0]}}"
+    result = subprocess.run(["bash", "-c", shell], capture_output=True, timeout=60)
+    assert result.stderr == b""
+    assert result.stdout.strip() in (b"0", b"141")
+
+
+def test_hdf5_to_stdout_is_refused(sample):
+    path, _ = sample
+    assert_clean_error(run("convert", path, "--format", "hdf5", check=False), "pipe", "-o FILE")
+
+
+# --- bad inputs: one line naming the file and the problem, exit 1, no output file left behind ---
+
+
+def _bad_inputs(tmp_path: Path) -> dict[str, tuple[Path, list[str], tuple[str, ...]]]:
+    cases = {}
+    empty = tmp_path / "empty.aedat4"
+    empty.write_bytes(b"")
+    cases["empty file"] = (empty, [], ("empty.aedat4", "empty"))
+    noise = tmp_path / "noise.bin"
+    noise.write_bytes(np.random.default_rng(0).integers(0, 256, 5000, dtype=np.uint8).tobytes())
+    cases["random bytes"] = (noise, [], ("noise.bin", "unknown format"))
+    good = tmp_path / "good.aedat4"
+    with create_events(good, StreamInfo(64, 48)) as writer:
+        writer.write(random_events(5000, 64, 48))
+    truncated = tmp_path / "truncated.aedat4"
+    truncated.write_bytes(good.read_bytes()[:-1000])
+    cases["truncated AEDAT 4.0 packet"] = (truncated, [], ("truncated.aedat4", "truncated"))
+    aedat2 = tmp_path / "good.aedat"
+    with create_events(aedat2, StreamInfo(128, 128)) as writer:
+        writer.write(random_events(5000, 128, 128))
+    truncated2 = tmp_path / "truncated.aedat"
+    truncated2.write_bytes(aedat2.read_bytes()[:-3])
+    cases["truncated AEDAT 2.0 record"] = (truncated2, [], ("truncated.aedat", "truncated"))
+    letters = tmp_path / "letters.csv"
+    letters.write_text("t,x,y,p\n1,2,3,1\n2,3,oops,0\n")
+    cases["CSV line with letters"] = (letters, ["--sensor-size", "10x10"], ("letters.csv", "line 3"))
+    no_events = tmp_path / "no_events.h5"
+    with h5py.File(no_events, "w") as f:
+        f["something/else"] = np.arange(3)
+    cases["HDF5 without events"] = (no_events, [], ("no_events.h5",))
+    outside = tmp_path / "outside.aedat4"
+    with outside.open("wb") as stream:
+        writer = Aedat4Writer(stream, StreamInfo(10, 10), WriteOptions())
+        writer.write(random_events(100, 12, 10, seed=9))
+        writer.close()
+    cases["coordinates outside the sensor"] = (outside, [], ("outside.aedat4", "outside the 10x10 sensor", "event "))
+    backwards = tmp_path / "backwards.aedat4"
+    events = random_events(100, 10, 10)
+    events["t"][50] = events["t"][49] - 1
+    with backwards.open("wb") as stream:
+        writer = Aedat4Writer(stream, StreamInfo(10, 10), WriteOptions())
+        writer.write(events)
+        writer.close()
+    cases["time going backwards"] = (backwards, [], ("backwards.aedat4", "time goes backwards at event 50"))
+    cases["missing file"] = (tmp_path / "missing.aedat4", [], ("missing.aedat4", "no such file"))
+    return cases
+
+
+BAD = ["empty file", "random bytes", "truncated AEDAT 4.0 packet", "truncated AEDAT 2.0 record",
+       "CSV line with letters", "HDF5 without events", "coordinates outside the sensor", "time going backwards",
+       "missing file"]
+
+
+@pytest.mark.parametrize("case", BAD)
+def test_bad_input_gives_one_line_and_no_output_file(tmp_path, case):
+    path, extra, needles = _bad_inputs(tmp_path)[case]
+    out = tmp_path / "out" / "converted.h5"
+    out.parent.mkdir()
+    assert_clean_error(run("convert", path, "-o", out, *extra, check=False), *needles)
+    assert list(out.parent.iterdir()) == [], "a failed run must leave no file, not even a temporary one"
+    assert_clean_error(run("info", path, *extra, check=False), *needles)
+
+
+def test_bad_input_on_stdin_is_named_stdin(tmp_path):
+    assert_clean_error(run("info", "-", input=b"\x00\x01garbage" * 10, check=False), "<stdin>", "unknown format")
+    assert_clean_error(run("convert", "-", "-o", tmp_path / "o.h5", input=b"", check=False), "<stdin>", "empty")
+
+
+def test_output_equal_to_input_is_refused(sample):
+    path, _ = sample
+    before = path.read_bytes()
+    assert_clean_error(run("convert", path, "-o", path, check=False), "overwrite the input")
+    assert path.read_bytes() == before
+
+
+def test_unknown_output_extension_asks_for_format(sample, tmp_path):
+    path, _ = sample
+    assert_clean_error(run("convert", path, "-o", tmp_path / "out.xyz", check=False), "out.xyz", "--format")
+
+
+def test_usage_errors_exit_2(sample):
+    path, _ = sample
+    assert run("convert", path, "--format", "nope", check=False).returncode == 2
+    assert run("info", path, "--sensor-size", "0x3", check=False).returncode == 2
