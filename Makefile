@@ -32,7 +32,7 @@ test: $(VENV)/.installed-test
 	$(BIN)/python -m pytest -q
 
 bench: $(VENV)/.installed-test
-	$(BIN)/python tests/bench/bench_formats.py
+	$(BIN)/python -m tests.bench.bench_formats
 
 clean:
 	rm -rf $(OUT) .pytest_cache .hypothesis
