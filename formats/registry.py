@@ -69,16 +69,20 @@ def _is_prophesee(head: bytes) -> bool:
 
 
 def _is_text(head: bytes, delimiter: bytes) -> bool:
+    """Printable ASCII whose first lines (``#`` comments aside) are comma-separated (csv) or numbers and spaces (txt)."""
     try:
         text = head.decode("ascii")
     except UnicodeDecodeError:
         return False
-    lines = [line for line in text.splitlines()[:8] if line.strip() and not line.startswith("#")]
-    if not lines:
+    lines = text.splitlines()[:8]
+    if len(lines) > 1 and not head.endswith((b"\n", b"\r")):
+        lines = lines[:-1]  # the last line may be cut by the head's end
+    lines = [line for line in lines if line.strip() and not line.startswith("#")]
+    if not lines or not all(line.isprintable() for line in lines):
         return False
     if delimiter == b",":
-        return all("," in line for line in lines[:-1] or lines)
-    return all("," not in line for line in lines)
+        return all("," in line for line in lines)
+    return all(set(line) <= set("0123456789.eE+- \t") for line in lines)
 
 
 FORMATS: tuple[Format, ...] = (

@@ -1,0 +1,166 @@
+"""AEDAT 3.1 (iniVation cAER / libcaer): ``#`` header lines, then packets with a 28-byte header.
+
+Layout (FORMATS.md, after libcaer's ``events/common.h`` and ``events/polarity.h``): the header runs from
+``#!AER-DAT3.1`` to ``#!END-HEADER``; each packet is ``int16 eventType, int16 eventSource, int32 eventSize,
+int32 eventTSOffset, int32 eventTSOverflow, int32 eventCapacity, int32 eventNumber, int32 eventValid``
+(little-endian) followed by ``eventCapacity * eventSize`` bytes. Polarity events (type 1) are ``uint32 data,
+int32 ts``: bit 0 valid, bit 1 polarity (1 = ON), bits 2-16 y, bits 17-31 x, and the full time is
+``(eventTSOverflow << 31) | ts`` microseconds. Other packet types (frames, IMU, special) are skipped.
+
+References
+----------
+iniVation, AEDAT 3.1 file format; libcaer ``include/libcaer/events/common.h``, ``polarity.h``
+(https://gitlab.com/inivation/dv/libcaer).
+"""
+
+from __future__ import annotations
+
+import re
+import struct
+from typing import BinaryIO, Iterator
+
+import numpy as np
+
+from evtools.events import EVENT_DTYPE, StreamInfo
+from formats.errors import FormatError
+from formats.io import Source, resolve_sensor_size
+from formats.registry import ReadOptions
+
+MAGIC = b"#!AER-DAT3.1\r\n"
+END_HEADER = b"#!END-HEADER"
+PACKET_HEADER = struct.Struct("<hhiiiiii")
+POLARITY_EVENT = 1
+
+SOURCE_SIZES = (("dvs128", (128, 128)), ("davis240", (240, 180)), ("davis346", (346, 260)))
+"""Sensor size by the camera named in ``#Source N: NAME`` (only names whose size is unambiguous)."""
+_SIZE_X = re.compile(r"(?:dvs|data)?sizeX\D{0,40}?(\d+)", re.IGNORECASE)
+_SIZE_Y = re.compile(r"(?:dvs|data)?sizeY\D{0,40}?(\d+)", re.IGNORECASE)
+_SOURCE = re.compile(r"^#Source\s+(\d+):\s*(.*)$")
+
+
+def _header_size(text: str, sources: dict[int, str]) -> tuple[int, int] | None:
+    """Sensor size named by the header: explicit sizeX/sizeY values, else a known camera name."""
+    size_x, size_y = _SIZE_X.search(text), _SIZE_Y.search(text)
+    if size_x and size_y:
+        return int(size_x.group(1)), int(size_y.group(1))
+    for description in sources.values():
+        simple = description.replace(" ", "").lower()
+        for prefix, size in SOURCE_SIZES:
+            if simple.startswith(prefix):
+                return size
+    return None
+
+
+class Aedat3Reader:
+    """Read the polarity events of an AEDAT 3.1 file chunk by chunk.
+
+    Parameters
+    ----------
+    source : formats.io.Source
+        The input, read once from its first byte (pipes work).
+    options : formats.registry.ReadOptions
+        ``sensor_size`` is used when the header does not tell it.
+
+    Notes
+    -----
+    ``info.metadata`` holds ``sources`` (``#Source`` lines by id), ``skipped_packets`` (count by event type)
+    and ``invalid_events`` (polarity events with the valid bit clear), complete once the stream is read.
+    """
+
+    def __init__(self, source: Source, options: ReadOptions) -> None:
+        self.source = source
+        self.name = source.name
+        self.chunk_events = max(1, int(options.chunk_events))
+        first = source.stream.readline()
+        if not first.startswith(b"#!AER-DAT3"):
+            raise FormatError(f"{self.name}: not an AEDAT 3.1 file (starts with {first[:16]!r}, expected {MAGIC!r})")
+        lines = [first]
+        while not lines[-1].startswith(END_HEADER):
+            line = source.stream.readline()
+            if not line.startswith(b"#"):
+                raise FormatError(f"{self.name}: AEDAT 3.1 header has no {END_HEADER.decode()} line")
+            lines.append(line)
+        self.header_bytes = sum(map(len, lines))
+        text = [line.decode("latin-1").rstrip("\r\n") for line in lines]
+        sources = {int(m.group(1)): m.group(2).strip() for m in map(_SOURCE.match, text) if m}
+        width, height = resolve_sensor_size(
+            source, _header_size("\n".join(text), sources), options.sensor_size, scan=self._scan
+        )
+        self.skipped_packets: dict[int, int] = {}
+        self.info = StreamInfo(
+            width, height, "aedat3",
+            metadata={"version": text[0][2:], "sources": sources, "skipped_packets": self.skipped_packets,
+                      "invalid_events": 0},
+        )
+
+    def _packets(self, stream: BinaryIO, offset: int, skipped: dict[int, int]) -> Iterator[np.ndarray]:
+        """(events, invalid count) of each polarity packet from ``offset`` (where ``stream`` is) to the end."""
+        while True:
+            head = stream.read(PACKET_HEADER.size)
+            if not head:
+                return
+            if len(head) < PACKET_HEADER.size:
+                raise FormatError(
+                    f"{self.name}: truncated AEDAT 3.1 packet header at byte offset {offset} "
+                    f"({len(head)} of {PACKET_HEADER.size} bytes)"
+                )
+            kind, _, size, ts_offset, overflow, capacity, number, _ = PACKET_HEADER.unpack(head)
+            if size <= 0 or capacity < 0 or not 0 <= number <= capacity:
+                raise FormatError(
+                    f"{self.name}: corrupt AEDAT 3.1 packet header at byte offset {offset} "
+                    f"(eventSize {size}, eventCapacity {capacity}, eventNumber {number})"
+                )
+            body = stream.read(size * capacity)
+            if len(body) < size * capacity:
+                raise FormatError(
+                    f"{self.name}: truncated AEDAT 3.1 packet at byte offset {offset} "
+                    f"({len(body)} of {size * capacity} body bytes)"
+                )
+            packet_offset, offset = offset, offset + PACKET_HEADER.size + size * capacity
+            if kind != POLARITY_EVENT:
+                skipped[kind] = skipped.get(kind, 0) + 1
+                continue
+            if size < 8 or not 4 <= ts_offset <= size - 4:
+                raise FormatError(
+                    f"{self.name}: polarity packet at byte offset {packet_offset} has eventSize {size}, "
+                    f"eventTSOffset {ts_offset} (expected 8 and 4)"
+                )
+            layout = np.dtype({"names": ["data", "ts"], "formats": ["<u4", "<i4"], "offsets": [0, ts_offset],
+                               "itemsize": size})
+            raw = np.frombuffer(body, dtype=layout, count=number)
+            valid = (raw["data"] & 1) != 0
+            invalid = number - int(np.count_nonzero(valid))
+            raw = raw[valid] if invalid else raw
+            data = raw["data"]
+            out = np.empty(len(raw), dtype=EVENT_DTYPE)
+            out["t"] = (np.int64(overflow) << 31) | raw["ts"].astype(np.int64)
+            out["x"] = data >> 17
+            out["y"] = (data >> 2) & 0x7FFF
+            out["p"] = (data & 2) != 0
+            yield out, invalid
+
+    def _scan(self) -> tuple[int, int]:
+        """(max x + 1, max y + 1) over the whole file; leaves the stream where it was."""
+        stream = self.source.stream
+        position = stream.tell()
+        width = height = 0
+        for events, _ in self._packets(stream, self.header_bytes, {}):
+            if len(events):
+                width = max(width, int(events["x"].max()) + 1)
+                height = max(height, int(events["y"].max()) + 1)
+        stream.seek(position)
+        return width, height
+
+    def __iter__(self) -> Iterator[np.ndarray]:
+        pending: list[np.ndarray] = []
+        held = 0
+        for events, invalid in self._packets(self.source.stream, self.header_bytes, self.skipped_packets):
+            self.info.metadata["invalid_events"] += invalid
+            if len(events):
+                pending.append(events)
+                held += len(events)
+            if held >= self.chunk_events:
+                yield np.concatenate(pending)
+                pending, held = [], 0
+        if pending:
+            yield np.concatenate(pending)

@@ -1,0 +1,229 @@
+"""Prophesee RAW files (Metavision): ``%`` header lines, then an EVT 2.0 or EVT 3.0 word stream.
+
+Layout (FORMATS.md, after Prophesee's format pages): the header is ASCII lines ``% key value`` (``% evt 3.0``,
+``% format EVT3;width=1280;height=720``, ``% geometry 1280x720``, ``% plugin_name ...``), optionally closed by
+``% end``. The body is little-endian words:
+
+- EVT 2.0, 32-bit: type ``w >> 28`` (0 CD OFF, 1 CD ON, 8 EVT_TIME_HIGH, 0xA trigger); a CD word holds
+  ``t_low = (w >> 22) & 0x3F``, ``x = (w >> 11) & 0x7FF``, ``y = w & 0x7FF``; EVT_TIME_HIGH holds ``t >> 6``
+  in bits 0-27. Decoded here in numpy (the time base is a forward fill).
+- EVT 3.0, 16-bit, vectorised and stateful: decoded by the numba kernel :func:`evtools._kernels.evt3.decode_evt3`.
+
+Decoding is spec-literal: events before the first time-high word are dropped, and a time-high field that falls
+by more than half its range is a wrap of the time base (2^34 us for EVT 2.0, 2^24 us for EVT 3.0).
+
+References
+----------
+Prophesee, "EVT 2.0 Format" and "EVT 3.0 Format", https://docs.prophesee.ai/stable/data/encoding_formats/
+"""
+
+from __future__ import annotations
+
+import re
+from typing import Iterator
+
+import numpy as np
+
+from evtools._kernels.evt3 import (DROPPED_NO_TIME, DROPPED_NO_Y, MAX_EVENTS_PER_WORD, OTHER_WORDS, TRIGGERS,
+                                   decode_evt3, new_evt3_state)
+from evtools.events import EVENT_DTYPE, StreamInfo
+from formats.errors import FormatError
+from formats.io import Source, resolve_sensor_size
+from formats.registry import ReadOptions
+
+EVT2_TIME_HIGH_BITS = 28
+GENERATION_SIZES = (("genx320", (320, 320)), ("imx636", (1280, 720)), ("gen4", (1280, 720)), ("gen3", (640, 480)))
+"""Sensor size by camera generation, matched in ``plugin_name`` (``hal_plugin_gen41_evk3``) and the like."""
+SENSOR_GENERATION_SIZES = {"3": (640, 480), "3.0": (640, 480), "3.1": (640, 480), "4": (1280, 720),
+                           "4.0": (1280, 720), "4.1": (1280, 720), "4.2": (1280, 720), "320": (320, 320)}
+"""Sensor size by the ``% sensor_generation`` value."""
+_GEOMETRY = re.compile(r"^\s*(\d+)\s*x\s*(\d+)\s*$")
+
+
+def parse_header(lines: list[str]) -> dict[str, str]:
+    """``% key value`` lines as a dict (keys lower-cased; the first occurrence wins)."""
+    header: dict[str, str] = {}
+    for line in lines:
+        body = line[1:].strip()
+        if not body:
+            continue
+        key, _, value = body.partition(" ")
+        header.setdefault(key.lower(), value.strip())
+    return header
+
+
+def evt_version(header: dict[str, str]) -> str | None:
+    """``"2.0"``, ``"3.0"`` (or another version string) from ``% evt`` or ``% format``; None if absent."""
+    if "evt" in header:
+        return header["evt"].strip()
+    if "format" in header:
+        name = header["format"].split(";")[0].strip().upper()
+        return {"EVT2": "2.0", "EVT3": "3.0", "EVT21": "2.1"}.get(name, name)
+    return None
+
+
+def header_size(header: dict[str, str]) -> tuple[int, int] | None:
+    """(width, height) from ``% format ...;width=W;height=H``, ``% geometry WxH`` or the camera generation."""
+    fields = dict(part.split("=", 1) for part in header.get("format", "").split(";") if "=" in part)
+    if "width" in fields and "height" in fields:
+        return int(fields["width"]), int(fields["height"])
+    match = _GEOMETRY.match(header.get("geometry", ""))
+    if match:
+        return int(match.group(1)), int(match.group(2))
+    if "width" in header and "height" in header and header["width"].isdigit() and header["height"].isdigit():
+        return int(header["width"]), int(header["height"])
+    generation = header.get("sensor_generation", "").strip()
+    if generation in SENSOR_GENERATION_SIZES:
+        return SENSOR_GENERATION_SIZES[generation]
+    where = " ".join(header.get(key, "") for key in ("plugin_name", "camera_integrator_name", "system_id")).lower()
+    for name, size in GENERATION_SIZES:
+        if name in where:
+            return size
+    return None
+
+
+class ProphesseeRawReader:
+    """Read the CD events of a Prophesee EVT 2.0 or EVT 3.0 RAW file chunk by chunk.
+
+    Parameters
+    ----------
+    source : formats.io.Source
+        The input, read once from its first byte (pipes work).
+    options : formats.registry.ReadOptions
+        ``sensor_size`` is used when the header does not tell it.
+
+    Notes
+    -----
+    ``info.metadata`` holds ``evt`` (the version), ``header`` (the ``%`` lines as a dict) and, complete once
+    the stream is read, ``dropped_events`` (before the first time base), ``triggers`` and ``other_words``.
+    """
+
+    def __init__(self, source: Source, options: ReadOptions) -> None:
+        self.source = source
+        self.name = source.name
+        self.chunk_events = max(1, int(options.chunk_events))
+        lines, self.header_bytes, self._first = self._read_header()
+        if not lines:
+            raise FormatError(f"{self.name}: not a Prophesee RAW file (no '%' header lines)")
+        header = parse_header(lines)
+        version = evt_version(header)
+        if version not in ("2.0", "3.0"):
+            said = f"EVT {version}" if version else "an unstated EVT version (no '% evt' or '% format' line)"
+            raise FormatError(f"{self.name}: Prophesee RAW with {said}; evtools reads EVT 2.0 and EVT 3.0")
+        self.version = version
+        self.word_bytes = 4 if version == "2.0" else 2
+        width, height = resolve_sensor_size(source, header_size(header), options.sensor_size, scan=self._scan)
+        self.info = StreamInfo(
+            width, height, "prophesee",
+            metadata={"evt": version, "header": header, "dropped_events": 0, "triggers": 0, "other_words": 0},
+        )
+
+    def _read_header(self) -> tuple[list[str], int, bytes]:
+        stream = self.source.stream
+        lines: list[str] = []
+        consumed = 0
+        while True:
+            first = stream.read(1)
+            if first != b"%":
+                return lines, consumed, first
+            line = first + stream.readline()
+            consumed += len(line)
+            text = line.decode("latin-1").rstrip("\r\n")
+            lines.append(text)
+            if text.strip().lower() == "% end":
+                return lines, consumed, b""
+
+    def _words(self) -> Iterator[np.ndarray]:
+        """The body as blocks of little-endian words, from where the header ended."""
+        stream = self.source.stream
+        pending = self._first
+        words_read = 0
+        block_bytes = self.chunk_events * self.word_bytes
+        dtype = "<u4" if self.word_bytes == 4 else "<u2"
+        while True:
+            data = stream.read(block_bytes - len(pending))
+            buffer = pending + data if pending else data
+            whole = len(buffer) // self.word_bytes * self.word_bytes
+            if whole:
+                yield np.frombuffer(buffer, dtype=dtype, count=whole // self.word_bytes)
+                words_read += whole // self.word_bytes
+            pending = buffer[whole:]
+            if not data:
+                break
+        if pending:
+            offset = self.header_bytes + words_read * self.word_bytes
+            raise FormatError(
+                f"{self.name}: truncated EVT {self.version} word at byte offset {offset} "
+                f"({len(pending)} of {self.word_bytes} bytes)"
+            )
+
+    def _events(self, counts: dict[str, int]) -> Iterator[np.ndarray]:
+        if self.version == "3.0":
+            return self._events_evt3(counts)
+        return self._events_evt2(counts)
+
+    def _events_evt3(self, counts: dict[str, int]) -> Iterator[np.ndarray]:
+        state = new_evt3_state()
+        capacity = self.chunk_events + MAX_EVENTS_PER_WORD
+        t_us = np.empty(capacity, dtype=np.int64)
+        x = np.empty(capacity, dtype=np.int16)
+        y = np.empty(capacity, dtype=np.int16)
+        p = np.empty(capacity, dtype=np.uint8)
+        for words in self._words():
+            start = 0
+            while start < len(words):
+                consumed, n = decode_evt3(words[start:], state, t_us, x, y, p)
+                start += consumed
+                if n:
+                    out = np.empty(n, dtype=EVENT_DTYPE)
+                    out["t"], out["x"], out["y"], out["p"] = t_us[:n], x[:n], y[:n], p[:n]
+                    yield out
+            counts["dropped_events"] = int(state[DROPPED_NO_TIME] + state[DROPPED_NO_Y])
+            counts["triggers"] = int(state[TRIGGERS])
+            counts["other_words"] = int(state[OTHER_WORDS])
+
+    def _events_evt2(self, counts: dict[str, int]) -> Iterator[np.ndarray]:
+        last_raw = -1  # last EVT_TIME_HIGH payload (t >> 6 modulo 2^28), -1 before the first
+        loops = 0  # wraps of the 28-bit payload so far
+        for words in self._words():
+            kind = words >> 28
+            is_time_high = kind == 0x8
+            raw = (words[is_time_high] & ((1 << EVT2_TIME_HIGH_BITS) - 1)).astype(np.int64)
+            # time_high[k]: unwrapped t >> 6 after the k-th time-high word of this block; [0] is the carried one
+            time_high = np.empty(len(raw) + 1, dtype=np.int64)
+            time_high[0] = -1 if last_raw < 0 else last_raw + (loops << EVT2_TIME_HIGH_BITS)
+            if len(raw):
+                before = np.concatenate(([raw[0] if last_raw < 0 else last_raw], raw[:-1]))
+                wraps = loops + np.cumsum(before - raw > (1 << (EVT2_TIME_HIGH_BITS - 1)))
+                time_high[1:] = raw + (wraps << EVT2_TIME_HIGH_BITS)
+                last_raw, loops = int(raw[-1]), int(wraps[-1])
+            time_high = time_high[np.cumsum(is_time_high)]
+            is_cd = kind <= 1
+            known = is_cd & (time_high >= 0)
+            counts["dropped_events"] += int(np.count_nonzero(is_cd)) - int(np.count_nonzero(known))
+            counts["triggers"] += int(np.count_nonzero(kind == 0xA))
+            counts["other_words"] += int(np.count_nonzero(~is_cd & ~is_time_high & (kind != 0xA)))
+            cd = words[known]
+            out = np.empty(len(cd), dtype=EVENT_DTYPE)
+            out["t"] = (time_high[known] << 6) | ((cd >> 22) & 0x3F).astype(np.int64)
+            out["x"] = (cd >> 11) & 0x7FF
+            out["y"] = cd & 0x7FF
+            out["p"] = (cd >> 28) == 1
+            yield out
+
+    def _scan(self) -> tuple[int, int]:
+        """(max x + 1, max y + 1) over the whole file; leaves the stream where it was."""
+        stream = self.source.stream
+        position = stream.tell()
+        width = height = 0
+        for events in self._events({"dropped_events": 0, "triggers": 0, "other_words": 0}):
+            if len(events):
+                width = max(width, int(events["x"].max()) + 1)
+                height = max(height, int(events["y"].max()) + 1)
+        stream.seek(position)
+        return width, height
+
+    def __iter__(self) -> Iterator[np.ndarray]:
+        for events in self._events(self.info.metadata):
+            if len(events):
+                yield events

@@ -1,0 +1,89 @@
+"""AEDAT 3.1 (cAER / libcaer): the derived recording, hand-built packets, bad input."""
+
+import io
+import struct
+
+import numpy as np
+import pytest
+
+from evtools.events import make_events
+from formats import FormatError
+from tests.conftest import data_file
+from tests.helpers import assert_same_events, read_all
+
+HEADER = b"#!AER-DAT3.1\r\n#Format: RAW\r\n#Source 1: DAVIS346B\r\n#!END-HEADER\r\n"
+
+
+def _packet(kind, events, overflow=0, capacity=None, size=8, ts_offset=4, payload=None):
+    """One packet: 28-byte header, then ``capacity`` slots of ``size`` bytes (polarity: (data, ts) pairs)."""
+    capacity = len(events) if capacity is None else capacity
+    if payload is None:
+        payload = b"".join(struct.pack("<Ii", data, ts) for data, ts in events)
+        payload += bytes(size * capacity - len(payload))
+    valid = sum(data & 1 for data, _ in events)
+    head = struct.pack("<hhiiiiii", kind, 1, size, ts_offset, overflow, capacity, len(events), valid)
+    return head + payload
+
+
+def _polarity(x, y, on, valid=True):
+    return x << 17 | y << 2 | int(on) << 1 | int(valid)
+
+
+def test_reads_the_derived_file_as_the_aedat4_events(dvxplorer_events):
+    info, events = read_all(data_file("derived/dvxplorer_sample.aedat3"))
+    assert info.format == "aedat3"
+    assert info.metadata["sources"] == {1: "DVXplorer"}
+    assert (info.width, info.height) == (320, 240)  # not in the header: inferred by a scan of the events
+    expected = dvxplorer_events.copy()
+    expected["t"] -= expected["t"][0]  # the file stores timestamps relative to the first event
+    assert_same_events(events, expected)
+    _, small_chunks = read_all(data_file("derived/dvxplorer_sample.aedat3"), chunk_events=1000)
+    assert_same_events(small_chunks, expected)
+
+
+def test_given_sensor_size_wins_and_pipes_need_it(monkeypatch):
+    import sys
+
+    raw = data_file("derived/dvxplorer_sample.aedat3").read_bytes()
+    monkeypatch.setattr(sys, "stdin", io.TextIOWrapper(io.BufferedReader(io.BytesIO(raw))))
+    with pytest.raises(FormatError, match="--sensor-size"):
+        read_all("-")
+    monkeypatch.setattr(sys, "stdin", io.TextIOWrapper(io.BufferedReader(io.BytesIO(raw))))
+    info, events = read_all("-", sensor_size=(640, 480))
+    assert (info.width, info.height, len(events)) == (640, 480, 111_954)
+
+
+def test_packets_overflow_invalid_events_and_other_types(tmp_path):
+    path = tmp_path / "built.aedat3"
+    first = [(_polarity(3, 4, True), 10), (_polarity(5, 6, False, valid=False), 11), (_polarity(7, 8, False), 12)]
+    frame = _packet(2, [], capacity=3, size=20, payload=bytes(60))  # a frame packet: skipped by its size
+    second = [(_polarity(345, 259, True), 5)]
+    body = _packet(1, first, capacity=5) + frame + _packet(1, second, overflow=3)
+    path.write_bytes(HEADER + body)
+    info, events = read_all(path)
+    assert (info.width, info.height) == (346, 260)  # from '#Source 1: DAVIS346B'
+    expected = make_events([10, 12, (3 << 31) | 5], [3, 7, 345], [4, 8, 259], [1, 0, 1])
+    assert_same_events(events, expected)
+    assert info.metadata["skipped_packets"] == {2: 1}
+    assert info.metadata["invalid_events"] == 1
+
+
+def test_truncated_packet_names_the_file(tmp_path):
+    path = tmp_path / "cut.aedat3"
+    packet = _packet(1, [(_polarity(1, 2, True), 1), (_polarity(1, 2, True), 2)])
+    path.write_bytes(HEADER + packet[:-3])
+    with pytest.raises(FormatError, match=rf"cut\.aedat3.*truncated AEDAT 3\.1 packet at byte offset {len(HEADER)}"):
+        read_all(path, sensor_size=(346, 260))
+    path.write_bytes(HEADER + packet + packet[:10])
+    with pytest.raises(FormatError, match=r"cut\.aedat3.*truncated AEDAT 3\.1 packet header"):
+        read_all(path, sensor_size=(346, 260))
+
+
+def test_wrong_magic_and_missing_end_of_header_name_the_file(tmp_path):
+    path = tmp_path / "wrong.aedat3"
+    path.write_bytes(b"#!AER-DAT2.0\r\n" + bytes(8))
+    with pytest.raises(FormatError, match=r"wrong\.aedat3.*not an AEDAT 3\.1"):
+        read_all(path, format="aedat3")
+    path.write_bytes(b"#!AER-DAT3.1\r\n#Format: RAW\r\n" + np.zeros(4, "<u4").tobytes())
+    with pytest.raises(FormatError, match=r"wrong\.aedat3.*END-HEADER"):
+        read_all(path)

@@ -1,0 +1,145 @@
+"""Prophesee RAW: the EVT 3.0 kernel against the naive decoder, the real Gen4.1 file, EVT 2.0, bad input."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from evtools._kernels.evt3 import MAX_EVENTS_PER_WORD, decode_evt3, new_evt3_state
+from evtools.events import make_events
+from formats import FormatError
+from formats.prophesee import header_size, parse_header
+from tests.conftest import data_file
+from tests.helpers import assert_same_events, read_all
+from tests.naive import NaiveEvt3Decoder, evt3_decode_naive
+
+KINDS = np.array([0x0, 0x2, 0x3, 0x4, 0x5, 0x6, 0x8, 0x7, 0xA, 0xE, 0xF, 0x1])
+WEIGHTS = np.array([20, 30, 8, 8, 8, 10, 5, 2, 2, 2, 2, 3], dtype=float)
+
+
+def _evt3_words(path) -> np.ndarray:
+    raw = path.read_bytes()
+    offset = 0
+    while raw[offset : offset + 1] == b"%":
+        offset = raw.index(b"\n", offset) + 1
+    return np.frombuffer(raw[offset:], dtype="<u2")
+
+
+def _random_words(seed: int, n: int) -> np.ndarray:
+    """Random EVT 3.0 words, mostly of the event-making types, with random payloads."""
+    rng = np.random.default_rng(seed)
+    kinds = rng.choice(KINDS, size=n, p=WEIGHTS / WEIGHTS.sum())
+    return ((kinds << 12) | rng.integers(0, 1 << 12, n)).astype(np.uint16)
+
+
+def _kernel_decode(words: np.ndarray, cuts=(), capacity: int = 1 << 16) -> list[tuple]:
+    """The kernel fed the words in pieces cut at ``cuts``, with outputs of ``capacity`` events."""
+    state = new_evt3_state()
+    t_us, x, y = np.empty(capacity, np.int64), np.empty(capacity, np.int16), np.empty(capacity, np.int16)
+    p = np.empty(capacity, np.uint8)
+    events = []
+    for piece in np.split(words, sorted(set(int(c) % (len(words) + 1) for c in cuts))):
+        start = 0
+        while start < len(piece):
+            consumed, n = decode_evt3(piece[start:], state, t_us, x, y, p)
+            start += consumed
+            events += zip(t_us[:n].tolist(), x[:n].tolist(), y[:n].tolist(), p[:n].tolist())
+    return events
+
+
+def test_kernel_matches_the_naive_decoder_on_the_real_file():
+    words = _evt3_words(data_file("gen41_sample.evt3.raw"))
+    expected = evt3_decode_naive(words)
+    assert len(expected) == 219_596
+    assert _kernel_decode(words) == expected
+    rng = np.random.default_rng(7)
+    assert _kernel_decode(words, cuts=rng.integers(0, len(words), 25), capacity=MAX_EVENTS_PER_WORD + 5) == expected
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    n=st.integers(0, 3000),
+    cuts=st.lists(st.integers(0, 10_000), max_size=8),
+    capacity=st.integers(MAX_EVENTS_PER_WORD, 200),
+)
+def test_kernel_matches_the_naive_decoder_on_random_words_cut_anywhere(seed, n, cuts, capacity):
+    words = _random_words(seed, n)
+    naive = NaiveEvt3Decoder()
+    for piece in np.split(words, sorted(set(c % (n + 1) for c in cuts))):
+        naive.feed(piece)
+    assert _kernel_decode(words, cuts, capacity) == naive.events
+    assert naive.events == evt3_decode_naive(words)
+
+
+def test_reads_the_real_gen41_evt3_file():
+    path = data_file("gen41_sample.evt3.raw")
+    info, events = read_all(path)
+    assert (info.width, info.height, info.format) == (1280, 720, "prophesee")
+    assert info.metadata["evt"] == "3.0"
+    assert len(events) == 219_596
+    assert (events["t"][-1] - events["t"][0]) / 1e3 == pytest.approx(8.8, abs=0.05)  # milliseconds
+    assert events["p"].any() and not events["p"].all()
+    expected = np.array(evt3_decode_naive(_evt3_words(path)), dtype=np.int64)
+    assert_same_events(events, make_events(*expected.T))
+    _, small_chunks = read_all(path, chunk_events=777)
+    assert_same_events(small_chunks, events)
+
+
+def _evt2_file(tmp_path, header: bytes, words) -> str:
+    path = tmp_path / "evt2.raw"
+    path.write_bytes(header + np.asarray(words, dtype="<u4").tobytes())
+    return path
+
+
+def _cd(on, t_low, x, y):
+    return int(on) << 28 | t_low << 22 | x << 11 | y
+
+
+def test_reads_evt2_with_time_high_and_its_wrap(tmp_path):
+    time_high = 8 << 28
+    words = [
+        _cd(1, 5, 1, 1),  # before the first time high: time unknown, dropped
+        time_high | 100,
+        _cd(1, 3, 10, 20),
+        _cd(0, 63, 639, 479),
+        0xA << 28 | 1,  # external trigger: skipped
+        time_high | ((1 << 28) - 1),
+        _cd(0, 0, 2, 3),
+        time_high | 4,  # the 28-bit time high wrapped
+        _cd(1, 1, 4, 5),
+    ]
+    path = _evt2_file(tmp_path, b"% evt 2.0\n% format EVT2;width=640;height=480\n% end\n", words)
+    for chunk_events in (1, 2, 1000):
+        info, events = read_all(path, chunk_events=chunk_events)
+        assert (info.width, info.height, info.metadata["evt"]) == (640, 480, "2.0")
+        expected_t = [100 << 6 | 3, 100 << 6 | 63, ((1 << 28) - 1) << 6, ((1 << 28) + 4) << 6 | 1]
+        assert_same_events(events, make_events(expected_t, [10, 639, 2, 4], [20, 479, 3, 5], [1, 0, 0, 1]))
+        assert (info.metadata["dropped_events"], info.metadata["triggers"]) == (1, 1)
+
+
+def test_sensor_size_from_the_header():
+    assert header_size(parse_header(["% format EVT3;height=720;width=1280"])) == (1280, 720)
+    assert header_size(parse_header(["% geometry 640x480"])) == (640, 480)
+    assert header_size(parse_header(["% plugin_name hal_plugin_gen41_evk3"])) == (1280, 720)
+    assert header_size(parse_header(["% plugin_name hal_plugin_gen31_fx3"])) == (640, 480)
+    assert header_size(parse_header(["% evt 3.0"])) is None
+
+
+def test_sensor_size_is_inferred_when_the_header_does_not_say(tmp_path):
+    path = _evt2_file(tmp_path, b"% evt 2.0\n", [8 << 28 | 1, _cd(1, 0, 99, 49)])
+    info, _ = read_all(path)
+    assert (info.width, info.height) == (100, 50)
+
+
+def test_bad_input_names_the_file(tmp_path):
+    path = tmp_path / "bad.raw"
+    path.write_bytes(b"% evt 3.0\n% geometry 1280x720\n" + bytes(5))
+    with pytest.raises(FormatError, match=r"bad\.raw.*truncated EVT 3\.0 word at byte offset 34"):
+        read_all(path)
+    path.write_bytes(b"% evt 2.1\n% geometry 1280x720\n" + bytes(8))
+    with pytest.raises(FormatError, match=r"bad\.raw.*EVT 2\.1"):
+        read_all(path)
+    path.write_bytes(b"% camera prophesee\n" + bytes(8))
+    with pytest.raises(FormatError, match=r"bad\.raw.*EVT version"):
+        read_all(path, format="prophesee")
