@@ -53,6 +53,6 @@ def _print_table(rows: list[dict]) -> None:
     line("span", lambda r: f"{r['duration_s']:.6g} s")
     line("rate", lambda r: f"{r['rate_hz'] / 1e6:.4g} Mev/s")
     line("ON fraction", lambda r: "-" if r["on_fraction"] is None else f"{r['on_fraction']:.3f}")
-    line("source", lambda r: str(r["metadata"].get("source", "") or r["metadata"].get("chip", "") or "-"))
+    line("source", lambda r: str(r["metadata"].get("source") or r["metadata"].get("aechip") or "-"))
     line("skipped", lambda r: ", ".join(r["metadata"].get("skipped_streams", [])) or "-")
     Console().print(table)
