@@ -84,6 +84,27 @@ def open_events(
         raise
 
 
+def _named(target: str, function, *args):
+    """Call ``function``; a :class:`FormatError` it raises gets the output's name in front."""
+    try:
+        return function(*args)
+    except FormatError as error:
+        raise FormatError(f"{target}: {error}") from None
+
+
+class _NamedWriter:
+    """A writer whose errors name the output file (writers see only a stream)."""
+
+    def __init__(self, target: str, writer) -> None:
+        self.target, self.writer = target, writer
+
+    def write(self, chunk: np.ndarray) -> None:
+        _named(self.target, self.writer.write, chunk)
+
+    def close(self) -> None:
+        _named(self.target, self.writer.close)
+
+
 def output_format(path: str | os.PathLike | None, format: str | None):
     """The format to write: ``format`` if given, else by extension, else AEDAT 4.0 for stdout."""
     if format:
@@ -120,8 +141,9 @@ def create_events(
                 raise FormatError(f"{path}: output would overwrite the input; choose another -o")
     options = WriteOptions(compression=compression, aedat2_layout=aedat2_layout)
     writer_class = fmt.writer_class()
+    target = "<stdout>" if path is None or os.fspath(path) == STDIO else os.fspath(path)
     with output_stream(path, binary_name=fmt.description, needs_seek=fmt.writer_needs_seek) as stream:
-        writer = writer_class(stream, info, options)
+        writer = _NamedWriter(target, _named(target, writer_class, stream, info, options))
         try:
             yield writer
         except BaseException:

@@ -1,0 +1,396 @@
+"""Text event files: CSV with a header, and whitespace-separated rpg ``events.txt`` (also v2e's text output).
+
+Reading parses blocks of about 16 MB at a time with numpy (no Python loop per line); only when a block is bad
+are its lines looked at one by one, to name the offending line. Writing formats whole chunks with numpy too.
+
+- CSV: an optional header naming the columns in any order (``t,x,y,p``; also ``timestamp``, ``polarity``,
+  ``on``, ... and faery's ``t,x@W,y@H,on``, whose ``@W``/``@H`` give the sensor size); without a header the
+  columns are ``t,x,y,p``. t in integer microseconds; p is 1/0 or +1/-1 (ON if > 0).
+- txt: ``t x y p`` with t in seconds, optional first line ``width height``, ``#`` comment lines at the top,
+  an optional 5th column (v2e's label, ignored). Seconds are rounded to microseconds, exactly for any t below
+  2**51 us (the year 2041 as Unix time).
+"""
+
+from __future__ import annotations
+
+import re
+from typing import BinaryIO, Iterator
+
+import numpy as np
+
+from evtools.events import EVENT_DTYPE, MAX_SENSOR_SIDE, StreamInfo
+from formats.errors import FormatError
+from formats.io import Source, resolve_sensor_size
+from formats.registry import ReadOptions, WriteOptions
+
+BLOCK_BYTES = 16 << 20
+"""Bytes parsed at once (at most)."""
+
+WRITE_ROWS = 1 << 18
+"""Rows formatted at once by the writers."""
+
+COLUMN_ALIASES = {
+    "t": "t", "ts": "t", "t_us": "t", "time": "t", "timestamp": "t", "timestamps": "t", "timestamp_us": "t",
+    "x": "x", "xs": "x", "y": "y", "ys": "y",
+    "p": "p", "ps": "p", "pol": "p", "polarity": "p", "polarities": "p", "on": "p",
+}
+"""Header names (lower case, without ``@size``) and the event field they mean."""
+
+_NUMBER = re.compile(rb"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
+_INT64_MAX = np.iinfo(np.int64).max
+_INT64_MIN = np.iinfo(np.int64).min
+
+
+class TextReader:
+    """Reads CSV (when the first data line has commas) or whitespace-separated text, block by block.
+
+    Parameters
+    ----------
+    source : formats.io.Source
+        The input (a file or stdin).
+    options : formats.registry.ReadOptions
+        ``sensor_size`` when the file does not give it; otherwise a seekable file is scanned once for it.
+    """
+
+    def __init__(self, source: Source, options: ReadOptions) -> None:
+        self.source = source
+        self.name = source.name
+        self.stream = source.stream
+        self.chunk_events = max(1, int(options.chunk_events))
+        self.block_bytes = int(min(BLOCK_BYTES, max(1 << 16, self.chunk_events * 32)))
+        size_from_file = self._read_header()
+        width, height = resolve_sensor_size(source, size_from_file, options.sensor_size, self._scan_size)
+        self.info = StreamInfo(width, height, "csv" if self.csv else "txt", {"columns": ",".join(self.names)})
+
+    # -- header ---------------------------------------------------------------------------------------------
+    def _read_header(self) -> tuple[int, int] | None:
+        """Consume comments and header lines; leave the first data line in ``self.pending``."""
+        self.line_no = 1  # of the next line to read
+        self.pending = b""
+        self.csv = False
+        line = self._next_content_line()
+        if not line:
+            self._set_columns(["t", "x", "y", "p"])  # an empty stream
+            return None
+        text = line.strip()
+        self.csv = b"," in text
+        if self.csv:
+            if re.search(rb"[A-Za-z_@]", text):
+                size = self._parse_csv_header(text.decode("utf-8", "replace"))
+                self._consumed()
+                return size
+            self._set_columns(["t", "x", "y", "p"])
+            self.pending = line
+            return None
+        size = None
+        tokens = text.split()
+        if len(tokens) == 2 and all(token.isdigit() for token in tokens):
+            size = int(tokens[0]), int(tokens[1])
+            self._consumed()
+            line = self._next_content_line()
+            tokens = line.split()
+        if line and len(tokens) not in (4, 5):
+            raise FormatError(
+                f"{self.name}: line {self.line_no}: {len(tokens)} columns, expected 't x y p' "
+                "(t in seconds, optional 5th label column)"
+            )
+        self._set_columns(["t", "x", "y", "p", "label"][: max(4, len(tokens))])
+        self.pending = line
+        return size
+
+    def _next_content_line(self) -> bytes:
+        """The next line that is neither blank nor a ``#`` comment (b"" at the end)."""
+        self.data_pos = self.stream.tell() if self.source.seekable else None
+        while True:
+            line = self.stream.readline()
+            stripped = line.strip()
+            if not line or (stripped and not stripped.startswith(b"#")):
+                return line
+            self._consumed()
+
+    def _consumed(self) -> None:
+        self.line_no += 1
+        self.data_pos = self.stream.tell() if self.source.seekable else None
+
+    def _parse_csv_header(self, text: str) -> tuple[int, int] | None:
+        names, sizes = [], {}
+        for raw in text.split(","):
+            base, _, size = raw.strip().strip('"').lower().partition("@")
+            field = COLUMN_ALIASES.get(base.strip(), base.strip() or "?")
+            if field in names and field in ("t", "x", "y", "p"):
+                raise FormatError(f"{self.name}: line {self.line_no}: header names {field!r} twice: {text!r}")
+            if size:
+                if not size.strip().isdigit():
+                    raise FormatError(f"{self.name}: line {self.line_no}: bad size in header column {raw!r}")
+                sizes[field] = int(size)
+            names.append(field)
+        missing = [field for field in ("t", "x", "y", "p") if field not in names]
+        if missing:
+            raise FormatError(
+                f"{self.name}: line {self.line_no}: header {text.strip()!r} lacks column(s) {', '.join(missing)} "
+                "(expected t,x,y,p in any order)"
+            )
+        self._set_columns(names)
+        if "x" in sizes and "y" in sizes:
+            return sizes["x"], sizes["y"]
+        return None
+
+    def _set_columns(self, names: list[str]) -> None:
+        self.names = names
+        self.ncols = len(names)
+        self.index = {field: names.index(field) for field in ("t", "x", "y", "p") if field in names}
+
+    # -- blocks ---------------------------------------------------------------------------------------------
+    def _blocks(self) -> Iterator[tuple[bytes, int]]:
+        """Blocks of whole lines with the number of their first line."""
+        if self.source.seekable:
+            self.stream.seek(self.data_pos)
+            carry = b""
+        else:
+            carry, self.pending = self.pending, b""
+        line_no = self.line_no
+        while True:
+            data = self.stream.read(self.block_bytes)
+            if not data:
+                if carry.strip():
+                    yield (carry if carry.endswith(b"\n") else carry + b"\n"), line_no
+                return
+            buffer = carry + data if carry else data
+            cut = buffer.rfind(b"\n")
+            if cut < 0:
+                carry = buffer
+                continue
+            block, carry = buffer[: cut + 1], buffer[cut + 1 :]
+            yield block, line_no
+            line_no += block.count(b"\n")
+
+    def _parse(self, block: bytes, line_no: int) -> np.ndarray:
+        """Events of one block of whole lines (the first numbered ``line_no``)."""
+        raw = np.frombuffer(block, np.uint8)
+        ends = np.flatnonzero(raw == 10)
+        starts = np.concatenate(([0], ends[:-1] + 1))
+        if self.csv:
+            separators = np.flatnonzero(raw == 44)
+            fields = np.diff(np.searchsorted(separators, ends), prepend=0) + 1
+            length = ends - starts
+            blank = (length == 0) | ((length == 1) & (raw[np.maximum(ends - 1, 0)] == 13))
+            fields[blank] = 0
+        else:
+            space = raw <= 32
+            token_starts = np.flatnonzero(space[:-1] & ~space[1:]) + 1
+            if len(raw) and not space[0]:
+                token_starts = np.concatenate(([0], token_starts))
+            fields = np.diff(np.searchsorted(token_starts, ends), prepend=0)
+            blank = fields == 0
+        wrong = (fields != self.ncols) & ~blank
+        if wrong.any():
+            i = int(np.argmax(wrong))
+            raise FormatError(
+                f"{self.name}: line {line_no + i}: {fields[i]} columns, expected {self.ncols} "
+                f"({'' if self.csv else 'whitespace-separated '}{','.join(self.names)})"
+            )
+        rows = np.flatnonzero(~blank)  # line index (in the block) of each row
+        values = self._numbers(block, len(rows) * self.ncols, line_no)
+        if values is None:
+            self._raise_bad_line(block, line_no)
+        values = values.reshape(len(rows), self.ncols)
+        return self._events(values, rows, line_no)
+
+    def _numbers(self, block: bytes, expected: int, line_no: int) -> np.ndarray | None:
+        text = block.replace(b",", b" ") if self.csv else block
+        attempts = (np.int64, np.float64) if self.csv else (np.float64,)
+        for dtype in attempts:
+            try:
+                values = np.fromstring(text, dtype=dtype, sep=" ")
+            except ValueError:
+                if self.csv and dtype is np.int64 and re.search(rb"(?i)true|false", text):
+                    text = re.sub(rb"(?i)true", b"1", re.sub(rb"(?i)false", b"0", text))
+                    try:
+                        values = np.fromstring(text, dtype=dtype, sep=" ")
+                    except ValueError:
+                        continue
+                else:
+                    continue
+            if values.size == expected:
+                return values
+        return None
+
+    def _raise_bad_line(self, block: bytes, line_no: int) -> None:
+        for i, line in enumerate(block.split(b"\n")):
+            fields = line.split(b",") if self.csv else line.split()
+            if not line.strip():
+                continue
+            for field in fields:
+                field = field.strip()
+                if not _NUMBER.match(field) and not (self.csv and field.lower() in (b"true", b"false")):
+                    shown = field.decode("utf-8", "replace")[:40]
+                    raise FormatError(f"{self.name}: line {line_no + i}: {shown!r} is not a number")
+        last = line_no + block.count(b"\n") - 1
+        raise FormatError(f"{self.name}: lines {line_no}-{last}: cannot parse as numbers")
+
+    def _events(self, values: np.ndarray, rows: np.ndarray, line_no: int) -> np.ndarray:
+        t, x, y, p = (values[:, self.index[field]] for field in ("t", "x", "y", "p"))
+        if values.dtype.kind == "f":
+            self._check(~np.isfinite(t), rows, line_no, "t is not a finite number")
+            t = np.rint(t * 1e6 if not self.csv else t)
+            self._check((x != np.floor(x)) | (y != np.floor(y)) | ~np.isfinite(p), rows, line_no,
+                        "x and y must be integers, p a number")
+        else:
+            self._check((t == _INT64_MAX) | (t == _INT64_MIN), rows, line_no, "t does not fit in 64 bits")
+        self._check((x < 0) | (x > MAX_SENSOR_SIDE) | (y < 0) | (y > MAX_SENSOR_SIDE), rows, line_no,
+                    f"x or y outside 0..{MAX_SENSOR_SIDE}")
+        out = np.empty(len(values), dtype=EVENT_DTYPE)
+        out["t"] = t
+        out["x"] = x
+        out["y"] = y
+        out["p"] = p > 0
+        return out
+
+    def _check(self, bad: np.ndarray, rows: np.ndarray, line_no: int, problem: str) -> None:
+        if bad.any():
+            raise FormatError(f"{self.name}: line {line_no + int(rows[int(np.argmax(bad))])}: {problem}")
+
+    # -- size and iteration ---------------------------------------------------------------------------------
+    def _scan_size(self) -> tuple[int, int]:
+        position = self.stream.tell()
+        width = height = 0
+        for block, line_no in self._blocks():
+            events = self._parse(block, line_no)
+            if len(events):
+                width = max(width, int(events["x"].max()) + 1)
+                height = max(height, int(events["y"].max()) + 1)
+        self.stream.seek(position)
+        return width, height
+
+    def __iter__(self) -> Iterator[np.ndarray]:
+        for block, line_no in self._blocks():
+            events = self._parse(block, line_no)
+            for start in range(0, len(events), self.chunk_events):
+                yield events[start : start + self.chunk_events]
+
+
+# -- writing ------------------------------------------------------------------------------------------------
+_POWERS_OF_TEN = np.array([10**k for k in range(1, 20)], dtype=np.uint64)
+
+
+_DIGIT_PAIRS = np.array([[48 + i // 10, 48 + i % 10] for i in range(100)], dtype=np.uint8).view(np.uint16).ravel()
+"""ASCII of 00..99, two bytes each, as uint16 (so one indexing writes two digits)."""
+
+
+def _ascii_digits(magnitude: np.ndarray, width: int) -> np.ndarray:
+    """(n, width) uint8 ASCII of zero-padded decimals, two digits at a time (8-digit groups in uint32)."""
+    n_pairs = (width + 1) // 2
+    pairs = np.empty((len(magnitude), n_pairs), dtype=np.uint16)
+    rest = magnitude.astype(np.uint64)
+    column = n_pairs - 1
+    while column >= 0:
+        group = (rest % np.uint64(10**8)).astype(np.uint32)
+        rest //= np.uint64(10**8)
+        for _ in range(4):
+            if column < 0:
+                break
+            pairs[:, column] = _DIGIT_PAIRS[group % 100]
+            group //= 100
+            column -= 1
+    return pairs.view(np.uint8).reshape(len(magnitude), 2 * n_pairs)[:, 2 * n_pairs - width :]
+
+
+def _digits_field(magnitude: np.ndarray, negative: np.ndarray | None, min_digits: int = 1):
+    """ASCII matrix (n, width) of right-aligned decimal numbers and the mask of the bytes to keep."""
+    n_digits = np.maximum(1 + np.searchsorted(_POWERS_OF_TEN, magnitude, side="right"), min_digits)
+    signed = negative is not None and bool(negative.any())
+    most = int(n_digits.max()) if len(magnitude) else min_digits
+    width = most + signed
+    matrix = np.empty((len(magnitude), width), dtype=np.uint8)
+    matrix[:, signed:] = _ascii_digits(magnitude, most)
+    used = n_digits + (negative if signed else 0)
+    if signed:
+        rows = np.flatnonzero(negative)
+        matrix[rows, width - used[rows]] = ord("-")
+    keep = np.arange(width) >= (width - used)[:, None]
+    return matrix, keep
+
+
+def _signed(values: np.ndarray):
+    values = values.astype(np.int64)
+    negative = values < 0
+    return np.abs(values).view(np.uint64), negative  # abs(int64 min) wraps to 2**63, right as uint64
+
+
+def _render(parts: list, n: int) -> bytes:
+    """Rows of text from fields (``(matrix, keep)``) and constant separators (``bytes``)."""
+    matrices, keeps = [], []
+    for part in parts:
+        if isinstance(part, bytes):
+            matrices.append(np.broadcast_to(np.frombuffer(part, np.uint8), (n, len(part))))
+            keeps.append(np.ones((n, len(part)), dtype=bool))
+        else:
+            matrices.append(part[0])
+            keeps.append(part[1])
+    matrix = np.concatenate(matrices, axis=1)
+    keep = np.concatenate(keeps, axis=1)
+    return matrix[keep].tobytes()
+
+
+def _polarity_field(p: np.ndarray):
+    matrix = (p.astype(np.uint8) + 48)[:, None]
+    return matrix, np.ones(matrix.shape, dtype=bool)
+
+
+class _TextWriter:
+    def __init__(self, stream: BinaryIO, info: StreamInfo, options: WriteOptions) -> None:
+        self.stream = stream
+        self.info = info
+        stream.write(self._header())
+
+    def _header(self) -> bytes:
+        return b""
+
+    def write(self, chunk: np.ndarray) -> None:
+        """Append a chunk of ``EVENT_DTYPE``."""
+        for start in range(0, len(chunk), WRITE_ROWS):
+            part = chunk[start : start + WRITE_ROWS]
+            self.stream.write(self._rows(part))
+
+    def _rows(self, events: np.ndarray) -> bytes:
+        raise NotImplementedError
+
+    def close(self) -> None:
+        """Flush (the stream stays open)."""
+        self.stream.flush()
+
+
+class CsvWriter(_TextWriter):
+    """CSV: faery's header ``t,x@W,y@H,on``, then one ``t,x,y,on`` row per event (t absolute microseconds, 1 = ON).
+
+    The ``@W``/``@H`` suffixes carry the sensor size (faery's convention), so a CSV round trip keeps it;
+    readers that ignore them still see the columns t, x, y and on.
+    """
+
+    def _header(self) -> bytes:
+        return f"t,x@{self.info.width},y@{self.info.height},on\n".encode()
+
+    def _rows(self, events: np.ndarray) -> bytes:
+        n = len(events)
+        return _render(
+            [_digits_field(*_signed(events["t"])), b",", _digits_field(*_signed(events["x"])), b",",
+             _digits_field(*_signed(events["y"])), b",", _polarity_field(events["p"]), b"\n"],
+            n,
+        )
+
+
+class TxtWriter(_TextWriter):
+    """rpg ``events.txt``: first line ``width height``, then ``t x y p`` with t in seconds as ``%.6f`` (exact)."""
+
+    def _header(self) -> bytes:
+        return f"{self.info.width} {self.info.height}\n".encode()
+
+    def _rows(self, events: np.ndarray) -> bytes:
+        magnitude, negative = _signed(events["t"])
+        seconds, micro = np.divmod(magnitude, np.uint64(1_000_000))
+        return _render(
+            [_digits_field(seconds, negative), b".", _digits_field(micro, None, 6), b" ",
+             _digits_field(*_signed(events["x"])), b" ", _digits_field(*_signed(events["y"])), b" ",
+             _polarity_field(events["p"]), b"\n"],
+            len(events),
+        )

@@ -1,0 +1,203 @@
+"""HDF5 reader and writer: the reference files, v2e's layout, round trips, ms_to_idx, bad inputs."""
+
+from __future__ import annotations
+
+import io
+import sys
+import types
+from unittest import mock
+
+import h5py
+import hdf5plugin  # noqa: F401
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+import formats.hdf5
+from evtools.events import StreamInfo, concatenate, make_events
+from formats import FormatError, ReadOptions, WriteOptions, create_events, open_events
+from formats.hdf5 import Hdf5Writer
+from formats.io import Source
+from tests.conftest import data_file
+
+COMPRESSIONS = ["none", "gzip", "lzf", "zstd"]
+
+
+def read_all(path, **kwargs) -> tuple[np.ndarray, StreamInfo]:
+    with open_events(path, **kwargs) as stream:
+        chunks = list(stream)
+        return concatenate(chunks), stream.info
+
+
+def write_bytes(events: np.ndarray, cuts, info: StreamInfo, compression: str | None = None) -> bytes:
+    buffer = io.BytesIO()
+    writer = Hdf5Writer(buffer, info, WriteOptions(compression=compression))
+    for part in np.split(events, sorted(cuts)):
+        writer.write(part)
+    writer.close()
+    return buffer.getvalue()
+
+
+@st.composite
+def event_arrays(draw, max_events: int = 200):
+    n = draw(st.integers(0, max_events))
+    width = draw(st.integers(1, 700))
+    height = draw(st.integers(1, 500))
+    t0_us = draw(st.integers(0, 2**42))
+    gaps_us = draw(st.lists(st.sampled_from([0, 1, 7, 400, 999, 1000, 1001, 2500, 10**6]), min_size=n, max_size=n))
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
+    t = t0_us + np.cumsum(np.asarray(gaps_us, dtype=np.int64))
+    events = make_events(t, rng.integers(0, width, n), rng.integers(0, height, n), rng.integers(0, 2, n))
+    cuts = draw(st.lists(st.integers(0, n), max_size=6))
+    return events, StreamInfo(width, height), cuts
+
+
+# -- the reference files ------------------------------------------------------------------------------------
+def test_dsec_sample_gives_the_aedat4_events(dvxplorer_events):
+    events, info = read_all(data_file("derived/dvxplorer_sample.dsec.h5"), sensor_size=(320, 240), chunk_events=5000)
+    assert np.array_equal(events, dvxplorer_events)  # t_offset added: absolute microseconds
+    assert info.size == (320, 240)
+    assert info.metadata["layout"] == "dsec"
+
+
+def test_dsec_sample_reads_in_slices_and_infers_the_size(dvxplorer_events):
+    with open_events(data_file("derived/dvxplorer_sample.dsec.h5"), chunk_events=5000) as stream:
+        lengths = [len(chunk) for chunk in stream]
+        assert stream.info.size == (320, 240)  # not stored: inferred from max x, y
+    assert max(lengths) == 5000 and sum(lengths) == len(dvxplorer_events)
+
+
+def test_eventutils_sample_gives_the_aedat4_events(dvxplorer_events):
+    events, info = read_all(data_file("derived/dvxplorer_sample.eventutils.h5"))
+    assert np.array_equal(events, dvxplorer_events)  # ts float64 seconds, absolute
+    assert info.size == (320, 240)  # from sensor_resolution = (H, W)
+    assert info.metadata["layout"] == "event_utils"
+
+
+def test_writer_ms_to_idx_equals_the_published_dsec_file(dvxplorer_events, tmp_path):
+    path = tmp_path / "out.h5"
+    with create_events(path, StreamInfo(320, 240)) as writer:
+        writer.write(dvxplorer_events)
+    with h5py.File(data_file("derived/dvxplorer_sample.dsec.h5"), "r") as ref, h5py.File(path, "r") as ours:
+        assert np.array_equal(ours["ms_to_idx"][:], ref["ms_to_idx"][:])
+        assert ours["t_offset"][()] == ref["t_offset"][()]
+        assert np.array_equal(ours["events/t"][:], ref["events/t"][:])
+
+
+# -- v2e ----------------------------------------------------------------------------------------------------
+def test_v2e_n_by_4_layout(tmp_path):
+    rng = np.random.default_rng(3)
+    n = 2500
+    t_us = np.sort(rng.integers(0, 10**7, n))
+    rows = np.stack([t_us, rng.integers(0, 346, n), rng.integers(0, 260, n), rng.integers(0, 2, n)], axis=1)
+    path = tmp_path / "v2e.h5"
+    with h5py.File(path, "w") as f:
+        f.create_dataset("events", data=rows.astype(np.uint32), maxshape=(None, 4), compression="gzip")
+    events, info = read_all(path, sensor_size=(346, 260), chunk_events=1000)
+    assert np.array_equal(events, make_events(t_us, rows[:, 1], rows[:, 2], rows[:, 3]))
+    assert info.metadata["layout"] == "v2e" and info.size == (346, 260)
+
+
+# -- round trips --------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("compression", COMPRESSIONS)
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(case=event_arrays())
+def test_round_trip_and_bytes_independent_of_chunking(compression, case, tmp_path_factory):
+    events, info, cuts = case
+    with mock.patch.object(formats.hdf5, "WRITE_BLOCK_EVENTS", 16), mock.patch.object(formats.hdf5, "MS_BLOCK", 8):
+        whole = write_bytes(events, [], info, compression)
+        chunked = write_bytes(events, cuts, info, compression)
+    assert whole == chunked
+    path = tmp_path_factory.mktemp("rt") / "events.h5"
+    path.write_bytes(chunked)
+    got, got_info = read_all(path, chunk_events=7)
+    assert np.array_equal(got, events)
+    assert got_info.size == info.size and got_info.metadata["layout"] == "evtools"
+    with h5py.File(path, "r") as f:
+        check_ms_to_idx(f["events/t"][:].astype(np.int64), f["ms_to_idx"][:])
+        assert f["t_offset"][()] == (events["t"][0] if len(events) else 0)
+
+
+def check_ms_to_idx(t_us: np.ndarray, ms_to_idx: np.ndarray) -> None:
+    """t[ms_to_idx[ms]] >= 1000*ms > t[ms_to_idx[ms]-1], one entry per millisecond up to the last event."""
+    assert len(ms_to_idx) == (int(t_us[-1]) // 1000 + 1 if len(t_us) else 0)
+    for ms, index in enumerate(ms_to_idx.astype(np.int64)):
+        assert t_us[index] >= 1000 * ms
+        if index > 0:
+            assert 1000 * ms > t_us[index - 1]
+
+
+@pytest.mark.parametrize("compression", COMPRESSIONS)
+def test_end_to_end_write_then_read(compression, tmp_path, dvxplorer_events):
+    path = tmp_path / "out.h5"
+    with create_events(path, StreamInfo(320, 240), compression=compression) as writer:
+        for part in np.array_split(dvxplorer_events, 9):
+            writer.write(part)
+    events, info = read_all(path)
+    assert np.array_equal(events, dvxplorer_events)
+    assert info.size == (320, 240) and info.format == "hdf5"
+    with h5py.File(path, "r") as f:
+        assert f.attrs["format"] == "evtools"
+        assert f["events/t"].dtype == np.uint64 and f["events/x"].dtype == np.uint16
+        assert f["events/p"].dtype == np.uint8 and f["t_offset"].dtype == np.int64
+        check_ms_to_idx(f["events/t"][:].astype(np.int64), f["ms_to_idx"][:])
+
+
+def test_empty_stream_round_trip(tmp_path):
+    path = tmp_path / "empty.h5"
+    with create_events(path, StreamInfo(64, 48)) as writer:
+        writer.write(make_events([], [], [], []))
+    events, info = read_all(path)
+    assert len(events) == 0 and info.size == (64, 48)
+
+
+def test_reads_from_stdin(monkeypatch, tmp_path, dvxplorer_events):
+    data = write_bytes(dvxplorer_events, [1000], StreamInfo(320, 240))
+    monkeypatch.setattr(sys, "stdin", types.SimpleNamespace(buffer=io.BufferedReader(io.BytesIO(data))))
+    events, info = read_all("-")
+    assert np.array_equal(events, dvxplorer_events) and info.size == (320, 240)
+
+
+# -- bad inputs ---------------------------------------------------------------------------------------------
+def test_file_without_events_names_the_file_and_what_it_holds(tmp_path):
+    path = tmp_path / "frames.h5"
+    with h5py.File(path, "w") as f:
+        f.create_dataset("frames", data=np.zeros((2, 4, 4), np.uint8))
+    with pytest.raises(FormatError, match=r"frames\.h5.*no events dataset.*frames \(2, 4, 4\)"):
+        open_events(path)
+
+
+def test_prophesee_hdf5_is_refused_with_advice(tmp_path):
+    path = tmp_path / "prophesee.h5"
+    with h5py.File(path, "w") as f:
+        f.create_dataset("CD/events", data=np.zeros(3, np.int64))
+    with pytest.raises(FormatError, match=r"prophesee\.h5.*ECF.*Metavision"):
+        open_events(path)
+
+
+def test_not_hdf5_is_a_format_error(tmp_path):
+    path = tmp_path / "fake.h5"
+    path.write_bytes(b"not an hdf5 file at all\n" * 10)
+    with pytest.raises(FormatError, match=r"fake\.h5"):
+        open_events(path, format="hdf5")
+
+
+def test_unknown_compression(tmp_path):
+    with pytest.raises(FormatError, match="compression"):
+        Hdf5Writer(io.BytesIO(), StreamInfo(8, 8), WriteOptions(compression="brotli"))
+
+
+def test_sensor_size_option_when_missing(tmp_path):
+    path = tmp_path / "dsec.h5"
+    with h5py.File(path, "w") as f:
+        for key, dtype in (("x", "u2"), ("y", "u2"), ("t", "u4"), ("p", "u1")):
+            f.create_dataset(f"events/{key}", data=np.arange(5).astype(dtype))
+        f.create_dataset("t_offset", data=np.int64(100))
+    events, info = read_all(path, sensor_size=(640, 480))
+    assert info.size == (640, 480) and list(events["t"]) == [100, 101, 102, 103, 104]
+    source = Source(path)
+    reader = formats.hdf5.Hdf5Reader(source, ReadOptions(sensor_size=(10, 10), chunk_events=2))
+    assert [len(chunk) for chunk in reader] == [2, 2, 1]
+    reader.close()
+    source.close()

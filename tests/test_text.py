@@ -1,0 +1,214 @@
+"""CSV and text readers and writers: the reference files, header variants, round trips, bad lines."""
+
+from __future__ import annotations
+
+import io
+import sys
+import types
+from unittest import mock
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+import formats.text
+from evtools.events import StreamInfo, concatenate, make_events
+from formats import FormatError, WriteOptions, create_events, open_events
+from formats.text import CsvWriter, TxtWriter
+from tests.conftest import data_file
+
+
+def read_all(path, **kwargs) -> tuple[np.ndarray, StreamInfo]:
+    with open_events(path, **kwargs) as stream:
+        return concatenate(list(stream)), stream.info
+
+
+def read_text(tmp_path, text: str, name: str = "events.csv", **kwargs):
+    path = tmp_path / name
+    path.write_bytes(text.encode())
+    return read_all(path, **kwargs)
+
+
+def write_bytes(writer_class, events: np.ndarray, cuts, info: StreamInfo) -> bytes:
+    buffer = io.BytesIO()
+    writer = writer_class(buffer, info, WriteOptions())
+    for part in np.split(events, sorted(cuts)):
+        writer.write(part)
+    writer.close()
+    return buffer.getvalue()
+
+
+@st.composite
+def event_arrays(draw, max_events: int = 200):
+    n = draw(st.integers(0, max_events))
+    width = draw(st.integers(1, 2000))
+    height = draw(st.integers(1, 2000))
+    t0_us = draw(st.integers(-(10**12), 2**50))
+    gaps_us = draw(st.lists(st.integers(0, 3 * 10**6), min_size=n, max_size=n))
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
+    t = t0_us + np.cumsum(np.asarray(gaps_us, dtype=np.int64))
+    events = make_events(t, rng.integers(0, width, n), rng.integers(0, height, n), rng.integers(0, 2, n))
+    cuts = draw(st.lists(st.integers(0, n), max_size=6))
+    return events, StreamInfo(width, height), cuts
+
+
+# -- the reference files ------------------------------------------------------------------------------------
+def test_csv_sample_gives_the_aedat4_events(dvxplorer_events):
+    events, info = read_all(data_file("derived/dvxplorer_sample.csv"), chunk_events=10000)
+    assert np.array_equal(events, dvxplorer_events)  # absolute microseconds
+    assert info.size == (320, 240) and info.format == "csv"  # inferred by a scan
+
+
+def test_txt_sample_gives_the_aedat4_events(dvxplorer_events):
+    events, info = read_all(data_file("derived/dvxplorer_sample.events.txt"), sensor_size=(320, 240))
+    expected = dvxplorer_events.copy()
+    expected["t"] -= expected["t"][0]  # the file stores seconds relative to the first event
+    assert np.array_equal(events, expected)
+    assert info.format == "txt"
+
+
+def test_txt_writer_reproduces_the_sample_byte_for_byte(dvxplorer_events):
+    original = data_file("derived/dvxplorer_sample.events.txt").read_bytes()
+    events = dvxplorer_events.copy()
+    events["t"] -= events["t"][0]
+    written = write_bytes(TxtWriter, events, [7, 50000], StreamInfo(320, 240))
+    assert written == b"320 240\n" + original
+
+
+def test_csv_writer_reproduces_the_sample_byte_for_byte_but_for_the_sized_header(dvxplorer_events):
+    original = data_file("derived/dvxplorer_sample.csv").read_bytes()
+    assert original.startswith(b"t,x,y,p\n")
+    written = write_bytes(CsvWriter, dvxplorer_events, [3, 99999], StreamInfo(320, 240))
+    assert written == b"t,x@320,y@240,on\n" + original[len(b"t,x,y,p\n"):]
+
+
+# -- header variants ----------------------------------------------------------------------------------------
+def test_csv_columns_in_any_order_and_signed_polarity(tmp_path):
+    events, _ = read_text(tmp_path, "X, Polarity ,Timestamp,y\n5,-1,10,2\n6,1,11,3\r\n\n", sensor_size=(8, 8))
+    assert np.array_equal(events, make_events([10, 11], [5, 6], [2, 3], [False, True]))
+
+
+def test_csv_faery_header_carries_the_sensor_size(tmp_path):
+    events, info = read_text(tmp_path, "t,x@640,y@480,on\n1,2,3,1\n2,4,5,0\n")
+    assert info.size == (640, 480)
+    assert np.array_equal(events, make_events([1, 2], [2, 4], [3, 5], [1, 0]))
+
+
+def test_csv_without_header_is_t_x_y_p(tmp_path):
+    events, info = read_text(tmp_path, "# a comment\n100,1,2,1\n200,3,4,0")  # no final newline
+    assert np.array_equal(events, make_events([100, 200], [1, 3], [2, 4], [1, 0]))
+    assert info.size == (4, 5)
+
+
+def test_txt_with_size_line_comments_and_label_column(tmp_path):
+    text = "# v2e output\n# t x y p label\n346 260\n0.5 1 2 1 0\n1.000001 3 4 0 1\n"
+    events, info = read_text(tmp_path, text, name="v2e.txt")
+    assert info.size == (346, 260)
+    assert np.array_equal(events, make_events([500000, 1000001], [1, 3], [2, 4], [1, 0]))
+
+
+def test_txt_absolute_seconds_are_exact(tmp_path):
+    events, _ = read_text(tmp_path, "1605537493.718345 1 2 1\n1605537494.308262 3 4 0\n", "a.txt")
+    assert list(events["t"]) == [1605537493718345, 1605537494308262]
+
+
+def test_many_blocks_keep_line_numbers_and_events(tmp_path):
+    rng = np.random.default_rng(5)
+    n = 30000
+    events = make_events(np.arange(n) * 3, rng.integers(0, 100, n), rng.integers(0, 90, n), rng.integers(0, 2, n))
+    path = tmp_path / "big.csv"
+    path.write_bytes(write_bytes(CsvWriter, events, [], StreamInfo(100, 90)))
+    got, _ = read_all(path, sensor_size=(100, 90), chunk_events=1000)  # 64 KB blocks
+    assert np.array_equal(got, events)
+    lines = path.read_bytes().split(b"\n")
+    lines[25000] = b"75000,1,x2,0"
+    path.write_bytes(b"\n".join(lines))
+    with pytest.raises(FormatError, match=r"big\.csv: line 25001: 'x2' is not a number"):
+        read_all(path, sensor_size=(100, 90), chunk_events=1000)
+
+
+def test_reads_csv_from_stdin(monkeypatch):
+    data = b"t,x@10,y@10,p\n1,2,3,1\n"
+    monkeypatch.setattr(sys, "stdin", types.SimpleNamespace(buffer=io.BufferedReader(io.BytesIO(data))))
+    events, info = read_all("-")
+    assert info.size == (10, 10) and np.array_equal(events, make_events([1], [2], [3], [1]))
+
+
+def test_stdin_without_size_asks_for_it(monkeypatch):
+    stdin = io.BufferedReader(io.BytesIO(b"t,x,y,p\n1,2,3,1\n"))
+    monkeypatch.setattr(sys, "stdin", types.SimpleNamespace(buffer=stdin))
+    with pytest.raises(FormatError, match="sensor-size"):
+        open_events("-")
+
+
+# -- round trips --------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("writer_class,suffix", [(CsvWriter, "csv"), (TxtWriter, "txt")])
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(case=event_arrays())
+def test_round_trip_and_bytes_independent_of_chunking(writer_class, suffix, case, tmp_path_factory):
+    events, info, cuts = case
+    with mock.patch.object(formats.text, "WRITE_ROWS", 5):
+        chunked = write_bytes(writer_class, events, cuts, info)
+    assert chunked == write_bytes(writer_class, events, [], info)
+    path = tmp_path_factory.mktemp("rt") / f"events.{suffix}"
+    path.write_bytes(chunked)
+    # both carry the sensor size: CSV in its faery header, txt in its first line
+    got, got_info = read_all(path, chunk_events=3)
+    assert np.array_equal(got, events)
+    assert got_info.size == info.size
+
+
+def test_csv_size_is_inferred_from_the_events_without_a_sized_header(tmp_path):
+    (tmp_path / "a.csv").write_text("t,x,y,p\n1,4,7,1\n2,9,1,1\n3,0,2,0\n")
+    got, info = read_all(tmp_path / "a.csv")
+    assert np.array_equal(got, make_events([1, 2, 3], [4, 9, 0], [7, 1, 2], [1, 1, 0])) and info.size == (10, 8)
+
+
+def test_csv_writer_header_keeps_the_sensor_size(tmp_path):
+    events = make_events([1, 2, 3], [4, 9, 0], [7, 1, 2], [1, 1, 0])
+    with create_events(tmp_path / "a.csv", StreamInfo(640, 480)) as writer:
+        writer.write(events)
+    got, info = read_all(tmp_path / "a.csv")
+    assert np.array_equal(got, events) and info.size == (640, 480)
+
+
+def test_end_to_end_txt(tmp_path, dvxplorer_events):
+    with create_events(tmp_path / "a.txt", StreamInfo(320, 240)) as writer:
+        for part in np.array_split(dvxplorer_events, 5):
+            writer.write(part)
+    got, info = read_all(tmp_path / "a.txt")
+    assert np.array_equal(got, dvxplorer_events) and info.size == (320, 240)
+
+
+# -- bad inputs ---------------------------------------------------------------------------------------------
+def test_csv_line_with_letters_names_file_and_line(tmp_path):
+    with pytest.raises(FormatError, match=r"bad\.csv: line 3: 'abc' is not a number"):
+        read_text(tmp_path, "t,x,y,p\n1,2,3,1\n2,abc,3,1\n3,4,5,0\n", "bad.csv", sensor_size=(8, 8))
+
+
+def test_csv_wrong_number_of_columns(tmp_path):
+    with pytest.raises(FormatError, match=r"cols\.csv: line 4: 3 columns, expected 4"):
+        read_text(tmp_path, "t,x,y,p\n1,2,3,1\n2,2,3,1\n3,4,5\n", "cols.csv", sensor_size=(8, 8))
+
+
+def test_compensating_column_counts_are_caught(tmp_path):
+    with pytest.raises(FormatError, match=r"line 2: 3 columns"):
+        read_text(tmp_path, "1,2,3,1\n2,2,3\n3,4,5,0,1\n", "c.csv", sensor_size=(8, 8))
+
+
+def test_txt_bad_lines(tmp_path):
+    with pytest.raises(FormatError, match=r"t\.txt: line 3: 'nope' is not a number"):
+        read_text(tmp_path, "10 10\n0.1 1 2 1\n0.2 nope 2 1\n", "t.txt")
+    with pytest.raises(FormatError, match=r"u\.txt: line 2: 3 columns"):
+        read_text(tmp_path, "0.1 1 2 1\n0.2 2 1\n", "u.txt", sensor_size=(8, 8))
+
+
+def test_csv_header_without_needed_columns(tmp_path):
+    with pytest.raises(FormatError, match=r"h\.csv: line 1: .*lacks column\(s\) p"):
+        read_text(tmp_path, "t,x,y,brightness\n1,2,3,4\n", "h.csv", sensor_size=(8, 8))
+
+
+def test_coordinates_outside_int16(tmp_path):
+    with pytest.raises(FormatError, match=r"o\.csv: line 2: x or y outside"):
+        read_text(tmp_path, "t,x,y,p\n1,70000,3,1\n", "o.csv", sensor_size=(8, 8))
