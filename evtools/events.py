@@ -134,23 +134,26 @@ class StreamChecker:
         if chunk.dtype != EVENT_DTYPE:
             raise InvalidEventsError(f"{self.name}: chunk has dtype {chunk.dtype}, expected EVENT_DTYPE")
         if len(chunk):
-            x, y, t = chunk["x"], chunk["y"], chunk["t"]
-            outside = (x < 0) | (x >= self.info.width) | (y < 0) | (y >= self.info.height)
+            t = chunk["t"]
+            # one comparison per axis: negative int16 coordinates become large as uint16
+            outside = (chunk["x"].view(np.uint16) >= self.info.width) | (chunk["y"].view(np.uint16) >= self.info.height)
             if outside.any():
                 i = int(np.argmax(outside))
                 raise InvalidEventsError(
-                    f"{self.name}: event {self.events_seen + i} at (x={x[i]}, y={y[i]}) lies outside the "
-                    f"{self.info.width}x{self.info.height} sensor (give the right --sensor-size)"
+                    f"{self.name}: event {self.events_seen + i} at (x={chunk['x'][i]}, y={chunk['y'][i]}) lies "
+                    f"outside the {self.info.width}x{self.info.height} sensor (give the right --sensor-size)"
                 )
-            previous = t[0] if self.last_t is None else self.last_t
-            backwards = np.diff(t, prepend=previous) < 0
+            if self.last_t is not None and t[0] < self.last_t:
+                self._backwards(0, self.last_t, t[0])
+            backwards = t[1:] < t[:-1]
             if backwards.any():
-                i = int(np.argmax(backwards))
-                before = previous if i == 0 else t[i - 1]
-                raise InvalidEventsError(
-                    f"{self.name}: time goes backwards at event {self.events_seen + i} "
-                    f"({t[i]} us after {before} us)"
-                )
+                i = int(np.argmax(backwards)) + 1
+                self._backwards(i, t[i - 1], t[i])
             self.last_t = int(t[-1])
         self.events_seen += len(chunk)
         return chunk
+
+    def _backwards(self, i: int, before_us: int, t_us: int) -> None:
+        raise InvalidEventsError(
+            f"{self.name}: time goes backwards at event {self.events_seen + i} ({t_us} us after {before_us} us)"
+        )

@@ -14,6 +14,7 @@ fixed number of events so that the bytes written never depend on the input's chu
 
 from __future__ import annotations
 
+import os
 import struct
 import xml.etree.ElementTree as ET
 from typing import BinaryIO, Iterator
@@ -29,6 +30,8 @@ from formats.registry import ReadOptions, WriteOptions
 MAGIC = b"#!AER-DAT4.0\r\n"
 COMPRESSION_CODES = {"none": 0, "lz4": 1, "lz4-high": 2, "zstd": 3, "zstd-high": 4}
 COMPRESSION_XML = {0: "NONE", 1: "LZ4", 2: "LZ4_HIGH", 3: "ZSTD", 4: "ZSTD_HIGH"}
+PACKET_HEAD_BYTES = 256
+"""How much of an uncompressed packet is read to find its event vector before reading the events in place."""
 WORD_MASK = np.array([(1 << 64) - 1, (1 << 40) - 1], dtype="<u8")
 """Keeps t, x, y and on of an event's two 8-byte words and zeroes its padding, so output bytes are reproducible."""
 PACKET_EVENTS = 1 << 15
@@ -104,8 +107,8 @@ def _parse_streams(description: str, name: str) -> dict[int, dict]:
     return streams
 
 
-def _packet_events(body: bytes, name: str, offset: int) -> np.ndarray:
-    """The events of one decompressed, size-prefixed ``EVTS`` flatbuffer."""
+def _packet_layout(body: bytes, name: str, offset: int) -> tuple[int, int]:
+    """Byte position and count of the events in a size-prefixed ``EVTS`` flatbuffer whose start is ``body``."""
     buffer = memoryview(body)
     try:
         if bytes(buffer[8:12]) != b"EVTS":
@@ -113,14 +116,20 @@ def _packet_events(body: bytes, name: str, offset: int) -> np.ndarray:
         (root,) = struct.unpack_from("<I", buffer, 4)
         fields = _table_fields(buffer, 4 + root)
         if not fields or not fields[0]:
-            return np.empty(0, EVENT_DTYPE)
+            return len(body), 0
         vector = fields[0] + struct.unpack_from("<I", buffer, fields[0])[0]
         (count,) = struct.unpack_from("<I", buffer, vector)
     except struct.error:
-        raise FormatError(f"{name}: event packet at byte {offset} is corrupt") from None
-    if vector + 4 + 16 * count > len(body):
+        raise FormatError(f"{name}: event packet at byte {offset} is corrupt or truncated") from None
+    return vector + 4, count
+
+
+def _packet_events(body: bytes, name: str, offset: int) -> np.ndarray:
+    """The events of one whole decompressed, size-prefixed ``EVTS`` flatbuffer."""
+    events_at, count = _packet_layout(body, name, offset)
+    if events_at + 16 * count > len(body):
         raise FormatError(f"{name}: event packet at byte {offset} is truncated")
-    return np.frombuffer(body, EVENT_DTYPE, count, vector + 4)
+    return np.frombuffer(body, EVENT_DTYPE, count, events_at)
 
 
 class Aedat4Reader:
@@ -163,8 +172,9 @@ class Aedat4Reader:
         return data
 
     def __iter__(self) -> Iterator[np.ndarray]:
-        stream, pending, held = self.source.stream, [], 0
-        skipped_packets = 0
+        """Chunks of about ``chunk_events`` events (whole packets); uncompressed packets are read straight into them."""
+        stream, skipped_packets = self.source.stream, 0
+        chunk, filled = np.empty(self.options.chunk_events, EVENT_DTYPE), 0
         while self.data_position < 0 or self.position < self.data_position:
             head = stream.read(8)
             if not head:
@@ -173,29 +183,63 @@ class Aedat4Reader:
                 raise FormatError(f"{self.name}: truncated AEDAT 4.0 packet header at byte {self.position}")
             stream_id, size = struct.unpack("<iI", head)
             offset = self.position
-            body = stream.read(size)
-            if len(body) != size:
-                raise FormatError(
-                    f"{self.name}: truncated AEDAT 4.0 packet at byte {offset} (wanted {size} bytes, got {len(body)})"
-                )
             self.position += 8 + size
             if stream_id != self.stream_id:
                 skipped_packets += 1
+                self._skip(size, offset)
                 continue
-            if self.decompress is not None:
+            if self.decompress is None:
+                # the flatbuffer's tables come first, the event vector last: parse the start, then read the events
+                start = self._read_packet(min(size, PACKET_HEAD_BYTES), size, offset)
+                events_at, count = _packet_layout(start, self.name, offset)
+                if events_at + 16 * count != size or events_at > len(start):
+                    events = _packet_events(start + self._read_packet(size - len(start), size, offset), self.name, offset)
+                else:
+                    events = None
+            else:
+                body = self._read_packet(size, size, offset)
                 try:
                     body = self.decompress(body)
-                except Exception as error:  # lz4/zstd raise their own types
+                except Exception as error:  # lz4 and zstandard raise their own types
                     raise FormatError(f"{self.name}: cannot decompress packet at byte {offset} ({error})") from None
-            events = _packet_events(body, self.name, offset)
-            pending.append(events)
-            held += len(events)
-            if held >= self.options.chunk_events:
-                yield join(pending)
-                pending, held = [], 0
-        if pending:
-            yield join(pending)
+                events = _packet_events(body, self.name, offset)
+                count = len(events)
+            if filled + count > len(chunk):
+                if filled:
+                    yield chunk[:filled]
+                chunk, filled = np.empty(max(self.options.chunk_events, count), EVENT_DTYPE), 0
+            target = chunk[filled : filled + count]
+            if events is None:
+                target_bytes = target.view(np.uint8)
+                have = len(start) - events_at
+                target_bytes[:have] = np.frombuffer(start, np.uint8, have, events_at)
+                if stream.readinto(memoryview(target_bytes)[have:]) != 16 * count - have:
+                    raise FormatError(f"{self.name}: truncated AEDAT 4.0 packet at byte {offset}")
+            else:
+                target[:] = events
+            filled += count
+        if filled:
+            yield chunk[:filled]
         self.info.metadata["skipped_packets"] = skipped_packets
+
+    def _read_packet(self, n: int, size: int, offset: int) -> bytes:
+        data = self.source.stream.read(n)
+        if len(data) != n:
+            raise FormatError(f"{self.name}: truncated AEDAT 4.0 packet at byte {offset} (its size is {size} bytes)")
+        return data
+
+    def _skip(self, n: int, offset: int) -> None:
+        stream = self.source.stream
+        if self.source.seekable:
+            end = stream.seek(n, 1)
+            if end > os.fstat(stream.fileno()).st_size:
+                raise FormatError(f"{self.name}: truncated AEDAT 4.0 packet at byte {offset}")
+        else:
+            while n:
+                part = stream.read(min(n, 1 << 20))
+                if not part:
+                    raise FormatError(f"{self.name}: truncated AEDAT 4.0 packet at byte {offset}")
+                n -= len(part)
 
 
 def _ioheader(compression: int, description: str) -> bytes:
