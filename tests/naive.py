@@ -78,3 +78,159 @@ def evt3_decode_naive(words) -> list[tuple[int, int, int, int]]:
     decoder = NaiveEvt3Decoder()
     decoder.feed(words)
     return decoder.events
+
+
+# -- DVS pixel model (evtools/_kernels/pixel.py) ------------------------------------------------------------------
+
+import math  # noqa: E402
+
+_MASK64 = (1 << 64) - 1
+
+
+def _splitmix_finalise(z: int) -> int:
+    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & _MASK64
+    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & _MASK64
+    return z ^ (z >> 31)
+
+
+def naive_random_bits(key: int, pixel: int, draw: int) -> int:
+    """SplitMix64's finaliser applied twice to (key, pixel, draw), in Python integers modulo 2**64."""
+    golden = 0x9E3779B97F4A7C15
+    return _splitmix_finalise((_splitmix_finalise((key + pixel * golden) & _MASK64) + draw * golden) & _MASK64)
+
+
+def naive_lin_log(intensity: float) -> float:
+    """v2e's lin-log: linear below 20, natural log above."""
+    intensity = max(intensity, 0.0)
+    return intensity * (math.log(20.0) / 20.0) if intensity <= 20.0 else math.log(intensity)
+
+
+class NaiveDvsSensor:
+    """The pixel model of ALGORITHMS.md section 1, one pixel and one event at a time.
+
+    Built from the per-pixel maps a :class:`evtools.simulate.DvsSimulator` drew (so both see the same sensor).
+    For each frame interval, each pixel (raster order) lists its candidate next events - the threshold crossing
+    of the straight line between the two filtered log intensities minus the drifting reference (ESIM), the next
+    shot-noise event, the next hot-pixel event - takes the earliest, applies it, and repeats until none falls in
+    the interval. ``events`` collects ``(t_us, x, y, p, label)``; each interval's events are sorted by
+    ``(t, y, x, pixel's own order)``.
+    """
+
+    def __init__(self, width, height, on, off, leak_rate_hz, leak_phase, shot_rate_hz, hot_rate_hz,
+                 shot_budget, hot_budget, shot_key, hot_key, cutoff_hz, refractory_us) -> None:
+        self.width, self.height = width, height
+        n = width * height
+        self.on = [float(v) for v in on.reshape(-1)]
+        self.off = [float(v) for v in off.reshape(-1)]
+        self.leak = [float(v) for v in leak_rate_hz.reshape(-1)]
+        self.phase = [float(v) for v in leak_phase.reshape(-1)]
+        self.shot_rate = [float(v) for v in shot_rate_hz.reshape(-1)]
+        self.hot_rate = [float(v) for v in hot_rate_hz.reshape(-1)]
+        self.shot_budget = [float(v) for v in shot_budget.reshape(-1)]
+        self.hot_budget = [float(v) for v in hot_budget.reshape(-1)]
+        self.shot_key, self.hot_key = int(shot_key), int(hot_key)
+        self.cutoff_hz, self.refractory_us = float(cutoff_hz), int(refractory_us)
+        self.lp = [0.0] * n
+        self.ref = [0.0] * n
+        self.last = [None] * n
+        self.shot_draws = [0] * n
+        self.hot_draws = [0] * n
+        self.t_us = None
+        self.events: list[tuple[int, int, int, bool, int]] = []
+
+    def frame(self, t_us: int, frame) -> None:
+        values = [float(v) for v in frame.astype("float32").reshape(-1)]
+        if self.t_us is None:
+            for i, intensity in enumerate(values):
+                self.lp[i] = naive_lin_log(intensity)
+                self.ref[i] = self.lp[i] - (self.phase[i] * self.on[i] if self.leak[i] > 0 else 0.0)
+            self.t_us = t_us
+            return
+        interval = []
+        for i, intensity in enumerate(values):
+            for k, (t, p, label) in enumerate(self._pixel(i, max(intensity, 0.0), self.t_us, t_us)):
+                interval.append((t, i // self.width, i % self.width, k, p, label))
+        interval.sort(key=lambda e: (e[0], e[1], e[2], e[3]))
+        self.events.extend((t, x, y, p, label) for t, y, x, _, p, label in interval)
+        self.t_us = t_us
+
+    def _pixel(self, i, intensity, t0_us, t1_us):
+        dt_us = float(t1_us - t0_us)
+        dt_s = dt_us * 1e-6
+        target = naive_lin_log(intensity)
+        lp0 = self.lp[i]
+        if self.cutoff_hz > 0:
+            eps = min(1.0, (intensity + 20.0) / 275.0 * (dt_s * 2.0 * math.pi * self.cutoff_hz))
+            lp1 = lp0 + eps * (target - lp0)
+        else:
+            lp1 = target
+        change = lp1 - lp0
+        on, off = self.on[i], self.off[i]
+        drift = self.leak[i] * on * dt_s  # the reference falls by this much over the interval
+        slope = change + drift
+        ref = self.ref[i]  # reference at the interval's start
+        shot_mass = self.shot_rate[i] * (1.0 - (1.0 - 0.25) / 255.0 * min(intensity, 255.0)) * dt_s
+        hot_mass = self.hot_rate[i] * dt_s
+        shot_next = self.shot_budget[i] / shot_mass if shot_mass > 0 else math.inf
+        hot_next = self.hot_budget[i] / hot_mass if hot_mass > 0 else math.inf
+        out = []
+        s = 0.0
+        while True:
+            gap = lp0 - ref  # lp - ref at s = 0 for the current reference
+            if slope > 0:
+                crossing, kind = (on - gap) / slope, "on"
+            elif slope < 0:
+                crossing, kind = (-off - gap) / slope, "off"
+            else:
+                crossing, kind = math.inf, "none"
+            crossing = max(crossing, s)
+            s = min(crossing, shot_next, hot_next)
+            if s > 1.0:
+                break
+            t = math.floor(t0_us + s * dt_us + 0.5)
+            allowed = self.last[i] is None or t - self.last[i] >= self.refractory_us
+            if crossing == s:
+                if kind == "on":
+                    ref += on
+                    p, label = True, (1 if change <= 0 else 0)
+                else:
+                    ref -= off
+                    p, label = False, 0
+            elif shot_next == s:
+                bits = naive_random_bits(self.shot_key, i, self.shot_draws[i])
+                self.shot_draws[i] += 1
+                p, label = bool(bits & 1), 2
+                shot_next = s + -math.log(1.0 - (bits >> 11) / 2.0**53) / shot_mass
+                if allowed:
+                    ref = lp0 + (change + drift) * s
+            else:
+                bits = naive_random_bits(self.hot_key, i, self.hot_draws[i])
+                self.hot_draws[i] += 1
+                p, label = bool(bits & 1), 3
+                hot_next = s + -math.log(1.0 - (bits >> 11) / 2.0**53) / hot_mass
+            if allowed:
+                out.append((t, p, label))
+                self.last[i] = t
+        self.lp[i] = lp1
+        self.ref[i] = ref - drift
+        if shot_mass > 0:
+            self.shot_budget[i] = (shot_next - 1.0) * shot_mass
+        if hot_mass > 0:
+            self.hot_budget[i] = (hot_next - 1.0) * hot_mass
+        return out
+
+
+def simulate_naive(simulator, frames) -> list[tuple[int, int, int, bool, int]]:
+    """``(t_us, x, y, p, label)`` of every event of ``frames`` (``(t_us, frame)`` pairs) on ``simulator``'s sensor.
+
+    ``simulator`` is a fresh :class:`evtools.simulate.DvsSimulator`; only its drawn maps and keys are used.
+    """
+    sim = simulator
+    sensor = NaiveDvsSensor(
+        sim.width, sim.height, sim.on_thres, sim.off_thres, sim._leak_rate_hz, sim._leak_phase, sim._shot_rate_hz,
+        sim._hot_rate_hz, sim._shot_budget, sim._hot_budget, sim._shot_key, sim._hot_key,
+        sim.parameters["cutoff_hz"], sim.parameters["refractory_us"],
+    )
+    for t_us, frame in frames:
+        sensor.frame(int(t_us), frame)
+    return sensor.events

@@ -1,0 +1,430 @@
+"""``evtools simulate``: events from a video, a folder of images or a built-in scene, with the ground truth."""
+
+from __future__ import annotations
+
+import inspect
+import math
+import os
+import re
+import sys
+from dataclasses import dataclass, field
+from typing import Any, Iterator
+
+import click
+import numpy as np
+
+from evtools.events import CHUNK_EVENTS, StreamInfo, join, parse_sensor_size
+from evtools.simulate import DEFAULT_PARAMETERS, LABELS, PRESETS, SCENES, DvsSimulator, SimulationError
+from formats import create_events
+from formats.io import output_stream, same_file
+from formats.registry import FORMATS
+
+DEFAULT_SCENE_SIZE = "346x260"
+"""A DAVIS346, the sensor v2e and the report emulate."""
+DEFAULT_DURATION = "1s"
+IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".pbm", ".webp", ".exr")
+TIMESTAMPS_FILE = "timestamps.txt"
+"""Looked for inside an image folder when --timestamps is not given."""
+
+_UNITS_US = {"us": 1.0, "ms": 1e3, "s": 1e6, "min": 60e6, "": 1e6}
+
+
+def parse_duration_us(text: str, what: str = "duration") -> int:
+    """``"2s"``, ``"500ms"``, ``"250us"``, ``"1.5"`` (seconds) or ``"2min"`` as whole microseconds."""
+    match = re.fullmatch(r"\s*([0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*(us|ms|s|min|)\s*", str(text))
+    if not match:
+        raise SimulationError(f"{what} {text!r} is not a time such as 2s, 500ms or 250us")
+    value_us = round(float(match.group(1)) * _UNITS_US[match.group(2)])
+    if value_us <= 0:
+        raise SimulationError(f"{what} {text!r} must be longer than 0 us")
+    return int(value_us)
+
+
+# -- frame sources -----------------------------------------------------------------------------------------------
+
+
+@dataclass
+class FrameSource:
+    """Frames ``(t_us, float32 height x width luma 0-255)`` with what is known about them beforehand."""
+
+    name: str
+    width: int
+    height: int
+    frames: Iterator[tuple[int, np.ndarray]]
+    count: int | None = None
+    attributes: dict[str, Any] = field(default_factory=dict)
+
+
+def scene_source(name: str, size: str | None, duration: str | None, options: dict[str, Any]) -> FrameSource:
+    if name not in SCENES:
+        raise SimulationError(f"unknown scene {name!r}; choose one of {', '.join(SCENES)}")
+    width, height = parse_sensor_size(size or DEFAULT_SCENE_SIZE)
+    duration_us = parse_duration_us(duration or DEFAULT_DURATION)
+    accepted = inspect.signature(SCENES[name]).parameters
+    for key in options:
+        if key not in accepted:
+            option = "--" + _SCENE_OPTIONS[key].replace("_", "-")
+            raise SimulationError(f"scene {name} has no option {option}")
+    frames = SCENES[name](width, height, duration_us, **options)
+    rate = options.get("frame_rate_hz", accepted["frame_rate_hz"].default)
+    count = int(math.floor(duration_us * 1e-6 * rate + 1e-9)) + 1
+    attributes = {"scene": name, "duration_us": duration_us, **options}
+    return FrameSource(f"scene:{name}", width, height, frames, count, attributes)
+
+
+def _luma(frame: np.ndarray, name: str) -> np.ndarray:
+    """8-bit (or 16-bit) grey or BGR(A) image as float32 luma on the 0-255 scale (Rec. 601 weights, OpenCV's)."""
+    import cv2
+
+    if frame.ndim == 3 and frame.shape[2] == 4:
+        frame = cv2.cvtColor(frame, cv2.COLOR_BGRA2GRAY)
+    elif frame.ndim == 3 and frame.shape[2] == 3:
+        frame = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
+    elif frame.ndim == 3 and frame.shape[2] == 1:
+        frame = frame[:, :, 0]
+    if frame.ndim != 2:
+        raise SimulationError(f"{name}: unsupported image layout {frame.shape}")
+    scale = {np.dtype(np.uint8): 1.0, np.dtype(np.uint16): 255.0 / 65535.0}.get(frame.dtype)
+    if scale is None:  # float images: 0-1
+        return np.clip(frame.astype(np.float32) * 255.0, 0.0, 255.0)
+    return frame.astype(np.float32) * np.float32(scale)
+
+
+def _resize(frame: np.ndarray, size: tuple[int, int] | None) -> np.ndarray:
+    if size is None or (frame.shape[1], frame.shape[0]) == size:
+        return frame
+    import cv2
+
+    return cv2.resize(frame, size, interpolation=cv2.INTER_AREA)
+
+
+def video_source(path: str, fps: float | None, size: str | None) -> FrameSource:
+    """A video file read with OpenCV; frame times from its frame rate (or ``fps``)."""
+    # FFmpeg prints its own complaints about broken files on stderr (read when OpenCV first uses it): errors are
+    # ours to report, in one line
+    os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
+    import cv2
+
+    capture = cv2.VideoCapture(path)
+    if not capture.isOpened():
+        raise SimulationError(f"{path}: cannot read it as a video (OpenCV could not open it)")
+    ok, first = capture.read()
+    if not ok or first is None:
+        capture.release()
+        raise SimulationError(f"{path}: cannot read a frame from this video")
+    rate = float(fps) if fps else float(capture.get(cv2.CAP_PROP_FPS) or 0.0)
+    if not rate > 0 or math.isinf(rate):
+        capture.release()
+        raise SimulationError(f"{path}: the video does not say its frame rate; give --fps")
+    target = parse_sensor_size(size) if size else None
+    first = _resize(_luma(first, path), target)
+    height, width = first.shape
+    parse_sensor_size(f"{width}x{height}")
+    count = int(capture.get(cv2.CAP_PROP_FRAME_COUNT) or 0) or None
+
+    def frames():
+        try:
+            yield 0, first
+            index = 1
+            while True:
+                ok, frame = capture.read()
+                if not ok or frame is None:
+                    return
+                yield round(index * 1e6 / rate), _resize(_luma(frame, path), target)
+                index += 1
+        finally:
+            capture.release()
+
+    return FrameSource(path, width, height, frames(), count, {"video": os.path.basename(path), "fps": rate})
+
+
+def _natural_key(name: str):
+    return [int(part) if part.isdigit() else part.lower() for part in re.split(r"(\d+)", name)]
+
+
+def read_timestamps_us(path: str) -> np.ndarray:
+    """One time per line in seconds (blank lines and ``#`` comments skipped), as microseconds."""
+    times = []
+    try:
+        with open(path, encoding="utf-8") as file:
+            for number, line in enumerate(file, 1):
+                text = line.split("#", 1)[0].strip()
+                if not text:
+                    continue
+                try:
+                    value = float(text.split()[0].rstrip(","))
+                except ValueError:
+                    raise SimulationError(f"{path}: line {number} is not a time in seconds: {text!r}") from None
+                if not math.isfinite(value):
+                    raise SimulationError(f"{path}: line {number} is not a finite time: {text!r}")
+                times.append(value)
+    except OSError as error:
+        raise SimulationError(f"{path}: cannot read timestamps ({error.strerror})") from None
+    except UnicodeDecodeError:
+        raise SimulationError(f"{path}: not a text file of timestamps") from None
+    return np.round(np.asarray(times, dtype=np.float64) * 1e6).astype(np.int64)
+
+
+def folder_source(folder: str, timestamps: str | None, fps: float | None, size: str | None) -> FrameSource:
+    """The images of ``folder`` in natural name order, timed by a timestamps file or ``fps``."""
+    import cv2
+
+    names = sorted((n for n in os.listdir(folder) if n.lower().endswith(IMAGE_EXTENSIONS)), key=_natural_key)
+    if not names:
+        raise SimulationError(f"{folder}: no images in this folder ({', '.join(IMAGE_EXTENSIONS[:5])}, ...)")
+    if timestamps is None and os.path.isfile(os.path.join(folder, TIMESTAMPS_FILE)) and not fps:
+        timestamps = os.path.join(folder, TIMESTAMPS_FILE)
+    if timestamps is not None:
+        times = read_timestamps_us(timestamps)
+        if len(times) != len(names):
+            raise SimulationError(f"{timestamps}: {len(times)} timestamps for {len(names)} images in {folder}")
+        if np.any(np.diff(times) <= 0):
+            i = int(np.argmax(np.diff(times) <= 0)) + 1
+            raise SimulationError(f"{timestamps}: times must increase (line {i + 1} is not after line {i})")
+        offset_us = int(times[0])
+        times = times - offset_us  # events start at 0; the truth file keeps the offset
+    elif fps:
+        if not fps > 0 or math.isinf(fps):
+            raise SimulationError(f"--fps must be positive, got {fps}")
+        times = np.round(np.arange(len(names)) * (1e6 / fps)).astype(np.int64)
+        offset_us = 0
+    else:
+        raise SimulationError(f"{folder}: no {TIMESTAMPS_FILE}; give --timestamps FILE or --fps")
+    target = parse_sensor_size(size) if size else None
+
+    def read(name: str) -> np.ndarray:
+        path = os.path.join(folder, name)
+        image = cv2.imread(path, cv2.IMREAD_UNCHANGED)
+        if image is None:
+            raise SimulationError(f"{path}: cannot read this image")
+        return _resize(_luma(image, path), target)
+
+    first = read(names[0])
+    height, width = first.shape
+    parse_sensor_size(f"{width}x{height}")
+
+    def frames():
+        yield int(times[0]), first
+        for t_us, name in zip(times[1:], names[1:]):
+            frame = read(name)
+            if frame.shape != first.shape:
+                raise SimulationError(
+                    f"{os.path.join(folder, name)}: {frame.shape[1]}x{frame.shape[0]} image among "
+                    f"{width}x{height} ones (give --size to resize them all)"
+                )
+            yield int(t_us), frame
+
+    attributes = {
+        "folder": os.path.basename(os.path.normpath(folder)), "images": len(names), "time_offset_us": offset_us,
+    }
+    return FrameSource(folder, width, height, frames(), len(names), attributes)
+
+
+def open_source(source: str, size, duration, fps, timestamps, scene_options) -> FrameSource:
+    if source.startswith("scene:"):
+        return scene_source(source[len("scene:"):], size, duration, scene_options)
+    if scene_options:
+        raise SimulationError("scene options (--period, --speed, ...) apply to scene:NAME sources only")
+    if duration is not None:
+        raise SimulationError("--duration applies to scene:NAME sources only")
+    if os.path.isdir(source):
+        return folder_source(source, timestamps, fps, size)
+    if not os.path.exists(source):
+        raise SimulationError(f"{source}: no such file or folder (a scene is given as scene:NAME)")
+    if timestamps is not None:
+        raise SimulationError("--timestamps applies to image folders only")
+    try:
+        with open(source, "rb") as file:
+            head = file.read(4096)
+    except OSError as error:
+        raise SimulationError(f"{source}: cannot open ({error.strerror})") from None
+    for fmt in FORMATS:
+        if fmt.sniff(head):
+            raise SimulationError(
+                f"{source}: is an event stream ({fmt.description}); adding noise to event streams is not "
+                "supported yet, give a video, an image folder or scene:NAME"
+            )
+    return video_source(source, fps, size)
+
+
+# -- the command ---------------------------------------------------------------------------------------------------
+
+_SCENE_OPTIONS = {  # keyword of the scene functions -> command-line option
+    "frame_rate_hz": "frame_rate",
+    "period_s": "period",
+    "speed_px_s": "speed",
+    "wavelength_px": "wavelength",
+    "bar_width_px": "bar_width",
+    "orientation": "orientation",
+    "min_level": "min_level",
+    "max_level": "max_level",
+    "level": "level",
+}
+
+
+def model_parameters(preset: str | None, given: dict[str, Any]) -> dict[str, Any]:
+    """v2e's defaults, then the preset's values, then every option the user gave."""
+    parameters = dict(DEFAULT_PARAMETERS)
+    if preset:
+        parameters.update(PRESETS[preset])
+    parameters.update({key: value for key, value in given.items() if value is not None})
+    return parameters
+
+
+def _progress(source: FrameSource) -> Iterator[tuple[int, np.ndarray]]:
+    """Frames unchanged, with a progress bar on stderr when it is a terminal."""
+    if not sys.stderr.isatty():
+        yield from source.frames
+        return
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    columns = [TextColumn("simulating {task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn()]
+    with Progress(*columns, transient=True, console=Console(stderr=True)) as progress:
+        task = progress.add_task(source.name, total=source.count)
+        for item in source.frames:
+            yield item
+            progress.advance(task)
+
+
+def _attribute(value):
+    return "" if value is None else value
+
+
+def _float_option(name: str, help: str):
+    return click.option(name, type=float, default=None, help=help)
+
+
+@click.command()
+@click.argument("source", metavar="SOURCE")
+@click.option(
+    "-o", "--output", default="-", metavar="OUT", type=click.Path(dir_okay=False, allow_dash=True),
+    help="Output event file; `-` or absent: stdout (AEDAT 4.0 unless --format says otherwise).",
+)
+@click.option(
+    "--format", "output_format", default=None,
+    type=click.Choice([f.name for f in FORMATS if f.writer], case_sensitive=False),
+    help="Output format; default: from OUT's extension, AEDAT 4.0 on stdout.",
+)
+@click.option("--truth", type=click.Path(dir_okay=False), default=None,
+              help="Write the ground truth (thresholds maps `on`, `off`, per-event `label`) to this HDF5 file.")
+@click.option("--size", metavar="WxH", default=None,
+              help=f"Sensor size of a scene (default {DEFAULT_SCENE_SIZE}); for a video or images: resize to it.")
+@click.option("--duration", metavar="TIME", default=None,
+              help=f"Scene length, e.g. 2s, 500ms (default {DEFAULT_DURATION}).")
+@click.option("--fps", type=float, default=None,
+              help="Frame rate of an image folder without timestamps, or to override a video's.")
+@click.option("--timestamps", type=click.Path(dir_okay=False), default=None,
+              help=f"Image folder: file of frame times, one per line in seconds (default: {TIMESTAMPS_FILE} "
+                   "in the folder).")
+@click.option("--preset", type=click.Choice(sorted(PRESETS)), default=None,
+              help="v2e's parameter sets: clean (sigma 0.02, no low-pass, no noise) or noisy (sigma 0.05, "
+                   "cutoff 30 Hz, leak 0.1 Hz, shot 5 Hz); options given explicitly override it.")
+@_float_option("--pos-thres", "Mean ON threshold, log units (default 0.2).")
+@_float_option("--neg-thres", "Mean OFF threshold, log units (default 0.2).")
+@_float_option("--sigma-thres", "Per-pixel threshold standard deviation (default 0.03).")
+@_float_option("--correlated-sigma-thres", "Standard deviation of a spatially smooth threshold field (default 0).")
+@_float_option("--correlated-length-px", "Correlation length of that field, pixels (default 10).")
+@_float_option("--cutoff-hz", "Photoreceptor low-pass cutoff at full intensity; 0 = none (default).")
+@_float_option("--leak-rate-hz", "Leak (background activity) event rate per pixel (default 0.1).")
+@_float_option("--leak-spread-decades", "Per-pixel spread of the leak rate, decades (default 0.1).")
+@_float_option("--shot-noise-rate-hz", "Shot-noise rate per pixel in the dark, ON+OFF (default 0).")
+@click.option("--refractory-us", type=int, default=None, help="Refractory period, microseconds (default 0).")
+@_float_option("--hot-pixel-fraction", "Fraction of hot pixels (default 0).")
+@_float_option("--hot-pixel-rate-hz", "Event rate of a hot pixel (default 100).")
+@_float_option("--dead-pixel-fraction", "Fraction of dead pixels (default 0).")
+@click.option("--seed", type=int, default=None,
+              help="Seed of every random draw (default: a fresh one, recorded in --truth and the output's source).")
+@click.option("--frame-rate", type=float, default=None, help="Scene frame rate, Hz (default 1000).")
+@click.option("--period", default=None, metavar="TIME", help="flicker, step: period (default 500ms, 1s).")
+@click.option("--speed", type=float, default=None, help="gradient, bars: speed in pixels per second (default 50).")
+@click.option("--wavelength", type=float, default=None, help="gradient: rise-and-fall length, pixels (default 64).")
+@click.option("--bar-width", type=float, default=None, help="bars: bar width, pixels (default 8).")
+@click.option("--orientation", type=click.Choice(["vertical", "horizontal"]), default=None, help="bars: direction.")
+@click.option("--min-level", type=float, default=None, help="Scene's darkest intensity, 0-255 (default 50).")
+@click.option("--max-level", type=float, default=None, help="Scene's brightest intensity, 0-255 (default 200).")
+@click.option("--level", type=float, default=None, help="static: intensity, 0-255 (default 128).")
+def simulate(source, output, output_format, truth, size, duration, fps, timestamps, preset, seed, **options):
+    """Simulate a DVS looking at SOURCE: a video file, a folder of images, or scene:NAME.
+
+    Scenes: flicker, gradient, bars, step, static. The pixel model is v2e's (lin-log, low-pass, threshold
+    mismatch, leak, shot noise, hot and dead pixels) with ESIM's per-pixel crossing times.
+
+    \b
+    evtools simulate scene:flicker --size 64x48 --duration 2s --truth truth.h5 -o flicker.aedat4
+    evtools simulate video.mp4 --preset noisy --seed 1 | evtools info -
+    """
+    scene_options = {}
+    for keyword, name in _SCENE_OPTIONS.items():
+        value = options.pop(name)
+        if value is not None:
+            scene_options[keyword] = parse_duration_us(value, "--period") * 1e-6 if name == "period" else value
+    parameters = model_parameters(preset, options)
+    frames = open_source(source, size, duration, fps, timestamps, scene_options)
+    simulator = DvsSimulator(frames.width, frames.height, seed=seed, **parameters)
+    if truth is not None and output not in (None, "-"):
+        if os.path.abspath(truth) == os.path.abspath(output) or same_file(truth, output):
+            raise SimulationError("--truth and -o name the same file; give two different files")
+    description = f"evtools simulate {frames.name} seed={simulator.seed}"
+    info = StreamInfo(frames.width, frames.height, metadata={"source": description})
+    inputs = (source,) if not source.startswith("scene:") else ()
+    with create_events(output, info, format=output_format, inputs=inputs) as writer:
+        if truth is None:
+            _run(simulator, frames, writer, None)
+        else:
+            import h5py
+
+            with output_stream(truth, binary_name="HDF5", needs_seek=True) as stream, h5py.File(stream, "w") as h5:
+                _start_truth(h5, simulator, frames, preset)
+                _run(simulator, frames, writer, h5["label"])
+
+
+def _start_truth(h5, simulator: DvsSimulator, frames: FrameSource, preset: str | None) -> None:
+    h5.create_dataset("on", data=simulator.on_thres)
+    h5.create_dataset("off", data=simulator.off_thres)
+    h5.create_dataset("hot_pixels", data=simulator.hot_pixels)
+    h5.create_dataset("dead_pixels", data=simulator.dead_pixels)
+    h5.create_dataset("leak_rate_hz", data=simulator.leak_rate_map_hz.astype(np.float32))
+    h5.create_dataset("label", shape=(0,), maxshape=(None,), dtype=np.uint8, chunks=(1 << 16,), compression="gzip")
+    attributes = {
+        **simulator.parameters,
+        "width": frames.width,
+        "height": frames.height,
+        "source": frames.name,
+        "preset": preset or "",
+        "labels": ", ".join(f"{code} {name}" for code, name in LABELS.items()),
+        **{f"source_{key}": value for key, value in frames.attributes.items()},
+    }
+    for key, value in attributes.items():
+        h5.attrs[key] = _attribute(value)
+    h5["on"].attrs["units"] = h5["off"].attrs["units"] = "log intensity"
+
+
+def _run(simulator: DvsSimulator, frames: FrameSource, writer, labels_dataset) -> None:
+    pending, pending_labels, held = [], [], 0
+
+    def write() -> None:
+        nonlocal pending, pending_labels, held
+        if not held:
+            return
+        writer.write(join(pending))
+        if labels_dataset is not None:
+            start = labels_dataset.shape[0]
+            labels_dataset.resize((start + held,))
+            labels_dataset[start:] = np.concatenate(pending_labels)
+        pending, pending_labels, held = [], [], 0
+
+    for t_us, frame in _progress(frames):
+        events, labels = simulator.process_labelled(t_us, frame)
+        if len(events):
+            pending.append(events)
+            pending_labels.append(labels)
+            held += len(events)
+            if held >= CHUNK_EVENTS:
+                write()
+    events, labels = simulator.flush_labelled()
+    if len(events):
+        pending.append(events)
+        pending_labels.append(labels)
+        held += len(events)
+    write()

@@ -1,0 +1,592 @@
+"""DVS emulation: frames of intensity in, events out, with every noise source of a real sensor and its labels.
+
+The pixel model is v2e's (lin-log photoreceptor, intensity-dependent low-pass, threshold mismatch, leak, shot
+noise, hot and dead pixels) with ESIM's per-pixel timing (every crossing at its own interpolated time between two
+frames); ``../shared/ALGORITHMS.md`` section 1 states it. :class:`DvsSimulator` is the stream processor
+(``process(t_us, frames)`` frame by frame, in bounded memory), :func:`simulate_frames` the one-shot convenience,
+and the ``*_scene`` functions are the built-in stimuli of the report, as frame generators.
+
+References
+----------
+Y. Hu, S.-C. Liu, T. Delbruck, "v2e: From Video Frames to Realistic DVS Events", CVPR Workshops, 2021.
+H. Rebecq, D. Gehrig, D. Scaramuzza, "ESIM: an Open Event Camera Simulator", Conference on Robot Learning, 2018.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Callable, Iterable, Iterator
+
+import numpy as np
+
+from evtools._kernels.pixel import (
+    LABEL_HOT,
+    LABEL_LEAK,
+    LABEL_SHOT,
+    LABEL_SIGNAL,
+    LIN_LOG_KNEE,
+    LIN_LOG_SLOPE,
+    NEVER_US,
+    advance_pixels,
+    lin_log_frame,
+)
+from evtools.errors import EvtoolsError
+from evtools.events import EVENT_DTYPE, check_sensor_size, empty_events
+
+__all__ = [
+    "DEAD_PIXEL_THRESHOLD",
+    "DEFAULT_PARAMETERS",
+    "DvsSimulator",
+    "LABELS",
+    "MIN_THRESHOLD",
+    "PRESETS",
+    "SCENES",
+    "SimulationError",
+    "lin_log",
+    "scene_frames",
+    "simulate_frames",
+]
+
+LABELS = {LABEL_SIGNAL: "signal", LABEL_LEAK: "leak", LABEL_SHOT: "shot", LABEL_HOT: "hot"}
+"""Ground-truth label of each output event: 0 signal, 1 leak, 2 shot noise, 3 hot pixel."""
+
+MIN_THRESHOLD = 0.01
+"""Thresholds drawn below this (log units) are clamped to it (v2e)."""
+DEAD_PIXEL_THRESHOLD = 100.0
+"""Threshold of a dead pixel (log units): far beyond the 0-5.5 range of lin-log intensities, so it never fires."""
+
+DEFAULT_PARAMETERS: dict[str, Any] = {
+    "pos_thres": 0.2,
+    "neg_thres": 0.2,
+    "sigma_thres": 0.03,
+    "correlated_sigma_thres": 0.0,
+    "correlated_length_px": 10.0,
+    "cutoff_hz": 0.0,
+    "leak_rate_hz": 0.1,
+    "leak_spread_decades": 0.1,
+    "shot_noise_rate_hz": 0.0,
+    "refractory_us": 0,
+    "hot_pixel_fraction": 0.0,
+    "hot_pixel_rate_hz": 100.0,
+    "dead_pixel_fraction": 0.0,
+}
+"""v2e's ``EventEmulator`` defaults (thresholds 0.2 +- 0.03, no low-pass, leak 0.1 Hz, no shot noise), no hot or
+dead pixels, no spatially correlated mismatch."""
+
+PRESETS: dict[str, dict[str, Any]] = {
+    "clean": {"pos_thres": 0.2, "neg_thres": 0.2, "sigma_thres": 0.02, "cutoff_hz": 0.0, "leak_rate_hz": 0.0,
+              "shot_noise_rate_hz": 0.0, "refractory_us": 0},
+    "noisy": {"pos_thres": 0.2, "neg_thres": 0.2, "sigma_thres": 0.05, "cutoff_hz": 30.0, "leak_rate_hz": 0.1,
+              "shot_noise_rate_hz": 5.0, "refractory_us": 0},
+}
+"""v2e's ``--dvs_params clean`` and ``noisy``."""
+
+
+class SimulationError(EvtoolsError, ValueError):
+    """A simulation parameter or input frame that cannot be used."""
+
+
+def lin_log(intensity) -> np.ndarray:
+    """v2e's lin-log photoreceptor: ``I * ln(20) / 20`` for ``I <= 20``, else ``ln(I)`` (intensity 0-255).
+
+    Linear near zero so that dark pixels do not amplify noise without bound, continuous at the knee.
+    Negative intensities count as 0.
+    """
+    intensity = np.maximum(np.asarray(intensity, dtype=np.float64), 0.0)
+    with np.errstate(divide="ignore"):
+        return np.where(intensity <= LIN_LOG_KNEE, intensity * LIN_LOG_SLOPE, np.log(np.maximum(intensity, 1.0)))
+
+
+def _check_nonnegative(name: str, value: float) -> float:
+    value = float(value)
+    if not value >= 0.0 or math.isinf(value):
+        raise SimulationError(f"{name} must be a finite number >= 0, got {value}")
+    return value
+
+
+def _check_fraction(name: str, value: float) -> float:
+    value = _check_nonnegative(name, value)
+    if value > 1.0:
+        raise SimulationError(f"{name} must be between 0 and 1, got {value}")
+    return value
+
+
+class DvsSimulator:
+    """A DVS sensor of ``width x height`` pixels, turning frames of intensity into events.
+
+    Every random draw is made from the seed: the per-pixel maps (thresholds, leak rates, hot and dead pixels,
+    initial leak phases) once at construction from the simulator's own numpy generators, and the per-event draws
+    of shot noise and hot pixels from a counter-based generator per pixel, so the output never depends on how
+    the frames are batched into :meth:`process` calls.
+
+    Parameters
+    ----------
+    width, height : int
+        Sensor size in pixels.
+    pos_thres, neg_thres : float
+        Mean ON and OFF contrast thresholds, log units (v2e default 0.2).
+    sigma_thres : float
+        Standard deviation of the per-pixel thresholds (v2e default 0.03); ``theta_on ~ N(pos_thres, sigma)``,
+        ``theta_off ~ N(neg_thres, sigma)``, clamped at >= 0.01.
+    correlated_sigma_thres : float
+        Standard deviation of a spatially smooth field added to both threshold maps (0: none), the report's
+        "gross failing areas".
+    correlated_length_px : float
+        Correlation length of that field (the sigma of the Gaussian that smooths white noise), pixels.
+    cutoff_hz : float
+        Photoreceptor bandwidth at full intensity; it falls with intensity as in v2e (0: no low-pass).
+    leak_rate_hz : float
+        Mean leak (background activity) rate: the reference drifts down by ``rate * theta_on`` per second, so a
+        static pixel emits ON events at about this rate.
+    leak_spread_decades : float
+        Per-pixel spread of the leak rate: standard deviation of its log10, log-normal with mean 1 (v2e's
+        ``noise_rate_cov_decades``).
+    shot_noise_rate_hz : float
+        Shot-noise rate per pixel in the dark (ON and OFF together); at intensity I it is
+        ``rate * (1 - 0.75 * I / 255)`` (v2e). After a shot event the pixel's reference resets to its signal.
+    refractory_us : int
+        An event within this time of the pixel's previous event is dropped; a dropped threshold crossing still
+        moves the reference (ESIM). 0: none.
+    hot_pixel_fraction : float
+        Fraction of pixels that fire independently at ``hot_pixel_rate_hz`` (ON or OFF at random), label 3.
+    hot_pixel_rate_hz : float
+        Event rate of each hot pixel.
+    dead_pixel_fraction : float
+        Fraction of pixels that never fire: threshold :data:`DEAD_PIXEL_THRESHOLD`, no leak, no shot noise.
+    seed : int or None
+        Seed of every random draw; None draws one (see :attr:`seed`).
+    thresholds : (ndarray, ndarray) or None
+        Explicit ON and OFF threshold maps (height x width, log units, > 0) instead of drawn ones (tests,
+        replaying a measured sensor); dead pixels still get :data:`DEAD_PIXEL_THRESHOLD`.
+
+    Attributes
+    ----------
+    on_thres, off_thres : ndarray of float32, shape (height, width)
+        The thresholds map (the ground truth that ``--truth`` writes).
+    hot_pixels, dead_pixels : ndarray of bool, shape (height, width)
+    leak_rate_map_hz : ndarray of float64, shape (height, width)
+    seed : int
+        The seed actually used.
+
+    References
+    ----------
+    Y. Hu, S.-C. Liu, T. Delbruck, "v2e: From Video Frames to Realistic DVS Events", CVPR Workshops, 2021.
+    H. Rebecq, D. Gehrig, D. Scaramuzza, "ESIM: an Open Event Camera Simulator", CoRL, 2018.
+    """
+
+    def __init__(
+        self,
+        width: int,
+        height: int,
+        *,
+        pos_thres: float = DEFAULT_PARAMETERS["pos_thres"],
+        neg_thres: float = DEFAULT_PARAMETERS["neg_thres"],
+        sigma_thres: float = DEFAULT_PARAMETERS["sigma_thres"],
+        correlated_sigma_thres: float = DEFAULT_PARAMETERS["correlated_sigma_thres"],
+        correlated_length_px: float = DEFAULT_PARAMETERS["correlated_length_px"],
+        cutoff_hz: float = DEFAULT_PARAMETERS["cutoff_hz"],
+        leak_rate_hz: float = DEFAULT_PARAMETERS["leak_rate_hz"],
+        leak_spread_decades: float = DEFAULT_PARAMETERS["leak_spread_decades"],
+        shot_noise_rate_hz: float = DEFAULT_PARAMETERS["shot_noise_rate_hz"],
+        refractory_us: int = DEFAULT_PARAMETERS["refractory_us"],
+        hot_pixel_fraction: float = DEFAULT_PARAMETERS["hot_pixel_fraction"],
+        hot_pixel_rate_hz: float = DEFAULT_PARAMETERS["hot_pixel_rate_hz"],
+        dead_pixel_fraction: float = DEFAULT_PARAMETERS["dead_pixel_fraction"],
+        seed: int | None = None,
+        thresholds: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> None:
+        check_sensor_size(width, height)
+        self.width, self.height = int(width), int(height)
+        for name, value in (("pos_thres", pos_thres), ("neg_thres", neg_thres)):
+            if not _check_nonnegative(name, value) >= MIN_THRESHOLD:
+                raise SimulationError(f"{name} must be at least {MIN_THRESHOLD} log units, got {value}")
+        if hot_pixel_fraction + dead_pixel_fraction > 1.0:
+            raise SimulationError("hot_pixel_fraction + dead_pixel_fraction must not exceed 1")
+        refractory = _check_nonnegative("refractory_us", refractory_us)
+        if refractory != int(refractory):
+            raise SimulationError(f"refractory_us must be a whole number of microseconds, got {refractory_us}")
+        if seed is None:
+            seed = int(np.random.SeedSequence().entropy % (1 << 63))
+        if not isinstance(seed, (int, np.integer)) or seed < 0:
+            raise SimulationError(f"seed must be an integer >= 0, got {seed!r}")
+        self.seed = int(seed)
+        self.parameters: dict[str, Any] = {
+            "pos_thres": float(pos_thres),
+            "neg_thres": float(neg_thres),
+            "sigma_thres": _check_nonnegative("sigma_thres", sigma_thres),
+            "correlated_sigma_thres": _check_nonnegative("correlated_sigma_thres", correlated_sigma_thres),
+            "correlated_length_px": _check_nonnegative("correlated_length_px", correlated_length_px),
+            "cutoff_hz": _check_nonnegative("cutoff_hz", cutoff_hz),
+            "leak_rate_hz": _check_nonnegative("leak_rate_hz", leak_rate_hz),
+            "leak_spread_decades": _check_nonnegative("leak_spread_decades", leak_spread_decades),
+            "shot_noise_rate_hz": _check_nonnegative("shot_noise_rate_hz", shot_noise_rate_hz),
+            "refractory_us": int(refractory),
+            "hot_pixel_fraction": _check_fraction("hot_pixel_fraction", hot_pixel_fraction),
+            "hot_pixel_rate_hz": _check_nonnegative("hot_pixel_rate_hz", hot_pixel_rate_hz),
+            "dead_pixel_fraction": _check_fraction("dead_pixel_fraction", dead_pixel_fraction),
+            "seed": self.seed,
+        }
+        self._draw_maps(thresholds)
+        n = self.width * self.height
+        self._lp_log = np.zeros(n)
+        self._ref_log = np.zeros(n)
+        self._last_event_us = np.full(n, NEVER_US, dtype=np.int64)
+        self._shot_draws = np.zeros(n, dtype=np.uint64)
+        self._hot_draws = np.zeros(n, dtype=np.uint64)
+        self._t_us: int | None = None  # time of the last frame seen
+        self._capacity = max(1 << 16, 2 * n)
+        self._out_t = np.empty(self._capacity, dtype=np.int64)
+        self._out_x = np.empty(self._capacity, dtype=np.int16)
+        self._out_y = np.empty(self._capacity, dtype=np.int16)
+        self._out_p = np.empty(self._capacity, dtype=np.bool_)
+        self._out_label = np.empty(self._capacity, dtype=np.uint8)
+
+    # -- the per-pixel maps, drawn once -------------------------------------------------------------------
+
+    def _draw_maps(self, thresholds) -> None:
+        p = self.parameters
+        shape = (self.height, self.width)
+        n = self.width * self.height
+        # one independent generator per component, so switching one component on or off never changes another
+        streams = np.random.SeedSequence(self.seed).spawn(6)
+        thres_rng, field_rng, pixel_rng, leak_rng, noise_rng, key_rng = (np.random.default_rng(s) for s in streams)
+        if thresholds is None:
+            on = thres_rng.normal(p["pos_thres"], p["sigma_thres"], shape)
+            off = thres_rng.normal(p["neg_thres"], p["sigma_thres"], shape)
+            if p["correlated_sigma_thres"] > 0:
+                field = _smooth_field(field_rng, shape, p["correlated_length_px"])
+                on += p["correlated_sigma_thres"] * field
+                off += p["correlated_sigma_thres"] * field
+            on, off = np.maximum(on, MIN_THRESHOLD), np.maximum(off, MIN_THRESHOLD)
+        else:
+            on, off = (np.array(m, dtype=np.float64) for m in thresholds)
+            if on.shape != shape or off.shape != shape:
+                raise SimulationError(f"threshold maps must have shape {shape} (height, width)")
+            if not (np.all(on >= MIN_THRESHOLD) and np.all(off >= MIN_THRESHOLD)):
+                raise SimulationError(f"threshold maps must be >= {MIN_THRESHOLD} everywhere")
+        order = pixel_rng.permutation(n)
+        n_hot = int(round(p["hot_pixel_fraction"] * n))
+        n_dead = min(int(round(p["dead_pixel_fraction"] * n)), n - n_hot)
+        hot = np.zeros(n, dtype=bool)
+        hot[order[:n_hot]] = True
+        dead = np.zeros(n, dtype=bool)
+        dead[order[n_hot:n_hot + n_dead]] = True
+        on, off = on.reshape(-1), off.reshape(-1)
+        on[dead] = DEAD_PIXEL_THRESHOLD
+        off[dead] = DEAD_PIXEL_THRESHOLD
+        # the thresholds the kernel uses are exactly the float32 ones that the truth file holds
+        self.on_thres = on.astype(np.float32).reshape(shape)
+        self.off_thres = off.astype(np.float32).reshape(shape)
+        self._on = self.on_thres.reshape(-1)
+        self._off = self.off_thres.reshape(-1)
+        self.hot_pixels = hot.reshape(shape)
+        self.dead_pixels = dead.reshape(shape)
+
+        sigma_ln = p["leak_spread_decades"] * math.log(10.0)
+        spread = np.exp(sigma_ln * leak_rng.standard_normal(n) - sigma_ln**2 / 2)  # log-normal, mean 1
+        leak = p["leak_rate_hz"] * spread
+        leak[dead] = 0.0
+        self._leak_rate_hz = leak
+        self.leak_rate_map_hz = leak.reshape(shape)
+        self._leak_phase = leak_rng.random(n)  # where each pixel starts in its leak cycle
+
+        self._shot_rate_hz = np.where(dead, 0.0, p["shot_noise_rate_hz"])
+        self._hot_rate_hz = np.where(hot, p["hot_pixel_rate_hz"], 0.0)
+        self._shot_budget = noise_rng.standard_exponential(n)
+        self._hot_budget = noise_rng.standard_exponential(n)
+        self._shot_key, self._hot_key = (np.uint64(k) for k in key_rng.integers(0, 1 << 64, 2, dtype=np.uint64))
+
+    # -- processing ---------------------------------------------------------------------------------------
+
+    def process(self, t_us, frames) -> np.ndarray:
+        """Events up to the last of ``frames``; see :meth:`process_labelled` (this drops the labels)."""
+        return self.process_labelled(t_us, frames)[0]
+
+    def process_labelled(self, t_us, frames) -> tuple[np.ndarray, np.ndarray]:
+        """Advance the sensor through one frame or a batch of frames; return their events and labels.
+
+        Parameters
+        ----------
+        t_us : int or array_like of int
+            Time of the frame (or of each frame) in microseconds, strictly increasing over the whole stream.
+        frames : ndarray, shape (height, width) or (n, height, width)
+            Intensity, 0-255 (float or integer; converted to float32). The first frame of a stream only sets
+            the pixels' state and emits nothing.
+
+        Returns
+        -------
+        events : ndarray of EVENT_DTYPE
+            The events between the previous frame and the last of these, sorted by time; within one time, by
+            row, column, then the pixel's own order.
+        labels : ndarray of uint8
+            Per event: 0 signal, 1 leak, 2 shot noise, 3 hot pixel (:data:`LABELS`). A threshold crossing is
+            leak when it is an ON event of a pixel whose (filtered) signal did not rise in that frame interval,
+            so that only the drifting reference can have caused it; otherwise it is signal.
+        """
+        frames = np.asarray(frames)
+        times = np.asarray(t_us)
+        if frames.ndim == 2:
+            frames, times = frames[None], times.reshape(1)
+        if frames.ndim != 3 or frames.shape[1:] != (self.height, self.width):
+            raise SimulationError(
+                f"frames of shape {frames.shape[-2:] if frames.ndim >= 2 else frames.shape} do not match the "
+                f"{self.width}x{self.height} sensor (expected height x width = {self.height} x {self.width})"
+            )
+        if times.ndim != 1 or len(times) != len(frames):
+            raise SimulationError(f"{len(frames)} frames need as many times, got {times.size}")
+        if times.size and not np.issubdtype(times.dtype, np.integer):
+            if not np.all(np.isfinite(times)):
+                raise SimulationError("frame times must be finite")
+            times = np.round(times)
+        times = times.astype(np.int64)
+        count = 0
+        for k in range(len(frames)):
+            frame = np.ascontiguousarray(frames[k], dtype=np.float32).reshape(-1)
+            t1 = int(times[k])
+            if self._t_us is None:
+                self._start(t1, frame)
+                continue
+            if t1 <= self._t_us:
+                raise SimulationError(f"frame times must increase: frame at {t1} us after one at {self._t_us} us")
+            pixel = 0
+            while True:
+                count, pixel = advance_pixels(
+                    frame, self._t_us, t1, self.width, self.parameters["cutoff_hz"],
+                    self.parameters["refractory_us"], self._on, self._off, self._leak_rate_hz,
+                    self._shot_rate_hz, self._hot_rate_hz, self._shot_key, self._hot_key,
+                    self._lp_log, self._ref_log, self._last_event_us, self._shot_budget, self._hot_budget,
+                    self._shot_draws, self._hot_draws,
+                    self._out_t, self._out_x, self._out_y, self._out_p, self._out_label, count, pixel,
+                )
+                if pixel == frame.size:
+                    break
+                self._grow(count)
+            self._t_us = t1
+        return self._take(count)
+
+    def flush(self) -> np.ndarray:
+        """Nothing is held back (each frame interval's events leave with it): an empty chunk."""
+        return empty_events()
+
+    def flush_labelled(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(flush(), no labels)``."""
+        return empty_events(), np.empty(0, dtype=np.uint8)
+
+    def _start(self, t_us: int, frame: np.ndarray) -> None:
+        lin_log_frame(frame, self._lp_log)
+        # pixels with leak start at a random point of their leak cycle, as a sensor that has been on for a while
+        self._ref_log[:] = self._lp_log - np.where(self._leak_rate_hz > 0, self._leak_phase * self._on, 0.0)
+        self._t_us = t_us
+
+    def _grow(self, keep: int) -> None:
+        self._capacity *= 2
+        for name in ("_out_t", "_out_x", "_out_y", "_out_p", "_out_label"):
+            old = getattr(self, name)
+            new = np.empty(self._capacity, dtype=old.dtype)
+            new[:keep] = old[:keep]
+            setattr(self, name, new)
+
+    def _take(self, count: int) -> tuple[np.ndarray, np.ndarray]:
+        t = self._out_t[:count]
+        # the kernel writes pixel by pixel; a stable sort by time leaves ties in (frame, row, column, own order)
+        order = np.argsort(t, kind="stable")
+        events = np.empty(count, dtype=EVENT_DTYPE)
+        events["t"] = t[order]
+        events["x"] = self._out_x[:count][order]
+        events["y"] = self._out_y[:count][order]
+        events["p"] = self._out_p[:count][order]
+        return events, self._out_label[:count][order]
+
+
+def _smooth_field(rng: np.random.Generator, shape: tuple[int, int], length_px: float) -> np.ndarray:
+    """White noise smoothed by a Gaussian of sigma ``length_px``, scaled to unit standard deviation."""
+    field = rng.standard_normal(shape)
+    if length_px > 0:
+        import cv2
+
+        field = cv2.GaussianBlur(field, (0, 0), sigmaX=length_px, sigmaY=length_px, borderType=cv2.BORDER_REFLECT)
+    std = field.std()
+    return field / std if std > 0 else field
+
+
+def simulate_frames(
+    frames: Iterable[tuple[int, np.ndarray]], width: int, height: int, **parameters
+) -> tuple[np.ndarray, np.ndarray]:
+    """Simulate a whole (short) sequence at once: :class:`DvsSimulator` ``process`` on every frame, then ``flush``.
+
+    Parameters
+    ----------
+    frames : iterable of (t_us, frame)
+        Frame times (microseconds, increasing) and intensity frames (height x width, 0-255).
+    width, height : int
+        Sensor size.
+    **parameters
+        Passed to :class:`DvsSimulator`.
+
+    Returns
+    -------
+    events : ndarray of EVENT_DTYPE
+    labels : ndarray of uint8
+    """
+    simulator = DvsSimulator(width, height, **parameters)
+    events, labels = [], []
+    for t_us, frame in frames:
+        chunk, chunk_labels = simulator.process_labelled(t_us, frame)
+        events.append(chunk)
+        labels.append(chunk_labels)
+    chunk, chunk_labels = simulator.flush_labelled()
+    events.append(chunk)
+    labels.append(chunk_labels)
+    return np.concatenate(events, dtype=EVENT_DTYPE), np.concatenate(labels)
+
+
+# -- built-in scenes -----------------------------------------------------------------------------------------
+
+DEFAULT_FRAME_RATE_HZ = 1000.0
+"""Scenes are sampled at 1 kHz: between two frames the pixel model interpolates linearly in log intensity."""
+
+
+def _frame_times_us(duration_us: int, frame_rate_hz: float) -> np.ndarray:
+    if not duration_us > 0:
+        raise SimulationError(f"duration must be positive, got {duration_us} us")
+    if not frame_rate_hz > 0 or math.isinf(frame_rate_hz):
+        raise SimulationError(f"frame rate must be positive, got {frame_rate_hz} Hz")
+    n = int(math.floor(duration_us * 1e-6 * frame_rate_hz + 1e-9)) + 1
+    times = np.round(np.arange(n) * (1e6 / frame_rate_hz)).astype(np.int64)
+    if times[-1] < duration_us:
+        times = np.append(times, duration_us)
+    if len(times) < 2 or np.any(np.diff(times) <= 0):
+        raise SimulationError(f"frame rate {frame_rate_hz} Hz is too high for microsecond frame times")
+    return times
+
+
+def _triangle(phase: np.ndarray | float) -> np.ndarray | float:
+    """0 at integer phases, 1 at half-integer ones, linear in between."""
+    phase = np.mod(phase, 1.0)
+    return 1.0 - np.abs(2.0 * phase - 1.0)
+
+
+def _check_levels(min_level: float, max_level: float) -> None:
+    for name, value in (("min level", min_level), ("max level", max_level)):
+        if not 0.0 <= value <= 255.0:
+            raise SimulationError(f"{name} must be between 0 and 255, got {value}")
+
+
+def flicker_scene(
+    width: int, height: int, duration_us: int, *, frame_rate_hz: float = DEFAULT_FRAME_RATE_HZ,
+    min_level: float = 50.0, max_level: float = 200.0, period_s: float = 0.5,
+) -> Iterator[tuple[int, np.ndarray]]:
+    """Every pixel alike: intensity a triangle wave from ``min_level`` up to ``max_level`` and back per ``period_s``.
+
+    The report's flicker scene: every pixel sees the same log-intensity excursion, so per-pixel event counts
+    reveal the thresholds.
+    """
+    _check_levels(min_level, max_level)
+    _check_positive("period", period_s)
+    times = _frame_times_us(duration_us, frame_rate_hz)
+    levels = min_level + (max_level - min_level) * _triangle(times * 1e-6 / period_s)
+    return ((int(t), np.full((height, width), level, dtype=np.float32)) for t, level in zip(times, levels))
+
+
+def gradient_scene(
+    width: int, height: int, duration_us: int, *, frame_rate_hz: float = DEFAULT_FRAME_RATE_HZ,
+    min_level: float = 50.0, max_level: float = 200.0, speed_px_s: float = 50.0, wavelength_px: float = 64.0,
+) -> Iterator[tuple[int, np.ndarray]]:
+    """The report's moving gradient: intensity rises linearly in x and falls back over ``wavelength_px`` (a
+    triangle profile), the whole pattern moving right at ``speed_px_s``. Every row is alike."""
+    _check_levels(min_level, max_level)
+    _check_positive("wavelength", wavelength_px)
+    times = _frame_times_us(duration_us, frame_rate_hz)
+    x = np.arange(width) + 0.5
+
+    def frame(t):
+        row = min_level + (max_level - min_level) * _triangle((x - speed_px_s * t * 1e-6) / wavelength_px)
+        return _broadcast_rows(row.astype(np.float32), height)
+
+    return ((int(t), frame(t)) for t in times)
+
+
+def bars_scene(
+    width: int, height: int, duration_us: int, *, frame_rate_hz: float = DEFAULT_FRAME_RATE_HZ,
+    min_level: float = 50.0, max_level: float = 200.0, speed_px_s: float = 50.0, bar_width_px: float = 8.0,
+    orientation: str = "vertical",
+) -> Iterator[tuple[int, np.ndarray]]:
+    """Bright bars of ``bar_width_px`` on a dark background (period twice the width), moving at ``speed_px_s``.
+
+    ``vertical`` bars move right, ``horizontal`` ones move down. Each pixel's intensity is the fraction of it
+    the bar covers (box-filtered edges), so an edge crosses a pixel smoothly rather than in one frame.
+    """
+    _check_levels(min_level, max_level)
+    _check_positive("bar width", bar_width_px)
+    if orientation not in ("vertical", "horizontal"):
+        raise SimulationError(f"bar orientation must be vertical or horizontal, got {orientation!r}")
+    times = _frame_times_us(duration_us, frame_rate_hz)
+    length = width if orientation == "vertical" else height
+    edges = np.arange(length + 1, dtype=np.float64)
+    period = 2.0 * bar_width_px
+
+    def covered(u):  # length of bar within [0, u) of the periodic pattern
+        return np.floor(u / period) * bar_width_px + np.minimum(np.mod(u, period), bar_width_px)
+
+    def frame(t):
+        shifted = edges - speed_px_s * t * 1e-6
+        profile = (min_level + (max_level - min_level) * np.diff(covered(shifted))).astype(np.float32)
+        if orientation == "vertical":
+            return _broadcast_rows(profile, height)
+        return np.ascontiguousarray(np.broadcast_to(profile[:, None], (height, width)))
+
+    return ((int(t), frame(t)) for t in times)
+
+
+def step_scene(
+    width: int, height: int, duration_us: int, *, frame_rate_hz: float = DEFAULT_FRAME_RATE_HZ,
+    min_level: float = 50.0, max_level: float = 200.0, period_s: float = 1.0,
+) -> Iterator[tuple[int, np.ndarray]]:
+    """Every pixel alike: ``min_level`` for the first half of each period, ``max_level`` for the second.
+
+    The report's Table 2 stimulus: a step edge seen through each pixel's low-pass filter (give ``cutoff_hz``);
+    without the filter every crossing of the step falls inside one frame interval.
+    """
+    _check_levels(min_level, max_level)
+    _check_positive("period", period_s)
+    times = _frame_times_us(duration_us, frame_rate_hz)
+    high = np.mod(times * 1e-6 / period_s, 1.0) >= 0.5
+    levels = np.where(high, max_level, min_level)
+    return ((int(t), np.full((height, width), level, dtype=np.float32)) for t, level in zip(times, levels))
+
+
+def static_scene(
+    width: int, height: int, duration_us: int, *, frame_rate_hz: float = DEFAULT_FRAME_RATE_HZ,
+    level: float = 128.0,
+) -> Iterator[tuple[int, np.ndarray]]:
+    """A constant uniform image: every event is noise."""
+    _check_levels(level, level)
+    times = _frame_times_us(duration_us, frame_rate_hz)
+    return ((int(t), np.full((height, width), level, dtype=np.float32)) for t in times)
+
+
+def _broadcast_rows(row: np.ndarray, height: int) -> np.ndarray:
+    return np.ascontiguousarray(np.broadcast_to(row, (height, len(row))))
+
+
+def _check_positive(name: str, value: float) -> None:
+    if not value > 0 or math.isinf(value):
+        raise SimulationError(f"{name} must be positive, got {value}")
+
+
+SCENES: dict[str, Callable[..., Iterator[tuple[int, np.ndarray]]]] = {
+    "flicker": flicker_scene,
+    "gradient": gradient_scene,
+    "bars": bars_scene,
+    "step": step_scene,
+    "static": static_scene,
+}
+"""The built-in scenes by name; each is ``f(width, height, duration_us, *, frame_rate_hz, ...)``."""
+
+
+def scene_frames(name: str, width: int, height: int, duration_us: int, **options) -> Iterator[tuple[int, np.ndarray]]:
+    """The frames ``(t_us, float32 frame)`` of the built-in scene ``name`` (see :data:`SCENES`)."""
+    if name not in SCENES:
+        raise SimulationError(f"unknown scene {name!r}; choose one of {', '.join(SCENES)}")
+    check_sensor_size(width, height)
+    return SCENES[name](width, height, duration_us, **options)

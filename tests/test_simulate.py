@@ -1,0 +1,444 @@
+"""``evtools simulate``: the pixel kernel against its naive reference, analytic and statistical checks, the CLI."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import h5py
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from evtools.events import EVENT_DTYPE
+from evtools.simulate import (
+    DEAD_PIXEL_THRESHOLD,
+    PRESETS,
+    SCENES,
+    DvsSimulator,
+    SimulationError,
+    lin_log,
+    scene_frames,
+    simulate_frames,
+)
+from tests.helpers import read_all
+from tests.naive import naive_lin_log, simulate_naive
+
+EVTOOLS = str(Path(sys.executable).with_name("evtools"))
+IDEAL = {"sigma_thres": 0.0, "leak_rate_hz": 0.0, "shot_noise_rate_hz": 0.0, "cutoff_hz": 0.0}
+
+
+def run(*args, check=True) -> subprocess.CompletedProcess:
+    result = subprocess.run([EVTOOLS, *map(str, args)], capture_output=True, timeout=120)
+    if check and result.returncode != 0:
+        raise AssertionError(f"evtools {args} failed ({result.returncode}): {result.stderr.decode()}")
+    return result
+
+
+def assert_clean_error(result: subprocess.CompletedProcess, *needles: str) -> None:
+    stderr = result.stderr.decode()
+    assert result.returncode == 1, stderr
+    assert "Traceback" not in stderr
+    assert stderr.count("\n") == 1 and stderr.startswith("evtools: error: "), stderr
+    for needle in needles:
+        assert needle in stderr, stderr
+    assert result.stdout == b""
+
+
+def inverse_lin_log(level: np.ndarray) -> np.ndarray:
+    level = np.asarray(level, dtype=np.float64)
+    return np.where(level <= math.log(20.0), level * 20.0 / math.log(20.0), np.exp(level))
+
+
+def run_frames(simulator: DvsSimulator, frames) -> tuple[np.ndarray, np.ndarray]:
+    events, labels = [], []
+    for t_us, frame in frames:
+        chunk, chunk_labels = simulator.process_labelled(t_us, frame)
+        events.append(chunk)
+        labels.append(chunk_labels)
+    return np.concatenate(events, dtype=EVENT_DTYPE), np.concatenate(labels)
+
+
+def random_walk_frames(width, height, n_frames, seed):
+    """Frames whose intensities wander over the whole 0-255 range (both lin-log regimes), at irregular times."""
+    rng = np.random.default_rng(seed)
+    frame = rng.uniform(0, 255, (height, width))
+    t_us = 1_000
+    frames = [(t_us, frame.astype(np.float32))]
+    for _ in range(n_frames - 1):
+        frame = np.clip(frame + rng.normal(0, 25, frame.shape), 0, 255)
+        frame[rng.random(frame.shape) < 0.05] = rng.uniform(0, 255)  # occasional big jumps
+        t_us += int(rng.integers(1, 3_000))
+        frames.append((t_us, frame.astype(np.float32)))
+    return frames
+
+
+def as_tuples(events: np.ndarray, labels: np.ndarray):
+    return list(zip(events["t"].tolist(), events["x"].tolist(), events["y"].tolist(), events["p"].tolist(),
+                    labels.tolist()))
+
+
+# -- the kernel against the naive reference ------------------------------------------------------------------------
+
+KERNEL_CASES = {
+    "ideal": dict(IDEAL, sigma_thres=0.05),
+    "lowpass": dict(cutoff_hz=40.0, sigma_thres=0.05, leak_rate_hz=0.0),
+    "everything": dict(cutoff_hz=200.0, sigma_thres=0.05, leak_rate_hz=50.0, shot_noise_rate_hz=80.0,
+                       refractory_us=700, hot_pixel_fraction=0.1, hot_pixel_rate_hz=400.0, dead_pixel_fraction=0.05),
+}
+
+
+@pytest.mark.parametrize("case", sorted(KERNEL_CASES))
+def test_kernel_equals_naive_reference(case):
+    frames = random_walk_frames(9, 7, 40, seed=len(case))
+    simulator = DvsSimulator(9, 7, seed=11, **KERNEL_CASES[case])
+    expected = simulate_naive(DvsSimulator(9, 7, seed=11, **KERNEL_CASES[case]), frames)
+    events, labels = run_frames(simulator, frames)
+    assert len(expected) > 100
+    assert as_tuples(events, labels) == expected
+    if case == "everything":
+        assert set(labels.tolist()) == {0, 1, 2, 3}
+
+
+def test_kernel_output_space_grows_mid_frame():
+    frames = random_walk_frames(9, 7, 30, seed=5)
+    reference, reference_labels = run_frames(DvsSimulator(9, 7, seed=2, **KERNEL_CASES["everything"]), frames)
+    small = DvsSimulator(9, 7, seed=2, **KERNEL_CASES["everything"])
+    small._capacity = 3
+    for name in ("_out_t", "_out_x", "_out_y", "_out_p", "_out_label"):
+        setattr(small, name, getattr(small, name)[:3].copy())
+    events, labels = run_frames(small, frames)
+    np.testing.assert_array_equal(events, reference)
+    np.testing.assert_array_equal(labels, reference_labels)
+
+
+def test_lin_log_is_v2e_and_continuous():
+    intensity = np.array([0.0, 10.0, 20.0, 20.0001, 100.0, 255.0])
+    expected = [naive_lin_log(v) for v in intensity]
+    np.testing.assert_allclose(lin_log(intensity), expected, rtol=1e-15)
+    assert lin_log(20.0) == pytest.approx(math.log(20.0), rel=1e-12)
+    assert lin_log(-5.0) == 0.0
+
+
+# -- analytic checks with an ideal pixel -----------------------------------------------------------------------
+
+
+def test_linear_log_ramp_gives_floor_of_change_over_threshold_at_analytic_times():
+    width, height, duration_us = 12, 10, 1_000_000
+    rng = np.random.default_rng(3)
+    on = rng.uniform(0.1, 0.3, (height, width))
+    off = rng.uniform(0.1, 0.3, (height, width))
+    start = rng.uniform(2.5, 4.5, (height, width))
+    change = rng.uniform(-2.3, 2.3, (height, width))  # rising and falling pixels, both lin-log regimes
+    # only 4 frames: most crossings share a frame interval and each still gets its own time
+    times = np.linspace(0, duration_us, 4).round().astype(np.int64)
+    frames = [(t, inverse_lin_log(start + change * t / duration_us).astype(np.float32)) for t in times]
+    simulator = DvsSimulator(width, height, thresholds=(on, off), seed=0, **IDEAL)
+    events, labels = run_frames(simulator, frames)
+    assert np.all(labels == 0)
+    first = lin_log(frames[0][1])  # the exact levels the float32 frames carry
+    last = lin_log(frames[-1][1])
+    on32, off32 = simulator.on_thres.astype(np.float64), simulator.off_thres.astype(np.float64)
+    for y in range(height):
+        for x in range(width):
+            mine = events[(events["x"] == x) & (events["y"] == y)]
+            dl = last[y, x] - first[y, x]
+            theta = on32[y, x] if dl > 0 else off32[y, x]
+            n = math.floor(abs(dl) / theta)
+            assert len(mine) == n, (x, y, dl, theta)
+            assert np.all(mine["p"] == (dl > 0))
+            expected_t = np.arange(1, n + 1) * theta / abs(dl) * duration_us
+            np.testing.assert_allclose(mine["t"], expected_t, atol=1.0)
+    assert len(events) > 500
+
+
+def test_triangle_wave_with_different_on_and_off_thresholds():
+    width, height = 16, 8
+    rng = np.random.default_rng(4)
+    on = rng.uniform(0.12, 0.18, (height, width))
+    off = rng.uniform(0.25, 0.35, (height, width))
+    low, high, periods = math.log(40.0), math.log(220.0), 5
+    frames = list(scene_frames("flicker", width, height, periods * 200_000, min_level=40.0, max_level=220.0,
+                               period_s=0.2, frame_rate_hz=2000))
+    simulator = DvsSimulator(width, height, thresholds=(on, off), seed=0, **IDEAL)
+    events, _ = run_frames(simulator, frames)
+    on32, off32 = simulator.on_thres.astype(np.float64), simulator.off_thres.astype(np.float64)
+    # the ideal pixel's reference, half period by half period
+    ref = np.full((height, width), low)
+    expected_on = np.zeros((height, width), dtype=int)
+    expected_off = np.zeros((height, width), dtype=int)
+    for _ in range(periods):
+        n = np.floor((high - ref) / on32).astype(int)
+        expected_on += n
+        ref = ref + n * on32
+        n = np.floor((ref - low) / off32).astype(int)
+        expected_off += n
+        ref = ref - n * off32
+    count_on = np.zeros((height, width), dtype=int)
+    count_off = np.zeros((height, width), dtype=int)
+    np.add.at(count_on, (events["y"][events["p"]], events["x"][events["p"]]), 1)
+    np.add.at(count_off, (events["y"][~events["p"]], events["x"][~events["p"]]), 1)
+    np.testing.assert_array_equal(count_on, expected_on)
+    np.testing.assert_array_equal(count_off, expected_off)
+    assert count_on.sum() > 1.5 * count_off.sum()  # ON threshold about half the OFF one
+
+
+# -- statistics from the seed ----------------------------------------------------------------------------------------
+
+
+def test_threshold_map_in_truth_file_has_requested_mean_and_sigma(tmp_path):
+    truth = tmp_path / "truth.h5"
+    run("simulate", "scene:static", "--size", "200x200", "--duration", "5ms", "--pos-thres", "0.25",
+        "--neg-thres", "0.15", "--sigma-thres", "0.03", "--seed", "9", "--truth", truth, "-o", tmp_path / "s.aedat4")
+    with h5py.File(truth, "r") as h5:
+        on, off = h5["on"][()], h5["off"][()]
+        assert on.shape == off.shape == (200, 200) and on.dtype == np.float32
+        assert h5.attrs["seed"] == 9 and h5.attrs["sigma_thres"] == 0.03 and h5.attrs["pos_thres"] == 0.25
+        assert h5["label"].dtype == np.uint8
+    n = on.size
+    for values, mean in ((on, 0.25), (off, 0.15)):
+        assert abs(values.mean() - mean) < 4 * 0.03 / math.sqrt(n)
+        assert abs(values.std() - 0.03) < 4 * 0.03 / math.sqrt(2 * n)
+    assert abs(np.corrcoef(on.ravel(), off.ravel())[0, 1]) < 0.05  # drawn independently
+
+
+def test_spatially_correlated_mismatch_adds_a_smooth_field():
+    simulator = DvsSimulator(200, 150, sigma_thres=0.02, correlated_sigma_thres=0.04, correlated_length_px=8,
+                             seed=1)
+    on = simulator.on_thres.astype(np.float64)
+    assert on.std() == pytest.approx(math.hypot(0.02, 0.04), rel=0.15)
+    neighbours = np.corrcoef(on[:, :-1].ravel(), on[:, 1:].ravel())[0, 1]
+    assert neighbours > 0.6  # white mismatch alone would give about 0
+    assert np.corrcoef(on.ravel(), simulator.off_thres.ravel())[0, 1] > 0.6
+
+
+def test_thresholds_are_clamped_and_dead_pixels_never_fire():
+    simulator = DvsSimulator(60, 50, pos_thres=0.05, sigma_thres=0.05, dead_pixel_fraction=0.1, seed=2,
+                             leak_rate_hz=20.0, shot_noise_rate_hz=20.0)
+    assert simulator.on_thres.min() == pytest.approx(0.01)
+    assert simulator.dead_pixels.sum() == 300
+    assert np.all(simulator.on_thres[simulator.dead_pixels] == DEAD_PIXEL_THRESHOLD)
+    events, _ = run_frames(simulator, scene_frames("flicker", 60, 50, 500_000, period_s=0.1))
+    assert len(events) > 10_000
+    assert not simulator.dead_pixels[events["y"], events["x"]].any()
+
+
+def test_leak_rate_in_a_static_scene():
+    width, height, duration_us, rate_hz = 100, 100, 2_000_000, 5.0
+    simulator = DvsSimulator(width, height, leak_rate_hz=rate_hz, seed=5)
+    events, labels = run_frames(simulator, scene_frames("static", width, height, duration_us))
+    measured_hz = len(events) / (width * height * duration_us * 1e-6)
+    assert measured_hz == pytest.approx(rate_hz, rel=0.05)
+    assert np.all(labels == 1) and np.all(events["p"])
+    # per-pixel rates spread log-normally, as set
+    counts = np.bincount(events["y"].astype(int) * width + events["x"], minlength=width * height)
+    assert 0.1 < counts.std() / counts.mean() < 0.5
+
+
+@pytest.mark.parametrize("level", [0.0, 255.0])
+def test_shot_noise_rate_and_on_off_balance_in_a_static_scene(level):
+    width, height, duration_us, rate_hz = 100, 100, 1_000_000, 40.0
+    simulator = DvsSimulator(width, height, shot_noise_rate_hz=rate_hz, leak_rate_hz=0.0, seed=6)
+    events, labels = run_frames(simulator, scene_frames("static", width, height, duration_us, level=level))
+    expected_hz = rate_hz * (1.0 - 0.75 * level / 255.0)  # v2e: a quarter of the rate at full intensity
+    measured_hz = len(events) / (width * height * duration_us * 1e-6)
+    assert measured_hz == pytest.approx(expected_hz, rel=0.05)
+    assert np.all(labels == 2)
+    balance = (events["p"].sum() - (~events["p"]).sum()) / len(events)
+    assert abs(balance) < 0.02
+    # a Poisson process: intervals between one pixel's events are exponential (coefficient of variation 1)
+    order = np.lexsort((events["t"], events["y"], events["x"]))
+    same = (np.diff(events["x"][order]) == 0) & (np.diff(events["y"][order]) == 0)
+    gaps = np.diff(events["t"][order])[same]
+    assert gaps.std() / gaps.mean() == pytest.approx(1.0, abs=0.05)
+
+
+def test_hot_pixels_fire_at_their_rate():
+    width, height, duration_us = 100, 100, 1_000_000
+    simulator = DvsSimulator(width, height, hot_pixel_fraction=0.01, hot_pixel_rate_hz=200.0, leak_rate_hz=0.0,
+                             seed=7)
+    events, labels = run_frames(simulator, scene_frames("static", width, height, duration_us))
+    assert simulator.hot_pixels.sum() == 100
+    assert np.all(labels == 3)
+    assert simulator.hot_pixels[events["y"], events["x"]].all()
+    assert len(events) / (100 * duration_us * 1e-6) == pytest.approx(200.0, rel=0.05)
+
+
+def test_refractory_period_is_never_violated():
+    width, height, refractory_us = 40, 30, 2_000
+    parameters = dict(PRESETS["noisy"], hot_pixel_fraction=0.02, hot_pixel_rate_hz=2000.0, shot_noise_rate_hz=50.0)
+    frames = list(scene_frames("bars", width, height, 400_000, speed_px_s=400.0, bar_width_px=5, min_level=10.0,
+                               max_level=250.0))
+    free, _ = run_frames(DvsSimulator(width, height, seed=8, **parameters), frames)
+    events, labels = run_frames(DvsSimulator(width, height, seed=8, **dict(parameters, refractory_us=refractory_us)),
+                                frames)
+    assert 0 < len(events) < len(free)
+    assert set(labels.tolist()) >= {0, 2, 3}
+    order = np.lexsort((events["t"], events["y"], events["x"]))
+    same = (np.diff(events["x"][order]) == 0) & (np.diff(events["y"][order]) == 0)
+    assert np.diff(events["t"][order])[same].min() >= refractory_us
+    order = np.lexsort((free["t"], free["y"], free["x"]))
+    same = (np.diff(free["x"][order]) == 0) & (np.diff(free["y"][order]) == 0)
+    assert np.diff(free["t"][order])[same].min() < refractory_us  # the test had something to remove
+
+
+# -- reproducibility and chunking ------------------------------------------------------------------------------
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(cuts=st.lists(st.integers(1, 34), max_size=8), seed=st.integers(0, 3))
+def test_frame_batching_does_not_change_the_output(cuts, seed):
+    parameters = dict(KERNEL_CASES["everything"], seed=seed)
+    frames = random_walk_frames(11, 6, 35, seed=seed)
+    expected, expected_labels = simulate_frames(frames, 11, 6, **parameters)
+    times = np.array([t for t, _ in frames])
+    stack = np.stack([f for _, f in frames])
+    simulator = DvsSimulator(11, 6, **parameters)
+    events, labels = [], []
+    for part in np.split(np.arange(len(frames)), sorted(set(cuts))):
+        if len(part):
+            chunk, chunk_labels = simulator.process_labelled(times[part], stack[part])
+            events.append(chunk)
+            labels.append(chunk_labels)
+    events = np.concatenate(events, dtype=EVENT_DTYPE)
+    assert events.dtype == EVENT_DTYPE
+    assert np.all(np.diff(events["t"]) >= 0)
+    np.testing.assert_array_equal(events, expected)
+    np.testing.assert_array_equal(np.concatenate(labels), expected_labels)
+
+
+def test_same_seed_same_bytes_other_seed_other_events(tmp_path):
+    outputs = []
+    for name, seed in (("a", 4), ("b", 4), ("c", 5)):
+        run("simulate", "scene:bars", "--size", "40x30", "--duration", "300ms", "--preset", "noisy",
+            "--leak-rate-hz", "2", "--hot-pixel-fraction", "0.01", "--seed", seed, "-o", tmp_path / f"{name}.aedat4",
+            "--truth", tmp_path / f"{name}.h5")
+        with h5py.File(tmp_path / f"{name}.h5", "r") as h5:
+            outputs.append(((tmp_path / f"{name}.aedat4").read_bytes(), h5["label"][()], h5["on"][()]))
+    assert outputs[0][0] == outputs[1][0]
+    np.testing.assert_array_equal(outputs[0][1], outputs[1][1])
+    assert outputs[0][0] != outputs[2][0]
+    assert not np.array_equal(outputs[0][2], outputs[2][2])
+    info, events = read_all(tmp_path / "a.aedat4")
+    assert (info.width, info.height) == (40, 30) and len(events) == len(outputs[0][1])
+    assert set(np.unique(outputs[0][1]).tolist()) >= {0, 1, 2, 3}
+
+
+# -- scenes ----------------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", sorted(SCENES))
+def test_scenes_are_frame_generators(name):
+    frames = list(scene_frames(name, 24, 16, 100_000))
+    times = np.array([t for t, _ in frames])
+    assert times[0] == 0 and times[-1] == 100_000 and np.all(np.diff(times) == 1_000)
+    for _, frame in frames:
+        assert frame.shape == (16, 24) and frame.dtype == np.float32
+        assert frame.min() >= 0 and frame.max() <= 255
+
+
+def test_gradient_moves_right_and_bars_move_along_their_direction():
+    frames = list(scene_frames("gradient", 64, 4, 200_000, speed_px_s=100.0, wavelength_px=32.0))
+    np.testing.assert_allclose(np.roll(frames[0][1][0], 20), frames[-1][1][0], atol=1e-3)  # 20 px in 0.2 s
+    for orientation, axis in (("vertical", 1), ("horizontal", 0)):
+        frames = list(scene_frames("bars", 32, 32, 80_000, speed_px_s=100.0, bar_width_px=4.0,
+                                   orientation=orientation))
+        first, last = frames[0][1], frames[-1][1]
+        np.testing.assert_allclose(np.roll(first, 8, axis=axis), last, atol=1e-3)  # 8 px in 80 ms
+        assert np.ptp(first, axis=1 - axis).max() == 0  # constant along the bars
+
+
+def test_step_scene_through_the_lowpass_spreads_the_events():
+    width, height = 10, 10
+    frames = list(scene_frames("step", width, height, 900_000, period_s=1.0))
+    sharp, _ = run_frames(DvsSimulator(width, height, seed=1, **IDEAL), frames)
+    smooth, _ = run_frames(DvsSimulator(width, height, seed=1, **dict(IDEAL, cutoff_hz=20.0)), frames)
+    assert np.all(sharp["p"]) and np.ptp(sharp["t"]) <= 1_000  # every crossing in the step's frame interval
+    assert smooth["t"].min() >= 500_000 and np.ptp(smooth["t"]) > 10_000  # the filter delays and spreads them
+
+
+def test_bad_parameters_raise_clear_errors():
+    with pytest.raises(SimulationError, match="shot_noise_rate_hz"):
+        DvsSimulator(10, 10, shot_noise_rate_hz=-1)
+    with pytest.raises(SimulationError, match="hot_pixel_fraction"):
+        DvsSimulator(10, 10, hot_pixel_fraction=1.5)
+    with pytest.raises(ValueError, match="width"):
+        DvsSimulator(0, 10)
+    simulator = DvsSimulator(10, 10)
+    simulator.process(0, np.zeros((10, 10)))
+    with pytest.raises(SimulationError, match="increase"):
+        simulator.process(0, np.zeros((10, 10)))
+    with pytest.raises(SimulationError, match="10x10"):
+        simulator.process(5, np.zeros((8, 10)))
+
+
+# -- video and images through the command line ------------------------------------------------------------------
+
+
+def test_video_events_only_where_and_as_the_intensity_changed(tmp_path):
+    width, height, n_frames, fps = 64, 48, 20, 50.0
+    video = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"FFV1"), fps, (width, height))
+    assert writer.isOpened()
+    levels = np.concatenate([np.linspace(60, 200, 10), np.linspace(200, 60, 10)])
+    for level in levels:
+        frame = np.full((height, width, 3), 100, dtype=np.uint8)
+        frame[:, 32:] = np.array([0.6, 1.0, 0.8]) * level  # coloured (BGR): luma follows the level
+        writer.write(frame)
+    writer.release()
+    out = tmp_path / "clip.aedat4"
+    run("simulate", video, "--preset", "clean", "--seed", 1, "-o", out)
+    info, events = read_all(out)
+    assert (info.width, info.height) == (width, height)
+    assert len(events) > 1000
+    assert events["x"].min() >= 32  # nothing where the image stayed still
+    turn_us = 9 * 1e6 / fps  # the brightest frame
+    rising = events["t"] <= turn_us
+    assert np.all(events["p"][rising]) and not np.any(events["p"][~rising])
+    assert rising.sum() > 100 and (~rising).sum() > 100
+    assert events["t"].max() <= (n_frames - 1) * 1e6 / fps
+
+
+def test_image_folder_with_timestamps(tmp_path):
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for i, level in enumerate([50, 80, 120, 180, 120]):
+        cv2.imwrite(str(folder / f"frame_{i}.png"), np.full((12, 16), level, dtype=np.uint8))
+    (folder / "timestamps.txt").write_text("\n".join(str(1.0 + 0.01 * i) for i in range(5)) + "\n")
+    out = tmp_path / "images.aedat4"
+    truth = tmp_path / "truth.h5"
+    run("simulate", folder, "--preset", "clean", "--seed", 3, "-o", out, "--truth", truth)
+    info, events = read_all(out)
+    assert (info.width, info.height) == (16, 12)
+    assert events["t"].min() > 0 and events["t"].max() <= 40_000  # times relative to the first image
+    assert np.all(events["p"][events["t"] <= 30_000]) and not np.any(events["p"][events["t"] > 30_000])
+    with h5py.File(truth, "r") as h5:
+        assert len(h5["label"]) == len(events) and h5.attrs["source_images"] == 5
+
+
+def test_cli_bad_inputs_give_one_line_errors(tmp_path):
+    out = tmp_path / "out.aedat4"
+    assert_clean_error(run("simulate", "scene:flicker", "--size", "0x10", "-o", out, check=False), "width 0")
+    assert_clean_error(
+        run("simulate", "scene:static", "--shot-noise-rate-hz", "-2", "-o", out, check=False), "shot_noise_rate_hz"
+    )
+    assert_clean_error(run("simulate", "scene:nothing", "-o", out, check=False), "unknown scene")
+    assert_clean_error(run("simulate", "scene:flicker", "--duration", "soon", "-o", out, check=False), "soon")
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert_clean_error(run("simulate", empty, "-o", out, check=False), "no images")
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for i in range(3):
+        cv2.imwrite(str(folder / f"{i}.png"), np.zeros((4, 4), dtype=np.uint8))
+    (folder / "timestamps.txt").write_text("0\n0.1\n")
+    assert_clean_error(run("simulate", folder, "-o", out, check=False), "2 timestamps for 3 images")
+    broken = tmp_path / "broken.mp4"
+    broken.write_bytes(b"this is not a video\n" * 10)
+    assert_clean_error(run("simulate", broken, "-o", out, check=False), "cannot read")
+    assert_clean_error(run("simulate", tmp_path / "missing.mp4", "-o", out, check=False), "no such file")
+    assert not out.exists()
