@@ -21,12 +21,13 @@ $(VENV)/.installed-test: pyproject.toml | $(BIN)/python
 
 demo: $(VENV)/.installed
 	@mkdir -p $(OUT)
-	$(BIN)/python samples/make_sample.py -o $(OUT)/sample.aedat4
-	@for f in $(FORMATS); do echo "+ evtools convert $(OUT)/sample.aedat4 -o $(OUT)/sample.$$f"; \
-	  $(BIN)/evtools convert $(OUT)/sample.aedat4 -o $(OUT)/sample.$$f || exit 1; done
-	$(BIN)/evtools convert $(OUT)/sample.aedat4 - | $(BIN)/evtools convert - -o $(OUT)/sample.piped.h5
-	$(BIN)/evtools info $(OUT)/sample.aedat4 $(foreach f,$(FORMATS),$(OUT)/sample.$(f)) $(OUT)/sample.piped.h5 --json \
-	  | $(BIN)/python samples/summarize_info.py
+	$(BIN)/evtools simulate scene:bars --size 128x96 --duration 1s --preset noisy --seed 1 \
+	  --truth $(OUT)/bars.truth.h5 -o $(OUT)/bars.aedat4
+	@for f in $(FORMATS); do echo "+ evtools convert $(OUT)/bars.aedat4 -o $(OUT)/bars.converted.$$f"; \
+	  $(BIN)/evtools convert $(OUT)/bars.aedat4 -o $(OUT)/bars.converted.$$f || exit 1; done
+	$(BIN)/evtools convert $(OUT)/bars.aedat4 - | $(BIN)/evtools convert - -o $(OUT)/bars.piped.h5
+	$(BIN)/evtools info $(OUT)/bars.aedat4 $(foreach f,$(FORMATS),$(OUT)/bars.converted.$(f)) $(OUT)/bars.piped.h5 \
+	  --json | $(BIN)/python samples/summarize_info.py
 
 test: $(VENV)/.installed-test
 	$(BIN)/python -m pytest -q
