@@ -5,7 +5,9 @@ from __future__ import annotations
 import numpy as np
 
 from evtools.events import EVENT_DTYPE, concatenate, make_events
-from formats import open_events
+import io
+
+from formats import WriteOptions, open_events
 
 
 def random_events(n: int, width: int = 346, height: int = 260, seed: int = 0, t0_us: int = 0) -> np.ndarray:
@@ -32,3 +34,13 @@ def assert_same_events(actual: np.ndarray, expected: np.ndarray) -> None:
     assert len(actual) == len(expected)
     for field in ("t", "x", "y", "p"):
         np.testing.assert_array_equal(actual[field], expected[field], err_msg=f"field {field}")
+
+
+def write_bytes(writer_class, events: np.ndarray, cuts, info, compression: str | None = None) -> bytes:
+    """The bytes a writer produces when given ``events`` cut at ``cuts``."""
+    buffer = io.BytesIO()
+    writer = writer_class(buffer, info, WriteOptions(compression=compression))
+    for part in np.split(events, sorted(cuts)):
+        writer.write(part)
+    writer.close()
+    return buffer.getvalue()

@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from evtools.events import StreamInfo
-from formats import FormatError, create_events, open_events
+from formats import FormatError, create_events
 from formats.aedat4 import Aedat4Writer
 from formats.registry import WriteOptions
 from tests.conftest import data_file

@@ -15,28 +15,14 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import formats.hdf5
-from evtools.events import StreamInfo, concatenate, make_events
+from evtools.events import StreamInfo, make_events
 from formats import FormatError, ReadOptions, WriteOptions, create_events, open_events
 from formats.hdf5 import Hdf5Writer
 from formats.io import Source
 from tests.conftest import data_file
+from tests.helpers import read_all, write_bytes
 
 COMPRESSIONS = ["none", "gzip", "lzf", "zstd"]
-
-
-def read_all(path, **kwargs) -> tuple[np.ndarray, StreamInfo]:
-    with open_events(path, **kwargs) as stream:
-        chunks = list(stream)
-        return concatenate(chunks), stream.info
-
-
-def write_bytes(events: np.ndarray, cuts, info: StreamInfo, compression: str | None = None) -> bytes:
-    buffer = io.BytesIO()
-    writer = Hdf5Writer(buffer, info, WriteOptions(compression=compression))
-    for part in np.split(events, sorted(cuts)):
-        writer.write(part)
-    writer.close()
-    return buffer.getvalue()
 
 
 @st.composite
@@ -55,7 +41,7 @@ def event_arrays(draw, max_events: int = 200):
 
 # -- the reference files ------------------------------------------------------------------------------------
 def test_dsec_sample_gives_the_aedat4_events(dvxplorer_events):
-    events, info = read_all(data_file("derived/dvxplorer_sample.dsec.h5"), sensor_size=(320, 240), chunk_events=5000)
+    info, events = read_all(data_file("derived/dvxplorer_sample.dsec.h5"), sensor_size=(320, 240), chunk_events=5000)
     assert np.array_equal(events, dvxplorer_events)  # t_offset added: absolute microseconds
     assert info.size == (320, 240)
     assert info.metadata["layout"] == "dsec"
@@ -69,7 +55,7 @@ def test_dsec_sample_reads_in_slices_and_infers_the_size(dvxplorer_events):
 
 
 def test_eventutils_sample_gives_the_aedat4_events(dvxplorer_events):
-    events, info = read_all(data_file("derived/dvxplorer_sample.eventutils.h5"))
+    info, events = read_all(data_file("derived/dvxplorer_sample.eventutils.h5"))
     assert np.array_equal(events, dvxplorer_events)  # ts float64 seconds, absolute
     assert info.size == (320, 240)  # from sensor_resolution = (H, W)
     assert info.metadata["layout"] == "event_utils"
@@ -94,7 +80,7 @@ def test_v2e_n_by_4_layout(tmp_path):
     path = tmp_path / "v2e.h5"
     with h5py.File(path, "w") as f:
         f.create_dataset("events", data=rows.astype(np.uint32), maxshape=(None, 4), compression="gzip")
-    events, info = read_all(path, sensor_size=(346, 260), chunk_events=1000)
+    info, events = read_all(path, sensor_size=(346, 260), chunk_events=1000)
     assert np.array_equal(events, make_events(t_us, rows[:, 1], rows[:, 2], rows[:, 3]))
     assert info.metadata["layout"] == "v2e" and info.size == (346, 260)
 
@@ -106,12 +92,12 @@ def test_v2e_n_by_4_layout(tmp_path):
 def test_round_trip_and_bytes_independent_of_chunking(compression, case, tmp_path_factory):
     events, info, cuts = case
     with mock.patch.object(formats.hdf5, "WRITE_BLOCK_EVENTS", 16), mock.patch.object(formats.hdf5, "MS_BLOCK", 8):
-        whole = write_bytes(events, [], info, compression)
-        chunked = write_bytes(events, cuts, info, compression)
+        whole = write_bytes(Hdf5Writer, events, [], info, compression)
+        chunked = write_bytes(Hdf5Writer, events, cuts, info, compression)
     assert whole == chunked
     path = tmp_path_factory.mktemp("rt") / "events.h5"
     path.write_bytes(chunked)
-    got, got_info = read_all(path, chunk_events=7)
+    got_info, got = read_all(path, chunk_events=7)
     assert np.array_equal(got, events)
     assert got_info.size == info.size and got_info.metadata["layout"] == "evtools"
     with h5py.File(path, "r") as f:
@@ -134,7 +120,7 @@ def test_end_to_end_write_then_read(compression, tmp_path, dvxplorer_events):
     with create_events(path, StreamInfo(320, 240), compression=compression) as writer:
         for part in np.array_split(dvxplorer_events, 9):
             writer.write(part)
-    events, info = read_all(path)
+    info, events = read_all(path)
     assert np.array_equal(events, dvxplorer_events)
     assert info.size == (320, 240) and info.format == "hdf5"
     with h5py.File(path, "r") as f:
@@ -148,14 +134,14 @@ def test_empty_stream_round_trip(tmp_path):
     path = tmp_path / "empty.h5"
     with create_events(path, StreamInfo(64, 48)) as writer:
         writer.write(make_events([], [], [], []))
-    events, info = read_all(path)
+    info, events = read_all(path)
     assert len(events) == 0 and info.size == (64, 48)
 
 
 def test_reads_from_stdin(monkeypatch, tmp_path, dvxplorer_events):
-    data = write_bytes(dvxplorer_events, [1000], StreamInfo(320, 240))
+    data = write_bytes(Hdf5Writer, dvxplorer_events, [1000], StreamInfo(320, 240))
     monkeypatch.setattr(sys, "stdin", types.SimpleNamespace(buffer=io.BufferedReader(io.BytesIO(data))))
-    events, info = read_all("-")
+    info, events = read_all("-")
     assert np.array_equal(events, dvxplorer_events) and info.size == (320, 240)
 
 
@@ -194,7 +180,7 @@ def test_sensor_size_option_when_missing(tmp_path):
         for key, dtype in (("x", "u2"), ("y", "u2"), ("t", "u4"), ("p", "u1")):
             f.create_dataset(f"events/{key}", data=np.arange(5).astype(dtype))
         f.create_dataset("t_offset", data=np.int64(100))
-    events, info = read_all(path, sensor_size=(640, 480))
+    info, events = read_all(path, sensor_size=(640, 480))
     assert info.size == (640, 480) and list(events["t"]) == [100, 101, 102, 103, 104]
     source = Source(path)
     reader = formats.hdf5.Hdf5Reader(source, ReadOptions(sensor_size=(10, 10), chunk_events=2))

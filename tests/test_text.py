@@ -13,30 +13,18 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import formats.text
-from evtools.events import StreamInfo, concatenate, make_events
-from formats import FormatError, WriteOptions, create_events, open_events
+from evtools.events import StreamInfo, make_events
+from formats import FormatError, create_events, open_events
 from formats.text import CsvWriter, TxtWriter
 from tests.conftest import data_file
-
-
-def read_all(path, **kwargs) -> tuple[np.ndarray, StreamInfo]:
-    with open_events(path, **kwargs) as stream:
-        return concatenate(list(stream)), stream.info
+from tests.helpers import read_all, write_bytes
 
 
 def read_text(tmp_path, text: str, name: str = "events.csv", **kwargs):
     path = tmp_path / name
     path.write_bytes(text.encode())
-    return read_all(path, **kwargs)
-
-
-def write_bytes(writer_class, events: np.ndarray, cuts, info: StreamInfo) -> bytes:
-    buffer = io.BytesIO()
-    writer = writer_class(buffer, info, WriteOptions())
-    for part in np.split(events, sorted(cuts)):
-        writer.write(part)
-    writer.close()
-    return buffer.getvalue()
+    info, events = read_all(path, **kwargs)
+    return events, info
 
 
 @st.composite
@@ -55,13 +43,13 @@ def event_arrays(draw, max_events: int = 200):
 
 # -- the reference files ------------------------------------------------------------------------------------
 def test_csv_sample_gives_the_aedat4_events(dvxplorer_events):
-    events, info = read_all(data_file("derived/dvxplorer_sample.csv"), chunk_events=10000)
+    info, events = read_all(data_file("derived/dvxplorer_sample.csv"), chunk_events=10000)
     assert np.array_equal(events, dvxplorer_events)  # absolute microseconds
     assert info.size == (320, 240) and info.format == "csv"  # inferred by a scan
 
 
 def test_txt_sample_gives_the_aedat4_events(dvxplorer_events):
-    events, info = read_all(data_file("derived/dvxplorer_sample.events.txt"), sensor_size=(320, 240))
+    info, events = read_all(data_file("derived/dvxplorer_sample.events.txt"), sensor_size=(320, 240))
     expected = dvxplorer_events.copy()
     expected["t"] -= expected["t"][0]  # the file stores seconds relative to the first event
     assert np.array_equal(events, expected)
@@ -119,7 +107,7 @@ def test_many_blocks_keep_line_numbers_and_events(tmp_path):
     events = make_events(np.arange(n) * 3, rng.integers(0, 100, n), rng.integers(0, 90, n), rng.integers(0, 2, n))
     path = tmp_path / "big.csv"
     path.write_bytes(write_bytes(CsvWriter, events, [], StreamInfo(100, 90)))
-    got, _ = read_all(path, sensor_size=(100, 90), chunk_events=1000)  # 64 KB blocks
+    _, got = read_all(path, sensor_size=(100, 90), chunk_events=1000)  # 64 KB blocks
     assert np.array_equal(got, events)
     lines = path.read_bytes().split(b"\n")
     lines[25000] = b"75000,1,x2,0"
@@ -131,7 +119,7 @@ def test_many_blocks_keep_line_numbers_and_events(tmp_path):
 def test_reads_csv_from_stdin(monkeypatch):
     data = b"t,x@10,y@10,p\n1,2,3,1\n"
     monkeypatch.setattr(sys, "stdin", types.SimpleNamespace(buffer=io.BufferedReader(io.BytesIO(data))))
-    events, info = read_all("-")
+    info, events = read_all("-")
     assert info.size == (10, 10) and np.array_equal(events, make_events([1], [2], [3], [1]))
 
 
@@ -154,14 +142,14 @@ def test_round_trip_and_bytes_independent_of_chunking(writer_class, suffix, case
     path = tmp_path_factory.mktemp("rt") / f"events.{suffix}"
     path.write_bytes(chunked)
     # both carry the sensor size: CSV in its faery header, txt in its first line
-    got, got_info = read_all(path, chunk_events=3)
+    got_info, got = read_all(path, chunk_events=3)
     assert np.array_equal(got, events)
     assert got_info.size == info.size
 
 
 def test_csv_size_is_inferred_from_the_events_without_a_sized_header(tmp_path):
     (tmp_path / "a.csv").write_text("t,x,y,p\n1,4,7,1\n2,9,1,1\n3,0,2,0\n")
-    got, info = read_all(tmp_path / "a.csv")
+    info, got = read_all(tmp_path / "a.csv")
     assert np.array_equal(got, make_events([1, 2, 3], [4, 9, 0], [7, 1, 2], [1, 1, 0])) and info.size == (10, 8)
 
 
@@ -169,7 +157,7 @@ def test_csv_writer_header_keeps_the_sensor_size(tmp_path):
     events = make_events([1, 2, 3], [4, 9, 0], [7, 1, 2], [1, 1, 0])
     with create_events(tmp_path / "a.csv", StreamInfo(640, 480)) as writer:
         writer.write(events)
-    got, info = read_all(tmp_path / "a.csv")
+    info, got = read_all(tmp_path / "a.csv")
     assert np.array_equal(got, events) and info.size == (640, 480)
 
 
@@ -177,7 +165,7 @@ def test_end_to_end_txt(tmp_path, dvxplorer_events):
     with create_events(tmp_path / "a.txt", StreamInfo(320, 240)) as writer:
         for part in np.array_split(dvxplorer_events, 5):
             writer.write(part)
-    got, info = read_all(tmp_path / "a.txt")
+    info, got = read_all(tmp_path / "a.txt")
     assert np.array_equal(got, dvxplorer_events) and info.size == (320, 240)
 
 
