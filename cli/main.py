@@ -8,7 +8,7 @@ import sys
 
 import click
 
-from cli import convert, info, simulate
+from cli import convert, info, render, simulate
 from evtools import __version__
 from evtools.errors import EvtoolsError
 
@@ -69,6 +69,7 @@ def cli(quiet: bool) -> None:
 cli.add_command(info.info)
 cli.add_command(convert.convert)
 cli.add_command(simulate.simulate)
+cli.add_command(render.render)
 
 
 def main() -> None:

@@ -130,17 +130,32 @@ def output_stream(path: str | os.PathLike | None, *, binary_name: str, needs_see
         yield sys.stdout.buffer
         sys.stdout.buffer.flush()
         return
+    with atomic_path(path) as temporary, open(temporary, "w+b", buffering=1 << 20) as stream:
+        yield stream
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[str]:
+    """A temporary path beside ``path``, renamed to ``path`` when the block ends without an error, else removed.
+
+    For writers that need a path of their own (OpenCV); ``suffix`` keeps an extension they dispatch on.
+    The file gets the permissions of any new file (``mkstemp`` alone would make it private).
+    """
+    path = os.fspath(path)
     directory = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(directory):
         raise FormatError(f"{path}: directory {directory} does not exist")
-    fd, tmp = tempfile.mkstemp(dir=directory, prefix="." + os.path.basename(path) + ".", suffix=".part")
+    fd, temporary = tempfile.mkstemp(dir=directory, prefix="." + os.path.basename(path) + ".", suffix=".part" + suffix)
+    os.close(fd)
     try:
-        with os.fdopen(fd, "w+b", buffering=1 << 20) as stream:
-            yield stream
-        os.replace(tmp, path)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(temporary, 0o666 & ~umask)
+        yield temporary
+        os.replace(temporary, path)
     except BaseException:
         with contextlib.suppress(OSError):
-            os.unlink(tmp)
+            os.unlink(temporary)
         raise
 
 

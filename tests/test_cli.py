@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -192,3 +193,11 @@ def test_usage_errors_exit_2(sample):
     path, _ = sample
     assert run("convert", path, "--format", "nope", check=False).returncode == 2
     assert run("info", path, "--sensor-size", "0x3", check=False).returncode == 2
+
+
+def test_output_files_get_ordinary_permissions(sample, tmp_path):
+    path, _ = sample
+    run("convert", path, "-o", tmp_path / "out.h5")
+    umask = os.umask(0)
+    os.umask(umask)
+    assert (tmp_path / "out.h5").stat().st_mode & 0o777 == 0o666 & ~umask

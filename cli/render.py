@@ -1,0 +1,222 @@
+"""``evtools render``: look at a stream (event frames as a PNG or a video) or at a thresholds map (a PNG)."""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+
+import click
+import numpy as np
+
+from cli.options import read_options
+from cli.progress import with_progress
+from evtools.render import (
+    BACKGROUNDS,
+    EventFramer,
+    RenderError,
+    auto_scale,
+    thresholds_picture,
+    upscale,
+)
+from formats import open_events
+from formats.io import STDIO, atomic_path, output_stream, same_file
+
+log = logging.getLogger("evtools")
+
+DEFAULT_WINDOW_US = 33_333
+"""One thirtieth of a second: at the default 30 frames per second a video plays in real time."""
+DEFAULT_FPS = 30.0
+IMAGE_EXTENSIONS = {".png": "PNG image", ".jpg": "JPEG image", ".jpeg": "JPEG image"}
+VIDEO_FOURCC = {".mp4": "mp4v", ".avi": "MJPG"}
+"""Video containers by extension and the codec OpenCV's FFmpeg backend writes into each."""
+
+
+def _extension(output: str) -> str:
+    extension = os.path.splitext(output)[1].lower()
+    if extension not in IMAGE_EXTENSIONS and extension not in VIDEO_FOURCC:
+        known = ", ".join([*IMAGE_EXTENSIONS, *VIDEO_FOURCC])
+        raise RenderError(f"{output}: cannot tell what to write from the extension; give one of {known}")
+    return extension
+
+
+def _given(ctx: click.Context, name: str) -> bool:
+    return ctx.get_parameter_source(name) not in (None, click.core.ParameterSource.DEFAULT)
+
+
+def _refuse(ctx: click.Context, names: dict[str, str], why: str) -> None:
+    for name, option in names.items():
+        if _given(ctx, name):
+            raise click.UsageError(f"{option} {why}")
+
+
+@click.command()
+@read_options
+@click.option("-o", "--output", required=True, metavar="OUT", type=click.Path(dir_okay=False),
+              help="OUT.png (or .jpg): one window; OUT.mp4 (or .avi): a video of the whole stream.")
+@click.option("--window-us", type=click.IntRange(min=1), default=DEFAULT_WINDOW_US, show_default=True,
+              help="Time window accumulated into one frame, microseconds.")
+@click.option("--start", "start_us", type=int, default=None, metavar="T_US",
+              help="Start of the first window, microseconds on the stream's clock (default: the first event).")
+@click.option("--scale", type=click.IntRange(1, 64), default=None, metavar="K",
+              help="Enlarge K times, nearest neighbour (default: enough for about 480 pixels; maps: 256 per map).")
+@click.option("--fps", type=click.FloatRange(min=0, min_open=True, max=1000), default=DEFAULT_FPS,
+              show_default=True, help="Video playback rate, frames per second (one frame per window).")
+@click.option("--background", type=click.Choice(sorted(BACKGROUNDS)), default="dark", show_default=True,
+              help="Event frames: ON orange and OFF blue on dark, or vermillion and blue on white.")
+@click.option("--map", "map_path", type=click.Path(dir_okay=False), default=None, metavar="THRESHOLDS.h5",
+              help="Draw the thresholds map of this HDF5 file (datasets on, off; optional valid) instead of events.")
+@click.option("--range", "value_range", type=float, nargs=2, default=None, metavar="LOW HIGH",
+              help="--map: values at the ends of the colour scale (default: the maps' range without outliers).")
+@click.pass_context
+def render(ctx, input, input_format, sensor_size, aedat2_layout, output, window_us, start_us, scale, fps,
+           background, map_path, value_range):
+    """Draw IN (default stdin) as event frames, or a thresholds map with --map: users look before they read.
+
+    A frame colours each pixel by the events of one time window: ON (brighter) orange, OFF (darker) blue,
+    both as often grey. A PNG shows the window from --start; a video shows every window of the stream.
+
+    \b
+    evtools render recording.aedat4 -o frame.png --window-us 10000
+    evtools simulate scene:bars --size 128x96 | evtools render -o bars.mp4
+    evtools render --map thresholds.h5 -o thresholds.png
+    """
+    extension = _extension(output)
+    if map_path is not None:
+        if input != STDIO:
+            raise click.UsageError("give either an event stream IN or --map THRESHOLDS.h5, not both")
+        _refuse(ctx, {"window_us": "--window-us", "start_us": "--start", "fps": "--fps", "background": "--background",
+                      "input_format": "--input-format", "sensor_size": "--sensor-size",
+                      "aedat2_layout": "--aedat2-layout"}, "applies to event streams, not to --map")
+        if extension not in IMAGE_EXTENSIONS:
+            raise RenderError(f"{output}: a thresholds map is drawn as an image; give -o MAP.png")
+        _render_map(map_path, output, extension, scale, value_range)
+        return
+    _refuse(ctx, {"value_range": "--range"}, "applies to --map only")
+    if extension in IMAGE_EXTENSIONS:
+        _refuse(ctx, {"fps": "--fps"}, "applies to video outputs (.mp4, .avi) only")
+    if input != STDIO and same_file(output, input):
+        raise RenderError(f"{output}: output would overwrite the input; choose another -o")
+    with open_events(input, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as stream:
+        info = stream.info
+        scale = scale or auto_scale(info.width, info.height)
+        framer = EventFramer(info.width, info.height, window_us, start_us=start_us, background=background)
+        if extension in IMAGE_EXTENSIONS:
+            _render_image(stream, framer, output, extension, scale, start_us)
+        else:
+            _render_video(stream, framer, output, extension, scale, fps, start_us)
+
+
+def _frames(chunks, framer: EventFramer):
+    for chunk in chunks:
+        yield from framer.process(chunk)
+    yield from framer.flush()
+
+
+def _nothing_to_draw(name: str, framer: EventFramer, start_us: int | None) -> RenderError:
+    if framer.last_t_us is None:
+        return RenderError(f"{name}: no events to render (the stream is empty)")
+    return RenderError(f"{name}: no events at or after --start {start_us} us (the stream's events run from "
+                       f"{framer.first_t_us} us to {framer.last_t_us} us)")
+
+
+def _bgr(frame: np.ndarray, scale: int) -> np.ndarray:
+    return np.ascontiguousarray(upscale(frame, scale)[..., ::-1])
+
+
+def _write_image(output: str, extension: str, rgb: np.ndarray) -> None:
+    import cv2
+
+    ok, encoded = cv2.imencode(extension, np.ascontiguousarray(rgb[..., ::-1]))
+    if not ok:
+        raise RenderError(f"{output}: OpenCV could not encode the picture as {extension}")
+    with output_stream(output, binary_name=IMAGE_EXTENSIONS[extension], needs_seek=True) as stream:
+        stream.write(encoded.tobytes())
+
+
+def _render_image(stream, framer: EventFramer, output: str, extension: str, scale: int, start_us) -> None:
+    """The first window only: reading stops as soon as it is complete."""
+    first = next(_frames(stream, framer), None)
+    if first is None:
+        raise _nothing_to_draw(stream.name, framer, start_us)
+    window_start_us, frame = first
+    if not (frame != framer.palette.table()[1]).any():
+        log.warning("%s: no events in the window %d us .. %d us (the stream starts at %d us); the picture is empty",
+                    stream.name, window_start_us, window_start_us + framer.window_us, framer.first_t_us)
+    _write_image(output, extension, upscale(frame, scale))
+
+
+def _even(image: np.ndarray, colour) -> np.ndarray:
+    """Pad an odd height or width by one row or column: FFmpeg's mp4v drops odd lines instead."""
+    height, width = image.shape[:2]
+    if height % 2 == 0 and width % 2 == 0:
+        return image
+    padded = np.empty((height + height % 2, width + width % 2, 3), dtype=np.uint8)
+    padded[:] = colour
+    padded[:height, :width] = image
+    return padded
+
+
+def _render_video(stream, framer: EventFramer, output: str, extension: str, scale: int, fps: float, start_us) -> None:
+    """Every window as one frame, written as it is made: memory does not grow with the stream."""
+    import cv2
+
+    background_bgr = framer.palette.background[::-1]
+    width, height = framer.width * scale, framer.height * scale
+    size = (width + width % 2, height + height % 2)
+    # cv2 writes to a path and picks the container by its extension: a temporary name beside the target
+    with atomic_path(output, suffix=extension) as temporary:
+        writer = cv2.VideoWriter(temporary, cv2.CAP_FFMPEG, cv2.VideoWriter_fourcc(*VIDEO_FOURCC[extension]), fps, size)
+        try:
+            if not writer.isOpened():
+                raise RenderError(f"{output}: OpenCV cannot write {extension} video ({VIDEO_FOURCC[extension]} codec)")
+            count = 0
+            for _, frame in _frames(with_progress(stream, stream, f"rendering {stream.name}"), framer):
+                writer.write(_even(_bgr(frame, scale), background_bgr))
+                count += 1
+            if not count:
+                raise _nothing_to_draw(stream.name, framer, start_us)
+        finally:
+            writer.release()
+        if os.path.getsize(temporary) == 0:
+            raise RenderError(f"{output}: OpenCV wrote an empty video")
+
+
+def _read_map(path: str):
+    import h5py
+
+    with contextlib.suppress(ImportError):
+        import hdf5plugin  # noqa: F401  (compressed datasets)
+    if not os.path.exists(path):
+        raise RenderError(f"{path}: no such file")
+    try:
+        h5 = h5py.File(path, "r")
+    except OSError:
+        raise RenderError(
+            f"{path}: cannot read it as HDF5 (a thresholds map is an HDF5 file with datasets on, off)"
+        ) from None
+    with h5:
+        missing = [name for name in ("on", "off") if not isinstance(h5.get(name), h5py.Dataset)]
+        if missing:
+            raise RenderError(f"{path}: no dataset {' or '.join(missing)} (a thresholds map has datasets on and off, "
+                              "height x width)")
+        try:
+            on, off = h5["on"][()], h5["off"][()]
+            valid = h5["valid"][()] if isinstance(h5.get("valid"), h5py.Dataset) else None
+        except OSError as error:
+            raise RenderError(f"{path}: cannot read the maps ({error})") from None
+        units = h5["on"].attrs.get("units", "")
+    if isinstance(units, bytes):
+        units = units.decode("utf-8", "replace")
+    return on, off, valid, str(units)
+
+
+def _render_map(path: str, output: str, extension: str, scale: int | None, value_range) -> None:
+    on, off, valid, units = _read_map(path)
+    if same_file(output, path):
+        raise RenderError(f"{output}: output would overwrite the input; choose another -o")
+    try:
+        picture = thresholds_picture(on, off, valid, value_range=value_range, scale=scale, units=units)
+    except RenderError as error:
+        raise RenderError(f"{path}: {error}") from None
+    _write_image(output, extension, picture.image)

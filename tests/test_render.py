@@ -1,0 +1,301 @@
+"""`evtools render`: event frames (pure function, PNG, video) and thresholds-map pictures; chunk invariance."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import h5py
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from evtools.events import StreamInfo, make_events
+from evtools.render import (
+    BACKGROUNDS,
+    INVALID_RGB,
+    EventFramer,
+    RenderError,
+    accumulate_events,
+    event_frame,
+    event_frames,
+    thresholds_picture,
+    upscale,
+)
+from formats import create_events, open_events
+from tests.helpers import cut, random_events
+
+EVTOOLS = str(Path(sys.executable).with_name("evtools"))
+DARK = BACKGROUNDS["dark"]
+
+
+def run(*args, check=True) -> subprocess.CompletedProcess:
+    result = subprocess.run([EVTOOLS, *map(str, args)], capture_output=True, timeout=120)
+    if check and result.returncode != 0:
+        raise AssertionError(f"evtools {args} failed ({result.returncode}): {result.stderr.decode()}")
+    return result
+
+
+def assert_clean_error(result: subprocess.CompletedProcess, *needles: str) -> None:
+    stderr = result.stderr.decode()
+    assert result.returncode == 1, stderr
+    assert "Traceback" not in stderr
+    assert stderr.count("\n") == 1 and stderr.startswith("evtools: error: "), stderr
+    for needle in needles:
+        assert needle in stderr, stderr
+
+
+def write_stream(path: Path, events: np.ndarray, width: int, height: int) -> Path:
+    with create_events(path, StreamInfo(width, height)) as writer:
+        if len(events):
+            writer.write(events)
+    return path
+
+
+def naive_frames(events, width, height, window_us, start_us, background="dark"):
+    """Window by window with a mask and a Python loop over events: obviously right, slow."""
+    frames = []
+    t_last = int(events["t"][-1])
+    start = start_us
+    while start <= t_last:
+        on = np.zeros((height, width), np.int64)
+        off = np.zeros((height, width), np.int64)
+        for e in events[(events["t"] >= start) & (events["t"] < start + window_us)]:
+            (on if e["p"] else off)[e["y"], e["x"]] += 1
+        frames.append((start, event_frame(on, off, background)))
+        start += window_us
+    return frames
+
+
+# --- event frames: the pure functions -----------------------------------------------------------------------------
+
+
+def known_stream() -> np.ndarray:
+    """On a 4 x 3 sensor: ON at (0, 0), OFF at (1, 0), one of each at (2, 0), 2 ON + 1 OFF at (3, 1)."""
+    return make_events(
+        t=[0, 10, 20, 30, 40, 50, 60], x=[0, 1, 2, 2, 3, 3, 3], y=[0, 0, 0, 0, 1, 1, 1], p=[1, 0, 1, 0, 1, 0, 1]
+    )
+
+
+@pytest.mark.parametrize("background", ["dark", "white"])
+def test_frame_colours_of_a_known_stream(background):
+    palette = BACKGROUNDS[background]
+    (start, frame), = event_frames(known_stream(), 4, 3, 1000, background=background)
+    assert start == 0 and frame.shape == (3, 4, 3) and frame.dtype == np.uint8
+    assert tuple(frame[0, 0]) == palette.on
+    assert tuple(frame[0, 1]) == palette.off
+    assert tuple(frame[0, 2]) == palette.both
+    assert tuple(frame[1, 3]) == palette.on  # more ON than OFF
+    for y, x in [(0, 3), (1, 0), (2, 2)]:
+        assert tuple(frame[y, x]) == palette.background
+    assert len({palette.on, palette.off, palette.both, palette.background}) == 4
+
+
+def test_windows_split_the_stream_at_window_boundaries():
+    frames = event_frames(known_stream(), 4, 3, 25)  # [0, 25): 3 events, [25, 50): 2, [50, 75): 2
+    assert [start for start, _ in frames] == [0, 25, 50]
+    assert tuple(frames[0][1][0, 2]) == DARK.on and tuple(frames[1][1][0, 2]) == DARK.off
+    assert tuple(frames[1][1][1, 3]) == DARK.on and tuple(frames[2][1][1, 3]) == DARK.both
+
+
+def test_empty_windows_give_background_frames_and_start_skips_earlier_events():
+    events = make_events([100, 100_000], [0, 1], [0, 0], [1, 0])
+    frames = event_frames(events, 2, 1, 10_000, start_us=50)
+    assert len(frames) == 10  # floor((100000 - 50) / 10000) + 1
+    assert all((frame == DARK.background).all() for _, frame in frames[1:-1])
+    assert tuple(frames[0][1][0, 0]) == DARK.on and tuple(frames[-1][1][0, 1]) == DARK.off
+    later = event_frames(events, 2, 1, 10_000, start_us=101)
+    assert len(later) == 10 and tuple(later[0][1][0, 0]) == DARK.background  # the event at 100 us is before it
+    assert event_frames(events, 2, 1, 10_000, start_us=200_000) == []
+
+
+def test_accumulate_dense_and_sparse_agree():
+    events = random_events(5000, width=8, height=6, seed=3)
+    dense = [np.zeros((6, 8), np.uint32) for _ in range(2)]
+    sparse = [np.zeros((6, 8), np.uint32) for _ in range(2)]
+    accumulate_events(events, *dense)  # 5000 events on 48 pixels: bincount
+    for e in np.split(events, range(1, 5000)):  # one at a time: np.add.at
+        accumulate_events(e, *sparse)
+    np.testing.assert_array_equal(dense[0], sparse[0])
+    np.testing.assert_array_equal(dense[1], sparse[1])
+    assert dense[0].sum() == events["p"].sum() and dense[1].sum() == (~events["p"]).sum()
+
+
+def test_upscale_is_exact_nearest_neighbour():
+    image = np.arange(6, dtype=np.uint8).reshape(2, 3)
+    big = upscale(image, 3)
+    assert big.shape == (6, 9)
+    np.testing.assert_array_equal(big[::3, ::3], image)
+    np.testing.assert_array_equal(big[2::3, 2::3], image)
+
+
+def test_bad_window_is_refused():
+    with pytest.raises(RenderError):
+        EventFramer(4, 3, 0)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    cuts=st.lists(st.integers(0, 10_000), max_size=8),
+    window_us=st.integers(1, 3000),
+    start_us=st.one_of(st.none(), st.integers(-500, 2000)),
+    seed=st.integers(0, 1000),
+)
+def test_frames_do_not_depend_on_chunking(cuts, window_us, start_us, seed):
+    events = random_events(300, width=7, height=5, seed=seed)  # times 0 .. 6000 us with ties
+    whole = event_frames(events, 7, 5, window_us, start_us=start_us)
+    framer = EventFramer(7, 5, window_us, start_us=start_us)
+    chunked = []
+    for chunk in cut(events, cuts):
+        chunked.extend(framer.process(chunk))
+    chunked.extend(framer.flush())
+    assert [s for s, _ in chunked] == [s for s, _ in whole]
+    for (_, a), (_, b) in zip(chunked, whole):
+        np.testing.assert_array_equal(a, b)
+    if start_us is None or start_us <= events["t"][-1]:
+        reference = naive_frames(events, 7, 5, window_us, events["t"][0] if start_us is None else start_us)
+        assert len(reference) == len(whole)
+        for (s, a), (r, b) in zip(whole, reference):
+            assert s == r
+            np.testing.assert_array_equal(a, b)
+
+
+def test_reading_with_other_chunk_sizes_gives_identical_frames(tmp_path):
+    events = random_events(20_000, width=32, height=24, seed=5)
+    path = write_stream(tmp_path / "s.aedat4", events, 32, 24)
+    results = []
+    for chunk_events in (1 << 20, 997, 64):
+        with open_events(path, chunk_events=chunk_events) as stream:
+            framer = EventFramer(32, 24, 5_000)
+            frames = [f for chunk in stream for f in framer.process(chunk)] + list(framer.flush())
+        results.append(frames)
+    for other in results[1:]:
+        assert len(other) == len(results[0])
+        assert all(a[0] == b[0] and np.array_equal(a[1], b[1]) for a, b in zip(other, results[0]))
+
+
+# --- thresholds maps: the pure function ---------------------------------------------------------------------------
+
+
+def test_map_picture_shows_both_maps_and_marks_invalid_pixels_grey():
+    on = np.zeros((4, 5), np.float32)
+    off = np.ones((4, 5), np.float32)
+    off[0, 0] = np.nan
+    valid = np.ones((4, 5), bool)
+    valid[1, 2] = False
+    picture = thresholds_picture(on, off, valid, value_range=(0.0, 1.0), scale=7, units="log intensity")
+    image, s = picture.image, picture.scale
+    low = tuple(int(v) for v in cv2.applyColorMap(np.array([[0]], np.uint8), cv2.COLORMAP_VIRIDIS)[0, 0, ::-1])
+    high = tuple(int(v) for v in cv2.applyColorMap(np.array([[255]], np.uint8), cv2.COLORMAP_VIRIDIS)[0, 0, ::-1])
+
+    def block(origin, row, col):
+        x, y = origin
+        pixels = image[y + row * s: y + (row + 1) * s, x + col * s: x + (col + 1) * s].reshape(-1, 3)
+        assert (pixels == pixels[0]).all(), "a map pixel is a uniform block"
+        return tuple(int(v) for v in pixels[0])
+
+    for row in range(4):
+        for col in range(5):
+            invalid_both = (row, col) == (1, 2)
+            assert block(picture.on_origin, row, col) == (INVALID_RGB if invalid_both else low)
+            invalid_off = invalid_both or (row, col) == (0, 0)
+            assert block(picture.off_origin, row, col) == (INVALID_RGB if invalid_off else high)
+    assert picture.off_origin[0] >= picture.on_origin[0] + 5 * s  # side by side
+    assert picture.value_range == (0.0, 1.0)
+    assert image.shape[1] > picture.off_origin[0] + 5 * s  # room for the colour bar
+
+
+def test_map_range_ignores_wild_pixels_and_needs_valid_values():
+    rng = np.random.default_rng(0)
+    on = rng.normal(0.2, 0.03, (20, 30))
+    off = rng.normal(0.2, 0.03, (20, 30))
+    off[3, 4] = 100.0  # a dead pixel
+    low, high = thresholds_picture(on, off).value_range
+    assert high < 0.5 and low > 0.0
+    with pytest.raises(RenderError, match="no pixel"):
+        thresholds_picture(np.full((2, 2), np.nan), np.full((2, 2), np.inf))
+    with pytest.raises(RenderError, match="shape"):
+        thresholds_picture(on, off[:, :5])
+
+
+# --- the command ---------------------------------------------------------------------------------------------------
+
+
+def test_png_of_one_window_has_the_scaled_size_and_colours(tmp_path):
+    events = make_events([1000, 1500, 2000, 90_000], [0, 5, 5, 7], [0, 3, 3, 5], [1, 0, 0, 1])
+    path = write_stream(tmp_path / "s.aedat4", events, 8, 6)
+    run("render", path, "-o", tmp_path / "f.png", "--scale", 3, "--window-us", 5000)
+    image = cv2.imread(str(tmp_path / "f.png"))
+    assert image is not None and image.shape == (6 * 3, 8 * 3, 3)
+    rgb = image[..., ::-1]
+    assert (rgb[0:3, 0:3] == DARK.on).all()
+    assert (rgb[9:12, 15:18] == DARK.off).all()
+    assert (rgb[15:18, 21:24] == DARK.background).all()  # the event at 90 ms is outside the window
+    run("render", path, "-o", tmp_path / "late.png", "--scale", 1, "--start", 88_000, "--background", "white")
+    late = cv2.imread(str(tmp_path / "late.png"))[..., ::-1]
+    assert late.shape == (6, 8, 3) and tuple(late[5, 7]) == BACKGROUNDS["white"].on
+    assert tuple(late[0, 0]) == BACKGROUNDS["white"].background
+
+
+def test_video_has_one_frame_per_window(tmp_path):
+    rng = np.random.default_rng(1)
+    t = np.sort(rng.integers(5_000, 95_000, 3000))
+    events = make_events(t, rng.integers(0, 15, 3000), rng.integers(0, 11, 3000), rng.integers(0, 2, 3000))
+    path = write_stream(tmp_path / "s.aedat4", events, 15, 11)  # odd sizes: padded to even for mp4v
+    run("render", path, "-o", tmp_path / "v.mp4", "--window-us", 10_000, "--scale", 1, "--fps", 25)
+    capture = cv2.VideoCapture(str(tmp_path / "v.mp4"))
+    frames = []
+    while True:
+        ok, frame = capture.read()
+        if not ok:
+            break
+        frames.append(frame)
+    assert len(frames) == (int(t[-1]) - int(t[0])) // 10_000 + 1
+    assert frames[0].shape == (12, 16, 3)
+    assert capture.get(cv2.CAP_PROP_FPS) == pytest.approx(25)
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []  # no temporary left
+
+
+def test_map_png_is_the_picture_of_the_file(tmp_path):
+    rng = np.random.default_rng(2)
+    on = rng.normal(0.2, 0.03, (12, 16)).astype(np.float32)
+    off = rng.normal(0.25, 0.03, (12, 16)).astype(np.float32)
+    on[0, 0] = np.nan
+    valid = np.ones((12, 16), bool)
+    valid[5, 5] = False
+    with h5py.File(tmp_path / "t.h5", "w") as h5:
+        h5["on"], h5["off"], h5["valid"] = on, off, valid
+    run("render", "--map", tmp_path / "t.h5", "-o", tmp_path / "m.png")
+    image = cv2.imread(str(tmp_path / "m.png"))
+    expected = thresholds_picture(on, off, valid)
+    np.testing.assert_array_equal(image[..., ::-1], expected.image)
+    x, y = expected.on_origin
+    s = expected.scale
+    assert tuple(image[y + 5 * s, x + 5 * s]) == INVALID_RGB
+
+
+def test_bad_inputs_give_one_line_and_exit_1(tmp_path):
+    events = random_events(100, width=8, height=6)
+    stream = write_stream(tmp_path / "s.aedat4", events, 8, 6)
+    empty = write_stream(tmp_path / "empty.aedat4", events[:0], 8, 6)
+    garbage = tmp_path / "garbage.h5"
+    garbage.write_bytes(b"not an HDF5 file at all")
+    with h5py.File(tmp_path / "half.h5", "w") as h5:
+        h5["on"] = np.zeros((3, 3), np.float32)
+    assert_clean_error(run("render", stream, "-o", tmp_path / "out.gif", check=False), "out.gif", ".png")
+    assert_clean_error(run("render", empty, "-o", tmp_path / "e.png", check=False), "empty.aedat4", "no events")
+    assert_clean_error(run("render", empty, "-o", tmp_path / "e.mp4", check=False), "empty.aedat4", "no events")
+    assert_clean_error(run("render", stream, "-o", tmp_path / "l.png", "--start", 10**9, check=False),
+                       "s.aedat4", "--start")
+    assert_clean_error(run("render", tmp_path / "none.aedat4", "-o", tmp_path / "n.png", check=False), "none.aedat4")
+    assert_clean_error(run("render", "--map", garbage, "-o", tmp_path / "g.png", check=False), "garbage.h5")
+    assert_clean_error(run("render", "--map", tmp_path / "half.h5", "-o", tmp_path / "h.png", check=False),
+                       "half.h5", "off")
+    assert_clean_error(run("render", "--map", tmp_path / "nothing.h5", "-o", tmp_path / "x.png", check=False),
+                       "nothing.h5")
+    assert_clean_error(run("render", "--map", tmp_path / "half.h5", "-o", tmp_path / "h.mp4", check=False), "h.mp4")
+    assert run("render", stream, "--map", garbage, "-o", tmp_path / "b.png", check=False).returncode == 2
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["empty.aedat4", "garbage.h5", "half.h5", "s.aedat4"]
