@@ -23,17 +23,22 @@ demo: $(VENV)/.installed
 	@mkdir -p $(OUT)
 	$(BIN)/evtools simulate scene:bars --size 128x96 --duration 1s --preset noisy --seed 1 \
 	  --truth $(OUT)/bars.truth.h5 -o $(OUT)/bars.aedat4
+	$(BIN)/evtools render $(OUT)/bars.aedat4 -o $(OUT)/bars.png --window-us 20000
+	$(BIN)/evtools render $(OUT)/bars.aedat4 -o $(OUT)/bars.mp4 --window-us 20000
+	$(BIN)/evtools render --map $(OUT)/bars.truth.h5 -o $(OUT)/bars.thresholds.png
 	@for f in $(FORMATS); do echo "+ evtools convert $(OUT)/bars.aedat4 -o $(OUT)/bars.converted.$$f"; \
 	  $(BIN)/evtools convert $(OUT)/bars.aedat4 -o $(OUT)/bars.converted.$$f || exit 1; done
 	$(BIN)/evtools convert $(OUT)/bars.aedat4 - | $(BIN)/evtools convert - -o $(OUT)/bars.piped.h5
 	$(BIN)/evtools info $(OUT)/bars.aedat4 $(foreach f,$(FORMATS),$(OUT)/bars.converted.$(f)) $(OUT)/bars.piped.h5 \
 	  --json | $(BIN)/python samples/summarize_info.py
+	@echo "pictures: $(OUT)/bars.png (events), $(OUT)/bars.mp4 (video), $(OUT)/bars.thresholds.png (threshold maps)"
 
 test: $(VENV)/.installed-test
 	$(BIN)/python -m pytest -q
 
 bench: $(VENV)/.installed-test
 	$(BIN)/python -m tests.bench.bench_formats
+	$(BIN)/python -m tests.bench.bench_simulate
 
 clean:
 	rm -rf $(OUT) .pytest_cache .hypothesis
