@@ -1,4 +1,5 @@
-"""``evtools simulate``: events from a video, a folder of images or a built-in scene, with the ground truth."""
+"""``evtools simulate``: events from a video, a folder of images or a built-in scene, with the ground truth; or
+labelled noise added to an event stream."""
 
 from __future__ import annotations
 
@@ -13,11 +14,14 @@ from typing import Any, Iterator
 import click
 import numpy as np
 
+from cli.options import aedat2_layout_option, input_format_option, sensor_size_option
+from cli.progress import with_progress
 from evtools.events import CHUNK_EVENTS, StreamInfo, join, parse_sensor_size
+from evtools.noise import NOISE_DEFAULTS, NoiseInjector
 from evtools.simulate import DEFAULT_PARAMETERS, LABELS, PRESETS, SCENES, DvsSimulator, SimulationError
-from formats import create_events
-from formats.io import output_stream, same_file
-from formats.registry import FORMATS
+from formats import create_events, open_events
+from formats.io import STDIO, HEAD_BYTES, output_stream, same_file
+from formats.registry import FORMATS, detect
 
 DEFAULT_SCENE_SIZE = "346x260"
 """A DAVIS346, the sensor v2e and the report emulate."""
@@ -233,18 +237,21 @@ def open_source(source: str, size, duration, fps, timestamps, scene_options) -> 
         raise SimulationError(f"{source}: no such file or folder (a scene is given as scene:NAME)")
     if timestamps is not None:
         raise SimulationError("--timestamps applies to image folders only")
+    return video_source(source, fps, size)
+
+
+def is_event_stream(source: str, input_format: str | None) -> bool:
+    """Whether SOURCE is an event stream: stdin, ``--input-format``, or a file the format registry recognises."""
+    if source == STDIO or input_format:
+        return True
+    if source.startswith("scene:") or os.path.isdir(source) or not os.path.isfile(source):
+        return False
     try:
         with open(source, "rb") as file:
-            head = file.read(4096)
+            head = file.read(HEAD_BYTES)
     except OSError as error:
         raise SimulationError(f"{source}: cannot open ({error.strerror})") from None
-    for fmt in FORMATS:
-        if fmt.sniff(head):
-            raise SimulationError(
-                f"{source}: is an event stream ({fmt.description}); adding noise to event streams is not "
-                "supported yet, give a video, an image folder or scene:NAME"
-            )
-    return video_source(source, fps, size)
+    return detect(head, source) is not None
 
 
 # -- the command ---------------------------------------------------------------------------------------------------
@@ -307,7 +314,11 @@ def _float_option(name: str, help: str):
     help="Output format; default: from OUT's extension, AEDAT 4.0 on stdout.",
 )
 @click.option("--truth", type=click.Path(dir_okay=False), default=None,
-              help="Write the ground truth (thresholds maps `on`, `off`, per-event `label`) to this HDF5 file.")
+              help="Write the ground truth (per-event `label`, noise maps, parameters; the thresholds maps `on`, "
+                   "`off` for frame sources) to this HDF5 file.")
+@input_format_option
+@sensor_size_option
+@aedat2_layout_option
 @click.option("--size", metavar="WxH", default=None,
               help=f"Sensor size of a scene (default {DEFAULT_SCENE_SIZE}); for a video or images: resize to it.")
 @click.option("--duration", metavar="TIME", default=None,
@@ -327,8 +338,10 @@ def _float_option(name: str, help: str):
 @_float_option("--correlated-length-px", "Correlation length of that field, pixels (default 10).")
 @_float_option("--cutoff-hz", "Photoreceptor low-pass cutoff at full intensity; 0 = none (default).")
 @_float_option("--leak-rate-hz", "Leak (background activity) event rate per pixel (default 0.1).")
-@_float_option("--leak-spread-decades", "Per-pixel spread of the leak rate, decades (default 0.1).")
-@_float_option("--shot-noise-rate-hz", "Shot-noise rate per pixel in the dark, ON+OFF (default 0).")
+@_float_option("--leak-spread-decades",
+               "Per-pixel spread of the leak rate, decades (default 0.1; 0.5 for an event stream).")
+@_float_option("--shot-noise-rate-hz",
+               "Shot-noise rate per pixel in the dark (any intensity for an event stream), ON+OFF (default 0).")
 @click.option("--refractory-us", type=int, default=None, help="Refractory period, microseconds (default 0).")
 @_float_option("--hot-pixel-fraction", "Fraction of hot pixels (default 0).")
 @_float_option("--hot-pixel-rate-hz", "Event rate of a hot pixel (default 100).")
@@ -344,16 +357,42 @@ def _float_option(name: str, help: str):
 @click.option("--min-level", type=float, default=None, help="Scene's darkest intensity, 0-255 (default 50).")
 @click.option("--max-level", type=float, default=None, help="Scene's brightest intensity, 0-255 (default 200).")
 @click.option("--level", type=float, default=None, help="static: intensity, 0-255 (default 128).")
-def simulate(source, output, output_format, truth, size, duration, fps, timestamps, preset, seed, **options):
-    """Simulate a DVS looking at SOURCE: a video file, a folder of images, or scene:NAME.
+def simulate(source, output, output_format, truth, input_format, sensor_size, aedat2_layout, size, duration, fps,
+             timestamps, preset, seed, **options):
+    """Simulate a DVS looking at SOURCE: a video file, a folder of images, or scene:NAME; or add labelled noise
+    to SOURCE when it is an event stream (any readable format, `-` for stdin).
 
     Scenes: flicker, gradient, bars, step, static. The pixel model is v2e's (lin-log, low-pass, threshold
-    mismatch, leak, shot noise, hot and dead pixels) with ESIM's per-pixel crossing times.
+    mismatch, leak, shot noise, hot and dead pixels) with ESIM's per-pixel crossing times. On an event stream
+    only the noise is added (leak, shot, hot pixels), each noise event labelled in --truth, the stream's own
+    events unchanged (label 0): the way denoisers are measured on real recordings.
 
     \b
     evtools simulate scene:flicker --size 64x48 --duration 2s --truth truth.h5 -o flicker.aedat4
     evtools simulate video.mp4 --preset noisy --seed 1 | evtools info -
+    evtools simulate recording.aedat4 --shot-noise-rate-hz 5 --leak-rate-hz 0.2 --truth t.h5 -o noisy.aedat4
     """
+    given = {name: value for name, value in options.items() if value is not None}
+    if is_event_stream(source, input_format):
+        frame_only = [name for name, value in (("--size", size), ("--duration", duration), ("--fps", fps),
+                                               ("--timestamps", timestamps)) if value is not None]
+        frame_only += ["--" + name.replace("_", "-") for name in given if name not in NOISE_DEFAULTS]
+        if frame_only:
+            hint = " (the sensor size of a stream that does not store it is --sensor-size)" if size else ""
+            raise SimulationError(
+                f"{', '.join(frame_only)}: not for an event stream, which gets only noise (leak, shot, hot "
+                f"pixels){hint}"
+            )
+        parameters = {key: value for key, value in model_parameters(preset, {}).items() if key in NOISE_DEFAULTS}
+        parameters["leak_spread_decades"] = NOISE_DEFAULTS["leak_spread_decades"]
+        parameters.update({key: value for key, value in given.items()})
+        stream_options = {"format": input_format, "sensor_size": sensor_size, "aedat2_layout": aedat2_layout}
+        _inject(source, output, output_format, truth, preset, seed, parameters, stream_options)
+        return
+    for name, value in (("--input-format", input_format), ("--sensor-size", sensor_size),
+                        ("--aedat2-layout", aedat2_layout)):
+        if value is not None:
+            raise SimulationError(f"{name} applies to event-stream sources only")
     scene_options = {}
     for keyword, name in _SCENE_OPTIONS.items():
         value = options.pop(name)
@@ -398,6 +437,13 @@ def _start_truth(h5, simulator: DvsSimulator, frames: FrameSource, preset: str |
     for key, value in attributes.items():
         h5.attrs[key] = _attribute(value)
     h5["on"].attrs["units"] = h5["off"].attrs["units"] = "log intensity"
+    h5.attrs["source_kind"] = _frames_kind(frames)
+
+
+def _frames_kind(frames: FrameSource) -> str:
+    if "scene" in frames.attributes:
+        return "scene"
+    return "images" if "images" in frames.attributes else "video"
 
 
 def _run(simulator: DvsSimulator, frames: FrameSource, writer, labels_dataset) -> None:
@@ -428,3 +474,88 @@ def _run(simulator: DvsSimulator, frames: FrameSource, writer, labels_dataset) -
         pending_labels.append(labels)
         held += len(events)
     write()
+
+
+# -- noise on an event stream --------------------------------------------------------------------------------------
+
+
+def _check_truth_path(truth: str | None, output: str | None, source: str) -> None:
+    if truth is None:
+        return
+    if output not in (None, STDIO) and (os.path.abspath(truth) == os.path.abspath(output) or same_file(truth, output)):
+        raise SimulationError("--truth and -o name the same file; give two different files")
+    if source != STDIO and same_file(truth, source):
+        raise SimulationError(f"{truth}: --truth would overwrite the input; choose another file")
+
+
+def _inject(source, output, output_format, truth, preset, seed, parameters, stream_options) -> None:
+    """``evtools simulate EVENTS``: the stream's events unchanged plus labelled noise, chunk by chunk."""
+    _check_truth_path(truth, output, source)
+    with open_events(source, **stream_options) as stream:
+        width, height = stream.info.width, stream.info.height
+        injector = NoiseInjector(width, height, seed=seed, **parameters)
+        info = StreamInfo(width, height, metadata={"source": f"evtools simulate {stream.name} seed={injector.seed}"})
+        with create_events(output, info, format=output_format, inputs=(source,)) as writer:
+            if truth is None:
+                _run_injector(injector, stream, writer, None)
+                return
+            import h5py
+
+            with output_stream(truth, binary_name="HDF5", needs_seek=True) as file, h5py.File(file, "w") as h5:
+                h5.create_dataset("hot_pixels", data=injector.hot_pixels)
+                h5.create_dataset("leak_rate_hz", data=injector.leak_rate_map_hz.astype(np.float32))
+                h5.create_dataset(
+                    "label", shape=(0,), maxshape=(None,), dtype=np.uint8, chunks=(1 << 16,), compression="gzip"
+                )
+                attributes = {
+                    **injector.parameters,
+                    "width": width,
+                    "height": height,
+                    "source": stream.name,
+                    "source_kind": "events",
+                    "source_format": stream.info.format,
+                    "preset": preset or "",
+                    "labels": ", ".join(f"{code} {name}" for code, name in LABELS.items()),
+                }
+                for key, value in attributes.items():
+                    h5.attrs[key] = _attribute(value)
+                first, last = _run_injector(injector, stream, writer, h5["label"])
+                if first is not None:  # the noise spans the input's events, these two times included
+                    h5.attrs["t_first_us"], h5.attrs["t_last_us"] = first, last
+
+
+def _run_injector(injector: NoiseInjector, stream, writer, labels_dataset) -> tuple[int, int]:
+    """Feed the stream through the injector into the writer (and the labels into the truth file); returns the
+    times of the first and last input events."""
+    pending, pending_labels, held = [], [], 0
+    first = last = None
+
+    def write() -> None:
+        nonlocal pending, pending_labels, held
+        if not held:
+            return
+        writer.write(join(pending) if len(pending) > 1 else pending[0])
+        if labels_dataset is not None:
+            start = labels_dataset.shape[0]
+            labels_dataset.resize((start + held,))
+            labels_dataset[start:] = np.concatenate(pending_labels)
+        pending, pending_labels, held = [], [], 0
+
+    def add(events, labels) -> None:
+        nonlocal held
+        if len(events):
+            pending.append(events)
+            pending_labels.append(labels)
+            held += len(events)
+            if held >= CHUNK_EVENTS:
+                write()
+
+    for chunk in with_progress(stream, stream, f"adding noise to {stream.name}"):
+        if first is None:
+            first = int(chunk["t"][0])
+        last = int(chunk["t"][-1])
+        for events, labels in injector.process_pieces(chunk):
+            add(events, labels)
+    add(*injector.flush())
+    write()
+    return first, last
