@@ -135,10 +135,10 @@ class StreamChecker:
             raise InvalidEventsError(f"{self.name}: chunk has dtype {chunk.dtype}, expected EVENT_DTYPE")
         if len(chunk):
             t = chunk["t"]
-            # one comparison per axis: negative int16 coordinates become large as uint16
-            outside = (chunk["x"].view(np.uint16) >= self.info.width) | (chunk["y"].view(np.uint16) >= self.info.height)
-            if outside.any():
-                i = int(np.argmax(outside))
+            # negative int16 coordinates become large as uint16: one maximum per axis finds any bad event
+            x, y = chunk["x"].view(np.uint16), chunk["y"].view(np.uint16)
+            if x.max() >= self.info.width or y.max() >= self.info.height:
+                i = int(np.argmax((x >= self.info.width) | (y >= self.info.height)))
                 raise InvalidEventsError(
                     f"{self.name}: event {self.events_seen + i} at (x={chunk['x'][i]}, y={chunk['y'][i]}) lies "
                     f"outside the {self.info.width}x{self.info.height} sensor (give the right --sensor-size)"

@@ -316,11 +316,14 @@ class Aedat4Writer:
             return
         events = np.ascontiguousarray(self.pending[0] if len(self.pending) == 1 else join(self.pending), EVENT_DTYPE)
         words = events.view("<u8").reshape(-1, 2) & WORD_MASK  # a copy with the 3 padding bytes zeroed
-        body = _packet_prefix(len(events)) + words.tobytes()
-        if self.compress is not None:
-            body = self.compress(body)
-        self.stream.write(struct.pack("<iI", 0, len(body)))
-        self.stream.write(body)
+        prefix = _packet_prefix(len(events))
+        if self.compress is None:
+            self.stream.write(struct.pack("<iI", 0, len(prefix) + words.nbytes) + prefix)
+            self.stream.write(words)
+        else:
+            body = self.compress(prefix + words.tobytes())
+            self.stream.write(struct.pack("<iI", 0, len(body)))
+            self.stream.write(body)
         self.pending, self.held = [], 0
 
     def close(self) -> None:
