@@ -6,6 +6,9 @@ import numpy as np
 
 from evtools.events import EVENT_DTYPE, concatenate, make_events
 import io
+import subprocess
+import sys
+from pathlib import Path
 
 from formats import WriteOptions, open_events
 
@@ -44,3 +47,26 @@ def write_bytes(writer_class, events: np.ndarray, cuts, info, compression: str |
         writer.write(part)
     writer.close()
     return buffer.getvalue()
+
+
+EVTOOLS = str(Path(sys.executable).with_name("evtools"))
+"""The console script installed beside the interpreter running the tests."""
+
+
+def run(*args, input=None, check=True) -> subprocess.CompletedProcess:
+    """Run ``evtools ARGS`` as a real process; with ``check``, fail the test unless it exits 0."""
+    result = subprocess.run([EVTOOLS, *map(str, args)], input=input, capture_output=True, timeout=120)
+    if check and result.returncode != 0:
+        raise AssertionError(f"evtools {args} failed ({result.returncode}): {result.stderr.decode()}")
+    return result
+
+
+def assert_clean_error(result: subprocess.CompletedProcess, *needles: str) -> None:
+    """Exit 1, one line on stderr naming the problem, no traceback, nothing on stdout."""
+    stderr = result.stderr.decode()
+    assert result.returncode == 1, stderr
+    assert "Traceback" not in stderr
+    assert stderr.count("\n") == 1 and stderr.startswith("evtools: error: "), stderr
+    for needle in needles:
+        assert needle in stderr, stderr
+    assert result.stdout == b""

@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import os
 import subprocess
-import sys
 from pathlib import Path
 
 import h5py
@@ -17,27 +16,7 @@ from formats import create_events
 from formats.aedat4 import Aedat4Writer
 from formats.registry import WriteOptions
 from tests.conftest import data_file
-from tests.helpers import assert_same_events, random_events, read_all
-
-EVTOOLS = str(Path(sys.executable).with_name("evtools"))
-
-
-def run(*args, input=None, check=True) -> subprocess.CompletedProcess:
-    result = subprocess.run([EVTOOLS, *map(str, args)], input=input, capture_output=True, timeout=120)
-    if check and result.returncode != 0:
-        raise AssertionError(f"evtools {args} failed ({result.returncode}): {result.stderr.decode()}")
-    return result
-
-
-def assert_clean_error(result: subprocess.CompletedProcess, *needles: str) -> None:
-    """Exit 1, one line on stderr naming the problem, no traceback, nothing on stdout."""
-    stderr = result.stderr.decode()
-    assert result.returncode == 1, stderr
-    assert "Traceback" not in stderr
-    assert stderr.count("\n") == 1 and stderr.startswith("evtools: error: "), stderr
-    for needle in needles:
-        assert needle in stderr, stderr
-    assert result.stdout == b""
+from tests.helpers import assert_clean_error, assert_same_events, EVTOOLS, random_events, read_all, run
 
 
 @pytest.fixture

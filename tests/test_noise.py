@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import subprocess
-import sys
-from pathlib import Path
 from unittest import mock
 
 import h5py
@@ -19,28 +17,10 @@ from evtools.events import EVENT_DTYPE, make_events
 from evtools.noise import BLOCK_US, NoiseInjector, inject_noise
 from evtools.simulate import SimulationError
 from tests.conftest import data_file
-from tests.helpers import assert_same_events, cut, read_all
+from tests.helpers import assert_clean_error, assert_same_events, cut, EVTOOLS, read_all, run
 
-EVTOOLS = str(Path(sys.executable).with_name("evtools"))
 WIDTH = HEIGHT = 128
 RATES = {"shot_noise_rate_hz": 5.0, "leak_rate_hz": 0.2, "hot_pixel_fraction": 0.002, "hot_pixel_rate_hz": 100.0}
-
-
-def run(*args, check=True, input=None) -> subprocess.CompletedProcess:
-    result = subprocess.run([EVTOOLS, *map(str, args)], capture_output=True, timeout=120, input=input)
-    if check and result.returncode != 0:
-        raise AssertionError(f"evtools {args} failed ({result.returncode}): {result.stderr.decode()}")
-    return result
-
-
-def assert_clean_error(result: subprocess.CompletedProcess, *needles: str) -> None:
-    stderr = result.stderr.decode()
-    assert result.returncode == 1, stderr
-    assert "Traceback" not in stderr
-    assert stderr.count("\n") == 1 and stderr.startswith("evtools: error: "), stderr
-    for needle in needles:
-        assert needle in stderr, stderr
-    assert result.stdout == b""
 
 
 @pytest.fixture(scope="module")

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from pathlib import Path
 
 import cv2
@@ -26,26 +24,9 @@ from evtools.render import (
     upscale,
 )
 from formats import create_events, open_events
-from tests.helpers import cut, random_events
+from tests.helpers import assert_clean_error, cut, random_events, run
 
-EVTOOLS = str(Path(sys.executable).with_name("evtools"))
 DARK = BACKGROUNDS["dark"]
-
-
-def run(*args, check=True) -> subprocess.CompletedProcess:
-    result = subprocess.run([EVTOOLS, *map(str, args)], capture_output=True, timeout=120)
-    if check and result.returncode != 0:
-        raise AssertionError(f"evtools {args} failed ({result.returncode}): {result.stderr.decode()}")
-    return result
-
-
-def assert_clean_error(result: subprocess.CompletedProcess, *needles: str) -> None:
-    stderr = result.stderr.decode()
-    assert result.returncode == 1, stderr
-    assert "Traceback" not in stderr
-    assert stderr.count("\n") == 1 and stderr.startswith("evtools: error: "), stderr
-    for needle in needles:
-        assert needle in stderr, stderr
 
 
 def write_stream(path: Path, events: np.ndarray, width: int, height: int) -> Path:

@@ -3,9 +3,6 @@
 from __future__ import annotations
 
 import math
-import subprocess
-import sys
-from pathlib import Path
 
 import cv2
 import h5py
@@ -25,28 +22,10 @@ from evtools.simulate import (
     scene_frames,
     simulate_frames,
 )
-from tests.helpers import read_all
+from tests.helpers import assert_clean_error, read_all, run
 from tests.naive import naive_lin_log, simulate_naive
 
-EVTOOLS = str(Path(sys.executable).with_name("evtools"))
 IDEAL = {"sigma_thres": 0.0, "leak_rate_hz": 0.0, "shot_noise_rate_hz": 0.0, "cutoff_hz": 0.0}
-
-
-def run(*args, check=True) -> subprocess.CompletedProcess:
-    result = subprocess.run([EVTOOLS, *map(str, args)], capture_output=True, timeout=120)
-    if check and result.returncode != 0:
-        raise AssertionError(f"evtools {args} failed ({result.returncode}): {result.stderr.decode()}")
-    return result
-
-
-def assert_clean_error(result: subprocess.CompletedProcess, *needles: str) -> None:
-    stderr = result.stderr.decode()
-    assert result.returncode == 1, stderr
-    assert "Traceback" not in stderr
-    assert stderr.count("\n") == 1 and stderr.startswith("evtools: error: "), stderr
-    for needle in needles:
-        assert needle in stderr, stderr
-    assert result.stdout == b""
 
 
 def inverse_lin_log(level: np.ndarray) -> np.ndarray:
