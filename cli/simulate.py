@@ -446,34 +446,39 @@ def _frames_kind(frames: FrameSource) -> str:
     return "images" if "images" in frames.attributes else "video"
 
 
-def _run(simulator: DvsSimulator, frames: FrameSource, writer, labels_dataset) -> None:
-    pending, pending_labels, held = [], [], 0
+class _LabelledSink:
+    """Buffers events and their labels to about a million, then writes the events and appends the labels to the
+    truth file's ``label`` dataset (None: no truth file), so both stay in output order."""
 
-    def write() -> None:
-        nonlocal pending, pending_labels, held
-        if not held:
-            return
-        writer.write(join(pending))
-        if labels_dataset is not None:
-            start = labels_dataset.shape[0]
-            labels_dataset.resize((start + held,))
-            labels_dataset[start:] = np.concatenate(pending_labels)
-        pending, pending_labels, held = [], [], 0
+    def __init__(self, writer, labels_dataset) -> None:
+        self.writer, self.labels_dataset = writer, labels_dataset
+        self.pending, self.pending_labels, self.held = [], [], 0
 
-    for t_us, frame in _progress(frames):
-        events, labels = simulator.process_labelled(t_us, frame)
+    def add(self, events: np.ndarray, labels: np.ndarray) -> None:
         if len(events):
-            pending.append(events)
-            pending_labels.append(labels)
-            held += len(events)
-            if held >= CHUNK_EVENTS:
-                write()
-    events, labels = simulator.flush_labelled()
-    if len(events):
-        pending.append(events)
-        pending_labels.append(labels)
-        held += len(events)
-    write()
+            self.pending.append(events)
+            self.pending_labels.append(labels)
+            self.held += len(events)
+            if self.held >= CHUNK_EVENTS:
+                self.write()
+
+    def write(self) -> None:
+        if not self.held:
+            return
+        self.writer.write(join(self.pending) if len(self.pending) > 1 else self.pending[0])
+        if self.labels_dataset is not None:
+            start = self.labels_dataset.shape[0]
+            self.labels_dataset.resize((start + self.held,))
+            self.labels_dataset[start:] = np.concatenate(self.pending_labels)
+        self.pending, self.pending_labels, self.held = [], [], 0
+
+
+def _run(simulator: DvsSimulator, frames: FrameSource, writer, labels_dataset) -> None:
+    sink = _LabelledSink(writer, labels_dataset)
+    for t_us, frame in _progress(frames):
+        sink.add(*simulator.process_labelled(t_us, frame))
+    sink.add(*simulator.flush_labelled())
+    sink.write()
 
 
 # -- noise on an event stream --------------------------------------------------------------------------------------
@@ -527,35 +532,15 @@ def _inject(source, output, output_format, truth, preset, seed, parameters, stre
 def _run_injector(injector: NoiseInjector, stream, writer, labels_dataset) -> tuple[int, int]:
     """Feed the stream through the injector into the writer (and the labels into the truth file); returns the
     times of the first and last input events."""
-    pending, pending_labels, held = [], [], 0
+    sink = _LabelledSink(writer, labels_dataset)
     first = last = None
-
-    def write() -> None:
-        nonlocal pending, pending_labels, held
-        if not held:
-            return
-        writer.write(join(pending) if len(pending) > 1 else pending[0])
-        if labels_dataset is not None:
-            start = labels_dataset.shape[0]
-            labels_dataset.resize((start + held,))
-            labels_dataset[start:] = np.concatenate(pending_labels)
-        pending, pending_labels, held = [], [], 0
-
-    def add(events, labels) -> None:
-        nonlocal held
-        if len(events):
-            pending.append(events)
-            pending_labels.append(labels)
-            held += len(events)
-            if held >= CHUNK_EVENTS:
-                write()
 
     for chunk in with_progress(stream, stream, f"adding noise to {stream.name}"):
         if first is None:
             first = int(chunk["t"][0])
         last = int(chunk["t"][-1])
         for events, labels in injector.process_pieces(chunk):
-            add(events, labels)
-    add(*injector.flush())
-    write()
+            sink.add(events, labels)
+    sink.add(*injector.flush())
+    sink.write()
     return first, last
