@@ -39,6 +39,9 @@ test: $(VENV)/.installed-test
 bench: $(VENV)/.installed-test
 	$(BIN)/python -m tests.bench.bench_formats
 	$(BIN)/python -m tests.bench.bench_simulate
+	$(BIN)/python -m tests.bench.bench_bafilter
+	$(BIN)/python -m tests.bench.bench_estimate
+	$(BIN)/python -m tests.bench.bench_correct
 
 clean:
 	rm -rf $(OUT) .pytest_cache .hypothesis

@@ -8,7 +8,7 @@ import sys
 
 import click
 
-from cli import convert, info, render, simulate
+from cli import bafilter, convert, correct, estimate, info, metrics, render, simulate
 from evtools import __version__
 from evtools.errors import EvtoolsError
 
@@ -70,6 +70,10 @@ cli.add_command(info.info)
 cli.add_command(convert.convert)
 cli.add_command(simulate.simulate)
 cli.add_command(render.render)
+cli.add_command(bafilter.bafilter)
+cli.add_command(estimate.estimate)
+cli.add_command(correct.correct)
+cli.add_command(metrics.metrics)
 
 
 def main() -> None:

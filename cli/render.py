@@ -21,6 +21,7 @@ from evtools.render import (
 )
 from formats import open_events
 from formats.io import STDIO, atomic_path, output_stream, same_file
+from formats.thresholds import read_thresholds
 
 log = logging.getLogger("evtools")
 
@@ -182,37 +183,9 @@ def _render_video(stream, framer: EventFramer, output: str, extension: str, scal
             raise RenderError(f"{output}: OpenCV wrote an empty video")
 
 
-def _read_map(path: str):
-    import h5py
-
-    with contextlib.suppress(ImportError):
-        import hdf5plugin  # noqa: F401  (compressed datasets)
-    if not os.path.exists(path):
-        raise RenderError(f"{path}: no such file")
-    try:
-        h5 = h5py.File(path, "r")
-    except OSError:
-        raise RenderError(
-            f"{path}: cannot read it as HDF5 (a thresholds map is an HDF5 file with datasets on, off)"
-        ) from None
-    with h5:
-        missing = [name for name in ("on", "off") if not isinstance(h5.get(name), h5py.Dataset)]
-        if missing:
-            raise RenderError(f"{path}: no dataset {' or '.join(missing)} (a thresholds map has datasets on and off, "
-                              "height x width)")
-        try:
-            on, off = h5["on"][()], h5["off"][()]
-            valid = h5["valid"][()] if isinstance(h5.get("valid"), h5py.Dataset) else None
-        except OSError as error:
-            raise RenderError(f"{path}: cannot read the maps ({error})") from None
-        units = h5["on"].attrs.get("units", "")
-    if isinstance(units, bytes):
-        units = units.decode("utf-8", "replace")
-    return on, off, valid, str(units)
-
-
 def _render_map(path: str, output: str, extension: str, scale: int | None, value_range) -> None:
-    on, off, valid, units = _read_map(path)
+    thresholds = read_thresholds(path)
+    on, off, valid, units = thresholds.on, thresholds.off, thresholds.valid, thresholds.attributes["units"]
     if same_file(output, path):
         raise RenderError(f"{output}: output would overwrite the input; choose another -o")
     try:

@@ -1,0 +1,1 @@
+"""Measurements: denoising (labelled and unlabelled), threshold estimation error, edge uniformity."""

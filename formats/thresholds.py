@@ -1,0 +1,132 @@
+"""Thresholds files and ground-truth files (HDF5).
+
+One layout serves ``simulate --truth``, ``estimate -o`` and ``correct --thresholds``: datasets ``on`` and ``off``
+(height x width, float32, log intensity), optionally ``valid`` (height x width, bool) and, in a truth file,
+``label`` (uint8 per event of the simulated stream, in output order: 0 signal, 1 leak, 2 shot, 3 hot pixel);
+the method and its parameters as attributes of the file.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from formats.errors import FormatError
+from formats.io import output_stream
+
+
+@dataclass
+class ThresholdMap:
+    """Per-pixel ON and OFF contrast thresholds (log units), which pixels hold an estimate, and the attributes."""
+
+    on: np.ndarray
+    off: np.ndarray
+    valid: np.ndarray
+    attributes: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def width(self) -> int:
+        return int(self.on.shape[1])
+
+    @property
+    def height(self) -> int:
+        return int(self.on.shape[0])
+
+    def usable(self) -> np.ndarray:
+        """Pixels marked valid whose ON and OFF thresholds are both finite and positive."""
+        with np.errstate(invalid="ignore"):
+            return self.valid & np.isfinite(self.on) & np.isfinite(self.off) & (self.on > 0) & (self.off > 0)
+
+    def check_size(self, width: int, height: int, name: str) -> None:
+        """Raise a :class:`FormatError` naming the file ``name`` unless the maps are ``height`` x ``width``."""
+        if (self.width, self.height) != (width, height):
+            raise FormatError(
+                f"{name}: thresholds are {self.width}x{self.height} but the stream is {width}x{height}; "
+                "give the thresholds of this sensor"
+            )
+
+
+def _open_h5(path: str):
+    import h5py
+
+    with contextlib.suppress(ImportError):
+        import hdf5plugin  # noqa: F401  (compressed datasets)
+    if not os.path.exists(path):
+        raise FormatError(f"{path}: no such file")
+    try:
+        return h5py.File(path, "r")
+    except OSError:
+        raise FormatError(f"{path}: cannot read it as HDF5") from None
+
+
+def _text(value):
+    if isinstance(value, bytes):
+        return value.decode("utf-8", "replace")
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def read_thresholds(path: str) -> ThresholdMap:
+    """Read a thresholds file (from ``estimate``) or a truth file (from ``simulate --truth``).
+
+    Without a ``valid`` dataset every pixel is marked valid; :meth:`ThresholdMap.usable` also drops pixels whose
+    thresholds are not finite and positive.
+    """
+    import h5py
+
+    with _open_h5(path) as h5:
+        missing = [name for name in ("on", "off") if not isinstance(h5.get(name), h5py.Dataset)]
+        if missing:
+            raise FormatError(
+                f"{path}: no dataset {' or '.join(missing)} (a thresholds file has datasets on and off, "
+                "height x width: write one with `evtools estimate` or `evtools simulate --truth`)"
+            )
+        try:
+            on = np.asarray(h5["on"][()], dtype=np.float32)
+            off = np.asarray(h5["off"][()], dtype=np.float32)
+            valid = np.asarray(h5["valid"][()], dtype=bool) if isinstance(h5.get("valid"), h5py.Dataset) else None
+        except OSError as error:
+            raise FormatError(f"{path}: cannot read the maps ({error})") from None
+        attributes = {key: _text(value) for key, value in h5.attrs.items()}
+        units = _text(h5["on"].attrs.get("units", ""))
+    if on.ndim != 2 or on.shape != off.shape or (valid is not None and valid.shape != on.shape):
+        raise FormatError(f"{path}: datasets on, off (and valid) must be height x width arrays of one shape")
+    if valid is None:
+        valid = np.ones(on.shape, dtype=bool)
+    attributes.setdefault("units", units)
+    return ThresholdMap(on, off, valid, attributes)
+
+
+def write_thresholds(path: str, thresholds: ThresholdMap) -> None:
+    """Write ``on``, ``off``, ``valid`` and the attributes to ``path`` atomically."""
+    import h5py
+
+    with output_stream(path, binary_name="HDF5", needs_seek=True) as stream, h5py.File(stream, "w") as h5:
+        for name in ("on", "off"):
+            h5.create_dataset(name, data=np.asarray(getattr(thresholds, name), dtype=np.float32))
+            h5[name].attrs["units"] = "log intensity"
+        h5.create_dataset("valid", data=np.asarray(thresholds.valid, dtype=bool))
+        for key, value in thresholds.attributes.items():
+            if key == "units":
+                continue
+            h5.attrs[key] = value if not isinstance(value, (dict, list, tuple)) else str(value)
+
+
+def read_labels(path: str) -> np.ndarray:
+    """The per-event ``label`` dataset of a truth file (uint8: 0 signal, 1 leak, 2 shot, 3 hot pixel)."""
+    import h5py
+
+    with _open_h5(path) as h5:
+        if not isinstance(h5.get("label"), h5py.Dataset):
+            raise FormatError(
+                f"{path}: no dataset label (per-event labels are written by `evtools simulate ... --truth FILE`)"
+            )
+        try:
+            return np.asarray(h5["label"][()], dtype=np.uint8)
+        except OSError as error:
+            raise FormatError(f"{path}: cannot read the labels ({error})") from None
