@@ -1,11 +1,134 @@
-"""``evtools bafilter``: (being built)."""
+"""``evtools bafilter``: background-activity filters, one or several stages in one streaming pass."""
 
 from __future__ import annotations
 
+import logging
+import os
+
 import click
+import numpy as np
+
+from cli.options import output_option, read_options
+from cli.progress import with_progress
+from evtools.bafilter import METHODS, PRESETS, BAFilter, BAFilterError, parse_methods
+from evtools.errors import EvtoolsError
+from formats import create_events, open_events
+
+log = logging.getLogger("evtools")
+
+
+class HotPixelsError(EvtoolsError, ValueError):
+    """A hot-pixel list that cannot be read or does not fit the sensor."""
+
+
+def read_hot_pixels(path: str, width: int, height: int) -> np.ndarray:
+    """A hot-pixel CSV file (header ``x,y``, one pixel a line) as a (height, width) boolean map."""
+    hot = np.zeros((height, width), dtype=bool)
+    try:
+        with open(path, encoding="utf-8") as file:
+            lines = file.read().splitlines()
+    except OSError as error:
+        raise HotPixelsError(f"{path}: {error.strerror}") from None
+    if not lines or lines[0].strip().lower() != "x,y":
+        raise HotPixelsError(f"{path}: not a hot-pixel list (first line must be `x,y`)")
+    for number, line in enumerate(lines[1:], start=2):
+        if not line.strip() or line.startswith("#"):
+            continue
+        try:
+            x, y = (int(v) for v in line.split(","))
+        except ValueError:
+            raise HotPixelsError(f"{path}: line {number}: expected `x,y` integers, got {line!r}") from None
+        if not (0 <= x < width and 0 <= y < height):
+            raise HotPixelsError(f"{path}: line {number}: pixel ({x}, {y}) is outside the {width}x{height} sensor")
+        hot[y, x] = True
+    return hot
+
+
+def write_hot_pixels(path: str, hot: np.ndarray) -> None:
+    """Write the hot pixels of ``hot`` as CSV (``x,y`` header, row-major order), atomically."""
+    ys, xs = np.nonzero(hot)
+    temporary = f"{path}.tmp{os.getpid()}"
+    with open(temporary, "w", encoding="utf-8") as file:
+        file.write("x,y\n")
+        file.writelines(f"{x},{y}\n" for x, y in zip(xs.tolist(), ys.tolist()))
+    os.replace(temporary, path)
+
+
+def _methods(ctx, param, value):
+    try:
+        return parse_methods(value)
+    except BAFilterError as error:
+        raise click.BadParameter(str(error)) from None
+
+
+positive = click.IntRange(min=1)
 
 
 @click.command()
-def bafilter():
-    """(being built)"""
-    raise click.UsageError("not built yet")
+@read_options
+@click.argument("output_path", required=False, metavar="[OUT]", type=click.Path(dir_okay=False, allow_dash=True))
+@output_option
+@click.option("-m", "--method", "methods", default="baf", callback=_methods, metavar="M[,M2...]", show_default=True,
+              help=f"Filter(s), applied in order: {', '.join(METHODS)}.")
+@click.option("--preset", type=click.Choice(PRESETS), default="evtools", show_default=True,
+              help="Semantics and defaults: evtools (maps start long ago), dv (dv-processing's "
+                   "BackgroundActivityNoiseFilter, baf only), jaer (jAER's filters).")
+@click.option("--dt-us", type=positive, default=None,
+              help="Correlation window (baf, stcf, orderN) or refractory period, us [evtools: 10000, refractory "
+                   "100; dv: 2000; jaer: 25000].")
+@click.option("--k", type=positive, default=None, help="stcf: correlated neighbours needed [2]; dwf: events [1].")
+@click.option("--radius", type=click.IntRange(1, 10), default=None, help="stcf neighbourhood radius [1].")
+@click.option("--polarity/--no-polarity", default=None, help="stcf: count same-polarity neighbours only [on].")
+@click.option("--window", type=positive, default=None, help="dwf: length of each FIFO window [36; jaer 256].")
+@click.option("--distance", type=positive, default=None, help="dwf: L1 distance, support when < this [9; jaer 5].")
+@click.option("--learn-us", type=positive, default=None, help="hotpixel: learning stretch, us [1000000].")
+@click.option("--hot-ratio", type=click.FloatRange(min=1.0), default=None,
+              help="hotpixel: hot when >= this times its 4 neighbours' largest count [5].")
+@click.option("--hot-rate-hz", type=click.FloatRange(min=0.0), default=None,
+              help="hotpixel: hot when its rate is at least this [10000].")
+@click.option("--hot-min-events", type=positive, default=None,
+              help="hotpixel: a hot pixel has at least this many events in the stretch [20].")
+@click.option("--hot-pixels", "hot_pixels_path", type=click.Path(dir_okay=False), default=None,
+              help="hotpixel: drop the pixels of this CSV list (`x,y` lines) instead of learning.")
+@click.option("--save-hot-pixels", "save_hot_pixels", type=click.Path(dir_okay=False), default=None,
+              help="hotpixel: write the hot pixels (learned or given) to this CSV file.")
+def bafilter(input, input_format, sensor_size, aedat2_layout, output_path, output, methods, preset, dt_us, k,
+             radius, polarity, window, distance, learn_us, hot_ratio, hot_rate_hz, hot_min_events, hot_pixels_path,
+             save_hot_pixels):
+    """Remove background activity from IN (default stdin), writing OUT or -o OUT (default stdout).
+
+    \b
+    evtools bafilter recording.aedat4 -o clean.aedat4 --method stcf --k 2
+    evtools bafilter noisy.aedat4 --method hotpixel,refractory,stcf | evtools info -
+    evtools bafilter rec.aedat4 --method baf --preset dv -o dv.aedat4   # dv-processing's exact output
+
+    A stage sees only the events the stages before it kept; within a stage a rejected event still updates the
+    time map. Prints `N in, K kept, R removed` on stderr (not with -q).
+    """
+    if output_path is not None:
+        if output != "-":
+            raise click.UsageError("give the output either as OUT or as -o OUT, not both")
+        output = output_path
+    if (hot_pixels_path or save_hot_pixels) and "hotpixel" not in methods:
+        raise click.UsageError("--hot-pixels and --save-hot-pixels need --method hotpixel")
+    with open_events(input, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as stream:
+        info = stream.info
+        hot_map = read_hot_pixels(hot_pixels_path, info.width, info.height) if hot_pixels_path else None
+        ba = BAFilter(info.width, info.height, methods, preset=preset, dt_us=dt_us, k=k, radius=radius,
+                      polarity=polarity, window=window, distance=distance, learn_us=learn_us, hot_ratio=hot_ratio,
+                      hot_rate_hz=hot_rate_hz, hot_min_events=hot_min_events, hot_map=hot_map)
+        with create_events(output, info, inputs=(input,)) as writer:
+            for chunk in with_progress(stream, stream, f"filtering {stream.name}"):
+                kept = ba.process(chunk)
+                if len(kept):
+                    writer.write(kept)
+            kept = ba.flush()
+            if len(kept):
+                writer.write(kept)
+    if save_hot_pixels:
+        write_hot_pixels(save_hot_pixels, ba.hot_map if ba.hot_map is not None else np.zeros((info.height,
+                                                                                              info.width), bool))
+    removed = ba.events_in - ba.events_out
+    share = removed / ba.events_in if ba.events_in else 0.0
+    log.info(f"bafilter {','.join(methods)}: {ba.events_in:,} in, {ba.events_out:,} kept, {removed:,} removed "
+             f"({100 * share:.1f} %)")

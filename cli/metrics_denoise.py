@@ -1,15 +1,247 @@
-"""``evtools metrics denoise``: (being built)."""
+"""``evtools metrics denoise | roc | esr``: how well a background-activity filter works (ALGORITHMS.md section 3)."""
 
 from __future__ import annotations
 
+import json
+import math
+
 import click
+import numpy as np
+
+from cli.bafilter import positive
+from cli.options import json_option, read_options, wants_json
+from cli.progress import with_progress
+from evtools.bafilter import METHODS, BAFilter, BAFilterError, parse_methods
+from evtools.metrics.denoise import LABEL_NAMES, DenoiseMatcher, DenoiseMetricsError, EsrMeter, roc_auc
+from formats import open_events
+from formats.thresholds import read_labels
+
+
+def _labels_for(truth: str, n_events: int, name: str) -> np.ndarray:
+    labels = read_labels(truth)
+    if len(labels) != n_events:
+        raise DenoiseMetricsError(f"{truth}: {len(labels):,} labels but {name} has {n_events:,} events (give the "
+                                  "truth file written with that stream)")
+    return labels
+
+
+def _count_events(path: str) -> int:
+    with open_events(path) as stream:
+        return sum(len(chunk) for chunk in stream)
+
+
+def _feed_input(matcher: DenoiseMatcher, chunk: np.ndarray, labels: np.ndarray, name: str, truth: str) -> None:
+    start = matcher.inputs_seen
+    if start + len(chunk) > len(labels):
+        raise DenoiseMetricsError(f"{truth}: {len(labels):,} labels but {name} has more events")
+    matcher.add_input(chunk, labels[start:start + len(chunk)])
+
+
+def _fmt(value: float) -> str:
+    return "-" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.4f}"
+
+
+def _clean(value):
+    """NaN as null in JSON."""
+    if isinstance(value, float) and math.isnan(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _clean(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_clean(v) for v in value]
+    return value
+
+
+def _table(title: str, columns: list[str], rows: list[list[str]]) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=title, show_header=True, header_style="bold")
+    for column in columns:
+        table.add_column(column)
+    for row in rows:
+        table.add_row(*row)
+    Console().print(table)
 
 
 @click.command()
-def denoise():
-    """(being built)"""
-    raise click.UsageError("not built yet")
+@click.argument("filtered", type=click.Path(dir_okay=False, allow_dash=True))
+@click.option("--truth", required=True, type=click.Path(exists=True, dir_okay=False),
+              help="Truth file of the noisy stream (`evtools simulate ... --truth`): one label per event.")
+@click.option("--input", "noisy", required=True, type=click.Path(exists=True, dir_okay=False),
+              help="The noisy stream the filter read (FILTERED must be a subsequence of it).")
+@json_option
+def denoise(filtered, truth, noisy, as_json):
+    """TPR (signal kept), FPR (noise kept), precision, F1 and per-label counts of FILTERED against NOISY.
+
+    \b
+    evtools simulate rec.aedat4 --shot-noise-rate-hz 5 --truth t.h5 -o noisy.aedat4
+    evtools bafilter noisy.aedat4 --method stcf | evtools metrics denoise - --truth t.h5 --input noisy.aedat4
+    """
+    labels = _labels_for(truth, _count_events(noisy), noisy)
+    matcher = DenoiseMatcher()
+    with open_events(noisy) as source, open_events(filtered) as output:
+        inputs = iter(source)
+        for chunk in with_progress(output, output, f"matching {output.name}"):
+            matcher.add_output(chunk)
+            while matcher._outputs:  # more input is needed to match what is held
+                part = next(inputs, None)
+                if part is None:
+                    break
+                _feed_input(matcher, part, labels, noisy, truth)
+        for part in inputs:
+            _feed_input(matcher, part, labels, noisy, truth)
+        score = matcher.finish()
+    result = {"file": output.name, "input": noisy, **score.as_dict()}
+    if wants_json(as_json):
+        click.echo(json.dumps(_clean(result), indent=2))
+        return
+    rows = [[name, f"{result['labels'][name]['kept']:,}", f"{result['labels'][name]['total']:,}"]
+            for name in LABEL_NAMES]
+    _table(f"{output.name}: TPR {_fmt(score.tpr)}  FPR {_fmt(score.fpr)}  precision {_fmt(score.precision)}  "
+           f"F1 {_fmt(score.f1)}", ["label", "kept", "total"], rows)
 
 
-COMMANDS = [denoise]
+SWEEPABLE = ("dt-us", "k", "radius", "window", "distance", "learn-us", "hot-ratio", "hot-rate-hz", "hot-min-events")
+
+
+def _sweep(ctx, param, value):
+    if "=" not in value:
+        raise click.BadParameter("give PARAM=v1,v2,... e.g. dt-us=1000,2000,5000")
+    name, values = value.split("=", 1)
+    name = name.strip().lstrip("-").replace("_", "-")
+    if name not in SWEEPABLE:
+        raise click.BadParameter(f"cannot sweep {name!r}; choose among {', '.join(SWEEPABLE)}")
+    try:
+        numbers = [float(v) for v in values.split(",") if v.strip()]
+    except ValueError:
+        raise click.BadParameter(f"values of {name} must be numbers, got {values!r}") from None
+    if not numbers:
+        raise click.BadParameter("no value to sweep")
+    if name not in ("hot-ratio", "hot-rate-hz"):
+        numbers = [int(v) if v == int(v) else v for v in numbers]
+    return name.replace("-", "_"), numbers
+
+
+def _score_filter(noisy: str, labels: np.ndarray, methods: str, preset: str, params: dict):
+    matcher = DenoiseMatcher()
+    with open_events(noisy) as stream:
+        ba = BAFilter(stream.info.width, stream.info.height, methods, preset=preset, **params)
+        for chunk in stream:
+            matcher.add_input(chunk, labels[matcher.inputs_seen:matcher.inputs_seen + len(chunk)])
+            matcher.add_output(ba.process(chunk))
+        matcher.add_output(ba.flush())
+    return matcher.finish()
+
+
+def draw_roc(path: str, curves: list[tuple[str, list[tuple[float, float]], float]], title: str = "") -> None:
+    """Draw ROC curves (FPR, TPR) into a PNG with OpenCV."""
+    import cv2
+
+    size, margin = 560, 60
+    image = np.full((size + 2 * margin, size + 2 * margin, 3), 255, dtype=np.uint8)
+    colours = [(180, 119, 31), (14, 127, 255), (44, 160, 44), (40, 39, 214), (189, 103, 148), (75, 86, 140),
+               (194, 119, 227), (127, 127, 127)]
+
+    def point(f, t):
+        return int(round(margin + f * size)), int(round(margin + (1 - t) * size))
+
+    for v in np.linspace(0, 1, 6):
+        cv2.line(image, point(v, 0), point(v, 1), (225, 225, 225), 1)
+        cv2.line(image, point(0, v), point(1, v), (225, 225, 225), 1)
+        cv2.putText(image, f"{v:.1f}", (point(v, 0)[0] - 12, point(v, 0)[1] + 20), cv2.FONT_HERSHEY_SIMPLEX, 0.4,
+                    (0, 0, 0), 1, cv2.LINE_AA)
+        cv2.putText(image, f"{v:.1f}", (point(0, v)[0] - 35, point(0, v)[1] + 4), cv2.FONT_HERSHEY_SIMPLEX, 0.4,
+                    (0, 0, 0), 1, cv2.LINE_AA)
+    cv2.rectangle(image, point(0, 1), point(1, 0), (0, 0, 0), 1)
+    cv2.line(image, point(0, 0), point(1, 1), (200, 200, 200), 1, cv2.LINE_AA)
+    cv2.putText(image, "FPR (noise kept)", (margin + size // 2 - 60, size + margin + 45), cv2.FONT_HERSHEY_SIMPLEX,
+                0.5, (0, 0, 0), 1, cv2.LINE_AA)
+    cv2.putText(image, "TPR", (8, margin - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
+    cv2.putText(image, title, (margin, 30), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (0, 0, 0), 1, cv2.LINE_AA)
+    for index, (label, curve, area) in enumerate(curves):
+        colour = colours[index % len(colours)]
+        pts = np.array([point(f, t) for f, t in curve], dtype=np.int32)
+        cv2.polylines(image, [pts], False, colour, 2, cv2.LINE_AA)
+        for p in pts[1:-1]:
+            cv2.circle(image, tuple(int(v) for v in p), 3, colour, -1, cv2.LINE_AA)
+        y = margin + size - 20 - 20 * (len(curves) - 1 - index)
+        cv2.line(image, (margin + size - 230, y - 4), (margin + size - 205, y - 4), colour, 2)
+        cv2.putText(image, f"{label}  AUC {area:.3f}", (margin + size - 200, y), cv2.FONT_HERSHEY_SIMPLEX, 0.45,
+                    (0, 0, 0), 1, cv2.LINE_AA)
+    if not cv2.imwrite(str(path), image):
+        raise DenoiseMetricsError(f"{path}: OpenCV cannot write this image (use a .png name)")
+
+
+@click.command()
+@click.argument("noisy", type=click.Path(exists=True, dir_okay=False))
+@click.option("--truth", required=True, type=click.Path(exists=True, dir_okay=False),
+              help="Truth file of NOISY (`evtools simulate ... --truth`).")
+@click.option("-m", "--method", "methods", multiple=True, required=True, metavar="M[,M2...]",
+              help=f"Filter (or chain) to sweep; repeat for several curves. Among {', '.join(METHODS)}.")
+@click.option("--sweep", required=True, callback=_sweep, metavar="PARAM=v1,v2,...",
+              help=f"Parameter and its values, one ROC point each ({', '.join(SWEEPABLE)}).")
+@click.option("--preset", type=click.Choice(["evtools", "dv", "jaer"]), default="evtools", show_default=True)
+@click.option("--plot", type=click.Path(dir_okay=False), default=None, help="Draw the ROC curves into this PNG.")
+@json_option
+def roc(noisy, truth, methods, sweep, preset, plot, as_json):
+    """DND21 ROC of each --method over --sweep on NOISY: (FPR, TPR) per value, (0,0) and (1,1), trapezoid AUC.
+
+    \b
+    evtools metrics roc noisy.aedat4 --truth t.h5 --method baf --method stcf --sweep dt-us=1000,3000,10000,30000
+    """
+    for chain in methods:
+        try:
+            parse_methods(chain)
+        except BAFilterError as error:
+            raise click.BadParameter(str(error), param_hint="--method") from None
+    labels = _labels_for(truth, _count_events(noisy), noisy)
+    name, values = sweep
+    results, curves = [], []
+    for chain in methods:
+        points, rows = [], []
+        for value in values:
+            score = _score_filter(noisy, labels, chain, preset, {name: value})
+            rows.append({"value": value, **score.as_dict()})
+            points.append((score.fpr, score.tpr))
+        curve, area = roc_auc(points)
+        results.append({"method": chain, "parameter": name, "points": rows, "auc": area})
+        curves.append((chain, curve, area))
+    if plot:
+        draw_roc(plot, curves, f"ROC, sweep {name}")
+    if wants_json(as_json):
+        click.echo(json.dumps(_clean({"file": noisy, "preset": preset, "methods": results}), indent=2))
+        return
+    rows = []
+    for result in results:
+        for point in result["points"]:
+            rows.append([result["method"], str(point["value"]), _fmt(point["tpr"]), _fmt(point["fpr"]),
+                         _fmt(point["precision"]), _fmt(point["f1"]), ""])
+        rows.append([result["method"], "", "", "", "", "", f"{result['auc']:.4f}"])
+    _table(f"ROC of {noisy}", ["method", name, "TPR", "FPR", "precision", "F1", "AUC"], rows)
+
+
+@click.command()
+@read_options
+@click.option("--slice-events", type=click.IntRange(min=2), default=30_000, show_default=True,
+              help="Events per slice (E-MLB: 30,000).")
+@json_option
+def esr(input, input_format, sensor_size, aedat2_layout, slice_events, as_json):
+    """E-MLB's event structural ratio per slice of IN and its mean, MESR (higher is better; no labels needed).
+
+    Full slices only; a stream shorter than one slice is one slice.
+    """
+    with open_events(input, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as stream:
+        meter = EsrMeter(stream.info.width, stream.info.height, slice_events)
+        for chunk in with_progress(stream, stream, f"measuring {stream.name}"):
+            meter.add(chunk)
+        result = {"file": stream.name, **meter.finish()}
+    if wants_json(as_json):
+        click.echo(json.dumps(_clean(result), indent=2))
+        return
+    _table(f"{result['file']}: MESR {_fmt(result['mesr'])}", ["slices", "slice events", "MESR"],
+           [[str(result["slices"]), f"{slice_events:,}", _fmt(result["mesr"])]])
+
+
+COMMANDS = [denoise, roc, esr]
 """The subcommands of ``evtools metrics`` this module defines."""

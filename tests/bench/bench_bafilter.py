@@ -1,0 +1,173 @@
+"""bafilter benchmark (issue 4): file to file against dv-processing, kernel throughput, a 100M-event pipe.
+
+- ``file``: the same 10M-event AEDAT 4.0 file (346 x 260, random events at ~10 Mev/s) filtered to AEDAT 4.0 by
+  ``evtools bafilter --method baf --preset dv`` and by a dv-processing script (MonoCameraRecording,
+  BackgroundActivityNoiseFilter, MonoCameraWriter); the ratio is dv's time / evtools' time (> 1: evtools faster).
+- ``kernel``: ``BAFilter.process`` alone per method on 4M in-memory events, at 346 x 260 and 1280 x 720.
+- ``pipe``: 100M events generated chunk by chunk by a child and piped into ``evtools bafilter - -o /dev/null``,
+  peak RSS of the filter process.
+
+Every measurement runs in a fresh process (peak RSS from ``wait4``). Run: ``python -m tests.bench.bench_bafilter
+[--events N] [--big N] [--dir SCRATCH]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[2]
+EVTOOLS = str(Path(sys.executable).with_name("evtools"))
+TARGETS = {"baf": 50e6, "stcf": 30e6}
+
+
+def random_chunk(n: int, width: int, height: int, seed: int, t0: int):
+    from evtools.events import make_events
+
+    rng = np.random.default_rng(seed)
+    t = t0 + np.sort(rng.integers(0, n // 10 + 1, n))  # ~10 Mev/s
+    return make_events(t, rng.integers(0, width, n), rng.integers(0, height, n), rng.integers(0, 2, n))
+
+
+def chunks(total: int, width: int, height: int, size: int = 1 << 20):
+    t0 = 0
+    for k, start in enumerate(range(0, total, size)):
+        chunk = random_chunk(min(size, total - start), width, height, k, t0)
+        t0 = int(chunk["t"][-1])
+        yield chunk
+
+
+# ---- children ----
+
+def child_make(path: str, events: str) -> dict:
+    from evtools.events import StreamInfo
+    from formats import create_events
+
+    with create_events(path, StreamInfo(346, 260)) as writer:
+        for chunk in chunks(int(events), 346, 260):
+            writer.write(chunk)
+    return {"events": int(events)}
+
+
+def child_dv(path: str, out: str) -> dict:
+    import dv_processing as dv
+
+    start = time.perf_counter()
+    recording = dv.io.MonoCameraRecording(path)
+    config = dv.io.MonoCameraWriter.Config("bench")
+    config.addEventStream(recording.getEventResolution())
+    config.compression = dv.CompressionType.NONE
+    writer = dv.io.MonoCameraWriter(out, config)
+    noise_filter = dv.noise.BackgroundActivityNoiseFilter(recording.getEventResolution())
+    n = kept = 0
+    while recording.isRunning():
+        batch = recording.getNextEventBatch()
+        if batch is not None:
+            n += batch.size()
+            noise_filter.accept(batch)
+            filtered = noise_filter.generateEvents()
+            kept += filtered.size()
+            writer.writeEvents(filtered)
+    del writer
+    return {"events": n, "kept": kept, "seconds": time.perf_counter() - start}
+
+
+def child_kernel(method: str, width: str, height: str, events: str) -> dict:
+    from evtools.bafilter import BAFilter
+    from evtools.events import join
+
+    data = join(list(chunks(int(events), int(width), int(height))))
+    BAFilter(int(width), int(height), method).process(data[:1000])  # compile / load the cache
+    ba = BAFilter(int(width), int(height), method)
+    start = time.perf_counter()
+    for part in np.array_split(data, 4):
+        ba.process(part)
+    ba.flush()
+    return {"events": len(data), "seconds": time.perf_counter() - start}
+
+
+def child_generate(events: str) -> None:
+    from evtools.events import StreamInfo
+    from formats import create_events
+
+    with create_events("-", StreamInfo(346, 260)) as writer:
+        for chunk in chunks(int(events), 346, 260):
+            writer.write(chunk)
+    return None  # stdout carries the stream
+
+
+CHILDREN = {"make": child_make, "dv": child_dv, "kernel": child_kernel, "generate": child_generate}
+
+
+def measure_child(*args) -> dict:
+    process = subprocess.Popen([sys.executable, "-m", "tests.bench.bench_bafilter", "--child", *map(str, args)],
+                               stdout=subprocess.PIPE, cwd=ROOT)
+    output = process.stdout.read()
+    _, status, usage = os.wait4(process.pid, 0)
+    if status != 0:
+        raise SystemExit(f"benchmark child {args} failed")
+    return {**json.loads(output), "peak_mb": usage.ru_maxrss / 1024}
+
+
+def measure_command(argv, stdin=None, stdout=None) -> dict:
+    start = time.perf_counter()
+    process = subprocess.Popen(argv, cwd=ROOT, stdin=stdin, stdout=stdout, stderr=subprocess.DEVNULL)
+    _, status, usage = os.wait4(process.pid, 0)
+    if status != 0:
+        raise SystemExit(f"{argv} failed")
+    return {"seconds": time.perf_counter() - start, "peak_mb": usage.ru_maxrss / 1024}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--events", type=int, default=10_000_000)
+    parser.add_argument("--kernel-events", type=int, default=4_000_000)
+    parser.add_argument("--big", type=int, default=100_000_000)
+    parser.add_argument("--dir", default=None)
+    parser.add_argument("--child", nargs="+")
+    args = parser.parse_args()
+    if args.child:
+        result = CHILDREN[args.child[0]](*args.child[1:])
+        if result is not None:
+            print(json.dumps(result))
+        return
+    rows = []
+    with tempfile.TemporaryDirectory(dir=args.dir) as scratch:
+        source = os.path.join(scratch, "in.aedat4")
+        measure_child("make", source, args.events)
+        ours = measure_command([EVTOOLS, "-q", "bafilter", source, "--method", "baf", "--preset", "dv", "-o",
+                                os.path.join(scratch, "ours.aedat4")])
+        dv = measure_child("dv", source, os.path.join(scratch, "dv.aedat4"))
+        ratio = dv["seconds"] / ours["seconds"]
+        rows.append(("file: evtools bafilter baf --preset dv", args.events / ours["seconds"], ours["peak_mb"],
+                     f"{ratio:.2f}x dv", ">= 1x dv"))
+        rows.append(("file: dv-processing read+BA filter+write", args.events / dv["seconds"], dv["peak_mb"], "", ""))
+        for width, height in ((346, 260), (1280, 720)):
+            for method in ("baf", "stcf", "dwf", "orderN", "refractory", "hotpixel"):
+                r = measure_child("kernel", method, width, height, args.kernel_events)
+                target = TARGETS.get(method)
+                rows.append((f"kernel {method} {width}x{height}", r["events"] / r["seconds"], r["peak_mb"], "",
+                             f">= {target / 1e6:.0f} Mev/s" if target else ""))
+        generator = subprocess.Popen([sys.executable, "-m", "tests.bench.bench_bafilter", "--child", "generate",
+                                      str(args.big)], stdout=subprocess.PIPE, cwd=ROOT)
+        big = measure_command([EVTOOLS, "-q", "bafilter", "-", "--method", "hotpixel,refractory,stcf"],
+                              stdin=generator.stdout, stdout=subprocess.DEVNULL)
+        generator.stdout.close()
+        generator.wait()
+        rows.append((f"pipe {args.big / 1e6:.0f}M events hotpixel,refractory,stcf", args.big / big["seconds"],
+                     big["peak_mb"], "", "peak RSS < 500 MB"))
+    print(f"{'operation':55s} {'Mev/s':>8s} {'peak MB':>8s} {'ratio':>10s}  target")
+    for name, rate, peak, ratio, target in rows:
+        print(f"{name:55s} {rate / 1e6:8.1f} {peak:8.0f} {ratio:>10s}  {target}")
+
+
+if __name__ == "__main__":
+    main()

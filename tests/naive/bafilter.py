@@ -1,0 +1,126 @@
+"""Slow references of the background-activity filters (evtools/_kernels/bafilter.py), one event at a time.
+
+Each takes a list of ``(t, x, y, p)`` tuples and returns the list of booleans "kept", written from the method's
+description (ALGORITHMS.md section 2) with dictionaries for the state: a missing key is a pixel that never fired.
+"""
+
+from __future__ import annotations
+
+DV_START = 0  # dv-processing's time map starts at 0
+
+
+def naive_baf(events, width, height, dt_us, preset="evtools"):
+    last = {}  # (x, y) -> time of the pixel's last event
+    if preset == "dv":
+        last = {(x, y): DV_START for x in range(width) for y in range(height)}
+    kept = []
+    for t, x, y, p in events:
+        if preset == "jaer" and (x, y) not in last:
+            kept.append(False)
+        else:
+            neighbours = [(x + dx, y + dy) for dx in (-1, 0, 1) for dy in (-1, 0, 1) if (dx, dy) != (0, 0)]
+            kept.append(any(n in last and t - last[n] < dt_us for n in neighbours))
+        last[(x, y)] = t
+    return kept
+
+
+def naive_stcf(events, width, height, dt_us, k, radius, polarity, preset="evtools"):
+    last = {}  # (x, y) -> (time, polarity)
+    kept = []
+    for t, x, y, p in events:
+        if preset == "jaer" and (x, y) not in last:
+            kept.append(False)
+        else:
+            count = 0
+            for nx in range(x - radius, x + radius + 1):
+                for ny in range(y - radius, y + radius + 1):
+                    if (nx, ny) == (x, y) or (nx, ny) not in last:
+                        continue
+                    if preset == "jaer" and (nx > width - 1 - radius or ny > height - 1 - radius):
+                        continue  # jAER's NnbRange never reaches the last r columns and rows
+                    nt, np_ = last[(nx, ny)]
+                    if t - nt < dt_us and (not polarity or np_ == p):
+                        count += 1
+            kept.append(count >= k)
+        last[(x, y)] = (t, p)
+    return kept
+
+
+def naive_dwf(events, window, distance, k, preset="evtools"):
+    kept_window, rejected_window = [], []  # oldest first
+    startup = 0
+    if preset == "jaer":
+        rejected_window = [(-1, -1)] * window
+        startup = 2 * window
+    kept = []
+    for t, x, y, p in events:
+        if startup:
+            startup -= 1
+            kept.append(False)
+            if len(kept_window) < window:
+                kept_window.append((x, y))
+            continue
+        support = sum(abs(x - sx) + abs(y - sy) < distance for sx, sy in kept_window + rejected_window)
+        target = kept_window if support >= k else rejected_window
+        kept.append(support >= k)
+        target.append((x, y))
+        if len(target) > window:
+            target.pop(0)
+    return kept
+
+
+def naive_order_n(events, width, height, dt_us, preset="evtools"):
+    rows, cols = {}, {}  # y -> (t, x); x -> (t, y)
+    jaer = preset == "jaer"
+    kept = []
+    for t, x, y, p in events:
+        if jaer and (x == 0 or y == 0 or x == width - 1 or y == height - 1):
+            kept.append(False)
+            continue
+        ok = False
+        for ny in (y - 1, y, y + 1):
+            if ny in rows:
+                rt, rx = rows[ny]
+                if t - rt < dt_us and abs(rx - x) <= 1 and (jaer or (rx, ny) != (x, y)):
+                    ok = True
+        for nx in (x - 1, x, x + 1):
+            if nx in cols:
+                ct, cy = cols[nx]
+                if t - ct < dt_us and abs(cy - y) <= 1 and (jaer or (nx, cy) != (x, y)):
+                    ok = True
+        kept.append(ok)
+        rows[y] = (t, x)
+        cols[x] = (t, y)
+    return kept
+
+
+def naive_refractory(events, dt_us, preset="evtools"):
+    last = {}
+    kept = []
+    for t, x, y, p in events:
+        if (x, y) not in last:
+            kept.append(True)
+        elif preset == "jaer":
+            kept.append(t - last[(x, y)] > dt_us)
+        else:
+            kept.append(t - last[(x, y)] >= dt_us)
+        last[(x, y)] = t
+    return kept
+
+
+def naive_hot_pixels(events, width, height, learn_us, hot_ratio, hot_min_events, hot_rate_hz):
+    """Count each pixel over [t0, t0 + learn_us) (the whole stream when shorter), mark the hot ones, drop them."""
+    if not events:
+        return []
+    t0 = events[0][0]
+    learned = [e for e in events if e[0] < t0 + learn_us]
+    duration_us = learn_us if len(learned) < len(events) else learned[-1][0] - t0 + 1
+    counts = {}
+    for t, x, y, p in learned:
+        counts[(x, y)] = counts.get((x, y), 0) + 1
+    hot = set()
+    for (x, y), n in counts.items():
+        neighbours = max(counts.get(q, 0) for q in ((x - 1, y), (x + 1, y), (x, y - 1), (x, y + 1)))
+        if n >= hot_min_events and (n >= hot_rate_hz * duration_us * 1e-6 or n >= hot_ratio * neighbours):
+            hot.add((x, y))
+    return [(x, y) not in hot for t, x, y, p in events]

@@ -1,0 +1,126 @@
+"""metrics denoise / roc / esr: matching, rates, AUC, ESR against a naive formula, the issue's AUC claims."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from evtools.bafilter import BAFilter, ba_filter
+from evtools.events import make_events
+from evtools.metrics.denoise import DenoiseMatcher, DenoiseMetricsError, EsrMeter, esr, roc_auc
+from tests.conftest import data_file
+from tests.helpers import assert_clean_error, cut, random_events, read_all, run
+
+
+def naive_esr(events, width, height):
+    counts = {}
+    for x, y in zip(events["x"].tolist(), events["y"].tolist()):
+        counts[(x, y)] = counts.get((x, y), 0) + 1
+    n_total = len(events)
+    k = width * height
+    m = math.floor(2 * n_total / 3)
+    ntss = sum(n * (n - 1) for n in counts.values()) / (n_total * (n_total - 1))
+    l_n = k - sum((1 - m / n_total) ** counts.get((x, y), 0) for x in range(width) for y in range(height))
+    return math.sqrt(ntss * l_n)
+
+
+def test_esr_equals_the_naive_formula_and_slices():
+    events = random_events(2_500, width=20, height=15, seed=3)
+    events["x"][:500] = 2  # some structure
+    assert esr(np.bincount(events["y"].astype(int) * 20 + events["x"], minlength=300), 300) == pytest.approx(
+        naive_esr(events, 20, 15), rel=1e-12)
+    meter = EsrMeter(20, 15, slice_events=1_000)
+    for part in cut(events, [7, 999, 1_500]):
+        meter.add(part)
+    result = meter.finish()
+    assert result["slices"] == 2  # the last 500 events are a partial slice, left out
+    expected = [naive_esr(events[i:i + 1_000], 20, 15) for i in (0, 1_000)]
+    assert result["esr"] == pytest.approx(expected, rel=1e-12)
+    assert result["mesr"] == pytest.approx(np.mean(expected), rel=1e-12)
+
+
+def test_roc_auc_anchors_and_trapezoid():
+    curve, area = roc_auc([(0.5, 1.0)])
+    assert curve == [(0.0, 0.0), (0.5, 1.0), (1.0, 1.0)]
+    assert area == pytest.approx(0.25 + 0.5)
+    assert roc_auc([])[1] == pytest.approx(0.5)
+
+
+def test_matcher_counts_and_rejects_a_non_subsequence():
+    events = random_events(5_000, width=30, height=20, seed=1)
+    labels = np.random.default_rng(0).integers(0, 4, len(events)).astype(np.uint8)
+    kept = ba_filter(events, 30, 20, "baf", dt_us=300)
+    matcher = DenoiseMatcher()
+    for part in cut(kept, [3, 400]):  # outputs may arrive before their inputs
+        matcher.add_output(part)
+    for part, lab in zip(cut(events, [1_000, 4_000]), np.split(labels, [1_000, 4_000])):
+        matcher.add_input(part, lab)
+    score = matcher.finish()
+    mask = BAFilter(30, 20, "baf", dt_us=300).stages[0].keep(events)
+    assert score.total.tolist() == np.bincount(labels, minlength=4).tolist()
+    assert score.kept.sum() == len(kept) and score.kept.tolist() == np.bincount(labels[mask], minlength=4).tolist()
+    assert score.tpr == score.kept[0] / score.total[0]
+
+    bad = DenoiseMatcher()
+    bad.add_output(make_events([events["t"][10]], [events["x"][10] ^ 1], [events["y"][10]], [events["p"][10]]))
+    with pytest.raises(DenoiseMetricsError, match="not a subsequence"):
+        bad.add_input(events, labels)
+        bad.finish()
+
+
+@pytest.fixture(scope="module")
+def noisy(tmp_path_factory):
+    """The two recordings with 5 Hz shot and 0.2 Hz leak noise, as the issue (and samples/roc.py) inject them."""
+    folder = tmp_path_factory.mktemp("noisy")
+    out = {}
+    for name, seed in (("dvs128_walk.aedat", 1), ("dvxplorer_sample.aedat4", 2)):
+        stem = name.split(".")[0]
+        run("simulate", data_file(name), "--shot-noise-rate-hz", "5", "--leak-rate-hz", "0.2", "--seed", seed,
+            "--truth", folder / f"{stem}.h5", "-o", folder / f"{stem}.aedat4")
+        out[stem] = (folder / f"{stem}.aedat4", folder / f"{stem}.h5")
+    return out
+
+
+def test_cli_denoise_matches_the_library(noisy, tmp_path):
+    path, truth = noisy["dvxplorer_sample"]
+    filtered = tmp_path / "f.aedat4"
+    run("bafilter", path, "--method", "stcf", "-o", filtered)
+    result = json.loads(run("metrics", "denoise", filtered, "--truth", truth, "--input", path).stdout)
+    import h5py
+
+    with h5py.File(truth) as h5:
+        labels = h5["label"][()]
+    info, events = read_all(path)
+    ba_kept = ba_filter(events, info.width, info.height, "stcf")
+    assert result["events_kept"] == len(ba_kept) and result["events_in"] == len(events)
+    assert result["labels"]["signal"]["total"] == int((labels == 0).sum())
+    assert result["labels"]["shot"]["total"] == int((labels == 2).sum())
+    assert 0 < result["fpr"] < result["tpr"] <= 1
+    # errors: wrong input, wrong truth
+    other, other_truth = noisy["dvs128_walk"]
+    assert_clean_error(run("metrics", "denoise", filtered, "--truth", other_truth, "--input", path, check=False),
+                       "labels")
+    assert_clean_error(run("metrics", "denoise", path, "--truth", other_truth, "--input", other, check=False),
+                       "subsequence")
+
+
+def test_issue_auc_claims(noisy, tmp_path):
+    """STCF (polarity, k = 2) reaches an AUC no lower than BAF's on both noisy recordings."""
+    for stem, (path, truth) in noisy.items():
+        plot = tmp_path / f"{stem}.png"
+        result = json.loads(run("metrics", "roc", path, "--truth", truth, "--method", "baf", "--method", "stcf",
+                                "--sweep", "dt-us=1000,3000,10000,30000,100000", "--plot", plot).stdout)
+        auc = {m["method"]: m["auc"] for m in result["methods"]}
+        assert auc["stcf"] >= auc["baf"] > 0.5, (stem, auc)
+        assert plot.stat().st_size > 1_000
+
+
+def test_cli_esr_and_bad_sweep(noisy):
+    path, truth = noisy["dvxplorer_sample"]
+    result = json.loads(run("metrics", "esr", path).stdout)
+    assert result["slices"] > 3 and result["mesr"] > 0
+    bad = run("metrics", "roc", path, "--truth", truth, "--method", "baf", "--sweep", "speed=1", check=False)
+    assert bad.returncode == 2 and b"cannot sweep" in bad.stderr
