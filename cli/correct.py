@@ -1,11 +1,72 @@
-"""``evtools correct``: (being built)."""
+"""``evtools correct``: online threshold-mismatch correction, every pixel re-sampled at one target threshold."""
 
 from __future__ import annotations
 
 import click
 
+from cli.options import output_option, read_options
+from cli.progress import with_progress
+from evtools.correct import CORRECT_DEFAULTS, MODES, CorrectionError, ThresholdCorrector
+from formats import create_events, open_events
+from formats.thresholds import read_thresholds
+
+
+def _target(ctx, param, value):
+    if value.strip().lower() == "median":
+        return "median"
+    try:
+        number = float(value)
+    except ValueError:
+        raise click.BadParameter(f"{value!r} is neither a number nor 'median'") from None
+    if not number > 0 or number == float("inf"):
+        raise click.BadParameter(f"the target threshold must be a positive number of log units, got {value}")
+    return number
+
 
 @click.command()
-def correct():
-    """(being built)"""
-    raise click.UsageError("not built yet")
+@read_options
+@output_option
+@click.option("--thresholds", "thresholds_path", required=True, metavar="FILE.h5",
+              type=click.Path(dir_okay=False),
+              help="Per-pixel thresholds: from `evtools estimate` or the truth file of `evtools simulate`.")
+@click.option("--target", default="0.2", show_default=True, callback=_target, metavar="THETA|median",
+              help="The threshold every pixel is re-sampled at (log units), or the median of the maps.")
+@click.option("--mode", type=click.Choice(list(MODES)), default=CORRECT_DEFAULTS["mode"], show_default=True,
+              help="foh: the report's first-order hold; step: stepwise over gaps > --hold-us; highpass: step plus "
+                   "a decay of the carried level over rests (drift-free).")
+@click.option("--hold-us", type=click.IntRange(min=1), default=CORRECT_DEFAULTS["hold_us"], show_default=True,
+              help="step, highpass: a gap longer than this is a rest (held constant, no interpolation).")
+@click.option("--max-gap-us", type=click.IntRange(min=1), default=CORRECT_DEFAULTS["max_gap_us"],
+              show_default=True, help="Interpolation never reaches further back than this: bounds latency/memory.")
+@click.option("--tau-us", type=click.FloatRange(min=0, min_open=True), default=CORRECT_DEFAULTS["tau_us"],
+              show_default=True, help="highpass: time constant of the decay of the carried level over a rest.")
+def correct(input, input_format, sensor_size, aedat2_layout, output, thresholds_path, target, mode, hold_us,
+            max_gap_us, tau_us):
+    """Re-sample every pixel of IN (default stdin) at one target threshold; write -o OUT (default stdout).
+
+    Each pixel's events are read as samples of its log intensity at its own thresholds (--thresholds), the
+    signal reconstructed between them and sampled again at --target: the founding report's section 4.2, online
+    and event by event. Pixels without a usable estimate take the median thresholds.
+
+    \b
+    evtools correct flicker.aedat4 --thresholds thresholds.h5 -o corrected.aedat4
+    evtools simulate scene:step --truth t.h5 | evtools correct --thresholds t.h5 --mode foh | evtools info -
+    """
+    thresholds = read_thresholds(thresholds_path)
+    with open_events(input, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as stream:
+        thresholds.check_size(stream.info.width, stream.info.height, thresholds_path)
+        try:
+            corrector = ThresholdCorrector(
+                stream.info.width, stream.info.height, thresholds.on, thresholds.off, thresholds.valid,
+                target=target, mode=mode, hold_us=hold_us, max_gap_us=max_gap_us, tau_us=tau_us,
+            )
+        except CorrectionError as error:
+            raise CorrectionError(f"{thresholds_path}: {error}") from None
+        with create_events(output, stream.info, inputs=(input, thresholds_path)) as writer:
+            for chunk in with_progress(stream, stream, f"correcting {stream.name}"):
+                out = corrector.process(chunk)
+                if len(out):
+                    writer.write(out)
+            rest = corrector.flush()
+            if len(rest):
+                writer.write(rest)

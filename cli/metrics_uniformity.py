@@ -1,14 +1,116 @@
-"""``evtools metrics uniformity``: (being built)."""
+"""``evtools metrics uniformity``: how alike the pixels respond to each stimulus edge (the report's Table 2)."""
 
 from __future__ import annotations
 
+import json
+
 import click
+
+from cli.options import json_option, read_options, wants_json
+from evtools.events import concatenate
+from evtools.metrics.uniformity import (
+    UniformityError, detect_edges, draw_edge_levels, edge_uniformity, edges_from_starts,
+)
+from formats import open_events
+
+
+def _edges_at(ctx, param, value):
+    if value is None:
+        return None
+    try:
+        return [int(round(float(part))) for part in value.split(",") if part.strip()]
+    except ValueError:
+        raise click.BadParameter(f"{value!r} is not a comma-separated list of times in microseconds") from None
+
+
+def _read(path, **options):
+    with open_events(path, **options) as stream:
+        return stream.info, stream.name, concatenate(stream)
 
 
 @click.command()
-def uniformity():
-    """(being built)"""
-    raise click.UsageError("not built yet")
+@read_options
+@click.option("--edges-at", callback=_edges_at, metavar="T1,T2,...", default=None,
+              help="Edge start times (us); default: detected from bursts of activity across pixels.")
+@click.option("--reference", metavar="IDEAL", type=click.Path(dir_okay=False), default=None,
+              help="The stream of an ideal sensor with one uniform threshold: adds count and timing errors.")
+@click.option("--plot", metavar="FIG.png", type=click.Path(dir_okay=False), default=None,
+              help="Draw the per-pixel reconstructions (cumulative level vs time) of one edge.")
+@click.option("--before", metavar="IN2", type=click.Path(dir_okay=False), default=None,
+              help="With --plot: the uncorrected stream, drawn beside IN.")
+@click.option("--plot-edge", type=click.IntRange(min=0), default=0, show_default=True, help="Edge drawn by --plot.")
+@json_option
+def uniformity(input, input_format, sensor_size, aedat2_layout, edges_at, reference, plot, before, plot_edge,
+               as_json):
+    """Per stimulus edge of IN: std across pixels of the first and last event times, count CV, errors vs IDEAL.
+
+    Edges (auto): 1 ms bins, a bin active with >= max(2, 2% of the responding pixels) events; a new edge starts
+    at an active bin after 200 ms without one, or whose net polarity turns against the current edge's. Only the
+    events of an edge's polarity count.
+
+    \b
+    evtools metrics uniformity corrected.aedat4 --reference ideal.aedat4
+    evtools metrics uniformity corrected.aedat4 --before raw.aedat4 --plot edges.png
+    """
+    options = dict(format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout)
+    info, name, events = _read(input, **options)
+    try:
+        edges = detect_edges(events) if edges_at is None else edges_from_starts(events, edges_at)
+        ideal = None
+        if reference is not None:
+            ref_info, _, ideal = _read(reference, sensor_size=sensor_size)
+            if ref_info.size != info.size:
+                raise UniformityError(f"{reference}: the reference is {ref_info.width}x{ref_info.height} but "
+                                      f"{name} is {info.width}x{info.height}")
+        result = edge_uniformity(events, info.width, edges, ideal)
+    except UniformityError as error:
+        raise UniformityError(f"{name}: {error}") from None
+    result = {"file": name, **result}
+    if plot:
+        _plot(plot, events, info.width, edges, plot_edge, before, options)
+    if wants_json(as_json):
+        click.echo(json.dumps(result, indent=2))
+    else:
+        _print_table(result)
+
+
+def _plot(path, events, width, edges, index, before, options) -> None:
+    import cv2
+
+    if index >= len(edges):
+        raise UniformityError(f"--plot-edge {index}: the stream has {len(edges)} edges")
+    panels = []
+    if before is not None:
+        _, before_name, before_events = _read(before, **options)
+        panels.append((f"before: {before_name}", before_events))
+    panels.append(("after" if before is not None else "events", events))
+    image = draw_edge_levels(panels, width, edges[index])
+    if not cv2.imwrite(str(path), image):
+        raise UniformityError(f"{path}: cannot write the picture (use a .png name)")
+
+
+def _print_table(result: dict) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    keys = [("first_std_ms", "first std ms"), ("last_std_ms", "last std ms"), ("count_mean", "count"),
+            ("count_cv", "count CV"), ("count_error", "count err"), ("timing_error_ms", "timing err ms")]
+    table = Table(title=result["file"], show_header=True, header_style="bold")
+    for title in ("edge", "start ms", "pol", "pixels", *(title for _, title in keys)):
+        table.add_column(title, justify="right")
+
+    def cell(value):
+        return "-" if value is None else f"{value:.4g}"
+
+    for k, row in enumerate(result["edges"]):
+        table.add_row(str(k), f"{row['start_ms']:.1f}", row["polarity"], str(row["pixels"]),
+                      *(cell(row.get(key)) for key, _ in keys))
+    summary = result["summary"]
+    table.add_row("mean", "", "", "", *(cell(summary.get(key)) for key, _ in keys))
+    console = Console()
+    console.print(table)
+    console.print(f"polarity balance (ON-OFF)/(ON+OFF) per pixel: mean {result['polarity_balance_mean']:.3f}, "
+                  f"std {result['polarity_balance_std']:.3f} over {result['responding_pixels']} pixels")
 
 
 COMMANDS = [uniformity]

@@ -1,0 +1,224 @@
+"""Edge uniformity: how alike the pixels respond to one global stimulus edge (the report's Table 2 metric).
+
+For each stimulus edge (a window of time in which the stimulus moves one way) and each pixel, the first and last
+event of the edge's polarity; the standard deviation of those times across pixels (the report's section 5.3);
+the per-pixel event-count coefficient of variation (about sigma_theta / theta for a global stimulus); and, against
+a reference stream from an ideal sensor with one uniform threshold, the per-pixel count error and the timing
+error of matched events (the k-th event of a pixel in the edge against the ideal pixel's k-th).
+
+Edges are found automatically (:func:`detect_edges`) or given as start times.
+
+References
+----------
+The founding report, section 5.3 and Table 2; ``../shared/ALGORITHMS.md`` section 6.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from evtools.errors import EvtoolsError
+
+__all__ = ["UniformityError", "Edge", "detect_edges", "edges_from_starts", "edge_uniformity", "pixel_levels",
+           "draw_edge_levels"]
+
+BIN_US = 1_000
+"""Width of the activity bins of the automatic edge detection."""
+QUIET_US = 200_000
+"""A burst of activity that follows at least this much quiet starts a new edge."""
+ACTIVE_FRACTION = 0.02
+"""A bin is active when it holds at least this fraction of the responding pixels' count (and at least 2 events)."""
+
+
+class UniformityError(EvtoolsError, ValueError):
+    """A stream or edge list that the uniformity metric cannot use."""
+
+
+@dataclass
+class Edge:
+    """A stimulus edge: events in ``[start_us, end_us)`` of polarity ``polarity`` (True = ON)."""
+
+    start_us: int
+    end_us: int
+    polarity: bool
+
+
+def _net_polarity(events: np.ndarray) -> int:
+    return int(np.count_nonzero(events["p"])) * 2 - len(events)
+
+
+def detect_edges(events: np.ndarray, bin_us: int = BIN_US, quiet_us: int = QUIET_US,
+                 active_fraction: float = ACTIVE_FRACTION) -> list[Edge]:
+    """Edges of a global stimulus, from bursts of activity across pixels.
+
+    The stream is cut into ``bin_us`` bins; a bin is active when it holds at least ``max(2, active_fraction *
+    responding pixels)`` events. A new edge starts at an active bin that follows ``quiet_us`` or more without an
+    active bin (a step), or whose net polarity is opposite to the current edge's (a ramp turning, as in the
+    flicker scene). An edge ends where the next one starts (the last at the end of the stream); its polarity is
+    the sign of its first active bins' net polarity.
+    """
+    if len(events) == 0:
+        raise UniformityError("the stream has no events: no edge to measure")
+    t = events["t"]
+    t0 = int(t[0])
+    index = (t - t0) // bin_us
+    n_bins = int(index[-1]) + 1
+    counts = np.bincount(index, minlength=n_bins)
+    net = np.bincount(index, weights=np.where(events["p"], 1.0, -1.0), minlength=n_bins)
+    pixels = len(np.unique(events["y"].astype(np.int64) * 65536 + events["x"]))
+    active = counts >= max(2.0, active_fraction * pixels)
+    starts: list[tuple[int, bool]] = []
+    last_active = None
+    polarity = None
+    for b in np.flatnonzero(active):
+        sign = None if net[b] == 0 else bool(net[b] > 0)
+        quiet = last_active is None or (b - last_active) * bin_us > quiet_us
+        if quiet or (sign is not None and polarity is not None and sign != polarity and abs(net[b]) >= 2):
+            starts.append((int(b), sign))
+            polarity = sign
+        elif polarity is None:
+            polarity = sign
+            starts[-1] = (starts[-1][0], sign)
+        last_active = b
+    edges = []
+    for k, (b, sign) in enumerate(starts):
+        end = t0 + starts[k + 1][0] * bin_us if k + 1 < len(starts) else int(t[-1]) + 1
+        edges.append(Edge(t0 + b * bin_us, end, bool(sign) if sign is not None else True))
+    return edges
+
+
+def edges_from_starts(events: np.ndarray, starts_us) -> list[Edge]:
+    """Edges starting at the given times, each ending where the next starts (the last at the stream's end)."""
+    starts = [int(s) for s in starts_us]
+    if not starts:
+        raise UniformityError("give at least one edge time")
+    if any(b <= a for a, b in zip(starts, starts[1:])):
+        raise UniformityError("edge times must increase")
+    end = int(events["t"][-1]) + 1 if len(events) else starts[-1] + 1
+    edges = []
+    for k, start in enumerate(starts):
+        stop = starts[k + 1] if k + 1 < len(starts) else max(end, start + 1)
+        window = events[np.searchsorted(events["t"], start): np.searchsorted(events["t"], stop)]
+        edges.append(Edge(start, stop, _net_polarity(window) >= 0))
+    return edges
+
+
+def _per_pixel(window: np.ndarray, width: int) -> dict[int, np.ndarray]:
+    """Times of the window's events per pixel index (events already of one polarity, time order)."""
+    pixel = window["y"].astype(np.int64) * width + window["x"]
+    order = np.argsort(pixel, kind="stable")
+    pixel, times = pixel[order], window["t"][order]
+    cuts = np.flatnonzero(np.diff(pixel)) + 1
+    return {int(group[0]): times_ for group, times_ in zip(np.split(pixel, cuts), np.split(times, cuts)) if len(group)}
+
+
+def edge_uniformity(events: np.ndarray, width: int, edges: list[Edge], reference: np.ndarray | None = None) -> dict:
+    """Per-edge uniformity statistics of ``events`` (and their distance to ``reference``); see the module doc.
+
+    Returns a dict with ``edges`` (one dict per edge: times in ms) and ``summary`` (means over the edges) and the
+    stream's per-pixel polarity balance ``(ON - OFF) / (ON + OFF)`` (mean and std over responding pixels).
+    """
+    responding = np.unique(events["y"].astype(np.int64) * width + events["x"]) if len(events) else np.empty(0, int)
+    if len(responding) == 0:
+        raise UniformityError("the stream has no events: nothing to measure")
+    rows = []
+    for edge in edges:
+        row = {"start_ms": edge.start_us / 1e3, "end_ms": edge.end_us / 1e3, "polarity": "ON" if edge.polarity else "OFF"}
+        window = _window(events, edge)
+        groups = _per_pixel(window, width)
+        counts = np.array([len(groups.get(int(i), ())) for i in responding], dtype=float)
+        firsts = np.array([g[0] for g in groups.values()], dtype=float)
+        lasts = np.array([g[-1] for g in groups.values()], dtype=float)
+        row.update({
+            "pixels": len(groups),
+            "first_std_ms": float(np.std(firsts) / 1e3) if len(groups) else None,
+            "last_std_ms": float(np.std(lasts) / 1e3) if len(groups) else None,
+            "count_mean": float(counts.mean()),
+            "count_cv": float(counts.std() / counts.mean()) if counts.mean() > 0 else None,
+        })
+        if reference is not None:
+            ideal = _per_pixel(_window(reference, edge), width)
+            pixels = set(groups) | set(ideal)
+            count_errors, timing = [], []
+            for i in pixels:
+                mine, theirs = groups.get(i, np.empty(0)), ideal.get(i, np.empty(0))
+                count_errors.append(abs(len(mine) - len(theirs)))
+                k = min(len(mine), len(theirs))
+                timing.extend(np.abs(mine[:k] - theirs[:k]).tolist())
+            row["count_error"] = float(np.mean(count_errors)) if count_errors else None
+            row["timing_error_ms"] = float(np.mean(timing) / 1e3) if timing else None
+        rows.append(row)
+    summary = {}
+    for key in ("first_std_ms", "last_std_ms", "count_cv", "count_error", "timing_error_ms"):
+        values = [r[key] for r in rows if r.get(key) is not None]
+        if values:
+            summary[key] = float(np.mean(values))
+    pixel = events["y"].astype(np.int64) * width + events["x"]
+    n_on = np.bincount(pixel, weights=events["p"].astype(float))[responding]
+    n_all = np.bincount(pixel)[responding]
+    balance = (2 * n_on - n_all) / n_all
+    return {
+        "edges": rows,
+        "summary": summary,
+        "polarity_balance_mean": float(balance.mean()),
+        "polarity_balance_std": float(balance.std()),
+        "responding_pixels": int(len(responding)),
+    }
+
+
+def _window(events: np.ndarray, edge: Edge) -> np.ndarray:
+    window = events[np.searchsorted(events["t"], edge.start_us): np.searchsorted(events["t"], edge.end_us)]
+    return window[window["p"] == edge.polarity]
+
+
+def pixel_levels(events: np.ndarray, width: int, edge: Edge, step: float = 1.0) -> dict[int, tuple[np.ndarray,
+                                                                                                   np.ndarray]]:
+    """Per pixel, the cumulative level (``step`` per event, signed) against time over ``edge``: (t_us, level)."""
+    window = events[np.searchsorted(events["t"], edge.start_us): np.searchsorted(events["t"], edge.end_us)]
+    pixel = window["y"].astype(np.int64) * width + window["x"]
+    out = {}
+    for i in np.unique(pixel):
+        mine = window[pixel == i]
+        out[int(i)] = (mine["t"], np.cumsum(np.where(mine["p"], step, -step)))
+    return out
+
+
+def draw_edge_levels(panels, width: int, edge: Edge, size=(480, 360)) -> np.ndarray:
+    """A BGR picture of each panel's per-pixel reconstructions over ``edge`` (the report's Figures 31 and 32).
+
+    ``panels`` is a list of ``(title, events)``; each pixel's cumulative level (+1 per ON, -1 per OFF event, as a
+    staircase) is drawn against time, one shared scale, panels side by side.
+    """
+    import cv2
+
+    w, h = size
+    margin = 30
+    levels = [pixel_levels(events, width, edge) for _, events in panels]
+    values = [lv for panel in levels for _, lv in panel.values()]
+    low = min([0.0] + [float(v.min()) for v in values])
+    high = max([1.0] + [float(v.max()) for v in values])
+    image = np.full((h, w * len(panels), 3), 255, np.uint8)
+    span_us = max(1, edge.end_us - edge.start_us)
+    rng = np.random.default_rng(0)
+    for k, ((title, _), panel) in enumerate(zip(panels, levels)):
+        x0 = k * w
+        cv2.rectangle(image, (x0 + margin, margin), (x0 + w - 10, h - margin), (0, 0, 0), 1)
+        cv2.putText(image, title[:40], (x0 + margin, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1,
+                    cv2.LINE_AA)
+        cv2.putText(image, f"{span_us / 1e3:.0f} ms", (x0 + w - 80, h - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.4,
+                    (0, 0, 0), 1, cv2.LINE_AA)
+        for t_us, level in panel.values():
+            xs = x0 + margin + (t_us - edge.start_us) / span_us * (w - 10 - 2 * margin)
+            ys = h - margin - (np.concatenate([[0.0], level]) - low) / (high - low) * (h - 2 * margin)
+            # staircase: (x0, y_base), (x0, y0), (x1, y0), (x1, y1), ...
+            points = np.empty((2 * len(xs), 2))
+            points[0::2, 0] = xs
+            points[1::2, 0] = xs
+            points[0::2, 1] = ys[:-1]
+            points[1::2, 1] = ys[1:]
+            points = points.round().astype(np.int32)
+            colour = tuple(int(c) for c in rng.integers(0, 200, 3))
+            cv2.polylines(image, [points], False, colour, 1, cv2.LINE_AA)
+    return image
