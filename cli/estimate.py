@@ -1,11 +1,111 @@
-"""``evtools estimate``: (being built)."""
+"""``evtools estimate``: every pixel's ON and OFF contrast thresholds from an event stream, into an HDF5 file."""
 
 from __future__ import annotations
 
 import click
 
+from cli.options import read_options
+from cli.progress import with_progress
+from evtools.estimate import (
+    DEFAULT_MIN_EVENTS,
+    DEFAULT_NOMINAL,
+    DEFAULT_SEGMENT_US,
+    METHODS,
+    EstimationError,
+    Stimulus,
+    ThresholdEstimator,
+)
+from formats import open_events
+from formats.thresholds import ThresholdMap, write_thresholds
+
+
+def _duration_us(ctx, param, value):
+    """``500ms``, ``0.5s``, ``500000us`` or a bare number of microseconds."""
+    if value is None:
+        return None
+    text = str(value).strip().lower()
+    for suffix, factor in (("us", 1.0), ("ms", 1e3), ("s", 1e6)):
+        if text.endswith(suffix):
+            number, scale = text[: -len(suffix)], factor
+            break
+    else:
+        number, scale = text, 1.0
+    try:
+        result = float(number) * scale
+    except ValueError:
+        raise click.BadParameter(f"{value!r} is not a duration such as 500ms, 0.5s or 500000us") from None
+    if not result > 0:
+        raise click.BadParameter(f"must be positive, got {value!r}")
+    return result
+
+
+def _levels(ctx, param, value):
+    try:
+        low, high = (float(v) for v in value.split(","))
+    except ValueError:
+        raise click.BadParameter(f"{value!r} is not LOW,HIGH (e.g. 50,200)") from None
+    if not 0 <= low < high <= 255:
+        raise click.BadParameter(f"need 0 <= LOW < HIGH <= 255, got {value!r}")
+    return low, high
+
 
 @click.command()
-def estimate():
-    """(being built)"""
-    raise click.UsageError("not built yet")
+@read_options
+@click.option(
+    "-o", "--output", required=True, metavar="THRESHOLDS.h5", type=click.Path(dir_okay=False),
+    help="Thresholds file to write (HDF5: on, off, valid maps and the parameters).",
+)
+@click.option("--method", type=click.Choice(METHODS), default="offe", show_default=True,
+              help="offe: Wang et al.'s events-only least squares; stimulus: the known calibration stimulus "
+                   "(absolute, exact for an ideal pixel); ramps: events-only counts per complete ramp.")
+@click.option("--segment-us", type=click.IntRange(min=1), default=DEFAULT_SEGMENT_US, show_default=True,
+              help="offe: segment length, microseconds.")
+@click.option("--nominal", type=click.FloatRange(min=0, min_open=True), default=DEFAULT_NOMINAL, show_default=True,
+              help="offe, ramps: the median pixel's threshold (log units); events alone do not give the scale.")
+@click.option("--min-events", type=click.IntRange(min=1), default=DEFAULT_MIN_EVENTS, show_default=True,
+              help="Pixels with fewer events are marked invalid (and get the median).")
+@click.option("--stimulus-levels", callback=_levels, default="50,200", show_default=True, metavar="LOW,HIGH",
+              help="stimulus: darkest and brightest intensity, 0-255 (simulate's --min-level, --max-level).")
+@click.option("--stimulus-period", callback=_duration_us, default="500ms", show_default=True, metavar="TIME",
+              help="stimulus: time of one rise and fall (flicker; simulate's --period).")
+@click.option("--stimulus-profile", type=click.Choice(["intensity", "log"]), default="intensity", show_default=True,
+              help="stimulus: the triangle is linear in intensity (simulate's scenes) or in log intensity.")
+@click.option("--stimulus-speed", type=click.FloatRange(min=0, min_open=True), default=None, metavar="PX/S",
+              help="stimulus: a moving gradient's speed (simulate's --speed); with --stimulus-wavelength it "
+                   "replaces --stimulus-period.")
+@click.option("--stimulus-wavelength", type=click.FloatRange(min=0, min_open=True), default=None, metavar="PX",
+              help="stimulus: a moving gradient's rise-and-fall length (simulate's --wavelength).")
+def estimate(input, input_format, sensor_size, aedat2_layout, output, method, segment_us, nominal, min_events,
+             stimulus_levels, stimulus_period, stimulus_profile, stimulus_speed, stimulus_wavelength):
+    """Estimate every pixel's ON and OFF contrast thresholds from IN (default stdin), streaming, into -o FILE.
+
+    \b
+    evtools estimate flicker.aedat4 -o thresholds.h5                       # offE, 10 ms segments
+    evtools estimate flicker.aedat4 -o t.h5 --method stimulus --stimulus-levels 50,200 --stimulus-period 500ms
+    evtools estimate gradient.aedat4 -o t.h5 --method stimulus --stimulus-speed 50 --stimulus-wavelength 64
+    evtools bafilter noisy.aedat4 | evtools estimate - -o t.h5 --method ramps
+    """
+    if output == "-":
+        raise click.BadParameter("the thresholds file is HDF5 and needs a real file, not stdout", param_hint="-o")
+    if (stimulus_speed is None) != (stimulus_wavelength is None):
+        raise click.UsageError("a moving stimulus needs both --stimulus-speed and --stimulus-wavelength")
+    with open_events(input, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as stream:
+        try:
+            stimulus = None
+            if method == "stimulus":
+                low, high = stimulus_levels
+                if stimulus_speed is not None:
+                    stimulus = Stimulus.moving(low, high, stimulus_speed, stimulus_wavelength, stimulus_profile)
+                else:
+                    stimulus = Stimulus(low, high, stimulus_period, 0.0, stimulus_profile)
+            estimator = ThresholdEstimator(
+                stream.info.width, stream.info.height, method, nominal=nominal, segment_us=segment_us,
+                stimulus=stimulus, min_events=min_events,
+            )
+            for chunk in with_progress(stream, stream, f"estimating from {stream.name}"):
+                estimator.process(chunk)
+            result = estimator.result()
+        except EstimationError as error:
+            raise EstimationError(f"{stream.name}: {error}") from None
+        attributes = {**result.attributes, "input": stream.name}
+    write_thresholds(output, ThresholdMap(result.on, result.off, result.valid, attributes))

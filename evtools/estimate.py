@@ -1,0 +1,423 @@
+"""Per-pixel ON and OFF contrast thresholds estimated from events, streaming in O(pixels) memory.
+
+:class:`ThresholdEstimator` is the stream processor (``process(chunk)`` consumes events and returns an empty
+chunk; :meth:`ThresholdEstimator.result` gives the maps), :func:`estimate_thresholds` the one-shot convenience.
+Methods (``../shared/ALGORITHMS.md`` section 4):
+
+- ``offe``: Wang et al.'s event-only least squares, as their reference code ``EventOnlyCalib.m`` does it;
+  relative thresholds scaled by a nominal value.
+- ``stimulus``: the calibration stimulus is known (the flicker or moving-gradient scene); thresholds in absolute
+  log units, exact for an ideal pixel.
+- ``ramps``: events only, for a stimulus that sweeps every pixel over the same log-intensity range (flicker,
+  gradient): event counts of complete ramps, corrected for the threshold hysteresis at turn-arounds.
+
+References
+----------
+Z. Wang, Y. Ng, P. van Goor, R. Mahony, "Event Camera Calibration of Per-pixel Biased Contrast Threshold",
+Australasian Conference on Robotics and Automation (ACRA), 2019. Code: github.com/ziweiWWANG/Event-Camera-Calibration.
+Y. Nozaki, T. Delbruck, "Temperature and Parasitic Photocurrent Effects in Dynamic Vision Sensors",
+IEEE Transactions on Electron Devices 64(8), 2017 (thresholds from event counts per cycle of a known contrast).
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from evtools._kernels.estimate import (
+    OFFE_SAMPLES,
+    OFFE_STATE_SIZE,
+    PROFILE_INTENSITY,
+    PROFILE_LOG,
+    SEED_PAIRS,
+    SUM_E,
+    SUM_EE,
+    SUM_EP,
+    SUM_P,
+    SUM_PP,
+    count_events,
+    offe_accumulate,
+    offe_finish,
+    ramps_accumulate,
+    stimulus_accumulate,
+)
+from evtools.errors import EvtoolsError
+from evtools.events import check_sensor_size, empty_events
+
+__all__ = [
+    "METHODS",
+    "EstimationError",
+    "Stimulus",
+    "ThresholdEstimate",
+    "ThresholdEstimator",
+    "estimate_thresholds",
+]
+
+METHODS = ("offe", "stimulus", "ramps")
+"""The estimation methods, by name."""
+
+DEFAULT_NOMINAL = 0.2
+"""Nominal threshold (log units) that sets the scale of the relative methods (v2e's and the report's 0.2)."""
+DEFAULT_SEGMENT_US = 10_000
+"""offE segment length: 10 ms (the reference samples at its frames' rate, about 20-25 Hz on a DAVIS240C; shorter
+segments give more samples on the report's 0.5 s flicker)."""
+DEFAULT_MIN_EVENTS = 10
+"""A pixel with fewer events is left invalid."""
+RCOND_LIMIT = 1e-14
+"""offE: a fit whose normal matrix has a reciprocal condition number below this is singular (the reference's)."""
+MAX_SCALE_FACTOR = 10.0
+"""offE: ``c > 10 * nominal`` is unrealistic and left invalid (the reference replaces it by the nominal value)."""
+
+
+class EstimationError(EvtoolsError, ValueError):
+    """Threshold estimation cannot run on these parameters or this stream."""
+
+
+@dataclass(frozen=True)
+class Stimulus:
+    """A triangle-wave calibration stimulus every pixel sees, possibly shifted in time by its column.
+
+    Parameters
+    ----------
+    low, high : float
+        The darkest and brightest intensity (0-255, the scale of ``evtools simulate``).
+    period_us : float
+        Time of one full rise and fall, microseconds.
+    wavelength_px : float
+        0: every pixel alike (flicker). Otherwise the moving gradient: the pattern repeats every
+        ``wavelength_px`` columns and moves right by one wavelength per period, so column x's stimulus is
+        delayed by ``(x + 0.5) / wavelength_px`` periods.
+    profile : {"intensity", "log"}
+        What the triangle is linear in: intensity (``evtools simulate``'s scenes) or log intensity.
+
+    Notes
+    -----
+    The stimulus starts at t = 0 at its low level (phase 0), as the simulator's scenes do.
+    """
+
+    low: float = 50.0
+    high: float = 200.0
+    period_us: float = 500_000.0
+    wavelength_px: float = 0.0
+    profile: str = "intensity"
+
+    def __post_init__(self) -> None:
+        if not (0.0 <= self.low < self.high) or not math.isfinite(self.high):
+            raise EstimationError(f"stimulus levels must satisfy 0 <= low < high, got {self.low}, {self.high}")
+        if not self.period_us > 0 or not math.isfinite(self.period_us):
+            raise EstimationError(f"stimulus period must be positive, got {self.period_us} us")
+        if not self.wavelength_px >= 0 or not math.isfinite(self.wavelength_px):
+            raise EstimationError(f"stimulus wavelength must be >= 0 pixels, got {self.wavelength_px}")
+        if self.profile not in ("intensity", "log"):
+            raise EstimationError(f"stimulus profile must be intensity or log, got {self.profile!r}")
+
+    @classmethod
+    def moving(cls, low: float, high: float, speed_px_s: float, wavelength_px: float, profile: str = "intensity"):
+        """The moving gradient of ``wavelength_px`` moving right at ``speed_px_s`` (period = wavelength / speed)."""
+        if not speed_px_s > 0 or not wavelength_px > 0:
+            raise EstimationError(
+                f"a moving stimulus needs a positive speed and wavelength, got {speed_px_s} px/s, {wavelength_px} px"
+            )
+        return cls(low, high, 1e6 * wavelength_px / speed_px_s, wavelength_px, profile)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "stimulus_low": self.low, "stimulus_high": self.high, "stimulus_period_us": self.period_us,
+            "stimulus_wavelength_px": self.wavelength_px, "stimulus_profile": self.profile,
+        }
+
+
+@dataclass
+class ThresholdEstimate:
+    """The estimated maps (height x width): ``on``, ``off`` (float32, log units), ``valid`` (bool), attributes.
+
+    Invalid pixels hold the median of the valid ones, so a consumer that ignores ``valid`` still gets a sane
+    value; :meth:`usable` is the mask to trust.
+    """
+
+    on: np.ndarray
+    off: np.ndarray
+    valid: np.ndarray
+    attributes: dict[str, Any] = field(default_factory=dict)
+
+    def usable(self) -> np.ndarray:
+        return self.valid & np.isfinite(self.on) & np.isfinite(self.off) & (self.on > 0) & (self.off > 0)
+
+
+class ThresholdEstimator:
+    """Accumulates a stream's events and estimates every pixel's ON and OFF contrast thresholds.
+
+    Parameters
+    ----------
+    width, height : int
+        Sensor size.
+    method : {"offe", "stimulus", "ramps"}
+        ``offe``: Wang et al.'s offE exactly as ``EventOnlyCalib.m``: the stream is cut into segments of
+        ``segment_us``; per pixel, the cumulative polarity sum P_k and event count E_k at each segment end are
+        fitted by least squares ``P = m E + d``; r = RMS residual; ``c = nominal * median(r) / r``, ``b = -c m``,
+        ``on = c + b``, ``off = c - b``. Invalid: fewer than ``min_events`` events, a singular fit (reciprocal
+        condition number of the normal matrix < 1e-14), r = 0, or ``c > 10 * nominal`` (the reference's test).
+        ``stimulus``: the known ``stimulus`` L(t); ``on`` = mean of ``L(t_k) - L(t_{k-1})`` over ON events
+        that follow another event of the pixel, ``off`` likewise for OFF; absolute, ``nominal`` unused. Exact
+        for an ideal pixel, whose reference is L at its previous event, so turn-arounds need no special case.
+        Invalid: fewer than ``min_events`` events or no ON or no OFF pair.
+        ``ramps``: events only, when every pixel is swept over the same log range A (flicker, gradient). A
+        complete run of one polarity (between two polarity reversals) is one ramp; an ON ramp starting after
+        an OFF event at ``L_min + u theta_off`` holds ``floor((A - u theta_off) / theta_on)`` events, on
+        average ``(A - theta_off / 2) / theta_on - 1 / 2`` (the hysteresis at the turn-around). With the mean
+        counts per complete ramp n_on, n_off: ``(n_on + 1/2) on + off / 2 = A`` and
+        ``on / 2 + (n_off + 1/2) off = A``, solved per pixel; A is set so that the median of (on + off) / 2
+        is ``nominal``. Invalid: fewer than ``min_events`` events or no complete ON or OFF ramp.
+    nominal : float
+        offE and ramps: the median pixel's threshold c (log units); the scale is not observable from events.
+    segment_us : int
+        offE: segment length, microseconds.
+    stimulus : Stimulus
+        The stimulus, for ``method="stimulus"``.
+    min_events : int
+        Pixels with fewer events are invalid.
+
+    References
+    ----------
+    Z. Wang, Y. Ng, P. van Goor, R. Mahony, "Event Camera Calibration of Per-pixel Biased Contrast Threshold",
+    ACRA 2019 (offE, its equations 8-12).
+    Y. Nozaki, T. Delbruck, "Temperature and Parasitic Photocurrent Effects in Dynamic Vision Sensors", IEEE
+    Trans. Electron Devices, 2017 (counting events per cycle of a known contrast: ramps).
+    """
+
+    def __init__(
+        self,
+        width: int,
+        height: int,
+        method: str = "offe",
+        *,
+        nominal: float = DEFAULT_NOMINAL,
+        segment_us: int = DEFAULT_SEGMENT_US,
+        stimulus: Stimulus | None = None,
+        min_events: int = DEFAULT_MIN_EVENTS,
+    ) -> None:
+        check_sensor_size(width, height)
+        if method not in METHODS:
+            raise EstimationError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
+        if not nominal > 0 or not math.isfinite(nominal):
+            raise EstimationError(f"nominal threshold must be positive, got {nominal}")
+        if int(segment_us) != segment_us or segment_us < 1:
+            raise EstimationError(f"segment length must be a whole number of microseconds >= 1, got {segment_us}")
+        if int(min_events) != min_events or min_events < 1:
+            raise EstimationError(f"min_events must be a whole number >= 1, got {min_events}")
+        if method == "stimulus" and stimulus is None:
+            raise EstimationError("method stimulus needs the stimulus (levels, period, and for a gradient its motion)")
+        self.width, self.height = int(width), int(height)
+        self.method = method
+        self.nominal = float(nominal)
+        self.segment_us = int(segment_us)
+        self.stimulus = stimulus
+        self.min_events = int(min_events)
+        n = self.width * self.height
+        self.events = 0
+        self.t_first_us: int | None = None
+        self.t_last_us: int | None = None
+        self._counts = np.zeros((2, n), dtype=np.int64)  # ON, OFF events per pixel
+        self._finished = False
+        if method == "offe":
+            self._cum_e = np.zeros(n, dtype=np.int64)
+            self._cum_p = np.zeros(n, dtype=np.int64)
+            self._sums = np.zeros((5, n), dtype=np.int64)
+            self._clock = np.zeros(OFFE_STATE_SIZE, dtype=np.int64)
+        elif method == "stimulus":
+            self._last_level = np.zeros(n, dtype=np.float64)
+            self._seen = np.zeros(n, dtype=np.bool_)
+            self._seeds = np.zeros((2, n, SEED_PAIRS), dtype=np.float64)
+            self._seed_counts = np.zeros((2, n), dtype=np.int64)
+            self._references = np.zeros((2, n), dtype=np.float64)
+            self._level_sums = np.zeros((2, n), dtype=np.float64)
+            self._pairs = np.zeros((2, n), dtype=np.int64)
+        else:
+            self._run_polarity = np.full(n, -1, dtype=np.int8)
+            self._run_length = np.zeros(n, dtype=np.int64)
+            self._run_events = np.zeros((2, n), dtype=np.int64)
+            self._runs = np.zeros((2, n), dtype=np.int64)
+
+    @property
+    def parameters(self) -> dict[str, Any]:
+        """The method and its parameters (written as attributes of the thresholds file)."""
+        parameters: dict[str, Any] = {"method": self.method, "min_events": self.min_events}
+        if self.method in ("offe", "ramps"):
+            parameters["nominal"] = self.nominal
+        if self.method == "offe":
+            parameters["segment_us"] = self.segment_us
+        if self.method == "stimulus":
+            parameters.update(self.stimulus.as_dict())
+        return parameters
+
+    def process(self, chunk: np.ndarray) -> np.ndarray:
+        """Accumulate ``chunk`` (time-sorted, continuing the stream); the estimator consumes: returns no events."""
+        if self._finished:
+            raise EstimationError("the estimate is already finished; make a new estimator for another stream")
+        if not len(chunk):
+            return empty_events()
+        t, x, y, p = chunk["t"], chunk["x"], chunk["y"], chunk["p"]
+        if self.t_first_us is None:
+            self.t_first_us = int(t[0])
+        self.t_last_us = int(t[-1])
+        self.events += len(chunk)
+        count_events(x, y, p, self.width, self._counts)
+        if self.method == "offe":
+            offe_accumulate(t, x, y, p, self.width, self.segment_us, self._cum_e, self._cum_p, self._sums, self._clock)
+        elif self.method == "stimulus":
+            s = self.stimulus
+            stimulus_accumulate(
+                t, x, y, p, self.width, float(s.low), float(s.high), float(s.period_us), float(s.wavelength_px),
+                PROFILE_LOG if s.profile == "log" else PROFILE_INTENSITY,
+                self._last_level, self._seen, self._seeds, self._seed_counts, self._references,
+                self._level_sums, self._pairs,
+            )
+        else:
+            ramps_accumulate(p, x, y, self.width, self._run_polarity, self._run_length, self._run_events, self._runs)
+        return empty_events()
+
+    def flush(self) -> np.ndarray:
+        """No events to give back (the estimator consumes the stream); call :meth:`result` for the maps."""
+        return empty_events()
+
+    def result(self) -> ThresholdEstimate:
+        """The thresholds of every pixel, after the whole stream went through :meth:`process`.
+
+        Raises
+        ------
+        EstimationError
+            On an empty stream, an offE segment longer than the stream, fewer than 3 segments, or when no
+            pixel could be estimated.
+        """
+        if not self.events:
+            raise EstimationError("the stream has no events: nothing to estimate thresholds from")
+        total = self._counts.sum(axis=0)
+        enough = total >= self.min_events
+        if self.method == "offe":
+            on, off, valid, extra = self._offe(enough)
+        elif self.method == "stimulus":
+            on, off, valid, extra = self._stimulus(enough)
+        else:
+            on, off, valid, extra = self._ramps(enough)
+        if not valid.any():
+            raise EstimationError(
+                f"no pixel could be estimated by {self.method} (fewer than {self.min_events} events or no usable "
+                "ramps everywhere): give a longer calibration stream or lower --min-events"
+            )
+        on_median = float(np.median(on[valid]))
+        off_median = float(np.median(off[valid]))
+        on = np.where(valid, on, on_median).astype(np.float32).reshape(self.height, self.width)
+        off = np.where(valid, off, off_median).astype(np.float32).reshape(self.height, self.width)
+        attributes = {
+            **self.parameters, **extra,
+            "events": int(self.events), "width": self.width, "height": self.height,
+            "t_first_us": int(self.t_first_us), "t_last_us": int(self.t_last_us),
+            "valid_pixels": int(valid.sum()), "on_median": on_median, "off_median": off_median,
+        }
+        return ThresholdEstimate(on, off, valid.reshape(self.height, self.width), attributes)
+
+    def finish(self) -> ThresholdEstimate:
+        """Alias of :meth:`result`."""
+        return self.result()
+
+    # -- the methods' final step: sums to thresholds ---------------------------------------------------------
+
+    def _offe(self, enough):
+        span_us = self.t_last_us - self.t_first_us
+        if span_us < self.segment_us:
+            raise EstimationError(
+                f"the segment ({self.segment_us} us) is longer than the stream ({span_us} us): give a shorter "
+                "--segment-us"
+            )
+        if not self._finished:
+            offe_finish(self._cum_e, self._cum_p, self._sums, self._clock)
+            self._finished = True
+        k = float(self._clock[OFFE_SAMPLES])
+        if k < 3:
+            raise EstimationError(
+                f"only {int(k)} segments: offE fits a line through each pixel's samples and needs at least 3; give "
+                "a shorter --segment-us or a longer stream"
+            )
+        m, r, fitted = offe_fit(self._sums, k)
+        valid = enough & fitted & (r > 0)
+        if not valid.any():
+            return m, m, valid, {"segments": int(k)}
+        with np.errstate(divide="ignore", invalid="ignore"):
+            c = np.median(self.nominal * r[valid]) / r
+        valid &= np.isfinite(c) & (c <= MAX_SCALE_FACTOR * self.nominal)
+        c = np.where(valid, c, 0.0)
+        b = -c * m
+        return c + b, c - b, valid, {"segments": int(k)}
+
+    def _stimulus(self, enough):
+        self._finished = True
+        # a polarity with fewer than SEED_PAIRS changes: the median of those it has
+        few = self._seed_counts < SEED_PAIRS
+        if few.any():
+            seeds = np.where(np.arange(SEED_PAIRS) < self._seed_counts[..., None], self._seeds, np.nan)
+            with np.errstate(all="ignore"), warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                medians = np.nanmedian(seeds[few], axis=-1)
+            self._level_sums[few] = np.nan_to_num(medians) * self._seed_counts[few]
+            self._pairs[few] = self._seed_counts[few]
+        pairs = self._pairs
+        valid = enough & (pairs[0] > 0) & (pairs[1] > 0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            on = self._level_sums[0] / pairs[0]
+            off = self._level_sums[1] / pairs[1]
+        return on, off, valid, {}
+
+    def _ramps(self, enough):
+        self._finished = True
+        runs = self._runs
+        valid = enough & (runs[0] > 0) & (runs[1] > 0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            n_on = self._run_events[0] / runs[0]
+            n_off = self._run_events[1] / runs[1]
+            det = (n_on + 0.5) * (n_off + 0.5) - 0.25
+            on = n_off / det  # for a sweep A = 1
+            off = n_on / det
+        valid &= np.isfinite(on) & np.isfinite(off) & (on > 0) & (off > 0)
+        if valid.any():
+            amplitude = self.nominal / float(np.median((on[valid] + off[valid]) / 2.0))
+            on, off = on * amplitude, off * amplitude
+        else:
+            amplitude = float("nan")
+        return on, off, valid, {"sweep": amplitude}
+
+
+def offe_fit(sums: np.ndarray, k: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Slope m, RMS residual r and fit success of ``P = m E + d`` per pixel, from the sums over k samples.
+
+    The normal matrix is ``[[sum E^2, sum E], [sum E, k]]``; its 1-norm reciprocal condition number is
+    ``det / norm1^2`` (2 x 2 symmetric: the adjugate has the same 1-norm), as MATLAB's ``rcond`` in the reference.
+    """
+    # exact integer arithmetic (Python integers: the products overflow int64 on long streams), floats at the end
+    s_e, s_p, s_ee, s_ep, s_pp = (sums[j].astype(object) for j in (SUM_E, SUM_P, SUM_EE, SUM_EP, SUM_PP))
+    k = int(k)
+    det = k * s_ee - s_e * s_e  # k^2 var(E)
+    cov = k * s_ep - s_e * s_p  # k^2 cov(E, P)
+    var_p = k * s_pp - s_p * s_p  # k^2 var(P)
+    det_f = det.astype(np.float64)
+    norm1 = np.maximum(sums[SUM_EE] + np.abs(sums[SUM_E]), k + np.abs(sums[SUM_E])).astype(np.float64)
+    fitted = det_f > RCOND_LIMIT * norm1 * norm1
+    safe = np.where(fitted, det, 1)
+    m = np.where(fitted, (cov / safe).astype(np.float64), 0.0)
+    # mean squared residual of the best line: var(P) - cov(E, P)^2 / var(E)
+    mse = ((var_p * safe - cov * cov) / (safe * k * k)).astype(np.float64)
+    r = np.sqrt(np.maximum(np.where(fitted, mse, 0.0), 0.0))
+    return m, r, fitted
+
+
+def estimate_thresholds(events: np.ndarray, width: int, height: int, method: str = "offe", **parameters):
+    """Estimate the thresholds of one whole (short) stream: :class:`ThresholdEstimator` ``process`` then ``result``.
+
+    Parameters are those of :class:`ThresholdEstimator`; returns a :class:`ThresholdEstimate`.
+    """
+    estimator = ThresholdEstimator(width, height, method, **parameters)
+    estimator.process(events)
+    return estimator.result()

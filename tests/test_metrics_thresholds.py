@@ -1,0 +1,71 @@
+"""``evtools metrics thresholds``: the error figures against hand-made maps, the picture, the CLI and its errors."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from evtools.metrics.thresholds import ThresholdMetricsError, estimation_picture, threshold_errors
+from formats.thresholds import ThresholdMap, write_thresholds
+from tests.helpers import assert_clean_error, run
+
+
+def maps(seed=0, shape=(6, 8)):
+    rng = np.random.default_rng(seed)
+    return (0.2 + 0.03 * rng.standard_normal(shape)).astype(np.float32), (0.2 + 0.03 * rng.standard_normal(shape)).astype(np.float32)
+
+
+def test_errors_by_their_definitions():
+    true_on, true_off = maps()
+    est_on, est_off = true_on * 1.1, true_off.copy()
+    est_off[0, 0] = true_off[0, 0] * 0.5
+    valid = np.ones(true_on.shape, bool)
+    valid[1, 1] = False
+    est_on[1, 1] = 99  # invalid: ignored
+    result = threshold_errors(est_on, est_off, valid, true_on, true_off)
+    assert result["on"]["rel_rmse"] == pytest.approx(0.1, rel=1e-5)
+    assert result["on"]["bias"] == pytest.approx(0.1, rel=1e-5)
+    assert result["on"]["correlation"] == pytest.approx(1.0)
+    n = valid.sum()
+    assert result["off"]["rel_rmse"] == pytest.approx(np.sqrt(0.25 / n), rel=1e-5)
+    assert result["off"]["bias"] == pytest.approx(-0.5 / n, rel=1e-5)
+    assert result["invalid_fraction"] == pytest.approx(1 / valid.size)
+    assert result["on"]["pixels"] == n
+
+
+def test_wrong_size_is_an_error():
+    true_on, true_off = maps()
+    with pytest.raises(ThresholdMetricsError, match="differ in size"):
+        threshold_errors(true_on[:, :4], true_off[:, :4], np.ones((6, 4), bool), true_on, true_off)
+
+
+def test_picture_has_three_panels():
+    true_on, true_off = maps()
+    image = estimation_picture(true_on * 1.05, true_off, np.ones(true_on.shape, bool), true_on, true_off)
+    assert image.ndim == 3 and image.dtype == np.uint8 and image.shape[1] > 3 * image.shape[0] // 2
+
+
+def test_cli_json_plot_and_errors(tmp_path):
+    true_on, true_off = maps()
+    write_thresholds(str(tmp_path / "truth.h5"), ThresholdMap(true_on, true_off, np.ones(true_on.shape, bool)))
+    write_thresholds(str(tmp_path / "est.h5"),
+                     ThresholdMap(true_on * 0.9, true_off, np.ones(true_on.shape, bool), {"method": "offe"}))
+    result = run("metrics", "thresholds", tmp_path / "est.h5", "--truth", tmp_path / "truth.h5",
+                 "--plot", tmp_path / "fig.png", "--json")
+    figures = json.loads(result.stdout)
+    assert figures["on"]["rel_rmse"] == pytest.approx(0.1, rel=1e-5)
+    assert figures["off"]["rel_rmse"] == pytest.approx(0.0, abs=1e-7)
+    assert figures["method"] == "offe"
+    assert cv2.imread(str(tmp_path / "fig.png")) is not None
+    small_on, small_off = maps(shape=(3, 4))
+    write_thresholds(str(tmp_path / "small.h5"), ThresholdMap(small_on, small_off, np.ones((3, 4), bool)))
+    assert_clean_error(run("metrics", "thresholds", tmp_path / "small.h5", "--truth", tmp_path / "truth.h5",
+                           check=False), "4x3", "8x6")
+    assert_clean_error(run("metrics", "thresholds", tmp_path / "nope.h5", "--truth", tmp_path / "truth.h5",
+                           check=False), "nope.h5")
+    bad = run("metrics", "thresholds", tmp_path / "est.h5", "--truth", tmp_path / "truth.h5", "--plot",
+              tmp_path / "fig.xyz", check=False)
+    assert bad.returncode == 2 and not (tmp_path / "fig.xyz").exists()
