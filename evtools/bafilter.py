@@ -133,10 +133,12 @@ class _Stage:
         jaer = preset == "jaer"
         self.jaer = jaer
         start = 0 if preset == "dv" else kernels.NEVER
-        if method in ("baf", "stcf", "refractory"):
-            self.time_map = np.full((height, width), start, dtype=np.int64)
+        if method == "baf":
+            self.time_map = kernels.padded_map(width, height, 1, start)
         if method == "stcf":
-            self.polarity_map = np.zeros((height, width), dtype=np.bool_)
+            self.time_map = kernels.padded_map(width, height, params["radius"], start) * 2  # 2 t + p
+        if method == "refractory":
+            self.time_map = np.full((height, width), start, dtype=np.int64)
         if method == "dwf":
             size = params["window"]
             self.kept_xy = np.zeros((size, 2), dtype=np.int32)
@@ -163,33 +165,33 @@ class _Stage:
                 self.learned_duration_s = 0.0
         self.width = width
 
-    def keep(self, chunk: np.ndarray) -> np.ndarray:
-        """The keep mask of ``chunk`` (state updated)."""
-        keep = np.empty(len(chunk), dtype=np.bool_)
+    def filter(self, chunk: np.ndarray) -> np.ndarray:
+        """The events of ``chunk`` this stage keeps (state updated)."""
         if not len(chunk):
-            return keep
-        t, x, y, p = chunk["t"], chunk["x"], chunk["y"], chunk["p"]
+            return chunk
+        words = np.ascontiguousarray(chunk).view(np.int64).reshape(-1, 2)
+        out = np.empty_like(words)
         q = self.params
         if self.method == "baf":
-            kernels.baf(t, x, y, self.time_map, q["dt_us"], self.jaer, keep)
+            n = kernels.baf(words, self.time_map, q["dt_us"], self.jaer, out)
         elif self.method == "stcf":
-            kernels.stcf(t, x, y, p, self.time_map, self.polarity_map, q["dt_us"], q["radius"], q["k"],
-                         q["polarity"], self.jaer, self.jaer, keep)
+            n = kernels.stcf(words, self.time_map, q["dt_us"], q["radius"], q["k"],
+                             q["polarity"], self.jaer, self.jaer, out)
         elif self.method == "dwf":
-            kernels.dwf(x, y, self.kept_xy, self.rejected_xy, self.counters, q["distance"], q["k"], keep)
+            n = kernels.dwf(words, self.kept_xy, self.rejected_xy, self.counters, q["distance"], q["k"], out)
         elif self.method == "orderN":
-            kernels.order_n(t, x, y, self.row_t, self.row_x, self.col_t, self.col_y, q["dt_us"], self.jaer,
-                            self.jaer, keep)
+            n = kernels.order_n(words, self.row_t, self.row_x, self.col_t, self.col_y, q["dt_us"], self.jaer,
+                                self.jaer, out)
         elif self.method == "refractory":
-            kernels.refractory(t, x, y, self.time_map, q["dt_us"], self.jaer, keep)
+            n = kernels.refractory(words, self.time_map, q["dt_us"], self.jaer, out)
         else:
-            kernels.hot_pixels(x, y, self.hot_map, keep)
-        return keep
+            n = kernels.hot_pixels(words, self.hot_map, out)
+        return out[:n].reshape(-1).view(EVENT_DTYPE)
 
     def process(self, chunk: np.ndarray) -> np.ndarray:
         if self.method == "hotpixel" and self.learning:
             return self._learn(chunk)
-        return chunk[self.keep(chunk)]
+        return self.filter(chunk)
 
     def _learn(self, chunk: np.ndarray) -> np.ndarray:
         """Hold the learning stretch (its first ``learn_us``, at most :data:`MAX_LEARN_EVENTS` events); when it
@@ -211,7 +213,7 @@ class _Stage:
         else:
             return chunk[:0]
         rest = chunk[n:]
-        return join([self._release(), rest[self.keep(rest)]])
+        return join([self._release(), self.filter(rest)])
 
     def _count(self, part: np.ndarray) -> None:
         self.counts += np.bincount(part["y"].astype(np.int64) * self.width + part["x"], minlength=len(self.counts))
@@ -226,7 +228,7 @@ class _Stage:
     def _release(self) -> np.ndarray:
         held = join(self.held) if self.held else empty_events()
         self.held = []
-        return held[self.keep(held)]
+        return self.filter(held)
 
     def flush(self) -> np.ndarray:
         if self.method == "hotpixel" and self.learning:

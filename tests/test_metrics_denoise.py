@@ -8,11 +8,12 @@ import math
 import numpy as np
 import pytest
 
-from evtools.bafilter import BAFilter, ba_filter
+from evtools.bafilter import ba_filter
 from evtools.events import make_events
 from evtools.metrics.denoise import DenoiseMatcher, DenoiseMetricsError, EsrMeter, esr, roc_auc
 from tests.conftest import data_file
 from tests.helpers import assert_clean_error, cut, random_events, read_all, run
+from tests.naive.bafilter import naive_baf
 
 
 def naive_esr(events, width, height):
@@ -59,7 +60,7 @@ def test_matcher_counts_and_rejects_a_non_subsequence():
     for part, lab in zip(cut(events, [1_000, 4_000]), np.split(labels, [1_000, 4_000])):
         matcher.add_input(part, lab)
     score = matcher.finish()
-    mask = BAFilter(30, 20, "baf", dt_us=300).stages[0].keep(events)
+    mask = np.array(naive_baf([(int(e["t"]), int(e["x"]), int(e["y"]), bool(e["p"])) for e in events], 30, 20, 300))
     assert score.total.tolist() == np.bincount(labels, minlength=4).tolist()
     assert score.kept.sum() == len(kept) and score.kept.tolist() == np.bincount(labels[mask], minlength=4).tolist()
     assert score.tpr == score.kept[0] / score.total[0]

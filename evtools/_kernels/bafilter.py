@@ -1,10 +1,15 @@
 """Numba kernels of the background-activity filters (``../shared/ALGORITHMS.md`` section 2) and of the
 subsequence matching that ``metrics denoise`` uses.
 
-Each filter kernel takes one chunk's columns and the filter's state arrays, writes one boolean per event into
-``keep`` and updates the state in place, so that calling it chunk after chunk gives the same result as one call
-on the whole stream. Times are int64 microseconds; :data:`NEVER` marks a pixel (row, column) that has not fired:
-``t - NEVER`` is larger than any correlation window, so it never supports an event.
+The filter kernels read a chunk as its raw 16-byte records, viewed as ``words`` (n, 2) int64 (column 0 the time
+in microseconds, column 1 x, y and p packed as EVENT_DTYPE lays them out: see :func:`unpack`), copy the records
+they keep to ``out`` (same shape) and return how many they kept; the filter's state arrays are updated in place,
+so that calling a kernel chunk after chunk gives the same result as one call on the whole stream. Copying whole
+records while deciding saves a second pass over the chunk.
+
+Time maps are padded by ``pad`` pixels on every side (:func:`padded_map`), holding :data:`NEVER` there, so the
+neighbourhood loops need no bounds checks: a pad pixel never supports an event. :data:`NEVER` marks a pixel that
+has not fired: ``t - NEVER`` is larger than any correlation window.
 """
 
 from __future__ import annotations
@@ -16,83 +21,104 @@ NEVER = -(1 << 62)
 """Time-map value of "no event yet" ("long ago"): far enough that ``t - NEVER`` never overflows int64."""
 
 
+def padded_map(width: int, height: int, pad: int, start: int) -> np.ndarray:
+    """A (height + 2 pad, width + 2 pad) int64 time map: ``start`` on the sensor, :data:`NEVER` in the pad."""
+    time_map = np.full((height + 2 * pad, width + 2 * pad), NEVER, dtype=np.int64)
+    time_map[pad:pad + height, pad:pad + width] = start
+    return time_map
+
+
+@njit(inline="always")
+def unpack(word):
+    """x, y, p of an event's second 8 bytes (x int16 at byte 8, y int16 at byte 10, p bool at byte 12)."""
+    return word & 0xFFFF, (word >> 16) & 0xFFFF, ((word >> 32) & 0xFF) != 0
+
+
+@njit(inline="always")
+def _copy(words, i, out, n):
+    out[n, 0] = words[i, 0]
+    out[n, 1] = words[i, 1]
+
+
 @njit(cache=True, nogil=True)
-def baf(t, x, y, time_map, dt_us, first_rejected, keep):
+def baf(words, time_map, dt_us, first_rejected, out):
     """BAF: keep an event when one of its 8 neighbours (not itself) fired less than ``dt_us`` before it.
 
-    ``time_map`` (height, width) int64 gets every event's time, kept or not. ``first_rejected`` (jAER's
+    ``time_map`` is padded by 1 and gets every event's time, kept or not. ``first_rejected`` (jAER's
     letFirstEventThrough = false): an event at a pixel that never fired is rejected without a look around.
     """
-    height, width = time_map.shape
-    for i in range(len(t)):
-        ti = t[i]
-        xi = np.int64(x[i])
-        yi = np.int64(y[i])
-        if first_rejected and time_map[yi, xi] == NEVER:
-            time_map[yi, xi] = ti
-            keep[i] = False
+    width = time_map.shape[1]
+    flat = time_map.ravel()
+    n = 0
+    for i in range(words.shape[0]):
+        ti = words[i, 0]
+        x, y, _ = unpack(words[i, 1])
+        c = (y + 1) * width + x + 1
+        if first_rejected and flat[c] == NEVER:
+            flat[c] = ti
             continue
-        bound = ti - dt_us  # supported by a neighbour with time > bound, i.e. t - T < dt_us
-        x0 = xi - 1 if xi > 0 else xi
-        x1 = xi + 1 if xi < width - 1 else xi
-        y0 = yi - 1 if yi > 0 else yi
-        y1 = yi + 1 if yi < height - 1 else yi
-        found = False
-        for yy in range(y0, y1 + 1):
-            row = time_map[yy]
-            for xx in range(x0, x1 + 1):
-                if row[xx] > bound and (xx != xi or yy != yi):
-                    found = True
-                    break
-            if found:
-                break
-        keep[i] = found
-        time_map[yi, xi] = ti
+        above = max(max(flat[c - width - 1], flat[c - width]), flat[c - width + 1])
+        below = max(max(flat[c + width - 1], flat[c + width]), flat[c + width + 1])
+        latest = max(max(above, below), max(flat[c - 1], flat[c + 1]))
+        flat[c] = ti
+        if ti - latest < dt_us:
+            _copy(words, i, out, n)
+            n += 1
+    return n
 
 
 @njit(cache=True, nogil=True)
-def stcf(t, x, y, p, time_map, polarity_map, dt_us, radius, k, use_polarity, first_rejected, jaer_window, keep):
+def stcf(words, time_map, dt_us, radius, k, use_polarity, first_rejected, jaer_window, out):
     """STCF: keep an event when at least ``k`` pixels of its (2r+1)^2 window (itself excluded) fired less than
     ``dt_us`` before it, with its polarity when ``use_polarity``.
 
-    ``jaer_window``: jAER's neighbourhood clipping, whose upper end is ``min(c + r, size - 1 - r)``, so the last
-    ``r`` columns and rows never count as neighbours. ``first_rejected`` as in :func:`baf`.
+    ``time_map`` is padded by ``radius`` and holds ``2 t + p`` of each pixel's last event (time and polarity in
+    one word: one memory access per neighbour). ``jaer_window``: jAER's neighbourhood clipping, whose upper end
+    is ``min(c + r, size - 1 - r)``, so the last ``r`` columns and rows never count as neighbours.
+    ``first_rejected`` as in :func:`baf`.
     """
-    height, width = time_map.shape
-    for i in range(len(t)):
-        ti = t[i]
-        xi = np.int64(x[i])
-        yi = np.int64(y[i])
-        pi = p[i]
-        if first_rejected and time_map[yi, xi] == NEVER:
-            time_map[yi, xi] = ti
-            polarity_map[yi, xi] = pi
-            keep[i] = False
+    padded_height, width = time_map.shape
+    sensor_width = width - 2 * radius
+    sensor_height = padded_height - 2 * radius
+    flat = time_map.ravel()
+    never = NEVER * 2
+    n = 0
+    for i in range(words.shape[0]):
+        ti = words[i, 0]
+        x, y, pi = unpack(words[i, 1])
+        c = (y + radius) * width + x + radius
+        stamp = 2 * ti + pi
+        if first_rejected and flat[c] == never:
+            flat[c] = stamp
             continue
-        bound = ti - dt_us
-        x0 = max(xi - radius, 0)
-        y0 = max(yi - radius, 0)
+        bound = 2 * (ti - dt_us) + 1  # 2 T + p > bound  <=>  T > ti - dt_us, i.e. t - T < dt_us
+        dx1 = radius
+        dy1 = radius
         if jaer_window:
-            x1 = min(xi + radius, width - 1 - radius)
-            y1 = min(yi + radius, height - 1 - radius)
-        else:
-            x1 = min(xi + radius, width - 1)
-            y1 = min(yi + radius, height - 1)
-        count = 0
-        for yy in range(y0, y1 + 1):
-            for xx in range(x0, x1 + 1):
-                if time_map[yy, xx] > bound and (xx != xi or yy != yi):
-                    if not use_polarity or polarity_map[yy, xx] == pi:
-                        count += 1
-            if count >= k:
-                break
-        keep[i] = count >= k
-        time_map[yi, xi] = ti
-        polarity_map[yi, xi] = pi
+            dx1 = min(radius, sensor_width - 1 - radius - x)
+            dy1 = min(radius, sensor_height - 1 - radius - y)
+        count = 0  # branch-free: polarities are random, so a branch per neighbour would mispredict
+        for dy in range(-radius, dy1 + 1):
+            row = c + dy * width
+            if use_polarity:
+                for dx in range(-radius, dx1 + 1):
+                    v = flat[row + dx]
+                    count += (v > bound) & ((v & 1) == pi)
+            else:
+                for dx in range(-radius, dx1 + 1):
+                    count += flat[row + dx] > bound
+        if dx1 >= 0 and dy1 >= 0:  # the window holds the pixel itself: take it out
+            v = flat[c]
+            count -= (v > bound) & (not use_polarity or (v & 1) == pi)
+        flat[c] = stamp
+        if count >= k:
+            _copy(words, i, out, n)
+            n += 1
+    return n
 
 
 @njit(cache=True, nogil=True)
-def dwf(x, y, kept_xy, rejected_xy, counters, distance, k, keep):
+def dwf(words, kept_xy, rejected_xy, counters, distance, k, out):
     """DWF (Guo & Delbruck 2022): keep an event when at least ``k`` of the stored events lie at L1 distance
     ``< distance``; push it into the FIFO of kept events or of rejected ones.
 
@@ -101,12 +127,11 @@ def dwf(x, y, kept_xy, rejected_xy, counters, distance, k, keep):
     jAER does).
     """
     size = kept_xy.shape[0]
-    for i in range(len(x)):
-        xi = np.int64(x[i])
-        yi = np.int64(y[i])
+    n = 0
+    for i in range(words.shape[0]):
+        xi, yi, _ = unpack(words[i, 1])
         if counters[4] > 0:
             counters[4] -= 1
-            keep[i] = False
             if counters[0] < size:
                 kept_xy[counters[1], 0] = xi
                 kept_xy[counters[1], 1] = yi
@@ -126,7 +151,8 @@ def dwf(x, y, kept_xy, rejected_xy, counters, distance, k, keep):
                     if count >= k:
                         break
         if count >= k:
-            keep[i] = True
+            _copy(words, i, out, n)
+            n += 1
             slot = counters[1]
             kept_xy[slot, 0] = xi
             kept_xy[slot, 1] = yi
@@ -134,17 +160,17 @@ def dwf(x, y, kept_xy, rejected_xy, counters, distance, k, keep):
             if counters[0] < size:
                 counters[0] += 1
         else:
-            keep[i] = False
             slot = counters[3]
             rejected_xy[slot, 0] = xi
             rejected_xy[slot, 1] = yi
             counters[3] = (slot + 1) % size
             if counters[2] < size:
                 counters[2] += 1
+    return n
 
 
 @njit(cache=True, nogil=True)
-def order_n(t, x, y, row_t, row_x, col_t, col_y, dt_us, self_counts, jaer_edges, keep):
+def order_n(words, row_t, row_x, col_t, col_y, dt_us, self_counts, jaer_edges, out):
     """Khodamoradi & Kastner's O(W + H) filter: one memory per row (last time, its x) and per column (last time,
     its y); keep an event when an adjacent row (y-1..y+1) last fired less than ``dt_us`` ago at x-1..x+1, or an
     adjacent column at y-1..y+1. Every event is then stored in its row and column.
@@ -154,12 +180,11 @@ def order_n(t, x, y, row_t, row_x, col_t, col_y, dt_us, self_counts, jaer_edges,
     """
     height = row_t.shape[0]
     width = col_t.shape[0]
-    for i in range(len(t)):
-        ti = t[i]
-        xi = np.int64(x[i])
-        yi = np.int64(y[i])
+    n = 0
+    for i in range(words.shape[0]):
+        ti = words[i, 0]
+        xi, yi, _ = unpack(words[i, 1])
         if jaer_edges and (xi <= 0 or yi <= 0 or xi >= width - 1 or yi >= height - 1):
-            keep[i] = False
             continue
         bound = ti - dt_us
         found = False
@@ -172,31 +197,47 @@ def order_n(t, x, y, row_t, row_x, col_t, col_y, dt_us, self_counts, jaer_edges,
                 if col_t[xx] > bound and abs(col_y[xx] - yi) <= 1 and (self_counts or xx != xi or col_y[xx] != yi):
                     found = True
                     break
-        keep[i] = found
+        if found:
+            _copy(words, i, out, n)
+            n += 1
         row_t[yi] = ti
         row_x[yi] = xi
         col_t[xi] = ti
         col_y[xi] = yi
+    return n
 
 
 @njit(cache=True, nogil=True)
-def refractory(t, x, y, time_map, dt_us, inclusive, keep):
+def refractory(words, time_map, dt_us, inclusive, out):
     """Drop an event less than ``dt_us`` after the same pixel's previous event (``<= dt_us`` when ``inclusive``,
-    jAER); the previous event may itself have been dropped: every event writes its time."""
-    for i in range(len(t)):
-        ti = t[i]
-        xi = np.int64(x[i])
-        yi = np.int64(y[i])
-        delta = ti - time_map[yi, xi]
-        keep[i] = delta > dt_us if inclusive else delta >= dt_us
-        time_map[yi, xi] = ti
+    jAER); the previous event may itself have been dropped: every event writes its time. ``time_map`` unpadded."""
+    width = time_map.shape[1]
+    flat = time_map.ravel()
+    n = 0
+    for i in range(words.shape[0]):
+        ti = words[i, 0]
+        x, y, _ = unpack(words[i, 1])
+        c = y * width + x
+        delta = ti - flat[c]
+        flat[c] = ti
+        if (delta > dt_us) if inclusive else (delta >= dt_us):
+            _copy(words, i, out, n)
+            n += 1
+    return n
 
 
 @njit(cache=True, nogil=True)
-def hot_pixels(x, y, hot_map, keep):
+def hot_pixels(words, hot_map, out):
     """Drop the events of the pixels marked in ``hot_map`` (height, width) bool."""
-    for i in range(len(x)):
-        keep[i] = not hot_map[y[i], x[i]]
+    width = hot_map.shape[1]
+    flat = hot_map.ravel()
+    n = 0
+    for i in range(words.shape[0]):
+        x, y, _ = unpack(words[i, 1])
+        if not flat[y * width + x]:
+            _copy(words, i, out, n)
+            n += 1
+    return n
 
 
 @njit(cache=True, nogil=True)
