@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
+import importlib
 import logging
 import os
 import sys
 
 import click
 
-from cli import bafilter, convert, correct, estimate, info, metrics, render, simulate
 from evtools import __version__
 from evtools.errors import EvtoolsError
 
@@ -22,7 +22,37 @@ class _StderrFormatter(logging.Formatter):
         return f"evtools: {record.levelname.lower()}: {record.getMessage()}"
 
 
-class EvtoolsGroup(click.Group):
+class LazyGroup(click.Group):
+    """A group whose subcommands are imported only when used, so a command loads only what it needs (numba, h5py
+    and OpenCV take most of a second to import); ``commands`` maps a name to ``"module:function"``."""
+
+    def __init__(self, *args, lazy_commands: dict[str, str] | None = None, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.lazy_commands = lazy_commands or {}
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return sorted({*super().list_commands(ctx), *self.lazy_commands})
+
+    def get_command(self, ctx: click.Context, name: str):
+        if name in self.lazy_commands and name not in self.commands:
+            module, function = self.lazy_commands[name].split(":")
+            self.add_command(getattr(importlib.import_module(module), function), name)
+        return super().get_command(ctx, name)
+
+
+COMMANDS = {
+    "info": "cli.info:info",
+    "convert": "cli.convert:convert",
+    "simulate": "cli.simulate:simulate",
+    "render": "cli.render:render",
+    "bafilter": "cli.bafilter:bafilter",
+    "estimate": "cli.estimate:estimate",
+    "correct": "cli.correct:correct",
+    "metrics": "cli.metrics:metrics",
+}
+
+
+class EvtoolsGroup(LazyGroup):
     """Runs a subcommand; an :class:`EvtoolsError` becomes one line on stderr and exit code 1, never a traceback."""
 
     def invoke(self, ctx: click.Context):
@@ -49,7 +79,7 @@ class EvtoolsGroup(click.Group):
             ctx.exit(EXIT_ERROR)
 
 
-@click.group(cls=EvtoolsGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.group(cls=EvtoolsGroup, lazy_commands=COMMANDS, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="evtools")
 @click.option("-q", "--quiet", is_flag=True, help="Print errors only, no warnings.")
 def cli(quiet: bool) -> None:
@@ -66,14 +96,6 @@ def cli(quiet: bool) -> None:
     logger.propagate = False
 
 
-cli.add_command(info.info)
-cli.add_command(convert.convert)
-cli.add_command(simulate.simulate)
-cli.add_command(render.render)
-cli.add_command(bafilter.bafilter)
-cli.add_command(estimate.estimate)
-cli.add_command(correct.correct)
-cli.add_command(metrics.metrics)
 
 
 def main() -> None:

@@ -4,17 +4,18 @@ from __future__ import annotations
 
 import click
 
-from cli import metrics_denoise, metrics_thresholds, metrics_uniformity
+from cli.main import LazyGroup
 
 
-@click.group()
+@click.group(cls=LazyGroup, lazy_commands={
+    "denoise": "cli.metrics_denoise:denoise",
+    "roc": "cli.metrics_denoise:roc",
+    "esr": "cli.metrics_denoise:esr",
+    "thresholds": "cli.metrics_thresholds:thresholds",
+    "uniformity": "cli.metrics_uniformity:uniformity",
+})
 def metrics() -> None:
     """Measure denoising (denoise, roc, esr), threshold estimation (thresholds) and uniformity (uniformity).
 
     Each prints a table on a terminal and JSON when stdout is not a terminal or with --json.
     """
-
-
-for module in (metrics_denoise, metrics_thresholds, metrics_uniformity):
-    for command in module.COMMANDS:
-        metrics.add_command(command)
