@@ -49,7 +49,11 @@ def parse_duration_us(text: str, what: str = "duration") -> int:
 
 @dataclass
 class FrameSource:
-    """Frames ``(t_us, float32 height x width luma 0-255)`` with what is known about them beforehand."""
+    """Frames ``(t_us, height x width luma 0-255)`` with what is known about them beforehand.
+
+    Frames are uint8 when the images are 8-bit and not resized (the simulator then reads lin-log from a table of
+    the 256 levels), float32 otherwise.
+    """
 
     name: str
     width: int
@@ -77,7 +81,8 @@ def scene_source(name: str, size: str | None, duration: str | None, options: dic
 
 
 def _luma(frame: np.ndarray, name: str) -> np.ndarray:
-    """8-bit (or 16-bit) grey or BGR(A) image as float32 luma on the 0-255 scale (Rec. 601 weights, OpenCV's)."""
+    """8-bit (or 16-bit) grey or BGR(A) image as luma on the 0-255 scale (Rec. 601 weights, OpenCV's): uint8 for an
+    8-bit image, float32 otherwise."""
     import cv2
 
     if frame.ndim == 3 and frame.shape[2] == 4:
@@ -88,10 +93,11 @@ def _luma(frame: np.ndarray, name: str) -> np.ndarray:
         frame = frame[:, :, 0]
     if frame.ndim != 2:
         raise SimulationError(f"{name}: unsupported image layout {frame.shape}")
-    scale = {np.dtype(np.uint8): 1.0, np.dtype(np.uint16): 255.0 / 65535.0}.get(frame.dtype)
-    if scale is None:  # float images: 0-1
-        return np.clip(frame.astype(np.float32) * 255.0, 0.0, 255.0)
-    return frame.astype(np.float32) * np.float32(scale)
+    if frame.dtype == np.uint8:
+        return frame
+    if frame.dtype == np.uint16:
+        return frame.astype(np.float32) * np.float32(255.0 / 65535.0)
+    return np.clip(frame.astype(np.float32) * 255.0, 0.0, 255.0)  # float images: 0-1
 
 
 def _resize(frame: np.ndarray, size: tuple[int, int] | None) -> np.ndarray:
@@ -99,7 +105,8 @@ def _resize(frame: np.ndarray, size: tuple[int, int] | None) -> np.ndarray:
         return frame
     import cv2
 
-    return cv2.resize(frame, size, interpolation=cv2.INTER_AREA)
+    # in float32, so that the averaged intensities are not rounded to whole levels
+    return cv2.resize(frame.astype(np.float32, copy=False), size, interpolation=cv2.INTER_AREA)
 
 
 def video_source(path: str, fps: float | None, size: str | None) -> FrameSource:
@@ -278,6 +285,21 @@ def model_parameters(preset: str | None, given: dict[str, Any]) -> dict[str, Any
     return parameters
 
 
+_PARAMETER_NAME = re.compile(
+    r"\b(" + "|".join(sorted({*DEFAULT_PARAMETERS, *NOISE_DEFAULTS, "seed"}, key=len, reverse=True)) + r")\b"
+)
+
+
+def _build(model, *args, **parameters):
+    """``model(*args, **parameters)`` with the options users typed (``--shot-noise-rate-hz``) in its errors in
+    place of the Python parameter names (``shot_noise_rate_hz``) that the library uses."""
+    try:
+        return model(*args, **parameters)
+    except SimulationError as error:
+        flags = _PARAMETER_NAME.sub(lambda match: "--" + match.group(1).replace("_", "-"), str(error))
+        raise SimulationError(flags) from None
+
+
 def _progress(source: FrameSource) -> Iterator[tuple[int, np.ndarray]]:
     """Frames unchanged, with a progress bar on stderr when it is a terminal."""
     if not sys.stderr.isatty():
@@ -400,7 +422,7 @@ def simulate(source, output, output_format, truth, input_format, sensor_size, ae
             scene_options[keyword] = parse_duration_us(value, "--period") * 1e-6 if name == "period" else value
     parameters = model_parameters(preset, options)
     frames = open_source(source, size, duration, fps, timestamps, scene_options)
-    simulator = DvsSimulator(frames.width, frames.height, seed=seed, **parameters)
+    simulator = _build(DvsSimulator, frames.width, frames.height, seed=seed, **parameters)
     if truth is not None and output not in (None, "-"):
         if os.path.abspath(truth) == os.path.abspath(output) or same_file(truth, output):
             raise SimulationError("--truth and -o name the same file; give two different files")
@@ -498,7 +520,7 @@ def _inject(source, output, output_format, truth, preset, seed, parameters, stre
     _check_truth_path(truth, output, source)
     with open_events(source, **stream_options) as stream:
         width, height = stream.info.width, stream.info.height
-        injector = NoiseInjector(width, height, seed=seed, **parameters)
+        injector = _build(NoiseInjector, width, height, seed=seed, **parameters)
         info = StreamInfo(width, height, metadata={"source": f"evtools simulate {stream.name} seed={injector.seed}"})
         with create_events(output, info, format=output_format, inputs=(source,)) as writer:
             if truth is None:

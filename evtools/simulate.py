@@ -29,6 +29,7 @@ from evtools._kernels.pixel import (
     NEVER_US,
     advance_pixels,
     lin_log_frame,
+    sort_events,
 )
 from evtools.errors import EvtoolsError
 from evtools.events import EVENT_DTYPE, check_sensor_size, empty_events
@@ -98,10 +99,10 @@ def lin_log(intensity) -> np.ndarray:
 
 
 def _check_nonnegative(name: str, value: float) -> float:
-    value = float(value)
-    if not value >= 0.0 or math.isinf(value):
+    number = float(value)
+    if not number >= 0.0 or math.isinf(number):
         raise SimulationError(f"{name} must be a finite number >= 0, got {value}")
-    return value
+    return number
 
 
 def _check_fraction(name: str, value: float) -> float:
@@ -295,6 +296,9 @@ class DvsSimulator:
         self._shot_budget = noise_rng.standard_exponential(n)
         self._hot_budget = noise_rng.standard_exponential(n)
         self._shot_key, self._hot_key = (np.uint64(k) for k in key_rng.integers(0, 1 << 64, 2, dtype=np.uint64))
+        self._any_leak = bool(np.any(leak > 0))
+        self._any_shot = bool(np.any(self._shot_rate_hz > 0))
+        self._any_hot = bool(np.any(self._hot_rate_hz > 0))
 
     # -- processing ---------------------------------------------------------------------------------------
 
@@ -310,8 +314,9 @@ class DvsSimulator:
         t_us : int or array_like of int
             Time of the frame (or of each frame) in microseconds, strictly increasing over the whole stream.
         frames : ndarray, shape (height, width) or (n, height, width)
-            Intensity, 0-255 (float or integer; converted to float32). The first frame of a stream only sets
-            the pixels' state and emits nothing.
+            Intensity, 0-255: uint8 (used as it is, lin-log from a table of the 256 levels: the fast path for
+            video) or any other number type (converted to float32). The first frame of a stream only sets the
+            pixels' state and emits nothing.
 
         Returns
         -------
@@ -339,9 +344,11 @@ class DvsSimulator:
                 raise SimulationError("frame times must be finite")
             times = np.round(times)
         times = times.astype(np.int64)
+        # 8-bit frames (video) stay 8-bit: the kernel takes their lin-log from a table of the 256 levels
+        dtype = np.uint8 if frames.dtype == np.uint8 else np.float32
         count = 0
         for k in range(len(frames)):
-            frame = np.ascontiguousarray(frames[k], dtype=np.float32).reshape(-1)
+            frame = np.ascontiguousarray(frames[k], dtype=dtype).reshape(-1)
             t1 = int(times[k])
             if self._t_us is None:
                 self._start(t1, frame)
@@ -353,7 +360,8 @@ class DvsSimulator:
                 count, pixel = advance_pixels(
                     frame, self._t_us, t1, self.width, self.parameters["cutoff_hz"],
                     self.parameters["refractory_us"], self._on, self._off, self._leak_rate_hz,
-                    self._shot_rate_hz, self._hot_rate_hz, self._shot_key, self._hot_key,
+                    self._shot_rate_hz, self._hot_rate_hz, self._any_leak, self._any_shot, self._any_hot,
+                    self._shot_key, self._hot_key,
                     self._lp_log, self._ref_log, self._last_event_us, self._shot_budget, self._hot_budget,
                     self._shot_draws, self._hot_draws,
                     self._out_t, self._out_x, self._out_y, self._out_p, self._out_label, count, pixel,
@@ -387,15 +395,19 @@ class DvsSimulator:
             setattr(self, name, new)
 
     def _take(self, count: int) -> tuple[np.ndarray, np.ndarray]:
-        t = self._out_t[:count]
-        # the kernel writes pixel by pixel; a stable sort by time leaves ties in (frame, row, column, own order)
-        order = np.argsort(t, kind="stable")
+        columns = (self._out_t[:count], self._out_x[:count], self._out_y[:count], self._out_p[:count],
+                   self._out_label[:count])
         events = np.empty(count, dtype=EVENT_DTYPE)
-        events["t"] = t[order]
-        events["x"] = self._out_x[:count][order]
-        events["y"] = self._out_y[:count][order]
-        events["p"] = self._out_p[:count][order]
-        return events, self._out_label[:count][order]
+        labels = np.empty(count, dtype=np.uint8)
+        # the kernel writes pixel by pixel; a stable sort by time leaves ties in (frame, row, column, own order).
+        # A counting sort on the microsecond, unless the events span much more time than there are of them
+        if not sort_events(*columns, max(4 * count, 1 << 16), events["t"], events["x"], events["y"], events["p"],
+                           labels):
+            order = np.argsort(columns[0], kind="stable")
+            for name, column in zip(("t", "x", "y", "p"), columns):
+                events[name] = column[order]
+            labels = columns[4][order]
+        return events, labels
 
 
 def _smooth_field(rng: np.random.Generator, shape: tuple[int, int], length_px: float) -> np.ndarray:

@@ -258,8 +258,11 @@ def test_cli_bad_inputs_give_one_line_errors(tmp_path):
     walk_path = data_file("dvs128_walk.aedat")
     out = tmp_path / "out.aedat4"
     assert_clean_error(run("simulate", walk_path, "--shot-noise-rate-hz", "-5", "-o", out, check=False),
-                       "shot_noise_rate_hz")
-    assert_clean_error(run("simulate", walk_path, "--leak-rate-hz", "-0.1", "-o", out, check=False), "leak_rate_hz")
+                       "--shot-noise-rate-hz must be")
+    assert_clean_error(run("simulate", walk_path, "--leak-rate-hz", "-0.1", "-o", out, check=False),
+                       "--leak-rate-hz must be")
+    assert_clean_error(run("simulate", walk_path, "--hot-pixel-fraction", "2", "-o", out, check=False),
+                       "--hot-pixel-fraction must be")
     assert_clean_error(run("simulate", walk_path, "--cutoff-hz", "30", "-o", out, check=False), "--cutoff-hz")
     assert_clean_error(run("simulate", walk_path, "--size", "64x64", "-o", out, check=False), "--sensor-size")
     assert_clean_error(run("simulate", walk_path, "--truth", walk_path, "-o", out, check=False), "overwrite")

@@ -11,6 +11,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from evtools._kernels.pixel import _level_tables, time_order
 from evtools.events import EVENT_DTYPE
 from evtools.simulate import (
     DEAD_PIXEL_THRESHOLD,
@@ -71,9 +72,10 @@ KERNEL_CASES = {
 }
 
 
+@pytest.mark.parametrize("dtype", [np.float32, np.uint8])
 @pytest.mark.parametrize("case", sorted(KERNEL_CASES))
-def test_kernel_equals_naive_reference(case):
-    frames = random_walk_frames(9, 7, 40, seed=len(case))
+def test_kernel_equals_naive_reference(case, dtype):
+    frames = [(t, np.round(frame).astype(dtype)) for t, frame in random_walk_frames(9, 7, 40, seed=len(case))]
     simulator = DvsSimulator(9, 7, seed=11, **KERNEL_CASES[case])
     expected = simulate_naive(DvsSimulator(9, 7, seed=11, **KERNEL_CASES[case]), frames)
     events, labels = run_frames(simulator, frames)
@@ -81,6 +83,67 @@ def test_kernel_equals_naive_reference(case):
     assert as_tuples(events, labels) == expected
     if case == "everything":
         assert set(labels.tolist()) == {0, 1, 2, 3}
+
+
+def test_8bit_frames_use_tables_with_the_very_values_of_the_naive_lin_log():
+    log_table, gain_table = _level_tables(1e-3 * 2.0 * math.pi * 30.0)
+    assert log_table.tolist() == [naive_lin_log(float(level)) for level in range(256)]
+    assert gain_table.tolist() == [min(1.0, (level + 20.0) / 275.0 * (1e-3 * 2.0 * math.pi * 30.0))
+                                   for level in range(256)]
+    # 16 x 16 pixels, each frame a permutation of the 256 levels: every level (linear part and log part) is seen
+    rng = np.random.default_rng(4)
+    frames = [(1_000 * (k + 1), rng.permutation(256).astype(np.uint8).reshape(16, 16)) for k in range(12)]
+    parameters = dict(KERNEL_CASES["everything"], refractory_us=0)
+    expected = simulate_naive(DvsSimulator(16, 16, seed=3, **parameters), frames)
+    events, labels = run_frames(DvsSimulator(16, 16, seed=3, **parameters), frames)
+    assert len(expected) > 1_000
+    assert as_tuples(events, labels) == expected
+
+
+def test_8bit_frames_give_the_events_of_the_same_float_frames():
+    frames = [(t, np.round(frame)) for t, frame in random_walk_frames(40, 30, 25, seed=8)]
+    parameters = dict(PRESETS["noisy"], refractory_us=300, hot_pixel_fraction=0.01, dead_pixel_fraction=0.01)
+    as_float = run_frames(DvsSimulator(40, 30, seed=9, **parameters), [(t, f.astype(np.float32)) for t, f in frames])
+    as_8bit = run_frames(DvsSimulator(40, 30, seed=9, **parameters), [(t, f.astype(np.uint8)) for t, f in frames])
+    assert len(as_float[0]) > 1_000
+    np.testing.assert_array_equal(as_8bit[0], as_float[0])
+    np.testing.assert_array_equal(as_8bit[1], as_float[1])
+
+
+@given(
+    st.lists(st.integers(-3, 40), min_size=0, max_size=300),
+    st.integers(-(1 << 40), 1 << 40),
+)
+@settings(max_examples=200, deadline=None)
+def test_time_order_is_the_stable_argsort(offsets, base):
+    t = np.asarray(offsets, dtype=np.int64) + base  # few distinct values: many ties
+    order = np.full(len(t), -1, dtype=np.int64)
+    assert time_order(t, 1 << 16, order)
+    np.testing.assert_array_equal(order, np.argsort(t, kind="stable"))
+
+
+def test_time_order_declines_a_wide_span():
+    rng = np.random.default_rng(1)
+    t = np.sort(rng.integers(0, 10_000, 5_000))
+    order = np.full(len(t), -1, dtype=np.int64)
+    assert time_order(t, 10_000, order)
+    np.testing.assert_array_equal(order, np.argsort(t, kind="stable"))
+    t[-1] = 10_000  # a span of 10001 us
+    order[:] = -1
+    assert not time_order(t, 10_000, order)
+    assert np.all(order == -1)
+
+
+def test_batched_frames_spanning_a_long_time_are_sorted_too():
+    # one call with frames far apart: the counting sort gives way to a comparison sort; same events either way
+    frames = [(t * 5_000, frame) for t, frame in random_walk_frames(12, 9, 12, seed=3)]
+    one_by_one = run_frames(DvsSimulator(12, 9, seed=1, **PRESETS["noisy"]), frames)
+    batched = DvsSimulator(12, 9, seed=1, **PRESETS["noisy"])
+    first = batched.process_labelled(frames[0][0], frames[0][1])
+    rest = batched.process_labelled([t for t, _ in frames[1:]], np.stack([f for _, f in frames[1:]]))
+    assert len(first[0]) == 0 and rest[0]["t"].max() - rest[0]["t"].min() > 4 * len(rest[0]) + (1 << 16)
+    np.testing.assert_array_equal(rest[0], one_by_one[0])
+    np.testing.assert_array_equal(rest[1], one_by_one[1])
 
 
 def test_kernel_output_space_grows_mid_frame():
@@ -403,8 +466,14 @@ def test_cli_bad_inputs_give_one_line_errors(tmp_path):
     out = tmp_path / "out.aedat4"
     assert_clean_error(run("simulate", "scene:flicker", "--size", "0x10", "-o", out, check=False), "width 0")
     assert_clean_error(
-        run("simulate", "scene:static", "--shot-noise-rate-hz", "-2", "-o", out, check=False), "shot_noise_rate_hz"
+        run("simulate", "scene:static", "--shot-noise-rate-hz", "-2", "-o", out, check=False), "--shot-noise-rate-hz"
     )
+    assert_clean_error(
+        run("simulate", "scene:static", "--hot-pixel-fraction", "0.7", "--dead-pixel-fraction", "0.5", "-o", out,
+            check=False),
+        "--hot-pixel-fraction + --dead-pixel-fraction",
+    )
+    assert_clean_error(run("simulate", "scene:static", "--seed", "-1", "-o", out, check=False), "--seed")
     assert_clean_error(run("simulate", "scene:nothing", "-o", out, check=False), "unknown scene")
     assert_clean_error(run("simulate", "scene:flicker", "--duration", "soon", "-o", out, check=False), "soon")
     empty = tmp_path / "empty"

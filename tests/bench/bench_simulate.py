@@ -5,7 +5,8 @@ OpenCV's writer, a moving grating with a drifting dark disc) and ``scene:gradien
 scenes' 1 kHz: 1001 frames), each with v2e's ``clean`` and ``noisy`` presets. For each, two measurements:
 
 - ``simulate``: the pixel model alone (``DvsSimulator.process_labelled``), frames decoded or generated outside
-  the timed part;
+  the timed part (the video's frames are uint8, as ``evtools simulate`` passes them: lin-log from a table; the
+  scene's are float32: lin-log computed per pixel);
 - ``CLI``: ``evtools simulate SOURCE --preset P -o OUT.aedat4`` end to end (start-up, decoding, writing).
 
 Pixel-frames per second = width x height x frames / seconds; the target is >= 50 million on one core. Every
