@@ -359,6 +359,8 @@ def _float_option(name: str, help: str):
 @_float_option("--correlated-sigma-thres", "Standard deviation of a spatially smooth threshold field (default 0).")
 @_float_option("--correlated-length-px", "Correlation length of that field, pixels (default 10).")
 @_float_option("--cutoff-hz", "Photoreceptor low-pass cutoff at full intensity; 0 = none (default).")
+@click.option("--fixed-cutoff", is_flag=True, default=None,
+              help="A plain single-pole low-pass: --cutoff-hz at every intensity (v2e's falls with intensity).")
 @_float_option("--leak-rate-hz", "Leak (background activity) event rate per pixel (default 0.1).")
 @_float_option("--leak-spread-decades",
                "Per-pixel spread of the leak rate, decades (default 0.1; 0.5 for an event stream).")

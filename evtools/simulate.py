@@ -63,6 +63,7 @@ DEFAULT_PARAMETERS: dict[str, Any] = {
     "correlated_sigma_thres": 0.0,
     "correlated_length_px": 10.0,
     "cutoff_hz": 0.0,
+    "fixed_cutoff": False,
     "leak_rate_hz": 0.1,
     "leak_spread_decades": 0.1,
     "shot_noise_rate_hz": 0.0,
@@ -136,6 +137,9 @@ class DvsSimulator:
         Correlation length of that field (the sigma of the Gaussian that smooths white noise), pixels.
     cutoff_hz : float
         Photoreceptor bandwidth at full intensity; it falls with intensity as in v2e (0: no low-pass).
+    fixed_cutoff : bool
+        The bandwidth does not fall with intensity: a plain single-pole low-pass with ``tau = 1/(2 pi
+        cutoff_hz)`` (the report's Table 2 setup), instead of v2e's intensity-dependent one.
     leak_rate_hz : float
         Mean leak (background activity) rate: the reference drifts down by ``rate * theta_on`` per second, so a
         static pixel emits ON events at about this rate.
@@ -186,6 +190,7 @@ class DvsSimulator:
         correlated_sigma_thres: float = DEFAULT_PARAMETERS["correlated_sigma_thres"],
         correlated_length_px: float = DEFAULT_PARAMETERS["correlated_length_px"],
         cutoff_hz: float = DEFAULT_PARAMETERS["cutoff_hz"],
+        fixed_cutoff: bool = DEFAULT_PARAMETERS["fixed_cutoff"],
         leak_rate_hz: float = DEFAULT_PARAMETERS["leak_rate_hz"],
         leak_spread_decades: float = DEFAULT_PARAMETERS["leak_spread_decades"],
         shot_noise_rate_hz: float = DEFAULT_PARAMETERS["shot_noise_rate_hz"],
@@ -218,6 +223,7 @@ class DvsSimulator:
             "correlated_sigma_thres": _check_nonnegative("correlated_sigma_thres", correlated_sigma_thres),
             "correlated_length_px": _check_nonnegative("correlated_length_px", correlated_length_px),
             "cutoff_hz": _check_nonnegative("cutoff_hz", cutoff_hz),
+            "fixed_cutoff": bool(fixed_cutoff),
             "leak_rate_hz": _check_nonnegative("leak_rate_hz", leak_rate_hz),
             "leak_spread_decades": _check_nonnegative("leak_spread_decades", leak_spread_decades),
             "shot_noise_rate_hz": _check_nonnegative("shot_noise_rate_hz", shot_noise_rate_hz),
@@ -358,7 +364,7 @@ class DvsSimulator:
             pixel = 0
             while True:
                 count, pixel = advance_pixels(
-                    frame, self._t_us, t1, self.width, self.parameters["cutoff_hz"],
+                    frame, self._t_us, t1, self.width, self.parameters["cutoff_hz"], self.parameters["fixed_cutoff"],
                     self.parameters["refractory_us"], self._on, self._off, self._leak_rate_hz,
                     self._shot_rate_hz, self._hot_rate_hz, self._any_leak, self._any_shot, self._any_hot,
                     self._shot_key, self._hot_key,

@@ -67,6 +67,7 @@ def as_tuples(events: np.ndarray, labels: np.ndarray):
 KERNEL_CASES = {
     "ideal": dict(IDEAL, sigma_thres=0.05),
     "lowpass": dict(cutoff_hz=40.0, sigma_thres=0.05, leak_rate_hz=0.0),
+    "fixed-lowpass": dict(cutoff_hz=40.0, fixed_cutoff=True, sigma_thres=0.05, leak_rate_hz=0.0),
     "everything": dict(cutoff_hz=200.0, sigma_thres=0.05, leak_rate_hz=50.0, shot_noise_rate_hz=80.0,
                        refractory_us=700, hot_pixel_fraction=0.1, hot_pixel_rate_hz=400.0, dead_pixel_fraction=0.05),
 }
@@ -490,3 +491,21 @@ def test_cli_bad_inputs_give_one_line_errors(tmp_path):
     assert_clean_error(run("simulate", broken, "-o", out, check=False), "cannot read")
     assert_clean_error(run("simulate", tmp_path / "missing.mp4", "-o", out, check=False), "no such file")
     assert not out.exists()
+
+
+def test_fixed_cutoff_is_a_single_pole_filter_at_every_intensity():
+    """A step of log amplitude A through a plain single-pole low-pass (tau = 1/(2 pi fc)): the pixel with
+    threshold theta fires first where A (1 - exp(-t/tau)) = theta, the same at a dark and at a bright level."""
+    cutoff_hz, amplitude = 8.0, 1.5
+    tau_s = 1.0 / (2.0 * np.pi * cutoff_hz)
+    for low in (30.0, 100.0):
+        high = low * np.exp(amplitude)
+        times = np.arange(0, 400_001, 1_000)
+        frames = [(int(t), np.full((4, 3), low if t == 0 else high, np.float32)) for t in times]
+        simulator = DvsSimulator(3, 4, seed=2, **dict(IDEAL, sigma_thres=0.03, cutoff_hz=cutoff_hz, fixed_cutoff=True))
+        events, _ = run_frames(simulator, frames)
+        first = np.array([events["t"][(events["x"] == x) & (events["y"] == y)].min() for y in range(4) for x in range(3)])
+        theta = simulator.on_thres.reshape(-1).astype(np.float64)
+        eps = 1e-3 / tau_s  # the filter moves by eps of the gap per 1 ms frame
+        expected_us = 1e3 * np.log(1.0 - theta / amplitude) / np.log(1.0 - eps)
+        np.testing.assert_allclose(first, expected_us, atol=1_000)  # within the frame where it crosses

@@ -149,7 +149,7 @@ def _level_tables(lowpass_gain):  # pragma: no cover - compiled
 
 @njit(cache=True, nogil=True)
 def advance_pixels(
-    frame, t0_us, t1_us, width, cutoff_hz, refractory_us,
+    frame, t0_us, t1_us, width, cutoff_hz, fixed_cutoff, refractory_us,
     on_thres, off_thres, leak_rate_hz, shot_rate_hz, hot_rate_hz, any_leak, any_shot, any_hot, shot_key, hot_key,
     lp_log, ref_log, last_event_us, shot_budget, hot_budget, shot_draws, hot_draws,
     out_t_us, out_x, out_y, out_p, out_label, count, first_pixel,
@@ -158,7 +158,8 @@ def advance_pixels(
 
     Per pixel ``i`` (raster order, ``x = i % width``): the intensity I (0-255) becomes ``L = lin_log(I)``; the
     low-pass state moves ``lp += eps * (L - lp)`` with ``eps = min(1, ((I + 20) / 275) * dt * 2 pi cutoff_hz)``
-    (``lp = L`` when ``cutoff_hz`` is 0); between the two frames the comparator sees ``lp`` on a straight line
+    (``lp = L`` when ``cutoff_hz`` is 0; ``eps = min(1, dt * 2 pi cutoff_hz)`` at every intensity when
+    ``fixed_cutoff``, a plain single-pole filter); between the two frames the comparator sees ``lp`` on a straight line
     and a reference that drifts down by ``leak_rate_hz[i] * on_thres[i] * dt`` (leak). An ON event fires where
     ``lp - ref`` reaches ``on_thres`` (then ``ref += on_thres``), an OFF event where ``ref - lp`` reaches
     ``off_thres`` (then ``ref -= off_thres``), each at its own interpolated time (ESIM). Shot noise fires as a
@@ -177,6 +178,8 @@ def advance_pixels(
         Sensor width (pixel ``i`` is at ``x = i % width``, ``y = i // width``).
     cutoff_hz : float
         Photoreceptor cutoff at full intensity; 0 disables the low-pass.
+    fixed_cutoff : bool
+        The cutoff does not fall with intensity (a plain single-pole low-pass instead of v2e's).
     refractory_us : int
         Refractory period; 0 disables it.
     on_thres, off_thres : ndarray of float32; leak_rate_hz, shot_rate_hz, hot_rate_hz : ndarray of float64
@@ -215,6 +218,7 @@ def advance_pixels(
     dt_s = dt_us * 1e-6
     lowpass_gain = dt_s * 2.0 * math.pi * cutoff_hz
     lowpass = cutoff_hz > 0.0
+    fixed_eps = min(1.0, lowpass_gain)
     # 8-bit frames: per-level tables instead of a log and a division per pixel (same expressions, same bits)
     log_table, gain_table = _level_tables(lowpass_gain)
     shot_slope = (1.0 - SHOT_NOISE_FULL_SCALE_FACTOR) / 255.0
@@ -227,7 +231,7 @@ def advance_pixels(
         intensity, log_now = _pixel_log(frame, at, log_table)
         lp_start = lp_log[at]
         if lowpass:
-            eps = _pixel_gain(frame, at, intensity, gain_table, lowpass_gain)
+            eps = fixed_eps if fixed_cutoff else _pixel_gain(frame, at, intensity, gain_table, lowpass_gain)
             lp_end = lp_start + eps * (log_now - lp_start)
         else:
             lp_end = log_now

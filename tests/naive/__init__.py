@@ -117,7 +117,8 @@ class NaiveDvsSensor:
     """
 
     def __init__(self, width, height, on, off, leak_rate_hz, leak_phase, shot_rate_hz, hot_rate_hz,
-                 shot_budget, hot_budget, shot_key, hot_key, cutoff_hz, refractory_us) -> None:
+                 shot_budget, hot_budget, shot_key, hot_key, cutoff_hz, refractory_us,
+                 fixed_cutoff=False) -> None:
         self.width, self.height = width, height
         n = width * height
         self.on = [float(v) for v in on.reshape(-1)]
@@ -130,6 +131,7 @@ class NaiveDvsSensor:
         self.hot_budget = [float(v) for v in hot_budget.reshape(-1)]
         self.shot_key, self.hot_key = int(shot_key), int(hot_key)
         self.cutoff_hz, self.refractory_us = float(cutoff_hz), int(refractory_us)
+        self.fixed_cutoff = bool(fixed_cutoff)
         self.lp = [0.0] * n
         self.ref = [0.0] * n
         self.last = [None] * n
@@ -160,7 +162,10 @@ class NaiveDvsSensor:
         target = naive_lin_log(intensity)
         lp0 = self.lp[i]
         if self.cutoff_hz > 0:
-            eps = min(1.0, (intensity + 20.0) / 275.0 * (dt_s * 2.0 * math.pi * self.cutoff_hz))
+            if self.fixed_cutoff:  # a plain single-pole filter
+                eps = min(1.0, dt_s * 2.0 * math.pi * self.cutoff_hz)
+            else:  # v2e: the bandwidth falls with intensity
+                eps = min(1.0, (intensity + 20.0) / 275.0 * (dt_s * 2.0 * math.pi * self.cutoff_hz))
             lp1 = lp0 + eps * (target - lp0)
         else:
             lp1 = target
@@ -229,7 +234,7 @@ def simulate_naive(simulator, frames) -> list[tuple[int, int, int, bool, int]]:
     sensor = NaiveDvsSensor(
         sim.width, sim.height, sim.on_thres, sim.off_thres, sim._leak_rate_hz, sim._leak_phase, sim._shot_rate_hz,
         sim._hot_rate_hz, sim._shot_budget, sim._hot_budget, sim._shot_key, sim._hot_key,
-        sim.parameters["cutoff_hz"], sim.parameters["refractory_us"],
+        sim.parameters["cutoff_hz"], sim.parameters["refractory_us"], sim.parameters["fixed_cutoff"],
     )
     for t_us, frame in frames:
         sensor.frame(int(t_us), frame)
