@@ -11,7 +11,7 @@ import numpy as np
 
 from evtools.events import CHUNK_EVENTS, StreamChecker, StreamInfo
 from formats.errors import FormatError
-from formats.io import STDIO, Source, output_stream, same_file
+from formats.io import STDIO, Source, WriteBehind, output_stream, read_ahead, same_file
 from formats.registry import FORMATS, PIPE_FORMAT, ReadOptions, WriteOptions, by_name, detect, from_extension
 
 __all__ = ["FORMATS", "EventStream", "FormatError", "ReadOptions", "WriteOptions", "create_events", "open_events"]
@@ -31,6 +31,9 @@ class EventStream:
         self.checker = StreamChecker(self.info, self.name) if check else None
 
     def __iter__(self) -> Iterator[np.ndarray]:
+        return read_ahead(self._chunks())
+
+    def _chunks(self) -> Iterator[np.ndarray]:
         for chunk in self.reader:
             if len(chunk) == 0:
                 continue
@@ -143,7 +146,7 @@ def create_events(
     writer_class = fmt.writer_class()
     target = "<stdout>" if path is None or os.fspath(path) == STDIO else os.fspath(path)
     with output_stream(path, binary_name=fmt.description, needs_seek=fmt.writer_needs_seek) as stream:
-        writer = _NamedWriter(target, _named(target, writer_class, stream, info, options))
+        writer = WriteBehind(_NamedWriter(target, _named(target, writer_class, stream, info, options)))
         try:
             yield writer
         except BaseException:

@@ -8,7 +8,9 @@ import os
 import shutil
 import sys
 import tempfile
-from typing import BinaryIO, Iterator
+import threading
+from queue import Full, Queue
+from typing import BinaryIO, Iterable, Iterator
 
 from formats.errors import FormatError
 
@@ -185,3 +187,89 @@ def resolve_sensor_size(source: Source, from_file, sensor_size, scan=None) -> tu
         )
         return max(width, 1), max(height, 1)
     raise FormatError(f"{source.name}: the file does not store the sensor size; give --sensor-size WxH")
+
+
+_DONE = object()
+
+
+def read_ahead(items: Iterable, depth: int = 2) -> Iterator:
+    """The items of ``items``, produced by a background thread up to ``depth`` ahead of the consumer.
+
+    Reading and decoding then overlap the consumer's work on a second core (file reads, decompression and the
+    numba kernels release the GIL). An exception of the producer is raised in the consumer at its place in the
+    sequence; when the consumer stops early, the producer stops at its next item.
+    """
+    queue: Queue = Queue(maxsize=depth)
+    stop = threading.Event()
+
+    def put(entry) -> bool:
+        while not stop.is_set():
+            try:
+                queue.put(entry, timeout=0.05)
+                return True
+            except Full:
+                continue
+        return False
+
+    def produce() -> None:
+        try:
+            for item in items:
+                if not put((item, None)):
+                    return
+            put((_DONE, None))
+        except BaseException as error:  # handed to the consumer, raised there
+            put((_DONE, error))
+
+    thread = threading.Thread(target=produce, name="evtools-read-ahead", daemon=True)
+    thread.start()
+    try:
+        while True:
+            item, error = queue.get()
+            if error is not None:
+                raise error
+            if item is _DONE:
+                thread.join()
+                return
+            yield item
+    finally:
+        stop.set()
+
+
+class WriteBehind:
+    """A writer wrapper whose ``write`` hands chunks to a background thread (at most ``depth`` waiting), so that
+    encoding and writing overlap the producer's work; the thread's errors are raised by the next ``write`` or by
+    ``close``, which writes what is queued and then closes the writer."""
+
+    def __init__(self, writer, depth: int = 2) -> None:
+        self.writer = writer
+        self.queue: Queue = Queue(maxsize=depth)
+        self.error: BaseException | None = None
+        self.thread = threading.Thread(target=self._consume, name="evtools-write-behind", daemon=True)
+        self.thread.start()
+
+    def _consume(self) -> None:
+        while True:
+            chunk = self.queue.get()
+            if chunk is _DONE:
+                return
+            if self.error is None:
+                try:
+                    self.writer.write(chunk)
+                except BaseException as error:  # raised in the producer's thread
+                    self.error = error
+
+    def _raise(self) -> None:
+        if self.error is not None:
+            error, self.error = self.error, None
+            raise error
+
+    def write(self, chunk) -> None:
+        self._raise()
+        self.queue.put(chunk)
+
+    def close(self) -> None:
+        if self.thread.is_alive():
+            self.queue.put(_DONE)
+            self.thread.join()
+        self._raise()
+        self.writer.close()
