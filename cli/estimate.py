@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import click
 
 from cli.options import read_options
@@ -17,6 +19,8 @@ from evtools.estimate import (
 )
 from formats import open_events
 from formats.thresholds import ThresholdMap, write_thresholds
+
+DEFAULT_LEVELS = (50.0, 200.0)
 
 
 def _duration_us(ctx, param, value):
@@ -40,64 +44,90 @@ def _duration_us(ctx, param, value):
 
 
 def _levels(ctx, param, value):
+    if value is None:
+        return None
     try:
         low, high = (float(v) for v in value.split(","))
     except ValueError:
         raise click.BadParameter(f"{value!r} is not LOW,HIGH (e.g. 50,200)") from None
-    if not 0 <= low < high <= 255:
-        raise click.BadParameter(f"need 0 <= LOW < HIGH <= 255, got {value!r}")
+    if not low < high or not all(map(math.isfinite, (low, high))):
+        raise click.BadParameter(f"need LOW < HIGH, got {value!r}")
     return low, high
+
+
+def _stimulus(levels, period_us, profile, amplitude, speed, wavelength) -> Stimulus:
+    """The stimulus the options describe (click usage errors for contradictory ones)."""
+    if (speed is None) != (wavelength is None):
+        raise click.UsageError("a moving stimulus needs both --stimulus-speed and --stimulus-wavelength")
+    if amplitude is not None:
+        if levels is not None or profile == "intensity":
+            raise click.UsageError("--stimulus-amplitude is a triangle linear in log intensity: give it without "
+                                   "--stimulus-levels and --stimulus-profile intensity")
+        levels, profile = (0.0, amplitude), "log"
+    profile = profile or "intensity"
+    if levels is None:
+        if profile == "log":
+            raise click.UsageError("--stimulus-profile log needs --stimulus-amplitude A or --stimulus-levels L0,L1 "
+                                   "(log units)")
+        levels = DEFAULT_LEVELS
+    if profile == "intensity" and not 0 <= levels[0] < levels[1] <= 255:
+        raise click.BadParameter(f"intensities need 0 <= LOW < HIGH <= 255, got {levels[0]:g},{levels[1]:g}",
+                                 param_hint="--stimulus-levels")
+    if speed is not None:
+        return Stimulus.moving(*levels, speed, wavelength, profile)
+    return Stimulus(*levels, period_us, 0.0, profile)
 
 
 @click.command()
 @read_options
 @click.option(
-    "-o", "--output", required=True, metavar="THRESHOLDS.h5", type=click.Path(dir_okay=False),
-    help="Thresholds file to write (HDF5: on, off, valid maps and the parameters).",
+    "-o", "--output", default=None, metavar="THRESHOLDS.h5", type=click.Path(dir_okay=False),
+    help="Thresholds file to write (HDF5: on, off, valid maps and the parameters); required.",
 )
 @click.option("--method", type=click.Choice(METHODS), default="offe", show_default=True,
-              help="offe: Wang et al.'s events-only least squares; stimulus: the known calibration stimulus "
-                   "(absolute, exact for an ideal pixel); ramps: events-only counts per complete ramp.")
+              help="offe: Wang et al.'s events-only least squares (relative, scaled by --nominal); stimulus: the "
+                   "known calibration stimulus (absolute, exact for an ideal pixel).")
 @click.option("--segment-us", type=click.IntRange(min=1), default=DEFAULT_SEGMENT_US, show_default=True,
               help="offe: segment length, microseconds.")
 @click.option("--nominal", type=click.FloatRange(min=0, min_open=True), default=DEFAULT_NOMINAL, show_default=True,
-              help="offe, ramps: the median pixel's threshold (log units); events alone do not give the scale.")
+              help="offe: the median pixel's threshold (log units); events alone do not give the scale.")
 @click.option("--min-events", type=click.IntRange(min=1), default=DEFAULT_MIN_EVENTS, show_default=True,
               help="Pixels with fewer events are marked invalid (and get the median).")
-@click.option("--stimulus-levels", callback=_levels, default="50,200", show_default=True, metavar="LOW,HIGH",
-              help="stimulus: darkest and brightest intensity, 0-255 (simulate's --min-level, --max-level).")
+@click.option("--stimulus-amplitude", type=click.FloatRange(min=0, min_open=True), default=None, metavar="A",
+              help="stimulus: a triangle linear in log intensity, A log units peak to peak (the same as "
+                   "--stimulus-profile log --stimulus-levels 0,A; the base level does not matter).")
+@click.option("--stimulus-levels", callback=_levels, default=None, metavar="LOW,HIGH",
+              help="stimulus: the triangle's ends: intensities 0-255 (profile intensity, default 50,200: "
+                   "simulate's --min-level, --max-level) or log intensities (profile log).")
 @click.option("--stimulus-period", callback=_duration_us, default="500ms", show_default=True, metavar="TIME",
               help="stimulus: time of one rise and fall (flicker; simulate's --period).")
-@click.option("--stimulus-profile", type=click.Choice(["intensity", "log"]), default="intensity", show_default=True,
-              help="stimulus: the triangle is linear in intensity (simulate's scenes) or in log intensity.")
+@click.option("--stimulus-profile", type=click.Choice(["intensity", "log"]), default=None,
+              help="stimulus: the triangle is linear in intensity (default; simulate's scenes) or in log intensity.")
 @click.option("--stimulus-speed", type=click.FloatRange(min=0, min_open=True), default=None, metavar="PX/S",
               help="stimulus: a moving gradient's speed (simulate's --speed); with --stimulus-wavelength it "
                    "replaces --stimulus-period.")
 @click.option("--stimulus-wavelength", type=click.FloatRange(min=0, min_open=True), default=None, metavar="PX",
               help="stimulus: a moving gradient's rise-and-fall length (simulate's --wavelength).")
 def estimate(input, input_format, sensor_size, aedat2_layout, output, method, segment_us, nominal, min_events,
-             stimulus_levels, stimulus_period, stimulus_profile, stimulus_speed, stimulus_wavelength):
+             stimulus_amplitude, stimulus_levels, stimulus_period, stimulus_profile, stimulus_speed,
+             stimulus_wavelength):
     """Estimate every pixel's ON and OFF contrast thresholds from IN (default stdin), streaming, into -o FILE.
 
     \b
     evtools estimate flicker.aedat4 -o thresholds.h5                       # offE, 10 ms segments
     evtools estimate flicker.aedat4 -o t.h5 --method stimulus --stimulus-levels 50,200 --stimulus-period 500ms
+    evtools estimate monitor.aedat4 -o t.h5 --method stimulus --stimulus-amplitude 1.5 --stimulus-period 2s
     evtools estimate gradient.aedat4 -o t.h5 --method stimulus --stimulus-speed 50 --stimulus-wavelength 64
-    evtools bafilter noisy.aedat4 | evtools estimate - -o t.h5 --method ramps
+    evtools bafilter noisy.aedat4 --method stcf --k 1 --dt-us 100000 | evtools estimate - -o t.h5 --method stimulus
     """
-    if output == "-":
-        raise click.BadParameter("the thresholds file is HDF5 and needs a real file, not stdout", param_hint="-o")
-    if (stimulus_speed is None) != (stimulus_wavelength is None):
-        raise click.UsageError("a moving stimulus needs both --stimulus-speed and --stimulus-wavelength")
+    if output is None or output == "-":
+        raise EstimationError("the thresholds file is HDF5 and cannot go to stdout: give -o THRESHOLDS.h5")
+    stimulus = None
+    if method == "stimulus":
+        stimulus = _stimulus(stimulus_levels, stimulus_period, stimulus_profile, stimulus_amplitude, stimulus_speed,
+                             stimulus_wavelength)
     with open_events(input, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as stream:
         try:
-            stimulus = None
-            if method == "stimulus":
-                low, high = stimulus_levels
-                if stimulus_speed is not None:
-                    stimulus = Stimulus.moving(low, high, stimulus_speed, stimulus_wavelength, stimulus_profile)
-                else:
-                    stimulus = Stimulus(low, high, stimulus_period, 0.0, stimulus_profile)
             estimator = ThresholdEstimator(
                 stream.info.width, stream.info.height, method, nominal=nominal, segment_us=segment_us,
                 stimulus=stimulus, min_events=min_events,

@@ -8,15 +8,13 @@ Methods (``../shared/ALGORITHMS.md`` section 4):
   relative thresholds scaled by a nominal value.
 - ``stimulus``: the calibration stimulus is known (the flicker or moving-gradient scene); thresholds in absolute
   log units, exact for an ideal pixel.
-- ``ramps``: events only, for a stimulus that sweeps every pixel over the same log-intensity range (flicker,
-  gradient): event counts of complete ramps, corrected for the threshold hysteresis at turn-arounds.
 
 References
 ----------
 Z. Wang, Y. Ng, P. van Goor, R. Mahony, "Event Camera Calibration of Per-pixel Biased Contrast Threshold",
 Australasian Conference on Robotics and Automation (ACRA), 2019. Code: github.com/ziweiWWANG/Event-Camera-Calibration.
 Y. Nozaki, T. Delbruck, "Temperature and Parasitic Photocurrent Effects in Dynamic Vision Sensors",
-IEEE Transactions on Electron Devices 64(8), 2017 (thresholds from event counts per cycle of a known contrast).
+IEEE Transactions on Electron Devices 64(8), 2017 (thresholds from a known contrast: the stimulus method).
 """
 
 from __future__ import annotations
@@ -34,17 +32,22 @@ from evtools._kernels.estimate import (
     PROFILE_INTENSITY,
     PROFILE_LOG,
     SEED_PAIRS,
+    ST_EVENTS,
+    ST_PAIRS,
+    ST_REF,
+    ST_SIZE,
+    ST_SUM,
     SUM_E,
     SUM_EE,
     SUM_EP,
     SUM_P,
     SUM_PP,
-    count_events,
     offe_accumulate,
     offe_finish,
-    ramps_accumulate,
     stimulus_accumulate,
+    stimulus_table,
 )
+from evtools._kernels.pixel import LIN_LOG_KNEE, LIN_LOG_SLOPE
 from evtools.errors import EvtoolsError
 from evtools.events import check_sensor_size, empty_events
 
@@ -57,7 +60,7 @@ __all__ = [
     "estimate_thresholds",
 ]
 
-METHODS = ("offe", "stimulus", "ramps")
+METHODS = ("offe", "stimulus")
 """The estimation methods, by name."""
 
 DEFAULT_NOMINAL = 0.2
@@ -71,10 +74,18 @@ RCOND_LIMIT = 1e-14
 """offE: a fit whose normal matrix has a reciprocal condition number below this is singular (the reference's)."""
 MAX_SCALE_FACTOR = 10.0
 """offE: ``c > 10 * nominal`` is unrealistic and left invalid (the reference replaces it by the nominal value)."""
+MAX_TABLE_US = 1 << 21
+"""stimulus: a flicker whose period is a whole number of microseconds up to this (2.1 s, a 16 MB table) is
+tabulated at 1 us over one period; longer periods compute L per event (the same values, slower)."""
 
 
 class EstimationError(EvtoolsError, ValueError):
     """Threshold estimation cannot run on these parameters or this stream."""
+
+
+def lin_log(intensity: float) -> float:
+    """The simulator's log intensity: linear below the knee (20), ``log`` above (``evtools._kernels.pixel``)."""
+    return intensity * LIN_LOG_SLOPE if intensity <= LIN_LOG_KNEE else math.log(intensity)
 
 
 @dataclass(frozen=True)
@@ -84,7 +95,8 @@ class Stimulus:
     Parameters
     ----------
     low, high : float
-        The darkest and brightest intensity (0-255, the scale of ``evtools simulate``).
+        The stimulus's lowest and highest value: intensities (0-255, the scale of ``evtools simulate``) for the
+        ``intensity`` profile, log intensities (any real numbers) for the ``log`` profile.
     period_us : float
         Time of one full rise and fall, microseconds.
     wavelength_px : float
@@ -92,11 +104,14 @@ class Stimulus:
         ``wavelength_px`` columns and moves right by one wavelength per period, so column x's stimulus is
         delayed by ``(x + 0.5) / wavelength_px`` periods.
     profile : {"intensity", "log"}
-        What the triangle is linear in: intensity (``evtools simulate``'s scenes) or log intensity.
+        What the triangle is linear in: intensity (``evtools simulate``'s scenes; L = lin_log(I)) or log
+        intensity (L itself goes from ``low`` to ``high``).
 
     Notes
     -----
-    The stimulus starts at t = 0 at its low level (phase 0), as the simulator's scenes do.
+    The stimulus starts at t = 0 at its low level (phase 0), as the simulator's scenes do. For the ``log``
+    profile only the amplitude ``high - low`` matters: thresholds are differences of L, so a base level
+    ``L0`` cancels (:meth:`log_triangle` takes 0; any other base gives the same thresholds to rounding, ~1e-15).
     """
 
     low: float = 50.0
@@ -106,14 +121,23 @@ class Stimulus:
     profile: str = "intensity"
 
     def __post_init__(self) -> None:
-        if not (0.0 <= self.low < self.high) or not math.isfinite(self.high):
-            raise EstimationError(f"stimulus levels must satisfy 0 <= low < high, got {self.low}, {self.high}")
+        if self.profile not in ("intensity", "log"):
+            raise EstimationError(f"stimulus profile must be intensity or log, got {self.profile!r}")
+        finite = math.isfinite(self.low) and math.isfinite(self.high)
+        if not finite or not self.low < self.high or (self.profile == "intensity" and self.low < 0):
+            floor = "0 <= " if self.profile == "intensity" else ""
+            raise EstimationError(f"stimulus levels must satisfy {floor}low < high, got {self.low}, {self.high}")
         if not self.period_us > 0 or not math.isfinite(self.period_us):
             raise EstimationError(f"stimulus period must be positive, got {self.period_us} us")
         if not self.wavelength_px >= 0 or not math.isfinite(self.wavelength_px):
             raise EstimationError(f"stimulus wavelength must be >= 0 pixels, got {self.wavelength_px}")
-        if self.profile not in ("intensity", "log"):
-            raise EstimationError(f"stimulus profile must be intensity or log, got {self.profile!r}")
+
+    @classmethod
+    def log_triangle(cls, amplitude: float, period_us: float, wavelength_px: float = 0.0) -> Stimulus:
+        """A triangle linear in log intensity with peak-to-peak ``amplitude`` (log units): L from 0 to amplitude."""
+        if not amplitude > 0 or not math.isfinite(amplitude):
+            raise EstimationError(f"stimulus amplitude must be positive (log units), got {amplitude}")
+        return cls(0.0, float(amplitude), period_us, wavelength_px, "log")
 
     @classmethod
     def moving(cls, low: float, high: float, speed_px_s: float, wavelength_px: float, profile: str = "intensity"):
@@ -124,10 +148,18 @@ class Stimulus:
             )
         return cls(low, high, 1e6 * wavelength_px / speed_px_s, wavelength_px, profile)
 
+    @property
+    def log_amplitude(self) -> float:
+        """Peak-to-peak amplitude of L (log units)."""
+        if self.profile == "log":
+            return self.high - self.low
+        return lin_log(self.high) - lin_log(self.low)
+
     def as_dict(self) -> dict[str, Any]:
         return {
             "stimulus_low": self.low, "stimulus_high": self.high, "stimulus_period_us": self.period_us,
             "stimulus_wavelength_px": self.wavelength_px, "stimulus_profile": self.profile,
+            "stimulus_log_amplitude": self.log_amplitude,
         }
 
 
@@ -155,7 +187,7 @@ class ThresholdEstimator:
     ----------
     width, height : int
         Sensor size.
-    method : {"offe", "stimulus", "ramps"}
+    method : {"offe", "stimulus"}
         ``offe``: Wang et al.'s offE exactly as ``EventOnlyCalib.m``: the stream is cut into segments of
         ``segment_us``; per pixel, the cumulative polarity sum P_k and event count E_k at each segment end are
         fitted by least squares ``P = m E + d``; r = RMS residual; ``c = nominal * median(r) / r``, ``b = -c m``,
@@ -165,15 +197,8 @@ class ThresholdEstimator:
         that follow another event of the pixel, ``off`` likewise for OFF; absolute, ``nominal`` unused. Exact
         for an ideal pixel, whose reference is L at its previous event, so turn-arounds need no special case.
         Invalid: fewer than ``min_events`` events or no ON or no OFF pair.
-        ``ramps``: events only, when every pixel is swept over the same log range A (flicker, gradient). A
-        complete run of one polarity (between two polarity reversals) is one ramp; an ON ramp starting after
-        an OFF event at ``L_min + u theta_off`` holds ``floor((A - u theta_off) / theta_on)`` events, on
-        average ``(A - theta_off / 2) / theta_on - 1 / 2`` (the hysteresis at the turn-around). With the mean
-        counts per complete ramp n_on, n_off: ``(n_on + 1/2) on + off / 2 = A`` and
-        ``on / 2 + (n_off + 1/2) off = A``, solved per pixel; A is set so that the median of (on + off) / 2
-        is ``nominal``. Invalid: fewer than ``min_events`` events or no complete ON or OFF ramp.
     nominal : float
-        offE and ramps: the median pixel's threshold c (log units); the scale is not observable from events.
+        offE: the median pixel's threshold c (log units); the scale is not observable from events alone.
     segment_us : int
         offE: segment length, microseconds.
     stimulus : Stimulus
@@ -186,7 +211,7 @@ class ThresholdEstimator:
     Z. Wang, Y. Ng, P. van Goor, R. Mahony, "Event Camera Calibration of Per-pixel Biased Contrast Threshold",
     ACRA 2019 (offE, its equations 8-12).
     Y. Nozaki, T. Delbruck, "Temperature and Parasitic Photocurrent Effects in Dynamic Vision Sensors", IEEE
-    Trans. Electron Devices, 2017 (counting events per cycle of a known contrast: ramps).
+    Trans. Electron Devices, 2017 (thresholds measured against a known contrast stimulus: stimulus).
     """
 
     def __init__(
@@ -221,34 +246,29 @@ class ThresholdEstimator:
         self.events = 0
         self.t_first_us: int | None = None
         self.t_last_us: int | None = None
-        self._counts = np.zeros((2, n), dtype=np.int64)  # ON, OFF events per pixel
         self._finished = False
         if method == "offe":
-            self._cum_e = np.zeros(n, dtype=np.int64)
-            self._cum_p = np.zeros(n, dtype=np.int64)
+            self._cumulative = _aligned_zeros(n, 2, np.int64)  # per pixel (E, P) so far
             self._sums = np.zeros((5, n), dtype=np.int64)
             self._clock = np.zeros(OFFE_STATE_SIZE, dtype=np.int64)
-        elif method == "stimulus":
-            self._last_level = np.zeros(n, dtype=np.float64)
-            self._seen = np.zeros(n, dtype=np.bool_)
-            self._seeds = np.zeros((2, n, SEED_PAIRS), dtype=np.float64)
-            self._seed_counts = np.zeros((2, n), dtype=np.int64)
-            self._references = np.zeros((2, n), dtype=np.float64)
-            self._level_sums = np.zeros((2, n), dtype=np.float64)
-            self._pairs = np.zeros((2, n), dtype=np.int64)
         else:
-            self._run_polarity = np.full(n, -1, dtype=np.int8)
-            self._run_length = np.zeros(n, dtype=np.int64)
-            self._run_events = np.zeros((2, n), dtype=np.int64)
-            self._runs = np.zeros((2, n), dtype=np.int64)
+            self._state = _aligned_zeros(n, ST_SIZE, np.float64)
+            self._seeds = np.zeros((n, 2, SEED_PAIRS), dtype=np.float64)
+            s = stimulus
+            self._levels = (float(s.low), float(s.high), float(s.period_us), float(s.wavelength_px),
+                            PROFILE_LOG if s.profile == "log" else PROFILE_INTENSITY)
+            self._table = np.zeros(0, dtype=np.float64)
+            if s.wavelength_px == 0 and s.period_us == int(s.period_us) and s.period_us <= MAX_TABLE_US:
+                self._table = np.empty(int(s.period_us), dtype=np.float64)
+                a, b, period_us, _, profile = self._levels
+                stimulus_table(a, b, period_us, profile, self._table)
 
     @property
     def parameters(self) -> dict[str, Any]:
         """The method and its parameters (written as attributes of the thresholds file)."""
         parameters: dict[str, Any] = {"method": self.method, "min_events": self.min_events}
-        if self.method in ("offe", "ramps"):
-            parameters["nominal"] = self.nominal
         if self.method == "offe":
+            parameters["nominal"] = self.nominal
             parameters["segment_us"] = self.segment_us
         if self.method == "stimulus":
             parameters.update(self.stimulus.as_dict())
@@ -265,19 +285,10 @@ class ThresholdEstimator:
             self.t_first_us = int(t[0])
         self.t_last_us = int(t[-1])
         self.events += len(chunk)
-        count_events(x, y, p, self.width, self._counts)
         if self.method == "offe":
-            offe_accumulate(t, x, y, p, self.width, self.segment_us, self._cum_e, self._cum_p, self._sums, self._clock)
-        elif self.method == "stimulus":
-            s = self.stimulus
-            stimulus_accumulate(
-                t, x, y, p, self.width, float(s.low), float(s.high), float(s.period_us), float(s.wavelength_px),
-                PROFILE_LOG if s.profile == "log" else PROFILE_INTENSITY,
-                self._last_level, self._seen, self._seeds, self._seed_counts, self._references,
-                self._level_sums, self._pairs,
-            )
+            offe_accumulate(t, x, y, p, self.width, self.segment_us, self._cumulative, self._sums, self._clock)
         else:
-            ramps_accumulate(p, x, y, self.width, self._run_polarity, self._run_length, self._run_events, self._runs)
+            stimulus_accumulate(t, x, y, p, self.width, *self._levels, self._table, self._state, self._seeds)
         return empty_events()
 
     def flush(self) -> np.ndarray:
@@ -295,18 +306,14 @@ class ThresholdEstimator:
         """
         if not self.events:
             raise EstimationError("the stream has no events: nothing to estimate thresholds from")
-        total = self._counts.sum(axis=0)
-        enough = total >= self.min_events
         if self.method == "offe":
-            on, off, valid, extra = self._offe(enough)
-        elif self.method == "stimulus":
-            on, off, valid, extra = self._stimulus(enough)
+            on, off, valid, extra = self._offe(self._cumulative[:, 0] >= self.min_events)
         else:
-            on, off, valid, extra = self._ramps(enough)
+            on, off, valid, extra = self._stimulus(self._state[:, ST_EVENTS] >= self.min_events)
         if not valid.any():
             raise EstimationError(
                 f"no pixel could be estimated by {self.method} (fewer than {self.min_events} events or no usable "
-                "ramps everywhere): give a longer calibration stream or lower --min-events"
+                "pair of events everywhere): give a longer calibration stream or lower --min-events"
             )
         on_median = float(np.median(on[valid]))
         off_median = float(np.median(off[valid]))
@@ -334,7 +341,7 @@ class ThresholdEstimator:
                 "--segment-us"
             )
         if not self._finished:
-            offe_finish(self._cum_e, self._cum_p, self._sums, self._clock)
+            offe_finish(self._cumulative, self._sums, self._clock)
             self._finished = True
         k = float(self._clock[OFFE_SAMPLES])
         if k < 3:
@@ -355,39 +362,35 @@ class ThresholdEstimator:
 
     def _stimulus(self, enough):
         self._finished = True
-        # a polarity with fewer than SEED_PAIRS changes: the median of those it has
-        few = self._seed_counts < SEED_PAIRS
+        references = self._state[:, ST_REF:ST_REF + 2].T
+        level_sums = self._state[:, ST_SUM:ST_SUM + 2].T.copy()
+        pairs = self._state[:, ST_PAIRS:ST_PAIRS + 2].T.copy()
+        # a polarity with fewer than SEED_PAIRS changes (reference still -count): the median of those it has
+        few = references <= 0
         if few.any():
-            seeds = np.where(np.arange(SEED_PAIRS) < self._seed_counts[..., None], self._seeds, np.nan)
+            counts = -references[few]
+            seeds = self._seeds.transpose(1, 0, 2)[few]
+            seeds = np.where(np.arange(SEED_PAIRS) < counts[:, None], seeds, np.nan)
             with np.errstate(all="ignore"), warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)
-                medians = np.nanmedian(seeds[few], axis=-1)
-            self._level_sums[few] = np.nan_to_num(medians) * self._seed_counts[few]
-            self._pairs[few] = self._seed_counts[few]
-        pairs = self._pairs
+                medians = np.nanmedian(seeds, axis=-1)
+            level_sums[few] = np.nan_to_num(medians) * counts
+            pairs[few] = counts
         valid = enough & (pairs[0] > 0) & (pairs[1] > 0)
         with np.errstate(divide="ignore", invalid="ignore"):
-            on = self._level_sums[0] / pairs[0]
-            off = self._level_sums[1] / pairs[1]
+            on = level_sums[0] / pairs[0]
+            off = level_sums[1] / pairs[1]
         return on, off, valid, {}
 
-    def _ramps(self, enough):
-        self._finished = True
-        runs = self._runs
-        valid = enough & (runs[0] > 0) & (runs[1] > 0)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            n_on = self._run_events[0] / runs[0]
-            n_off = self._run_events[1] / runs[1]
-            det = (n_on + 0.5) * (n_off + 0.5) - 0.25
-            on = n_off / det  # for a sweep A = 1
-            off = n_on / det
-        valid &= np.isfinite(on) & np.isfinite(off) & (on > 0) & (off > 0)
-        if valid.any():
-            amplitude = self.nominal / float(np.median((on[valid] + off[valid]) / 2.0))
-            on, off = on * amplitude, off * amplitude
-        else:
-            amplitude = float("nan")
-        return on, off, valid, {"sweep": amplitude}
+
+def _aligned_zeros(rows: int, columns: int, dtype) -> np.ndarray:
+    """A zeroed (rows, columns) array whose rows start on 64-byte boundaries when a row is 16 or 64 bytes, so
+    that a pixel's state never straddles two cache lines."""
+    itemsize = np.dtype(dtype).itemsize
+    spare = 64 // itemsize
+    buffer = np.zeros(rows * columns + spare, dtype=dtype)
+    start = (-buffer.ctypes.data % 64) // itemsize
+    return buffer[start:start + rows * columns].reshape(rows, columns)
 
 
 def offe_fit(sums: np.ndarray, k: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -17,7 +17,7 @@ from evtools.events import StreamInfo
 from formats import create_events
 from formats.thresholds import read_thresholds
 from tests.helpers import assert_clean_error, cut, random_events, run
-from tests.naive.estimate import naive_offe, naive_ramps, naive_stimulus, robust_mean
+from tests.naive.estimate import naive_offe, naive_stimulus, robust_mean
 
 W, H = 32, 24
 FLICKER = Stimulus(50.0, 200.0, 500_000.0)
@@ -74,7 +74,8 @@ def test_offe_on_random_events_matches_the_reference():
     np.testing.assert_allclose(estimate.on[valid], on[valid], rtol=1e-6)
 
 
-@pytest.mark.parametrize("stimulus", [FLICKER, GRADIENT, Stimulus(30, 220, 300_000, 40.0, "log")])
+@pytest.mark.parametrize("stimulus", [FLICKER, GRADIENT, Stimulus(3.4, 5.4, 300_000, 40.0, "log"),
+                                      Stimulus(50, 200, 333_333.5)])
 def test_stimulus_matches_the_reference(gradient, stimulus):
     events, _ = gradient
     estimate = estimate_thresholds(events, W, H, "stimulus", stimulus=stimulus, min_events=1)
@@ -84,21 +85,67 @@ def test_stimulus_matches_the_reference(gradient, stimulus):
     for (x, y), (on, off) in changes.items():
         if on and off:
             assert estimate.valid[y, x]
-            assert estimate.on[y, x] == pytest.approx(robust_mean(on), rel=1e-6)
+            assert estimate.on[y, x] == pytest.approx(robust_mean(on), rel=1e-6)  # float32 maps
             assert estimate.off[y, x] == pytest.approx(robust_mean(off), rel=1e-6)
             checked += 1
     assert checked > W * H // 2
 
 
-def test_ramps_counts_match_the_reference(flicker):
+def test_flicker_table_gives_the_same_levels_as_the_formula(flicker, monkeypatch):
+    """The one-period table (no log per event) and the per-event formula agree bit for bit, over many periods."""
+    import evtools.estimate as module
+
     events, _ = flicker
-    estimator = ThresholdEstimator(W, H, "ramps")
-    estimator.process(events)
-    runs = naive_ramps(events, W, H)
-    for (x, y), (on_runs, off_runs) in runs.items():
-        i = y * W + x
-        assert estimator._runs[0, i] == len(on_runs) and estimator._runs[1, i] == len(off_runs)
-        assert estimator._run_events[0, i] == sum(on_runs) and estimator._run_events[1, i] == sum(off_runs)
+    tabulated = estimate_thresholds(events, W, H, "stimulus", stimulus=FLICKER)
+    monkeypatch.setattr(module, "MAX_TABLE_US", 0)
+    computed = estimate_thresholds(events, W, H, "stimulus", stimulus=FLICKER)
+    assert_same_estimate(tabulated, computed)
+
+
+def test_log_amplitude_base_level_does_not_matter():
+    """A log triangle of amplitude A: thresholds are differences of L, so L0..L0+A gives those of 0..A."""
+    events = ideal_log_events(amplitude=1.5, period_us=400_000, duration_us=1_600_000)[0]
+    base = estimate_thresholds(events, 8, 6, "stimulus", stimulus=Stimulus.log_triangle(1.5, 400_000))
+    for level in (-2.0, 4.0):
+        shifted = estimate_thresholds(events, 8, 6, "stimulus", stimulus=Stimulus(level, level + 1.5, 400_000, 0, "log"))
+        np.testing.assert_array_equal(shifted.valid, base.valid)
+        np.testing.assert_allclose(shifted.on, base.on, rtol=1e-6)
+        np.testing.assert_allclose(shifted.off, base.off, rtol=1e-6)
+
+
+def ideal_log_events(amplitude, period_us, duration_us, width=8, height=6, seed=1):
+    """An ideal pixel (reference = L at its last event) under a log triangle 0..amplitude; per-pixel thresholds
+    0.2 +/- 0.03; event times are the exact crossing times rounded to the microsecond."""
+    rng = np.random.default_rng(seed)
+    on = np.clip(0.2 + 0.03 * rng.standard_normal((height, width)), 0.1, None)
+    off = np.clip(0.2 + 0.03 * rng.standard_normal((height, width)), 0.1, None)
+    slope = 2 * amplitude / period_us  # L per microsecond on either ramp
+    rows = []
+    for yy in range(height):
+        for xx in range(width):
+            reference = 0.0
+            for ramp in range(int(np.ceil(2 * duration_us / period_us))):
+                start, rising = ramp * period_us / 2, ramp % 2 == 0
+                while True:
+                    target = reference + on[yy, xx] if rising else reference - off[yy, xx]
+                    if not 0 <= target <= amplitude:
+                        break
+                    time_us = start + (target if rising else amplitude - target) / slope
+                    if time_us >= duration_us:
+                        break
+                    rows.append((round(time_us), xx, yy, rising))
+                    reference = target
+    rows.sort(key=lambda r: r[0])
+    t, x, y, p = zip(*rows)
+    return make_events(np.array(t), np.array(x), np.array(y), np.array(p)), on, off
+
+
+def test_stimulus_amplitude_is_exact_on_an_ideal_pixel():
+    events, on, off = ideal_log_events(amplitude=1.5, period_us=400_000, duration_us=1_600_000)
+    estimate = estimate_thresholds(events, 8, 6, "stimulus", stimulus=Stimulus.log_triangle(1.5, 400_000))
+    assert estimate.valid.all()
+    assert np.max(np.abs(estimate.on - on) / on) < 1e-3
+    assert np.max(np.abs(estimate.off - off) / off) < 1e-3
 
 
 # -- chunking and pixel order ----------------------------------------------------------------------------------
@@ -114,17 +161,19 @@ def _estimate_chunked(events, method, parts, **parameters):
 
 @settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(cuts=st.lists(st.integers(min_value=0, max_value=10**9), max_size=6),
-       method=st.sampled_from(["offe", "stimulus", "ramps"]))
+       method=st.sampled_from(["offe", "stimulus", "gradient"]))
 def test_chunking_does_not_change_the_estimate(flicker, cuts, method):
     events, _ = flicker
-    parameters = {"stimulus": FLICKER} if method == "stimulus" else {"segment_us": 3_000}
+    parameters = {"offe": {"segment_us": 3_000}, "stimulus": {"stimulus": FLICKER},
+                  "gradient": {"stimulus": GRADIENT}}[method]
+    method = "stimulus" if method == "gradient" else method
     whole = _estimate_chunked(events, method, [events], **parameters)
     chunked = _estimate_chunked(events, method, cut(events, cuts), **parameters)
     assert_same_estimate(chunked, whole)
     assert chunked.attributes == whole.attributes
 
 
-@pytest.mark.parametrize("method", ["offe", "stimulus", "ramps"])
+@pytest.mark.parametrize("method", ["offe", "stimulus"])
 def test_estimate_does_not_depend_on_the_order_of_pixels(flicker, method):
     events, _ = flicker
     rng = np.random.default_rng(5)
@@ -144,7 +193,7 @@ def test_estimate_does_not_depend_on_the_order_of_pixels(flicker, method):
 # -- validity, exactness, accuracy -----------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("method", ["offe", "stimulus", "ramps"])
+@pytest.mark.parametrize("method", ["offe", "stimulus"])
 def test_dead_pixels_are_invalid_and_get_the_median(method):
     events, simulator = simulate("flicker", 16, 12, dead_pixel_fraction=0.1, seed=2)
     dead = simulator.dead_pixels
@@ -169,7 +218,7 @@ def test_stimulus_is_exact_on_an_ideal_pixel(scene, stimulus, flicker, gradient)
 def test_best_method_within_2_percent_and_offe_beats_a_constant_guess(scene, stimulus, flicker, gradient):
     events, simulator = flicker if scene == "flicker" else gradient
     best = min(max(rel_rmse(estimate_thresholds(events, W, H, m, stimulus=stimulus), simulator))
-               for m in ("offe", "stimulus", "ramps"))
+               for m in ("offe", "stimulus"))
     assert best <= 0.02
     offe = rel_rmse(estimate_thresholds(events, W, H, "offe"), simulator)
     constant = ThresholdEstimateLike(np.full((H, W), 0.2), np.full((H, W), 0.2), np.ones((H, W), bool))
@@ -186,8 +235,12 @@ def test_parameters_are_checked():
     for kwargs in ({"method": "nope"}, {"nominal": 0}, {"segment_us": 0}, {"min_events": 0}, {"method": "stimulus"}):
         with pytest.raises(EstimationError):
             ThresholdEstimator(W, H, **kwargs)
+    for bad in ((200, 50, 1000), (-1, 50, 1000), (0, 1, 0), (0, 1, 1000, -1), (1, 2, 1000, 0, "gamma")):
+        with pytest.raises(EstimationError):
+            Stimulus(*bad)
+    Stimulus(-3, -1, 1000, 0, "log")  # log levels may be negative
     with pytest.raises(EstimationError):
-        Stimulus(200, 50, 1000)
+        Stimulus.log_triangle(0, 1000)
     with pytest.raises(EstimationError):
         estimate_thresholds(empty_events(), W, H)
 
@@ -230,11 +283,34 @@ def test_cli_errors(tmp_path, flicker):
                        "longer than the stream")
     assert_clean_error(run("estimate", tmp_path / "f.aedat4", "-o", out, "--segment-us", "1500000", check=False),
                        "segments")
+    assert_clean_error(run("estimate", tmp_path / "empty.aedat4", "-o", out, "--method", "stimulus", check=False),
+                       "no events")
+    for args in (["-o", "-"], []):  # HDF5 needs a file: one line, before reading anything
+        assert_clean_error(run("estimate", tmp_path / "f.aedat4", *args, check=False), "-o THRESHOLDS.h5")
     assert not out.exists()
-    for args in (["-o", "-"], [], ["-o", out, "--stimulus-levels", "9"], ["-o", out, "--stimulus-speed", "5"]):
+    stimulus = ["-o", out, "--method", "stimulus"]
+    for args in (["-o", out, "--stimulus-levels", "9"], stimulus + ["--stimulus-speed", "5"],
+                 stimulus + ["--stimulus-amplitude", "1", "--stimulus-levels", "0,1"],
+                 stimulus + ["--stimulus-amplitude", "1", "--stimulus-profile", "intensity"],
+                 stimulus + ["--stimulus-profile", "log"], stimulus + ["--stimulus-levels", "50,300"],
+                 stimulus + ["--stimulus-amplitude", "0"]):
         result = run("estimate", tmp_path / "f.aedat4", *args, check=False)
-        assert result.returncode == 2 and result.stdout == b""
+        assert result.returncode == 2 and result.stdout == b"", args
     assert not out.exists()
+
+
+def test_cli_stimulus_amplitude(tmp_path):
+    events, on, off = ideal_log_events(amplitude=1.5, period_us=400_000, duration_us=1_600_000)
+    write_stream(tmp_path / "log.aedat4", events, 8, 6)
+    for name, args in (("a", ["--stimulus-amplitude", "1.5"]),
+                       ("l", ["--stimulus-profile", "log", "--stimulus-levels", "2,3.5"])):
+        run("estimate", tmp_path / "log.aedat4", "-o", tmp_path / f"{name}.h5", "--method", "stimulus",
+            "--stimulus-period", "400ms", *args)
+    a, levels = read_thresholds(str(tmp_path / "a.h5")), read_thresholds(str(tmp_path / "l.h5"))
+    np.testing.assert_allclose(a.on, on, rtol=1e-3)
+    np.testing.assert_allclose(levels.off, a.off, rtol=1e-6)
+    with h5py.File(tmp_path / "a.h5") as h5:
+        assert h5.attrs["stimulus_profile"] == "log" and h5.attrs["stimulus_log_amplitude"] == 1.5
 
 
 def test_with_noise_and_bafilter_first_the_best_method_stays_within_3_percent(tmp_path):
@@ -246,12 +322,13 @@ def test_with_noise_and_bafilter_first_the_best_method_stays_within_3_percent(tm
         noisy, truth, kept = tmp_path / f"{scene}.aedat4", tmp_path / f"{scene}.h5", tmp_path / f"{scene}.f.aedat4"
         run("simulate", f"scene:{scene}", "--size", "32x24", "--duration", "2s", "--sigma-thres", "0.03",
             "--leak-rate-hz", "0.1", "--shot-noise-rate-hz", "1", "--seed", "0", "--truth", truth, "-o", noisy)
-        filtered = run("bafilter", noisy, "-o", kept, "--method", "baf", "--dt-us", "50000", check=False)
+        filtered = run("bafilter", noisy, "-o", kept, "--method", "stcf", "--k", "1", "--dt-us", "100000",
+                       check=False)
         if filtered.returncode != 0:
             pytest.skip(f"evtools bafilter is not available: {filtered.stderr.decode().strip()}")
         true = read_thresholds(str(truth))
         best = 1.0
-        for method in ("offe", "stimulus", "ramps"):
+        for method in ("offe", "stimulus"):
             out = tmp_path / f"{scene}.{method}.h5"
             run("estimate", kept, "-o", out, "--method", method, *stimulus_args)
             estimate = read_thresholds(str(out))

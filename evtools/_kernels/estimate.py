@@ -1,18 +1,18 @@
 """Threshold-estimation kernels: per-pixel sums accumulated event by event, in O(pixels) memory.
 
-Three accumulators, one per method of :mod:`evtools.estimate` (``tests/naive/estimate.py`` holds the pure-Python
+Two accumulators, one per method of :mod:`evtools.estimate` (``tests/naive/estimate.py`` holds the pure-Python
 references):
 
 - :func:`offe_accumulate` (Wang et al. 2019, offE): each pixel's cumulative event count E and polarity sum P since
   the start, sampled at every segment boundary; instead of storing the samples, the sums the least-squares fit
   ``P = m E + d`` needs (K, sum E, sum P, sum E^2, sum EP, sum P^2) are accumulated in exact integers.
-- :func:`stimulus_accumulate`: the known stimulus ``L(t)`` evaluated at each event; a pixel's consecutive events
-  differ by exactly one threshold in L, summed per polarity.
-- :func:`ramps_accumulate`: per pixel, the events of each complete run of one polarity (a ramp between two
-  polarity reversals), counted per polarity with the number of complete runs.
+- :func:`stimulus_accumulate`: the known stimulus ``L(t)`` at each event (from a one-period table for a flicker:
+  no logarithm per event); a pixel's consecutive events differ by exactly one threshold in L, summed per polarity.
 
 Every kernel visits the events in stream order and updates only the state of the event's pixel (offE also every
-pixel at a segment boundary), so chunking cannot change the sums.
+pixel at a segment boundary); L is a function of (t, x) alone, so chunking cannot change the sums. Each event
+touches one row of per-pixel state (16 or 64 bytes), not one entry in each of several arrays: with random pixel
+order the cache misses, not the arithmetic, set the speed.
 """
 
 from __future__ import annotations
@@ -40,11 +40,11 @@ PROFILE_LOG = 1
 
 
 @njit(cache=True, nogil=True)
-def _offe_sample(cum_e, cum_p, sums, times):  # pragma: no cover - compiled
+def _offe_sample(cumulative, sums, times):  # pragma: no cover - compiled
     """Add ``times`` identical samples of every pixel's cumulative (E, P) to the fit sums."""
-    for i in range(cum_e.shape[0]):
-        e = cum_e[i]
-        p = cum_p[i]
+    for i in range(cumulative.shape[0]):
+        e = cumulative[i, 0]
+        p = cumulative[i, 1]
         sums[SUM_E, i] += times * e
         sums[SUM_P, i] += times * p
         sums[SUM_EE, i] += times * e * e
@@ -53,13 +53,14 @@ def _offe_sample(cum_e, cum_p, sums, times):  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True)
-def offe_accumulate(t, x, y, p, width, segment_us, cum_e, cum_p, sums, state):  # pragma: no cover - compiled
+def offe_accumulate(t, x, y, p, width, segment_us, cumulative, sums, state):  # pragma: no cover - compiled
     """Feed events to the offE sums.
 
     Segments are ``[origin + k * segment_us, origin + (k + 1) * segment_us)`` from the first event's time. When
-    an event reaches a boundary, every pixel's cumulative count and polarity sum up to that boundary are sampled
-    once per boundary passed (a gap of several segments samples the same values several times, as the
-    reference's per-frame snapshots do), then the event is counted.
+    an event reaches a boundary, every pixel's cumulative count and polarity sum up to that boundary
+    (``cumulative[i] = (E, P)``, side by side so that an event touches one cache line) are sampled once per
+    boundary passed (a gap of several segments samples the same values several times, as the reference's
+    per-frame snapshots do), then the event is counted.
     """
     for k in range(t.shape[0]):
         tk = t[k]
@@ -69,73 +70,124 @@ def offe_accumulate(t, x, y, p, width, segment_us, cum_e, cum_p, sums, state):  
             state[OFFE_NEXT] = tk + segment_us
         if tk >= state[OFFE_NEXT]:
             passed = (tk - state[OFFE_NEXT]) // segment_us + 1
-            _offe_sample(cum_e, cum_p, sums, passed)
+            _offe_sample(cumulative, sums, passed)
             state[OFFE_SAMPLES] += passed
             state[OFFE_NEXT] += passed * segment_us
         i = np.int64(y[k]) * width + x[k]
-        cum_e[i] += 1
-        cum_p[i] += 1 if p[k] else -1
+        cumulative[i, 0] += 1
+        cumulative[i, 1] += 1 if p[k] else -1
         state[OFFE_PENDING] = 1
 
 
 @njit(cache=True, nogil=True)
-def offe_finish(cum_e, cum_p, sums, state):  # pragma: no cover - compiled
+def offe_finish(cumulative, sums, state):  # pragma: no cover - compiled
     """Take the last (partial) segment's sample if events arrived after the last boundary."""
     if state[OFFE_PENDING] != 0:
-        _offe_sample(cum_e, cum_p, sums, 1)
+        _offe_sample(cumulative, sums, 1)
         state[OFFE_SAMPLES] += 1
         state[OFFE_PENDING] = 0
 
 
 @njit(cache=True, nogil=True, inline="always")
-def stimulus_level(t_us, x, low, high, period_us, wavelength_px, profile):  # pragma: no cover - compiled
-    """L(t) of column ``x`` under a triangle stimulus from ``low`` to ``high`` (intensities 0-255).
-
-    The triangle is 0 at phase 0 and 1 at phase 1/2; the phase is ``t / period - (x + 0.5) / wavelength``
-    (``wavelength_px`` 0: every pixel alike, the flicker scene). ``profile`` intensity: linear in intensity,
-    ``L = lin_log(I)``; log: linear in ``L`` between ``lin_log(low)`` and ``lin_log(high)``.
-    """
-    phase = t_us / period_us
-    if wavelength_px > 0.0:
-        phase -= (x + 0.5) / wavelength_px
+def _triangle_level(phase, a, b, profile):  # pragma: no cover - compiled
+    """L at ``phase`` (any real; period 1) of a triangle 0 at phase 0, 1 at phase 1/2, from ``a`` to ``b``."""
     phase -= math.floor(phase)
     tri = 1.0 - abs(2.0 * phase - 1.0)
     if profile == PROFILE_LOG:
-        a = low * LIN_LOG_SLOPE if low <= LIN_LOG_KNEE else math.log(low)
-        b = high * LIN_LOG_SLOPE if high <= LIN_LOG_KNEE else math.log(high)
         return a + (b - a) * tri
-    intensity = low + (high - low) * tri
+    intensity = a + (b - a) * tri
     if intensity <= LIN_LOG_KNEE:
         return intensity * LIN_LOG_SLOPE
     return math.log(intensity)
 
 
+@njit(cache=True, nogil=True)
+def stimulus_level(t_us, x, a, b, period_us, wavelength_px, profile):  # pragma: no cover - compiled
+    """L(t) of column ``x`` under a triangle stimulus from ``a`` to ``b``.
+
+    ``profile`` intensity: ``a``, ``b`` are intensities (0-255), the triangle is linear in intensity and
+    ``L = lin_log(I)``; log: ``a``, ``b`` are log intensities and the triangle is linear in L. The phase is
+    ``t / period - (x + 0.5) / wavelength`` (``wavelength_px`` 0: every pixel alike, the flicker scene); for a
+    whole number of microseconds per period, ``t`` is first reduced modulo the period in integers (exact, and
+    the same value :func:`stimulus_table` stores).
+    """
+    period_int = np.int64(period_us)
+    if period_int == period_us:
+        phase = (t_us % period_int) / period_us
+    else:
+        phase = t_us / period_us
+    if wavelength_px > 0.0:
+        phase -= (x + 0.5) / wavelength_px
+    return _triangle_level(phase, a, b, profile)
+
+
+@njit(cache=True, nogil=True)
+def stimulus_table(a, b, period_us, profile, table):  # pragma: no cover - compiled
+    """``table[j]`` = L at ``t = j`` microseconds, for a flicker whose period is ``table.shape[0]`` microseconds:
+    bit for bit what :func:`stimulus_level` gives for any ``t = j + k * period``."""
+    for j in range(table.shape[0]):
+        table[j] = _triangle_level(j / period_us, a, b, profile)
+
+
 SEED_PAIRS = 5
-"""stimulus: a pixel's first 5 changes of each polarity; their median is the reference the later ones are held to."""
+"""stimulus: a pixel's first 5 changes of each polarity; their median is the reference the later ones are held to
+(an odd number: the median is one of them)."""
 ACCEPT_LOW = 0.8
 ACCEPT_HIGH = 1.25
 """stimulus: a change outside [0.8, 1.25] x the pixel's reference is not one threshold (a lost event makes it 2x,
 a noise event ends it early) and is left out."""
 
-
-@njit(cache=True, nogil=True, inline="always")
-def _accept(change, reference, slot, i, level_sums, pair_counts):  # pragma: no cover - compiled
-    if ACCEPT_LOW * reference <= change <= ACCEPT_HIGH * reference:
-        level_sums[slot, i] += change
-        pair_counts[slot, i] += 1
+# stimulus per-pixel state: one row of 8 float64 (64 bytes, one cache line) per pixel
+ST_LAST = 0  # L at the pixel's last event
+ST_EVENTS = 1  # the pixel's events so far (exact in float64 up to 2^53)
+ST_REF = 2  # 2 (ON), 3 (OFF): the reference change once seeded (> 0); before that -(seeds taken so far)
+ST_SUM = 4  # 4, 5: sum of accepted ON, OFF changes
+ST_PAIRS = 6  # 6, 7: accepted ON, OFF changes
+ST_SIZE = 8
 
 
 @njit(cache=True, nogil=True)
-def _median_small(values):  # pragma: no cover - compiled
-    ordered = np.sort(values)
-    n = ordered.shape[0]
-    return ordered[n // 2] if n % 2 else 0.5 * (ordered[n // 2 - 1] + ordered[n // 2])
+def _median_odd(seeds, i, slot):  # pragma: no cover - compiled
+    """Median of ``seeds[i, slot]`` (an odd number of values) without allocating or making a view: the value
+    with at most n // 2 others below it and at least n // 2 + 1 at or below it."""
+    n = seeds.shape[2]
+    for j in range(n):
+        value = seeds[i, slot, j]
+        below = 0
+        at_or_below = 0
+        for m in range(n):
+            below += seeds[i, slot, m] < value
+            at_or_below += seeds[i, slot, m] <= value
+        if below <= n // 2 < at_or_below:
+            return value
+    return seeds[i, slot, n // 2]  # not reached for real numbers
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _accept(change, reference, slot, i, state):  # pragma: no cover - compiled
+    # branch-free: adding 0.0 leaves the sums bit for bit unchanged, and a random accept costs no misprediction
+    inside = 1.0 if (ACCEPT_LOW * reference <= change) & (change <= ACCEPT_HIGH * reference) else 0.0
+    state[i, ST_SUM + slot] += inside * change
+    state[i, ST_PAIRS + slot] += inside
+
+
+@njit(cache=True, nogil=True)
+def _seed(change, slot, i, state, seeds):  # pragma: no cover - compiled
+    """Keep one of a polarity's first changes; at the last one, set the reference and accept those kept."""
+    n = np.int64(-state[i, ST_REF + slot])
+    seeds[i, slot, n] = change
+    if n + 1 < SEED_PAIRS:
+        state[i, ST_REF + slot] = -(n + 1.0)
+        return
+    reference = _median_odd(seeds, i, slot)
+    state[i, ST_REF + slot] = reference
+    for j in range(SEED_PAIRS):
+        _accept(seeds[i, slot, j], reference, slot, i, state)
 
 
 @njit(cache=True, nogil=True)
 def stimulus_accumulate(
-    t, x, y, p, width, low, high, period_us, wavelength_px, profile, last_level, seen, seeds, seed_counts,
-    references, level_sums, pair_counts,
+    t, x, y, p, width, a, b, period_us, wavelength_px, profile, table, state, seeds,
 ):  # pragma: no cover - compiled
     """Feed events to the known-stimulus sums.
 
@@ -143,15 +195,27 @@ def stimulus_accumulate(
     ``L(t_k) - L(t_{k-1}) = theta_on`` for an ON event, ``-theta_off`` for an OFF one, across a turn-around of
     the stimulus too. A pixel's first event (reference unknown) and changes of the wrong sign for the polarity
     (impossible for a signal event: noise) are skipped. Per polarity (slot 0 ON, 1 OFF) the first
-    :data:`SEED_PAIRS` changes are kept in ``seeds``; their median becomes ``references[slot, i]``, and from
-    then on (those first ones included) only changes within [0.8, 1.25] x the reference are summed into
-    ``level_sums`` and counted in ``pair_counts``: robust to events lost by a denoiser and to noise events.
+    :data:`SEED_PAIRS` changes are kept in ``seeds[i, slot]``; their median becomes the pixel's reference, and
+    from then on (those first ones included) only changes within [0.8, 1.25] x the reference are summed and
+    counted: robust to events lost by a denoiser and to noise events.
+
+    L comes from ``table`` (one flicker period at 1 us, :func:`stimulus_table`) when it is not empty, else from
+    :func:`stimulus_level`; ``state`` is (pixels, :data:`ST_SIZE`), see the ``ST_*`` columns.
     """
+    period = table.shape[0]
+    base = (t[0] // period) * period if period > 0 and t.shape[0] > 0 else 0
     for k in range(t.shape[0]):
+        if period > 0:  # t - base = t mod period, without a division per event (t is sorted)
+            while t[k] - base >= period:
+                base += period
+            while t[k] < base:
+                base -= period
+            level = table[t[k] - base]
+        else:
+            level = stimulus_level(t[k], x[k], a, b, period_us, wavelength_px, profile)
         i = np.int64(y[k]) * width + x[k]
-        level = stimulus_level(t[k], x[k], low, high, period_us, wavelength_px, profile)
-        if seen[i]:
-            change = level - last_level[i]
+        if state[i, ST_EVENTS] > 0.0:
+            change = level - state[i, ST_LAST]
             slot = -1
             if p[k]:
                 if change > 0.0:
@@ -160,48 +224,10 @@ def stimulus_accumulate(
                 slot = 1
                 change = -change
             if slot >= 0:
-                n = seed_counts[slot, i]
-                if n < SEED_PAIRS:
-                    seeds[slot, i, n] = change
-                    seed_counts[slot, i] = n + 1
-                    if n + 1 == SEED_PAIRS:
-                        reference = _median_small(seeds[slot, i])
-                        references[slot, i] = reference
-                        for j in range(SEED_PAIRS):
-                            _accept(seeds[slot, i, j], reference, slot, i, level_sums, pair_counts)
+                reference = state[i, ST_REF + slot]
+                if reference > 0.0:
+                    _accept(change, reference, slot, i, state)
                 else:
-                    _accept(change, references[slot, i], slot, i, level_sums, pair_counts)
-        seen[i] = True
-        last_level[i] = level
-
-
-@njit(cache=True, nogil=True)
-def ramps_accumulate(p, x, y, width, run_polarity, run_length, run_events, run_counts):  # pragma: no cover
-    """Feed events to the complete-ramp counts.
-
-    ``run_polarity[i]``: -1 before the pixel's first event, then 0 (OFF) or 1 (ON) for its current run;
-    ``run_length[i]``: events in that run; a run is complete when a reversal ends it and one began it, so
-    a pixel's first run is dropped (``run_length`` is set to -1 for it) and its last one never counts.
-    ``run_events[0/1, i]`` sums ON/OFF events of complete runs, ``run_counts[0/1, i]`` counts those runs.
-    """
-    for k in range(p.shape[0]):
-        i = np.int64(y[k]) * width + x[k]
-        polarity = 1 if p[k] else 0
-        if run_polarity[i] == polarity:
-            if run_length[i] >= 0:
-                run_length[i] += 1
-            continue
-        if run_polarity[i] >= 0 and run_length[i] >= 0:
-            slot = 1 - run_polarity[i]  # 0: an ON run ended, 1: an OFF run
-            run_events[slot, i] += run_length[i]
-            run_counts[slot, i] += 1
-        # the pixel's first run has an unknown start: mark it with -1 so that it never counts
-        run_length[i] = -1 if run_polarity[i] < 0 else 1
-        run_polarity[i] = polarity
-
-
-@njit(cache=True, nogil=True)
-def count_events(x, y, p, width, counts):  # pragma: no cover - compiled
-    """``counts[0, i]`` += ON events of pixel i, ``counts[1, i]`` += OFF events."""
-    for k in range(x.shape[0]):
-        counts[0 if p[k] else 1, np.int64(y[k]) * width + x[k]] += 1
+                    _seed(change, slot, i, state, seeds)
+        state[i, ST_EVENTS] += 1.0
+        state[i, ST_LAST] = level

@@ -55,12 +55,17 @@ def naive_lin_log(intensity):
 
 
 def naive_stimulus_level(t_us, x, low, high, period_us, wavelength_px=0.0, profile="intensity"):
-    """L at time t of column x: a triangle of phase t/period - (x + 0.5)/wavelength, 0 at phase 0, 1 at 1/2."""
+    """L at time t of column x: a triangle of phase t/period - (x + 0.5)/wavelength, 0 at phase 0, 1 at 1/2.
+
+    A whole number of microseconds per period: t is reduced modulo the period first (as the kernel does).
+    ``profile`` log: low and high are log levels already."""
+    if period_us == int(period_us):
+        t_us = t_us % int(period_us)
     phase = t_us / period_us - ((x + 0.5) / wavelength_px if wavelength_px > 0 else 0.0)
     phase -= math.floor(phase)
     tri = 2 * phase if phase < 0.5 else 2 - 2 * phase
     if profile == "log":
-        return naive_lin_log(low) + (naive_lin_log(high) - naive_lin_log(low)) * tri
+        return low + (high - low) * tri
     return naive_lin_log(low + (high - low) * tri)
 
 
@@ -79,22 +84,6 @@ def naive_stimulus(events, width, height, low, high, period_us, wavelength_px=0.
                 off.append(-change)
         last[(x, y)] = level
     return changes
-
-
-def naive_ramps(events, width, height):
-    """Per pixel: the polarity runs between reversals, first and last dropped -> (ON run lengths, OFF run lengths)."""
-    runs = {}
-    for x, y, p in zip(events["x"].tolist(), events["y"].tolist(), events["p"].tolist()):
-        pixel_runs = runs.setdefault((x, y), [])
-        if pixel_runs and pixel_runs[-1][0] == p:
-            pixel_runs[-1][1] += 1
-        else:
-            pixel_runs.append([p, 1])
-    result = {}
-    for pixel, pixel_runs in runs.items():
-        complete = pixel_runs[1:-1]
-        result[pixel] = ([n for p, n in complete if p], [n for p, n in complete if not p])
-    return result
 
 
 def robust_mean(changes, seed_pairs=5, low=0.8, high=1.25):
