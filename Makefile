@@ -29,7 +29,7 @@ demo: $(VENV)/.installed
 	$(BIN)/evtools simulate scene:flicker $(CAMERA) $(NOISE) --duration 2s --truth $(OUT)/flicker.truth.h5 \
 	  -o $(OUT)/flicker.aedat4
 	$(BIN)/evtools render $(OUT)/flicker.aedat4 -o $(OUT)/flicker.png --window-us 20000
-	$(BIN)/evtools bafilter $(OUT)/flicker.aedat4 --method baf --dt-us 50000 \
+	$(BIN)/evtools bafilter $(OUT)/flicker.aedat4 --method stcf --k 1 --dt-us 100000 \
 	  | $(BIN)/evtools estimate - --method stimulus --stimulus-levels 50,200 --stimulus-period 500ms \
 	  -o $(OUT)/thresholds.h5
 	$(BIN)/evtools metrics thresholds $(OUT)/thresholds.h5 --truth $(OUT)/flicker.truth.h5 \
