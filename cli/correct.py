@@ -32,16 +32,20 @@ def _target(ctx, param, value):
 @click.option("--target", default="0.2", show_default=True, callback=_target, metavar="THETA|median",
               help="The threshold every pixel is re-sampled at (log units), or the median of the maps.")
 @click.option("--mode", type=click.Choice(list(MODES)), default=CORRECT_DEFAULTS["mode"], show_default=True,
-              help="foh: the report's first-order hold; step: stepwise over gaps > --hold-us; highpass: step plus "
-                   "a decay of the carried level over rests (drift-free).")
+              help="foh: the report's first-order hold; step: its step-aware variant (held over gaps > --hold-us); "
+                   "turns: step anchored at the stream's start, with an extremum at each polarity reversal; "
+                   "highpass: turns plus a decay of the carried level over rests.")
 @click.option("--hold-us", type=click.IntRange(min=1), default=CORRECT_DEFAULTS["hold_us"], show_default=True,
-              help="step, highpass: a gap longer than this is a rest (held constant, no interpolation).")
+              help="All but foh: a gap longer than this is a rest (held constant, no interpolation).")
 @click.option("--max-gap-us", type=click.IntRange(min=1), default=CORRECT_DEFAULTS["max_gap_us"],
               show_default=True, help="Interpolation never reaches further back than this: bounds latency/memory.")
 @click.option("--tau-us", type=click.FloatRange(min=0, min_open=True), default=CORRECT_DEFAULTS["tau_us"],
               show_default=True, help="highpass: time constant of the decay of the carried level over a rest.")
+@click.option("--start-us", type=int, default=None, metavar="T",
+              help="turns, highpass: time the sensor started (every pixel at its reference); default: the first "
+                   "event.")
 def correct(input, input_format, sensor_size, aedat2_layout, output, thresholds_path, target, mode, hold_us,
-            max_gap_us, tau_us):
+            max_gap_us, tau_us, start_us):
     """Re-sample every pixel of IN (default stdin) at one target threshold; write -o OUT (default stdout).
 
     Each pixel's events are read as samples of its log intensity at its own thresholds (--thresholds), the
@@ -58,7 +62,7 @@ def correct(input, input_format, sensor_size, aedat2_layout, output, thresholds_
         try:
             corrector = ThresholdCorrector(
                 stream.info.width, stream.info.height, thresholds.on, thresholds.off, thresholds.valid,
-                target=target, mode=mode, hold_us=hold_us, max_gap_us=max_gap_us, tau_us=tau_us,
+                target=target, mode=mode, hold_us=hold_us, max_gap_us=max_gap_us, tau_us=tau_us, start_us=start_us,
             )
         except CorrectionError as error:
             raise CorrectionError(f"{thresholds_path}: {error}") from None

@@ -4,16 +4,20 @@ The founding report's section 4.2: a pixel's events are samples of its log inten
 thresholds; reconstruct the signal (first-order hold between the pixel's events) and sample it again at one target
 threshold, so that every pixel behaves as if it had the same threshold. :class:`ThresholdCorrector` is the stream
 processor, :func:`correct_thresholds` the one-shot convenience; ``evtools/_kernels/correct.py`` holds the
-per-event loop and the three modes (``foh``, ``step``, ``highpass``).
+per-event loop and the modes (``foh``, ``step``, ``turns``, ``highpass``), plus the merge that releases the
+created events in time order.
 
 Ordering. A re-sampled event lies between its pixel's previous original event (or the interpolation start, never
 earlier than ``max_gap_us`` before the current event) and the current one, so the events created for one input
 event may precede events already created for others. The corrector keeps the created events in a reorder buffer
 and releases, sorted by time (ties in creation order, a stable sort), those no later event can precede: every
 future event is created at or after ``bound = max(min over pixels of their last event time, t_now - window)``,
-with ``window`` = ``max_gap_us`` (``hold_us`` in ``step`` and ``highpass`` when smaller). So the latency and the
-buffer are bounded by ``window`` of output, whatever the gaps. When every pixel's thresholds equal the target,
-each input event creates exactly itself, and the output is the input, bit for bit and in its order.
+with ``window`` = ``max_gap_us`` (``hold_us`` in all modes but ``foh`` when smaller; with turns, a pixel that has not
+fired yet counts as having fired at the stream's start). So the latency and the buffer are bounded by ``window``
+of output, whatever the gaps. The created events of a chunk are sorted by a counting sort over their time span
+(a stable merge sort when the span is large) and merged with the held ones inside a numba kernel. When every
+pixel's thresholds equal the target, each input event creates exactly itself, and the output is the input, bit
+for bit and in its order.
 
 References
 ----------
@@ -27,14 +31,24 @@ from typing import Any
 
 import numpy as np
 
-from evtools._kernels.correct import MODE_FOH, MODE_HIGHPASS, MODE_STEP, NO_EVENT_US, correct_events
+from evtools._kernels.correct import (
+    MODE_FOH,
+    MODE_HIGHPASS,
+    MODE_STEP,
+    NO_EVENT_US,
+    PIXEL_DTYPE,
+    correct_events,
+    release_sorted,
+)
 from evtools.errors import EvtoolsError
-from evtools.events import EVENT_DTYPE, check_sensor_size, empty_events, join
+from evtools.events import EVENT_DTYPE, check_sensor_size, empty_events, join, make_events
 
 __all__ = ["CORRECT_DEFAULTS", "MODES", "CorrectionError", "ThresholdCorrector", "correct_thresholds"]
 
-MODES = {"foh": MODE_FOH, "step": MODE_STEP, "highpass": MODE_HIGHPASS}
-"""Reconstruction modes by name (see :mod:`evtools._kernels.correct`)."""
+MODES = {"highpass": MODE_HIGHPASS, "turns": MODE_STEP, "step": MODE_STEP, "foh": MODE_FOH}
+"""Reconstruction modes by name (see :mod:`evtools._kernels.correct`): ``foh`` and ``step`` are the report's;
+``turns`` is ``step`` with the reconstruction anchored at the stream's start and an extremum at every reversal;
+``highpass`` (the default) is ``turns`` plus the decay of the carried level over rests."""
 
 CORRECT_DEFAULTS: dict[str, Any] = {
     "mode": "highpass",
@@ -42,7 +56,9 @@ CORRECT_DEFAULTS: dict[str, Any] = {
     "max_gap_us": 1_000_000,
     "tau_us": 100_000.0,
 }
-"""Defaults: the drift-free ``highpass`` mode, 300 ms hold, 100 ms decay time constant, a 1 s reordering bound."""
+"""Defaults: ``highpass`` (it wins on the Table 2 metrics, see the README), 300 ms hold (above the inter-event times
+in the tail of a photoreceptor low-pass of ~20 ms, below the rests between stimulus edges), 100 ms decay time
+constant, a 1 s reordering bound."""
 
 
 class CorrectionError(EvtoolsError, ValueError):
@@ -96,16 +112,23 @@ class ThresholdCorrector:
         median of the usable pixels' thresholds, ON and OFF separately.
     target : float or "median"
         The threshold every pixel is re-sampled at (one value for ON and OFF), or the median of the maps.
-    mode : {"highpass", "foh", "step"}
+    mode : {"highpass", "turns", "step", "foh"}
         ``foh``: the report's first-order hold; ``step``: stepwise over gaps longer than ``hold_us`` (the report's
-        section 5.2); ``highpass`` (default): ``step`` plus an exponential decay of the carried level with time
-        constant ``tau_us``, which keeps estimation errors from accumulating (drift-free).
+        section 5.2); ``turns``: ``step`` anchored at the stream's start, with an extremum inserted at every
+        polarity reversal (exact on log-linear ramps with exact thresholds); ``highpass`` (default): ``turns`` plus
+        an exponential decay of the carried level over rests (time constant ``tau_us``): the corrected reference
+        relaxes to the pixel's own, which keeps estimation errors from accumulating.
     hold_us : int
-        ``step`` and ``highpass``: gaps longer than this are held constant until the next event.
+        Gaps longer than this are rests (held constant until the next event; all but ``foh``).
     max_gap_us : int
         Interpolation never starts earlier than this before the current event: bounds the reordering window.
     tau_us : float
         ``highpass``: time constant of the decay of the carried level towards the pixel's own reference.
+    turns : bool or None
+        Anchor and reversal extremum on or off regardless of the mode (None: on for ``turns`` and ``highpass``).
+    start_us : int or None
+        With turns: when every pixel's reconstruction starts at level 0 (the sensor's start); default the first
+        event of the stream.
 
     References
     ----------
@@ -114,7 +137,8 @@ class ThresholdCorrector:
 
     def __init__(self, width: int, height: int, on, off, valid=None, *, target="median",
                  mode: str = CORRECT_DEFAULTS["mode"], hold_us: int = CORRECT_DEFAULTS["hold_us"],
-                 max_gap_us: int = CORRECT_DEFAULTS["max_gap_us"], tau_us: float = CORRECT_DEFAULTS["tau_us"]):
+                 max_gap_us: int = CORRECT_DEFAULTS["max_gap_us"], tau_us: float = CORRECT_DEFAULTS["tau_us"],
+                 turns: bool | None = None, start_us: int | None = None):
         check_sensor_size(width, height)
         self.width, self.height = int(width), int(height)
         on = np.asarray(on, dtype=np.float32)
@@ -135,50 +159,84 @@ class ThresholdCorrector:
             raise CorrectionError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
         self.target_on, self.target_off = resolve_target(target, on, off, usable)
         self.mode = mode
+        self.turns = (mode in ("turns", "highpass")) if turns is None else bool(turns)
         self.hold_us = _positive_int("hold_us", hold_us)
         self.max_gap_us = _positive_int("max_gap_us", max_gap_us)
         tau_us = float(tau_us)
         if not np.isfinite(tau_us) or tau_us <= 0:
             raise CorrectionError(f"tau_us must be a positive number of microseconds, got {tau_us!r}")
         self.tau_us = tau_us
+        if start_us is not None and (isinstance(start_us, bool) or not isinstance(start_us, (int, np.integer))):
+            raise CorrectionError(f"start_us must be a whole number of microseconds, got {start_us!r}")
+        self.start_us = None if start_us is None else int(start_us)
         on = np.where(usable, on, np.median(on[usable])).astype(np.float32)
         off = np.where(usable, off, np.median(off[usable])).astype(np.float32)
-        self._on = on.astype(np.float64).reshape(-1)
-        self._off = off.astype(np.float64).reshape(-1)
+        n = self.width * self.height
+        # one 32-byte row per pixel, aligned to a cache line (see PIXEL_DTYPE)
+        raw = np.zeros(n * PIXEL_DTYPE.itemsize + 64, dtype=np.uint8)
+        skip = -raw.ctypes.data % 64
+        self._state = raw[skip: skip + n * PIXEL_DTYPE.itemsize].view(PIXEL_DTYPE)
+        self._state["on"] = on.reshape(-1)
+        self._state["off"] = off.reshape(-1)
+        self._state["last_us"] = NO_EVENT_US
+        self._state["previous_us"] = NO_EVENT_US
+        self._polarity = np.zeros(n, dtype=np.int8)
         # pixels already at the target need no work (and their events stay bit for bit what they were)
-        self._use = ~((self._on == self.target_on) & (self._off == self.target_off))
+        at_target = (on == np.float32(self.target_on)) & (off == np.float32(self.target_off))
+        self._use = ~at_target.reshape(-1)
         self.usable = usable
         self.window_us = self.max_gap_us if mode == "foh" else min(self.max_gap_us, self.hold_us)
-        n = self.width * self.height
-        self._last_us = np.full(n, NO_EVENT_US, dtype=np.int64)
-        self._level = np.zeros(n, dtype=np.float64)
-        self._held = empty_events()
-        self._t_now: int | None = None
+        self._started = False
+        self._new = self._buffers(1 << 16)
+        self._held = self._buffers(1 << 16)
+        self._keep = self._buffers(1 << 16)
+        self._n_held = 0
+        self._order = np.empty(1 << 16, dtype=np.int64)
+        self._counts = np.empty(1 << 18, dtype=np.int64)
         self.parameters: dict[str, Any] = {
             "target_on": self.target_on, "target_off": self.target_off, "mode": mode, "hold_us": self.hold_us,
-            "max_gap_us": self.max_gap_us, "tau_us": self.tau_us,
+            "max_gap_us": self.max_gap_us, "tau_us": self.tau_us, "turns": self.turns, "start_us": self.start_us,
         }
 
-    def _resample(self, chunk: np.ndarray) -> np.ndarray:
-        """Every event that ``chunk`` creates, in creation order."""
+    @staticmethod
+    def _buffers(capacity: int) -> tuple[np.ndarray, ...]:
+        return (np.empty(capacity, np.int64), np.empty(capacity, np.int16), np.empty(capacity, np.int16),
+                np.empty(capacity, np.bool_))
+
+    @staticmethod
+    def _grown(buffers, capacity: int, keep: int) -> tuple[np.ndarray, ...]:
+        grown = tuple(np.empty(capacity, b.dtype) for b in buffers)
+        for old, new in zip(buffers, grown):
+            new[:keep] = old[:keep]
+        return grown
+
+    @property
+    def held(self) -> int:
+        """How many created events wait in the reorder buffer."""
+        return self._n_held
+
+    def _start(self, t_first: int) -> None:
+        """The reconstruction of every pixel starts at level 0 at the stream's start (``turns``: anchored)."""
+        self._started = True
+        if self.turns:
+            origin = t_first if self.start_us is None else min(self.start_us, t_first)
+            self._state["last_us"][self._use] = origin
+
+    def _resample(self, chunk: np.ndarray) -> int:
+        """Write every event that ``chunk`` creates into ``self._new``, in creation order; returns their number."""
         t, x, y, p = chunk["t"], chunk["x"], chunk["y"], chunk["p"]
-        parts = []
-        start = 0
-        capacity = max(1024, 2 * len(chunk))
-        mode = MODES[self.mode]
+        if len(self._new[0]) < 2 * len(chunk):
+            self._new = self._buffers(2 * len(chunk))
+        start, n = 0, 0
         while True:
-            out = np.empty(capacity, dtype=EVENT_DTYPE)
-            start, n = correct_events(
-                t, x, y, p, start, self.width, self._on, self._off, self._use, self.target_on, self.target_off,
-                self._last_us, self._level, mode, self.hold_us, self.max_gap_us, self.tau_us,
-                out["t"], out["x"], out["y"], out["p"],
+            start, n, _ = correct_events(
+                t, x, y, p, start, self.width, self._state, self._polarity, self._use, self.target_on,
+                self.target_off, MODES[self.mode], self.turns, self.hold_us, self.max_gap_us, self.tau_us,
+                *self._new, n,
             )
-            parts.append(out[:n])
             if start >= len(chunk):
-                break
-            if n == 0:
-                capacity *= 2
-        return parts[0] if len(parts) == 1 else join(parts)
+                return n
+            self._new = self._grown(self._new, 2 * len(self._new[0]), n)
 
     def process(self, chunk: np.ndarray) -> np.ndarray:
         """The corrected events that are final once ``chunk`` (time-sorted, after the previous ones) is seen."""
@@ -186,21 +244,35 @@ class ThresholdCorrector:
             return empty_events()
         if chunk.dtype != EVENT_DTYPE:
             raise CorrectionError(f"chunk has dtype {chunk.dtype}, expected EVENT_DTYPE")
-        created = self._resample(chunk)
-        self._t_now = int(chunk["t"][-1])
-        bound = max(int(self._last_us.min()) if self._use.any() else self._t_now, self._t_now - self.window_us)
-        bound = min(bound, self._t_now)
-        pending = created if len(self._held) == 0 else join([self._held, created])
-        if len(pending) and np.any(pending["t"][1:] < pending["t"][:-1]):
-            pending = pending[np.argsort(pending["t"], kind="stable")]
-        cut = int(np.searchsorted(pending["t"], bound, side="right"))
-        self._held = pending[cut:].copy() if cut < len(pending) else empty_events()
-        return pending[:cut]
+        if not self._started:
+            self._start(int(chunk["t"][0]))
+        n = self._resample(chunk)
+        t_now = int(chunk["t"][-1])
+        # every later event is created at or after the earliest interpolation start any pixel may still use
+        bound = max(int(self._state["last_us"].min()) if self._use.any() else t_now, t_now - self.window_us)
+        return self._release(n, min(bound, t_now))
+
+    def _release(self, n: int, bound: int) -> np.ndarray:
+        """Merge the held and the ``n`` new events; return those at or before ``bound``, hold the rest."""
+        h = self._n_held
+        if len(self._order) < n:
+            self._order = np.empty(2 * n, dtype=np.int64)
+        if len(self._counts) < 4 * n:
+            self._counts = np.empty(4 * n, dtype=np.int64)
+        if len(self._keep[0]) < h + n:
+            self._keep = self._buffers(2 * (h + n))
+        out = np.empty(h + n, dtype=EVENT_DTYPE)
+        released, kept = release_sorted(*self._held, h, *self._new, n, bound, self._order, self._counts,
+                                        out["t"], out["x"], out["y"], out["p"], *self._keep)
+        self._held, self._keep = self._keep, self._held
+        self._n_held = kept
+        return out[:released]
 
     def flush(self) -> np.ndarray:
         """Whatever is still held (the stream ended)."""
-        held, self._held = self._held, empty_events()
-        return held
+        h, self._n_held = self._n_held, 0
+        t, x, y, p = (b[:h] for b in self._held)
+        return make_events(t, x, y, p) if h else empty_events()
 
 
 def correct_thresholds(events: np.ndarray, width: int, height: int, on, off, valid=None, **options) -> np.ndarray:
