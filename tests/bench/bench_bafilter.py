@@ -130,7 +130,8 @@ def measure_command(argv, stdin=None, stdout=None) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser()
-    parser.add_argument("--events", type=int, default=10_000_000)
+    parser.add_argument("--file-events", type=lambda text: [int(n) for n in text.split(",")],
+                        default=[10_000_000, 100_000_000], help="stream lengths of the file-to-file rows")
     parser.add_argument("--kernel-events", type=int, default=4_000_000)
     parser.add_argument("--big", type=int, default=100_000_000)
     parser.add_argument("--dir", default=None)
@@ -143,16 +144,20 @@ def main() -> None:
         return
     rows = []
     with tempfile.TemporaryDirectory(dir=args.dir) as scratch:
-        source = os.path.join(scratch, "in.aedat4")
-        measure_child("make", source, args.events)
-        ours = measure_command([EVTOOLS, "-q", "bafilter", source, "--method", "baf", "--preset", "dv", "-o",
-                                os.path.join(scratch, "ours.aedat4")])
-        dv = measure_child("dv", source, os.path.join(scratch, "dv.aedat4"))
-        ratio = dv["wall_seconds"] / ours["seconds"]  # both whole processes: start-up and imports included
-        rows.append(("file: evtools bafilter baf --preset dv", args.events / ours["seconds"], ours["peak_mb"],
-                     f"{ratio:.2f}x dv", ">= 1x dv"))
-        rows.append(("file: dv-processing read+BA filter+write", args.events / dv["wall_seconds"], dv["peak_mb"], "",
-                     ""))
+        for events in args.file_events:
+            source = os.path.join(scratch, "in.aedat4")
+            measure_child("make", source, events)
+            ours = measure_command([EVTOOLS, "-q", "bafilter", source, "--method", "baf", "--preset", "dv", "-o",
+                                    os.path.join(scratch, "ours.aedat4")])
+            dv = measure_child("dv", source, os.path.join(scratch, "dv.aedat4"))
+            ratio = dv["wall_seconds"] / ours["seconds"]  # both whole processes: start-up and imports included
+            label = f"{events / 1e6:.0f}M"
+            rows.append((f"file {label}: evtools bafilter baf --preset dv", events / ours["seconds"], ours["peak_mb"],
+                         f"{ratio:.2f}x dv", ">= 1x dv"))
+            rows.append((f"file {label}: dv-processing read+BA filter+write", events / dv["wall_seconds"],
+                         dv["peak_mb"], "", ""))
+            for name in ("in.aedat4", "ours.aedat4", "dv.aedat4"):
+                os.unlink(os.path.join(scratch, name))
         for width, height in ((346, 260), (1280, 720)):
             for method in ("baf", "stcf", "dwf", "orderN", "refractory", "hotpixel"):
                 r = measure_child("kernel", method, width, height, args.kernel_events)
