@@ -241,7 +241,3 @@ def esr(input, input_format, sensor_size, aedat2_layout, slice_events, as_json):
         return
     _table(f"{result['file']}: MESR {_fmt(result['mesr'])}", ["slices", "slice events", "MESR"],
            [[str(result["slices"]), f"{slice_events:,}", _fmt(result["mesr"])]])
-
-
-COMMANDS = [denoise, roc, esr]
-"""The subcommands of ``evtools metrics`` this module defines."""

@@ -81,7 +81,3 @@ def _print_table(result: dict) -> None:
         table.add_row(label, fmt(result["on"][key]), fmt(result["off"][key]))
     table.add_row("invalid pixels", f"{100 * result['invalid_fraction']:.2f} %", "")
     Console().print(table)
-
-
-COMMANDS = [thresholds]
-"""The subcommands of ``evtools metrics`` this module defines."""

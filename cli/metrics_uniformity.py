@@ -111,7 +111,3 @@ def _print_table(result: dict) -> None:
     console.print(table)
     console.print(f"polarity balance (ON-OFF)/(ON+OFF) per pixel: mean {result['polarity_balance_mean']:.3f}, "
                   f"std {result['polarity_balance_std']:.3f} over {result['responding_pixels']} pixels")
-
-
-COMMANDS = [uniformity]
-"""The subcommands of ``evtools metrics`` this module defines."""
