@@ -192,6 +192,7 @@ class ThresholdCorrector:
         self._keep = self._buffers(1 << 16)
         self._n_held = 0
         self._order = np.empty(1 << 16, dtype=np.int64)
+        self._sorted = self._buffers(1 << 16)
         self._counts = np.empty(1 << 18, dtype=np.int64)
         self.parameters: dict[str, Any] = {
             "target_on": self.target_on, "target_off": self.target_off, "mode": mode, "hold_us": self.hold_us,
@@ -257,13 +258,14 @@ class ThresholdCorrector:
         h = self._n_held
         if len(self._order) < n:
             self._order = np.empty(2 * n, dtype=np.int64)
+            self._sorted = self._buffers(2 * n)
         if len(self._counts) < 4 * n:
             self._counts = np.empty(4 * n, dtype=np.int64)
         if len(self._keep[0]) < h + n:
             self._keep = self._buffers(2 * (h + n))
         out = np.empty(h + n, dtype=EVENT_DTYPE)
         released, kept = release_sorted(*self._held, h, *self._new, n, bound, self._order, self._counts,
-                                        out["t"], out["x"], out["y"], out["p"], *self._keep)
+                                        *self._sorted, out["t"], out["x"], out["y"], out["p"], *self._keep)
         self._held, self._keep = self._keep, self._held
         self._n_held = kept
         return out[:released]

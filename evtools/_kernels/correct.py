@@ -178,13 +178,14 @@ def correct_events(t, x, y, p, start, width, state, polarity, use, target_on, ta
 
 @njit(cache=True, nogil=True)
 def release_sorted(held_t, held_x, held_y, held_p, h, new_t, new_x, new_y, new_p, n, bound, order, counts,
-                   out_t, out_x, out_y, out_p, keep_t, keep_x, keep_y, keep_p):  # pragma: no cover - compiled
+                   sorted_t, sorted_x, sorted_y, sorted_p, out_t, out_x, out_y, out_p, keep_t, keep_x, keep_y,
+                   keep_p):  # pragma: no cover - compiled
     """Merge the held events (sorted) with the new ones (creation order); split at ``bound``.
 
-    The new events are sorted by time, ties in creation order (a counting sort over their time span when
-    ``counts`` is long enough, else a stable merge sort), then merged with the held ones (held first on ties: they
-    were created earlier). Events at or before ``bound`` go to ``out_*`` in order, the rest to ``keep_*``.
-    Returns (released, kept).
+    The new events are sorted by time into ``sorted_*``, ties in creation order (a counting sort that scatters
+    them straight to their places when ``counts`` covers their time span, else a stable merge sort and a
+    gather), then merged with the held ones (held first on ties: they were created earlier), both read in order.
+    Events at or before ``bound`` go to ``out_*`` in order, the rest to ``keep_*``. Returns (released, kept).
     """
     if n > 0:
         low = new_t[0]
@@ -202,23 +203,31 @@ def release_sorted(held_t, held_x, held_y, held_p, h, new_t, new_x, new_y, new_p
                 c = counts[b]
                 counts[b] = total
                 total += c
-            for k in range(n):
-                b = new_t[k] - low
-                order[counts[b]] = k
-                counts[b] += 1
+            for k in range(n):  # reads in order, writes scattered: stores do not stall like loads
+                place = counts[new_t[k] - low]
+                counts[new_t[k] - low] = place + 1
+                sorted_t[place] = new_t[k]
+                sorted_x[place] = new_x[k]
+                sorted_y[place] = new_y[k]
+                sorted_p[place] = new_p[k]
         else:
             order[:n] = np.argsort(new_t[:n], kind="mergesort")
+            for j in range(n):
+                k = order[j]
+                sorted_t[j] = new_t[k]
+                sorted_x[j] = new_x[k]
+                sorted_y[j] = new_y[k]
+                sorted_p[j] = new_p[k]
     i = 0
     j = 0
     released = 0
     kept = 0
     while i < h or j < n:
-        if j >= n or (i < h and held_t[i] <= new_t[order[j]]):
+        if j >= n or (i < h and held_t[i] <= sorted_t[j]):
             tt, xx, yy, pp = held_t[i], held_x[i], held_y[i], held_p[i]
             i += 1
         else:
-            k = order[j]
-            tt, xx, yy, pp = new_t[k], new_x[k], new_y[k], new_p[k]
+            tt, xx, yy, pp = sorted_t[j], sorted_x[j], sorted_y[j], sorted_p[j]
             j += 1
         if tt <= bound:
             out_t[released] = tt
