@@ -9,7 +9,7 @@ import click
 import numpy as np
 
 from cli.options import output_option, read_options
-from cli.progress import with_progress
+from cli.progress import process_stream
 from evtools.bafilter import METHODS, PRESETS, BAFilter, BAFilterError, parse_methods
 from evtools.errors import EvtoolsError
 from formats import create_events, open_events
@@ -118,13 +118,7 @@ def bafilter(input, input_format, sensor_size, aedat2_layout, output_path, outpu
                       polarity=polarity, window=window, distance=distance, learn_us=learn_us, hot_ratio=hot_ratio,
                       hot_rate_hz=hot_rate_hz, hot_min_events=hot_min_events, hot_map=hot_map)
         with create_events(output, info, inputs=(input,)) as writer:
-            for chunk in with_progress(stream, stream, f"filtering {stream.name}"):
-                kept = ba.process(chunk)
-                if len(kept):
-                    writer.write(kept)
-            kept = ba.flush()
-            if len(kept):
-                writer.write(kept)
+            process_stream(stream, ba, writer, f"filtering {stream.name}")
     if save_hot_pixels:
         write_hot_pixels(save_hot_pixels, ba.hot_map if ba.hot_map is not None else np.zeros((info.height,
                                                                                               info.width), bool))

@@ -5,7 +5,7 @@ from __future__ import annotations
 import click
 
 from cli.options import output_option, read_options
-from cli.progress import with_progress
+from cli.progress import process_stream
 from evtools.correct import CORRECT_DEFAULTS, MODES, CorrectionError, ThresholdCorrector
 from formats import create_events, open_events
 from formats.thresholds import read_thresholds
@@ -67,10 +67,4 @@ def correct(input, input_format, sensor_size, aedat2_layout, output, thresholds_
         except CorrectionError as error:
             raise CorrectionError(f"{thresholds_path}: {error}") from None
         with create_events(output, stream.info, inputs=(input, thresholds_path)) as writer:
-            for chunk in with_progress(stream, stream, f"correcting {stream.name}"):
-                out = corrector.process(chunk)
-                if len(out):
-                    writer.write(out)
-            rest = corrector.flush()
-            if len(rest):
-                writer.write(rest)
+            process_stream(stream, corrector, writer, f"correcting {stream.name}")

@@ -34,3 +34,15 @@ def _stderr_console():
     from rich.console import Console
 
     return Console(stderr=True)
+
+
+def process_stream(stream, processor, writer, label: str) -> None:
+    """Feed every chunk of ``stream`` through ``processor`` (``process`` then ``flush``) into ``writer``, with
+    progress labelled ``label``; empty results are not written."""
+    for chunk in with_progress(stream, stream, label):
+        out = processor.process(chunk)
+        if len(out):
+            writer.write(out)
+    rest = processor.flush()
+    if len(rest):
+        writer.write(rest)

@@ -37,8 +37,8 @@ from typing import Any
 import numpy as np
 
 from evtools._kernels import bafilter as kernels
-from evtools.errors import EvtoolsError, InvalidEventsError
-from evtools.events import EVENT_DTYPE, check_sensor_size, empty_events, join
+from evtools.errors import EvtoolsError
+from evtools.events import EVENT_DTYPE, as_chunk, check_sensor_size, empty_events, join
 
 __all__ = ["METHODS", "PRESETS", "BAFilter", "BAFilterError", "ba_filter", "learn_hot_pixels"]
 
@@ -341,11 +341,7 @@ class BAFilter:
         """The events of ``chunk`` that every stage keeps (those a learning stage holds come later)."""
         if self._flushed:
             raise BAFilterError("BAFilter: process() after flush(); make a new filter for a new stream")
-        chunk = np.asarray(chunk)
-        if chunk.dtype != EVENT_DTYPE:
-            if chunk.dtype.names is None or set(chunk.dtype.names) != set(EVENT_DTYPE.names):
-                raise InvalidEventsError(f"chunk has dtype {chunk.dtype}, expected EVENT_DTYPE")
-            chunk = chunk.astype(EVENT_DTYPE)
+        chunk = as_chunk(chunk)
         self.events_in += len(chunk)
         out = self._run(chunk, 0)
         self.events_out += len(out)

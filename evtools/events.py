@@ -94,6 +94,19 @@ def concatenate(chunks: Iterable[np.ndarray]) -> np.ndarray:
     return join(chunks) if chunks else empty_events()
 
 
+def as_chunk(chunk) -> np.ndarray:
+    """``chunk`` as a 1-D array of :data:`EVENT_DTYPE` (an array with the same fields in another layout is
+    converted); anything else raises :class:`InvalidEventsError`. The check every processor's ``process`` makes."""
+    chunk = np.asarray(chunk)
+    if chunk.dtype != EVENT_DTYPE:
+        if chunk.dtype.names is None or set(chunk.dtype.names) != set(EVENT_DTYPE.names):
+            raise InvalidEventsError(f"chunk has dtype {chunk.dtype}, expected EVENT_DTYPE")
+        chunk = chunk.astype(EVENT_DTYPE)
+    if chunk.ndim != 1:
+        raise InvalidEventsError(f"a chunk is a 1-D array of events, got shape {chunk.shape}")
+    return chunk
+
+
 def join(chunks: list[np.ndarray]) -> np.ndarray:
     """``np.concatenate`` that keeps :data:`EVENT_DTYPE` (plain concatenate drops its padding to 13 bytes)."""
     return np.concatenate(chunks, dtype=EVENT_DTYPE)

@@ -28,7 +28,7 @@ import numpy as np
 
 from evtools._kernels.pixel import LABEL_HOT, LABEL_LEAK, LABEL_SHOT, LABEL_SIGNAL
 from evtools.errors import InvalidEventsError
-from evtools.events import CHUNK_EVENTS, EVENT_DTYPE, check_sensor_size, empty_events, join
+from evtools.events import CHUNK_EVENTS, EVENT_DTYPE, as_chunk, check_sensor_size, empty_events, join
 from evtools.simulate import SimulationError, _check_fraction, _check_nonnegative
 
 __all__ = ["BLOCK_US", "NOISE_DEFAULTS", "NoiseInjector", "inject_noise"]
@@ -230,13 +230,7 @@ class NoiseInjector:
     def _check(self, chunk: np.ndarray) -> np.ndarray:
         if self._flushed:
             raise SimulationError("NoiseInjector: process() after flush(); make a new injector for a new stream")
-        chunk = np.asarray(chunk)
-        if chunk.dtype != EVENT_DTYPE:
-            if chunk.dtype.names is None or set(chunk.dtype.names) != set(EVENT_DTYPE.names):
-                raise InvalidEventsError(f"chunk has dtype {chunk.dtype}, expected EVENT_DTYPE")
-            chunk = chunk.astype(EVENT_DTYPE)
-        if chunk.ndim != 1:
-            raise InvalidEventsError(f"a chunk is a 1-D array of events, got shape {chunk.shape}")
+        chunk = as_chunk(chunk)
         if len(chunk):
             t = chunk["t"]
             if self._t_last is not None and t[0] < self._t_last:
