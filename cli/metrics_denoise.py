@@ -8,7 +8,6 @@ import math
 import click
 import numpy as np
 
-from cli.bafilter import positive
 from cli.options import json_option, read_options, wants_json
 from cli.progress import with_progress
 from evtools.bafilter import METHODS, BAFilter, BAFilterError, parse_methods

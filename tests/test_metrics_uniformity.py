@@ -11,7 +11,7 @@ from evtools.events import make_events
 from evtools.metrics.uniformity import UniformityError, detect_edges, edge_uniformity, edges_from_starts
 from formats import create_events
 from evtools.events import StreamInfo
-from tests.helpers import assert_clean_error, run
+from tests.helpers import run
 
 
 def two_edges(jitter_us=0):

@@ -25,7 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[2]
+from tests.bench.common import ROOT, measure_child, measure_command
+
 EVTOOLS = str(Path(sys.executable).with_name("evtools"))
 TARGETS = {"baf": 50e6, "stcf": 30e6}
 
@@ -108,26 +109,6 @@ def child_generate(events: str) -> None:
 CHILDREN = {"make": child_make, "dv": child_dv, "kernel": child_kernel, "generate": child_generate}
 
 
-def measure_child(*args) -> dict:
-    start = time.perf_counter()
-    process = subprocess.Popen([sys.executable, "-m", "tests.bench.bench_bafilter", "--child", *map(str, args)],
-                               stdout=subprocess.PIPE, cwd=ROOT)
-    output = process.stdout.read()
-    _, status, usage = os.wait4(process.pid, 0)
-    if status != 0:
-        raise SystemExit(f"benchmark child {args} failed")
-    return {**json.loads(output), "peak_mb": usage.ru_maxrss / 1024, "wall_seconds": time.perf_counter() - start}
-
-
-def measure_command(argv, stdin=None, stdout=None) -> dict:
-    start = time.perf_counter()
-    process = subprocess.Popen(argv, cwd=ROOT, stdin=stdin, stdout=stdout, stderr=subprocess.DEVNULL)
-    _, status, usage = os.wait4(process.pid, 0)
-    if status != 0:
-        raise SystemExit(f"{argv} failed")
-    return {"seconds": time.perf_counter() - start, "peak_mb": usage.ru_maxrss / 1024}
-
-
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--file-events", type=lambda text: [int(n) for n in text.split(",")],
@@ -146,10 +127,10 @@ def main() -> None:
     with tempfile.TemporaryDirectory(dir=args.dir) as scratch:
         for events in args.file_events:
             source = os.path.join(scratch, "in.aedat4")
-            measure_child("make", source, events)
+            measure_child("bench_bafilter", "make", source, events)
             ours = measure_command([EVTOOLS, "-q", "bafilter", source, "--method", "baf", "--preset", "dv", "-o",
                                     os.path.join(scratch, "ours.aedat4")])
-            dv = measure_child("dv", source, os.path.join(scratch, "dv.aedat4"))
+            dv = measure_child("bench_bafilter", "dv", source, os.path.join(scratch, "dv.aedat4"))
             ratio = dv["wall_seconds"] / ours["seconds"]  # both whole processes: start-up and imports included
             label = f"{events / 1e6:.0f}M"
             rows.append((f"file {label}: evtools bafilter baf --preset dv", events / ours["seconds"], ours["peak_mb"],
@@ -160,7 +141,7 @@ def main() -> None:
                 os.unlink(os.path.join(scratch, name))
         for width, height in ((346, 260), (1280, 720)):
             for method in ("baf", "stcf", "dwf", "orderN", "refractory", "hotpixel"):
-                r = measure_child("kernel", method, width, height, args.kernel_events)
+                r = measure_child("bench_bafilter", "kernel", method, width, height, args.kernel_events)
                 target = TARGETS.get(method)
                 rows.append((f"kernel {method} {width}x{height}", r["events"] / r["seconds"], r["peak_mb"], "",
                              f">= {target / 1e6:.0f} Mev/s" if target else ""))

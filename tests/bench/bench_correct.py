@@ -13,18 +13,15 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import subprocess
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
+
+from tests.bench.common import measure_child
 
 WIDTH, HEIGHT = 346, 260
 CHUNK = 1 << 20
 TARGET_MEV_S = 20.0
-ROOT = Path(__file__).resolve().parents[2]
 
 
 def child(total: int, mode: str) -> dict:
@@ -49,13 +46,7 @@ def child(total: int, mode: str) -> dict:
 
 
 def measure(total: int, mode: str) -> dict:
-    process = subprocess.Popen([sys.executable, "-m", "tests.bench.bench_correct", "--child", str(total), mode],
-                               stdout=subprocess.PIPE, cwd=ROOT)
-    output = process.stdout.read()
-    _, status, usage = os.wait4(process.pid, 0)
-    if status != 0:
-        raise SystemExit(f"benchmark child {mode} failed")
-    return {**json.loads(output), "peak_mb": usage.ru_maxrss / 1024}
+    return measure_child("bench_correct", total, mode)
 
 
 def main() -> None:

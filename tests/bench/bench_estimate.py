@@ -16,19 +16,16 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import subprocess
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
+
+from tests.bench.common import measure_child
 
 WIDTH, HEIGHT = 346, 260
 CHUNK = 1 << 20
 RATE_EV_PER_US = 10
 TARGET_EV_S = 50e6
-ROOT = Path(__file__).resolve().parents[2]
 
 
 def child(method: str, events: int) -> dict:
@@ -62,13 +59,7 @@ def child(method: str, events: int) -> dict:
 
 
 def measure(method: str, events: int) -> dict:
-    process = subprocess.Popen([sys.executable, "-m", "tests.bench.bench_estimate", "--child", method, str(events)],
-                               stdout=subprocess.PIPE, cwd=ROOT)
-    out = process.stdout.read()
-    _, status, usage = os.wait4(process.pid, 0)
-    if status != 0:
-        raise SystemExit(f"child {method} {events} failed")
-    return {**json.loads(out), "peak_rss_mb": usage.ru_maxrss / 1024}
+    return measure_child("bench_estimate", method, events)
 
 
 def main() -> None:
@@ -88,7 +79,7 @@ def main() -> None:
             r = measure(method, events)
             rate = r["events"] / r["seconds"]
             print(f"{method:9} {r['events']:>12,} {r['seconds']:8.2f} {rate / 1e6:7.1f} {r['result_s']:8.2f} "
-                  f"{r['peak_rss_mb']:11.0f} {rate / TARGET_EV_S:8.2f}x", flush=True)
+                  f"{r['peak_mb']:11.0f} {rate / TARGET_EV_S:8.2f}x", flush=True)
 
 
 if __name__ == "__main__":

@@ -11,14 +11,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+
+from tests.bench.common import measure_child, measure_command
 
 WIDTH, HEIGHT = 346, 260
 CHUNK = 1 << 20
@@ -114,25 +114,9 @@ CHILDREN = {"write": child_write, "read": child_read, "aedat_read": child_aedat_
 
 def measure(*args) -> dict:
     """Run one child in a fresh interpreter; its JSON result plus its peak RSS in MB."""
-    process = subprocess.Popen([sys.executable, "-m", "tests.bench.bench_formats", "--child", *map(str, args)],
-                               stdout=subprocess.PIPE, cwd=Path(__file__).resolve().parents[2])
-    output = process.stdout.read()
-    _, status, usage = os.wait4(process.pid, 0)
-    if status != 0:
-        raise SystemExit(f"benchmark child {args} failed")
-    result = json.loads(output)
-    result["peak_mb"] = usage.ru_maxrss / 1024
+    result = measure_child("bench_formats", *args)
     result["rate"] = result["events"] / result["seconds"]
     return result
-
-
-def measure_command(argv: list[str]) -> dict:
-    start = time.perf_counter()
-    process = subprocess.Popen(argv)
-    _, status, usage = os.wait4(process.pid, 0)
-    if status != 0:
-        raise SystemExit(f"{argv} failed")
-    return {"seconds": time.perf_counter() - start, "peak_mb": usage.ru_maxrss / 1024}
 
 
 def row(what: str, result: dict, peer: dict | None = None, target: float | None = None) -> None:

@@ -19,14 +19,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+
+from tests.bench.common import measure_child, measure_command
 
 VIDEO_SIZE = (346, 260)
 VIDEO_FPS = 100.0
@@ -35,7 +35,6 @@ SCENE_DURATION = "1s"
 PRESETS = ("clean", "noisy")
 SEED = 1
 TARGET_PIXEL_FRAMES_PER_S = 50e6
-ROOT = Path(__file__).resolve().parents[2]
 
 
 def make_video(path: Path, frames: int, size: tuple[int, int] = VIDEO_SIZE, fps: float = VIDEO_FPS) -> None:
@@ -106,22 +105,7 @@ CHILDREN = {"video": child_video, "scene": child_scene}
 
 def measure(*args) -> dict:
     """One child in a fresh interpreter: its JSON result plus its peak RSS in MB."""
-    process = subprocess.Popen([sys.executable, "-m", "tests.bench.bench_simulate", "--child", *map(str, args)],
-                               stdout=subprocess.PIPE, cwd=ROOT)
-    output = process.stdout.read()
-    _, status, usage = os.wait4(process.pid, 0)
-    if status != 0:
-        raise SystemExit(f"benchmark child {args} failed")
-    return {**json.loads(output), "peak_mb": usage.ru_maxrss / 1024}
-
-
-def measure_command(argv: list[str]) -> dict:
-    start = time.perf_counter()
-    process = subprocess.Popen(argv, cwd=ROOT)
-    _, status, usage = os.wait4(process.pid, 0)
-    if status != 0:
-        raise SystemExit(f"{argv} failed")
-    return {"seconds": time.perf_counter() - start, "peak_mb": usage.ru_maxrss / 1024}
+    return measure_child("bench_simulate", *args)
 
 
 def row(source: str, preset: str, what: str, frames: int, pixel_frames: float, events: int | None,
