@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gc
 import importlib
 import logging
 import os
@@ -99,4 +100,9 @@ def cli(quiet: bool) -> None:
 
 
 def main() -> None:
-    cli(prog_name="evtools")
+    try:
+        cli(prog_name="evtools")
+    finally:
+        # Python's last garbage collections walk every object numba created (~0.2 s per process, measured with
+        # `time`); frozen objects are skipped. Files are closed and flushed as usual.
+        gc.freeze()
