@@ -41,7 +41,7 @@ from evtools._kernels.correct import (
     release_sorted,
 )
 from evtools.errors import EvtoolsError
-from evtools.events import EVENT_DTYPE, check_sensor_size, empty_events, join, make_events
+from evtools.events import EVENT_DTYPE, check_sensor_size, empty_events, join
 
 __all__ = ["CORRECT_DEFAULTS", "MODES", "CorrectionError", "ThresholdCorrector", "correct_thresholds"]
 
@@ -200,9 +200,9 @@ class ThresholdCorrector:
         }
 
     @staticmethod
-    def _buffers(capacity: int) -> tuple[np.ndarray, ...]:
-        return (np.empty(capacity, np.int64), np.empty(capacity, np.int16), np.empty(capacity, np.int16),
-                np.empty(capacity, np.bool_))
+    def _buffers(capacity: int) -> tuple[np.ndarray, np.ndarray]:
+        """Room for ``capacity`` created events: times (us) and second words (x, y, p as EVENT_DTYPE lays them)."""
+        return np.empty(capacity, np.int64), np.empty(capacity, np.int64)
 
     @staticmethod
     def _grown(buffers, capacity: int, keep: int) -> tuple[np.ndarray, ...]:
@@ -225,15 +225,14 @@ class ThresholdCorrector:
 
     def _resample(self, chunk: np.ndarray) -> int:
         """Write every event that ``chunk`` creates into ``self._new``, in creation order; returns their number."""
-        t, x, y, p = chunk["t"], chunk["x"], chunk["y"], chunk["p"]
+        words = np.ascontiguousarray(chunk).view(np.int64).reshape(-1, 2)
         if len(self._new[0]) < 2 * len(chunk):
             self._new = self._buffers(2 * len(chunk))
         start, n = 0, 0
         while True:
             start, n, _ = correct_events(
-                t, x, y, p, start, self.width, self._state, self._polarity, self._use, self.target_on,
-                self.target_off, MODES[self.mode], self.turns, self.hold_us, self.max_gap_us, self.tau_us,
-                *self._new, n,
+                words, start, self.width, self._state, self._polarity, self._use, self.target_on, self.target_off,
+                MODES[self.mode], self.turns, self.hold_us, self.max_gap_us, self.tau_us, *self._new, n,
             )
             if start >= len(chunk):
                 return n
@@ -264,8 +263,9 @@ class ThresholdCorrector:
         if len(self._keep[0]) < h + n:
             self._keep = self._buffers(2 * (h + n))
         out = np.empty(h + n, dtype=EVENT_DTYPE)
+        words = out.view(np.int64).reshape(-1, 2)
         released, kept = release_sorted(*self._held, h, *self._new, n, bound, self._order, self._counts,
-                                        *self._sorted, out["t"], out["x"], out["y"], out["p"], *self._keep)
+                                        *self._sorted, words[:, 0], words[:, 1], *self._keep)
         self._held, self._keep = self._keep, self._held
         self._n_held = kept
         return out[:released]
@@ -273,8 +273,10 @@ class ThresholdCorrector:
     def flush(self) -> np.ndarray:
         """Whatever is still held (the stream ended)."""
         h, self._n_held = self._n_held, 0
-        t, x, y, p = (b[:h] for b in self._held)
-        return make_events(t, x, y, p) if h else empty_events()
+        out = empty_events(h)
+        words = out.view(np.int64).reshape(-1, 2)
+        words[:, 0], words[:, 1] = self._held[0][:h], self._held[1][:h]
+        return out
 
 
 def correct_thresholds(events: np.ndarray, width: int, height: int, on, off, valid=None, **options) -> np.ndarray:

@@ -55,17 +55,22 @@ NO_EVENT_US = (1 << 63) - 1
 """``last_us`` of a pixel that has not fired yet (the largest int64, so a minimum over pixels ignores it)."""
 
 
+ON_BIT = 1 << 32
+"""The polarity bit of an event's second 8-byte word (x int16 at byte 8, y int16 at byte 10, p bool at byte 12)."""
+
+
 @njit(cache=True, nogil=True, inline="always")
-def _segment(level, delta, off0, off1, t_b, x, y, target_on, target_off, out_t, out_x, out_y, out_p, n):
-    """Re-sample the line from ``(t_b + off0, level)`` to ``(t_b + off1, level + delta)``; returns (level, n)."""
+def _segment(level, delta, off0, off1, t_b, xy, target_on, target_off, out_t, out_w, n):
+    """Re-sample the line from ``(t_b + off0, level)`` to ``(t_b + off1, level + delta)``; returns (level, n).
+
+    ``xy`` is the pixel's x and y as the low 32 bits of an event's second word; created events are written as
+    (time, word) pairs."""
     span = off1 - off0
     if delta > 0.0:
         k = 1.0
         while level + delta >= k * target_on:
             out_t[n] = t_b + np.int64(math.floor(off0 + (k * target_on - level) / delta * span + 0.5))
-            out_x[n] = x
-            out_y[n] = y
-            out_p[n] = True
+            out_w[n] = xy | ON_BIT
             n += 1
             k += 1.0
         return level + delta - (k - 1.0) * target_on, n
@@ -73,9 +78,7 @@ def _segment(level, delta, off0, off1, t_b, x, y, target_on, target_off, out_t, 
         k = 1.0
         while level + delta <= -k * target_off:
             out_t[n] = t_b + np.int64(math.floor(off0 + (-k * target_off - level) / delta * span + 0.5))
-            out_x[n] = x
-            out_y[n] = y
-            out_p[n] = False
+            out_w[n] = xy
             n += 1
             k += 1.0
         return level + delta + (k - 1.0) * target_off, n
@@ -93,35 +96,36 @@ a rest (else NO_EVENT_US), and the pixel's thresholds (float32, the maps' precis
 
 
 @njit(cache=True, nogil=True)
-def correct_events(t, x, y, p, start, width, state, polarity, use, target_on, target_off, mode, turns, hold_us,
-                   max_gap_us, tau_us, out_t, out_x, out_y, out_p, n):  # pragma: no cover - compiled
-    """Process events ``start..`` while their worst case fits in the output arrays.
+def correct_events(words, start, width, state, polarity, use, target_on, target_off, mode, turns, hold_us,
+                   max_gap_us, tau_us, out_t, out_w, n):  # pragma: no cover - compiled
+    """Process the events ``words[start:]`` ((n, 2) int64: time, then x, y, p as EVENT_DTYPE lays them out) while
+    their worst case fits in the output arrays.
 
     Returns (next input, count, a sum of the touched levels that only keeps the look-ahead loads alive).
 
     ``state`` (:data:`PIXEL_DTYPE`) and ``polarity`` (int8: +1, -1, 0 before the first event) are per pixel (index
     ``y * width + x``) and updated in place; ``use`` says which pixels are re-sampled. Events are written from
-    index ``n`` on, in creation order.
+    index ``n`` on, in creation order, as times ``out_t`` and second words ``out_w`` (padding zero).
     """
     capacity = out_t.shape[0]
     min_target = min(target_on, target_off)
-    end = t.shape[0]
+    end = words.shape[0]
     touched = 0.0
     i = start
     while i < end:
         if i + AHEAD < end:  # touch the state of a pixel a few events ahead: its cache miss overlaps this work
-            touched += state[y[i + AHEAD] * width + x[i + AHEAD]].level
-        t_b = t[i]
-        xi = x[i]
-        yi = y[i]
-        pixel = yi * width + xi
+            ahead = words[i + AHEAD, 1]
+            touched += state[((ahead >> 16) & 0xFFFF) * width + (ahead & 0xFFFF)].level
+        t_b = words[i, 0]
+        word = words[i, 1]
+        xy = word & 0xFFFFFFFF
+        on = ((word >> 32) & 0xFF) != 0
+        pixel = ((word >> 16) & 0xFFFF) * width + (word & 0xFFFF)
         if not use[pixel]:
             if n >= capacity:
                 return i, n, touched
             out_t[n] = t_b
-            out_x[n] = xi
-            out_y[n] = yi
-            out_p[n] = p[i]
+            out_w[n] = xy | ON_BIT if on else xy
             n += 1
             i += 1
             continue
@@ -132,8 +136,8 @@ def correct_events(t, x, y, p, start, width, state, polarity, use, target_on, ta
         last_polarity = polarity[pixel]
         t_a = row.last_us
         t_prev = row.previous_us
-        sign = 1 if p[i] else -1
-        d = theta_on if p[i] else -theta_off
+        sign = 1 if on else -1
+        d = theta_on if on else -theta_off
         # worst case: |a| < max target, an extremum < one threshold, the event's own threshold
         if n + (abs(a) + theta_on + theta_off) / min_target + 3.0 > capacity:
             return i, n, touched
@@ -161,12 +165,10 @@ def correct_events(t, x, y, p, start, width, state, polarity, use, target_on, ta
             else:
                 excess = 0.5 * theta_run
                 off_peak = -0.5 * gap_f
-            a, n = _segment(a, run * excess, -gap_f, off_peak, t_b, xi, yi, target_on, target_off,
-                            out_t, out_x, out_y, out_p, n)
-            a, n = _segment(a, d - run * excess, off_peak, 0.0, t_b, xi, yi, target_on, target_off,
-                            out_t, out_x, out_y, out_p, n)
+            a, n = _segment(a, run * excess, -gap_f, off_peak, t_b, xy, target_on, target_off, out_t, out_w, n)
+            a, n = _segment(a, d - run * excess, off_peak, 0.0, t_b, xy, target_on, target_off, out_t, out_w, n)
         else:
-            a, n = _segment(a, d, off_start, 0.0, t_b, xi, yi, target_on, target_off, out_t, out_x, out_y, out_p, n)
+            a, n = _segment(a, d, off_start, 0.0, t_b, xy, target_on, target_off, out_t, out_w, n)
         row.level = a
         polarity[pixel] = sign
         # the run's previous event, for its slope (not across a rest: that is no ramp)
@@ -176,16 +178,42 @@ def correct_events(t, x, y, p, start, width, state, polarity, use, target_on, ta
     return i, n, touched
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _merge(a_t, a_w, i, a_end, b_t, b_w, j, b_end, dst_t, dst_w, d):
+    """Merge ``a[i:a_end]`` and ``b[j:b_end]`` (each sorted by time) into ``dst`` from ``d``, ``a`` first on ties;
+    branch-free in the common part (which run is next is a coin toss)."""
+    while i < a_end and j < b_end:
+        ta = a_t[i]
+        tb = b_t[j]
+        take_a = ta <= tb
+        dst_t[d] = ta if take_a else tb
+        dst_w[d] = a_w[i] if take_a else b_w[j]
+        i += take_a
+        j += 1 - take_a
+        d += 1
+    while i < a_end:
+        dst_t[d] = a_t[i]
+        dst_w[d] = a_w[i]
+        i += 1
+        d += 1
+    while j < b_end:
+        dst_t[d] = b_t[j]
+        dst_w[d] = b_w[j]
+        j += 1
+        d += 1
+    return d
+
+
 @njit(cache=True, nogil=True)
-def release_sorted(held_t, held_x, held_y, held_p, h, new_t, new_x, new_y, new_p, n, bound, order, counts,
-                   sorted_t, sorted_x, sorted_y, sorted_p, out_t, out_x, out_y, out_p, keep_t, keep_x, keep_y,
-                   keep_p):  # pragma: no cover - compiled
+def release_sorted(held_t, held_w, h, new_t, new_w, n, bound, order, counts, sorted_t, sorted_w, out_t, out_w,
+                   keep_t, keep_w):  # pragma: no cover - compiled
     """Merge the held events (sorted) with the new ones (creation order); split at ``bound``.
 
     The new events are sorted by time into ``sorted_*``, ties in creation order (a counting sort that scatters
     them straight to their places when ``counts`` covers their time span, else a stable merge sort and a
-    gather), then merged with the held ones (held first on ties: they were created earlier), both read in order.
-    Events at or before ``bound`` go to ``out_*`` in order, the rest to ``keep_*``. Returns (released, kept).
+    gather). The merged stream is sorted, so the events at or before ``bound`` are its first ones: the runs' parts
+    up to ``bound`` are merged into ``out_*``, the rest into ``keep_*`` (held first on ties: they were created
+    earlier). Returns (released, kept).
     """
     if n > 0:
         low = new_t[0]
@@ -207,38 +235,15 @@ def release_sorted(held_t, held_x, held_y, held_p, h, new_t, new_x, new_y, new_p
                 place = counts[new_t[k] - low]
                 counts[new_t[k] - low] = place + 1
                 sorted_t[place] = new_t[k]
-                sorted_x[place] = new_x[k]
-                sorted_y[place] = new_y[k]
-                sorted_p[place] = new_p[k]
+                sorted_w[place] = new_w[k]
         else:
             order[:n] = np.argsort(new_t[:n], kind="mergesort")
             for j in range(n):
                 k = order[j]
                 sorted_t[j] = new_t[k]
-                sorted_x[j] = new_x[k]
-                sorted_y[j] = new_y[k]
-                sorted_p[j] = new_p[k]
-    i = 0
-    j = 0
-    released = 0
-    kept = 0
-    while i < h or j < n:
-        if j >= n or (i < h and held_t[i] <= sorted_t[j]):
-            tt, xx, yy, pp = held_t[i], held_x[i], held_y[i], held_p[i]
-            i += 1
-        else:
-            tt, xx, yy, pp = sorted_t[j], sorted_x[j], sorted_y[j], sorted_p[j]
-            j += 1
-        if tt <= bound:
-            out_t[released] = tt
-            out_x[released] = xx
-            out_y[released] = yy
-            out_p[released] = pp
-            released += 1
-        else:
-            keep_t[kept] = tt
-            keep_x[kept] = xx
-            keep_y[kept] = yy
-            keep_p[kept] = pp
-            kept += 1
+                sorted_w[j] = new_w[k]
+    held_end = np.searchsorted(held_t[:h], bound, side="right")
+    new_end = np.searchsorted(sorted_t[:n], bound, side="right")
+    released = _merge(held_t, held_w, 0, held_end, sorted_t, sorted_w, 0, new_end, out_t, out_w, 0)
+    kept = _merge(held_t, held_w, held_end, h, sorted_t, sorted_w, new_end, n, keep_t, keep_w, 0)
     return released, kept
