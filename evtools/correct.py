@@ -230,7 +230,7 @@ class ThresholdCorrector:
             self._new = self._buffers(2 * len(chunk))
         start, n = 0, 0
         while True:
-            start, n, _ = correct_events(
+            start, n = correct_events(
                 words, start, self.width, self._state, self._polarity, self._use, self.target_on, self.target_off,
                 MODES[self.mode], self.turns, self.hold_us, self.max_gap_us, self.tau_us, *self._new, n,
             )

