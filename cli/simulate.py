@@ -266,6 +266,8 @@ def is_event_stream(source: str, input_format: str | None) -> bool:
 _SCENE_OPTIONS = {  # keyword of the scene functions -> command-line option
     "frame_rate_hz": "frame_rate",
     "period_s": "period",
+    "profile": "profile",
+    "phase": "phase",
     "speed_px_s": "speed",
     "wavelength_px": "wavelength",
     "bar_width_px": "bar_width",
@@ -374,6 +376,9 @@ def _float_option(name: str, help: str):
               help="Seed of every random draw (default: a fresh one, recorded in --truth and the output's source).")
 @click.option("--frame-rate", type=float, default=None, help="Scene frame rate, Hz (default 1000).")
 @click.option("--period", default=None, metavar="TIME", help="flicker, step: period (default 500ms, 1s).")
+@click.option("--profile", type=click.Choice(["intensity", "log"]), default=None,
+              help="flicker: the wave is linear in intensity (default) or in log intensity.")
+@click.option("--phase", type=float, default=None, help="flicker: the wave's phase at time 0, periods (0 = valley).")
 @click.option("--speed", type=float, default=None, help="gradient, bars: speed in pixels per second (default 50).")
 @click.option("--wavelength", type=float, default=None, help="gradient: rise-and-fall length, pixels (default 64).")
 @click.option("--bar-width", type=float, default=None, help="bars: bar width, pixels (default 8).")

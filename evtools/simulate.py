@@ -490,19 +490,35 @@ def _check_levels(min_level: float, max_level: float) -> None:
             raise SimulationError(f"{name} must be between 0 and 255, got {value}")
 
 
+FLICKER_PROFILES = ("intensity", "log")
+
+
 def flicker_scene(
     width: int, height: int, duration_us: int, *, frame_rate_hz: float = DEFAULT_FRAME_RATE_HZ,
-    min_level: float = 50.0, max_level: float = 200.0, period_s: float = 0.5,
+    min_level: float = 50.0, max_level: float = 200.0, period_s: float = 0.5, profile: str = "intensity",
+    phase: float = 0.0,
 ) -> Iterator[tuple[int, np.ndarray]]:
-    """Every pixel alike: intensity a triangle wave from ``min_level`` up to ``max_level`` and back per ``period_s``.
+    """Every pixel alike: a triangle wave from ``min_level`` up to ``max_level`` and back per ``period_s``.
 
     The report's flicker scene: every pixel sees the same log-intensity excursion, so per-pixel event counts
-    reveal the thresholds.
+    reveal the thresholds. ``profile`` ``intensity``: linear in intensity (the report's); ``log``: linear in log
+    intensity, so a pixel's log signal is exactly linear between its events (the case where first-order-hold
+    re-sampling is exact). ``phase`` (in periods, 0 = the valley) is where the wave is at time 0.
     """
     _check_levels(min_level, max_level)
     _check_positive("period", period_s)
+    if profile not in FLICKER_PROFILES:
+        raise SimulationError(f"flicker profile must be one of {', '.join(FLICKER_PROFILES)}, got {profile!r}")
+    if profile == "log" and min_level <= 0:
+        raise SimulationError(f"a log profile needs min level > 0, got {min_level}")
+    if not math.isfinite(phase):
+        raise SimulationError(f"phase must be a finite number of periods, got {phase}")
     times = _frame_times_us(duration_us, frame_rate_hz)
-    levels = min_level + (max_level - min_level) * _triangle(times * 1e-6 / period_s)
+    wave = _triangle(times * 1e-6 / period_s + phase)
+    if profile == "log":
+        levels = np.exp(math.log(min_level) + (math.log(max_level) - math.log(min_level)) * wave)
+    else:
+        levels = min_level + (max_level - min_level) * wave
     return ((int(t), np.full((height, width), level, dtype=np.float32)) for t, level in zip(times, levels))
 
 

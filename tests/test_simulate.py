@@ -509,3 +509,22 @@ def test_fixed_cutoff_is_a_single_pole_filter_at_every_intensity():
         eps = 1e-3 / tau_s  # the filter moves by eps of the gap per 1 ms frame
         expected_us = 1e3 * np.log(1.0 - theta / amplitude) / np.log(1.0 - eps)
         np.testing.assert_allclose(first, expected_us, atol=1_000)  # within the frame where it crosses
+
+
+def test_flicker_log_profile_is_linear_in_log_intensity_and_phase_shifts_it():
+    frames = list(scene_frames("flicker", 2, 2, 500_000, profile="log", phase=0.25, period_s=0.5))
+    t_us = np.array([t for t, _ in frames])
+    log_level = np.log(np.array([frame[0, 0] for _, frame in frames], dtype=np.float64))
+    wave = 1.0 - np.abs(2.0 * np.mod(t_us / 500_000 + 0.25, 1.0) - 1.0)
+    expected = math.log(50.0) + math.log(200.0 / 50.0) * wave
+    assert np.abs(log_level - expected).max() < 1e-6  # float32 frames
+    assert frames[0][1][0, 0] == pytest.approx(100.0, rel=1e-6)  # a quarter period in: half way in log, sqrt(50 x 200)
+
+
+def test_flicker_profile_errors(tmp_path):
+    with pytest.raises(SimulationError, match="profile"):
+        list(scene_frames("flicker", 2, 2, 1000, profile="sine"))
+    with pytest.raises(SimulationError, match="min level > 0"):
+        list(scene_frames("flicker", 2, 2, 1000, profile="log", min_level=0))
+    assert_clean_error(run("simulate", "scene:step", "--profile", "log", "-o", tmp_path / "x.aedat4", check=False),
+                       "scene step has no option --profile")
