@@ -25,9 +25,10 @@ class _StderrFormatter(logging.Formatter):
 
 class LazyGroup(click.Group):
     """A group whose subcommands are imported only when used, so a command loads only what it needs (numba, h5py
-    and OpenCV take most of a second to import); ``commands`` maps a name to ``"module:function"``."""
+    and OpenCV take most of a second to import). ``lazy_commands`` maps a name to ``("module:function", summary)``;
+    ``--help`` lists the summaries without importing anything (a test keeps them equal to the commands' own)."""
 
-    def __init__(self, *args, lazy_commands: dict[str, str] | None = None, **kwargs) -> None:
+    def __init__(self, *args, lazy_commands: dict[str, tuple[str, str]] | None = None, **kwargs) -> None:
         super().__init__(*args, **kwargs)
         self.lazy_commands = lazy_commands or {}
 
@@ -36,20 +37,49 @@ class LazyGroup(click.Group):
 
     def get_command(self, ctx: click.Context, name: str):
         if name in self.lazy_commands and name not in self.commands:
-            module, function = self.lazy_commands[name].split(":")
+            module, function = self.lazy_commands[name][0].split(":")
             self.add_command(getattr(importlib.import_module(module), function), name)
         return super().get_command(ctx, name)
 
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        names = self.list_commands(ctx)
+        if not names:
+            return
+        limit = formatter.width - 6 - max(len(name) for name in names)
+        rows = []
+        for name in names:
+            if name in self.lazy_commands and name not in self.commands:
+                rows.append((name, click.utils.make_default_short_help(self.lazy_commands[name][1], limit)))
+            else:
+                command = self.get_command(ctx, name)
+                if command is not None and not command.hidden:
+                    rows.append((name, command.get_short_help_str(limit)))
+        with formatter.section("Commands"):
+            formatter.write_dl(rows)
+
 
 COMMANDS = {
-    "info": "cli.info:info",
-    "convert": "cli.convert:convert",
-    "simulate": "cli.simulate:simulate",
-    "render": "cli.render:render",
-    "bafilter": "cli.bafilter:bafilter",
-    "estimate": "cli.estimate:estimate",
-    "correct": "cli.correct:correct",
-    "metrics": "cli.metrics:metrics",
+    "info": ("cli.info:info",
+             "Format, sensor size, event count, time span, rate and ON fraction of each FILE (`-` = stdin)."),
+    "convert": ("cli.convert:convert",
+                "Convert IN (default stdin) to OUT or -o OUT (default stdout), chunk by chunk in bounded memory."),
+    "simulate": ("cli.simulate:simulate",
+                 "Simulate a DVS looking at SOURCE: a video file, a folder of images, or scene:NAME; or add "
+                 "labelled noise to SOURCE when it is an event stream (any readable format, `-` for stdin)."),
+    "render": ("cli.render:render",
+               "Draw IN (default stdin) as event frames, or a thresholds map with --map: users look before they "
+               "read."),
+    "bafilter": ("cli.bafilter:bafilter",
+                 "Remove background activity from IN (default stdin), writing OUT or -o OUT (default stdout)."),
+    "estimate": ("cli.estimate:estimate",
+                 "Estimate every pixel's ON and OFF contrast thresholds from IN (default stdin), streaming, into "
+                 "-o FILE."),
+    "correct": ("cli.correct:correct",
+                "Re-sample every pixel of IN (default stdin) at one target threshold; write -o OUT (default "
+                "stdout)."),
+    "metrics": ("cli.metrics:metrics",
+                "Measure denoising (denoise, roc, esr), threshold estimation (thresholds) and uniformity "
+                "(uniformity)."),
 }
 
 
