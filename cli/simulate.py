@@ -18,7 +18,15 @@ from cli.options import aedat2_layout_option, input_format_option, sensor_size_o
 from cli.progress import with_progress
 from evtools.events import CHUNK_EVENTS, StreamInfo, join, parse_sensor_size
 from evtools.noise import NOISE_DEFAULTS, NoiseInjector
-from evtools.simulate import DEFAULT_PARAMETERS, LABELS, PRESETS, SCENES, DvsSimulator, SimulationError
+from evtools.simulate import (
+    DEFAULT_PARAMETERS,
+    FLICKER_PROFILES,
+    LABELS,
+    PRESETS,
+    SCENES,
+    DvsSimulator,
+    SimulationError,
+)
 from formats import create_events, open_events
 from formats.io import STDIO, HEAD_BYTES, output_stream, same_file
 from formats.registry import FORMATS, detect
@@ -376,7 +384,7 @@ def _float_option(name: str, help: str):
               help="Seed of every random draw (default: a fresh one, recorded in --truth and the output's source).")
 @click.option("--frame-rate", type=float, default=None, help="Scene frame rate, Hz (default 1000).")
 @click.option("--period", default=None, metavar="TIME", help="flicker, step: period (default 500ms, 1s).")
-@click.option("--profile", type=click.Choice(["intensity", "log"]), default=None,
+@click.option("--profile", type=click.Choice(FLICKER_PROFILES), default=None,
               help="flicker: the wave is linear in intensity (default) or in log intensity.")
 @click.option("--phase", type=float, default=None, help="flicker: the wave's phase at time 0, periods (0 = valley).")
 @click.option("--speed", type=float, default=None, help="gradient, bars: speed in pixels per second (default 50).")
