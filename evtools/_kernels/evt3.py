@@ -50,6 +50,23 @@ def new_evt3_state() -> np.ndarray:
     return state
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _emit(state, t_us, x, y, p, n, loops, time_high, time_low, column, row, polarity):  # pragma: no cover
+    """Write one CD event at ``n`` and return the new count; without a time or a row yet it is dropped and
+    counted in ``state``."""
+    if time_high < 0:
+        state[DROPPED_NO_TIME] += 1
+        return n
+    if row < 0:
+        state[DROPPED_NO_Y] += 1
+        return n
+    t_us[n] = (loops << 24) | (time_high << 12) | time_low
+    x[n] = column
+    y[n] = row
+    p[n] = polarity
+    return n + 1
+
+
 @njit(cache=True, nogil=True)
 def decode_evt3(words, state, t_us, x, y, p):  # pragma: no cover - compiled
     """Decode EVT 3.0 words into CD events until the words or the output space run out.
@@ -88,16 +105,7 @@ def decode_evt3(words, state, t_us, x, y, p):  # pragma: no cover - compiled
         if kind == 0x0:  # EVT_ADDR_Y: bit 11 system type, bits 0-10 y
             row = word & 0x7FF
         elif kind == 0x2:  # EVT_ADDR_X: bit 11 polarity, bits 0-10 x; one event
-            if time_high < 0:
-                state[DROPPED_NO_TIME] += 1
-            elif row < 0:
-                state[DROPPED_NO_Y] += 1
-            else:
-                t_us[n] = (loops << 24) | (time_high << 12) | time_low
-                x[n] = word & 0x7FF
-                y[n] = row
-                p[n] = (word >> 11) & 1
-                n += 1
+            n = _emit(state, t_us, x, y, p, n, loops, time_high, time_low, word & 0x7FF, row, (word >> 11) & 1)
         elif kind == 0x3:  # VECT_BASE_X: bit 11 polarity, bits 0-10 x
             base_x = word & 0x7FF
             base_p = (word >> 11) & 1
@@ -105,16 +113,7 @@ def decode_evt3(words, state, t_us, x, y, p):  # pragma: no cover - compiled
             width = 12 if kind == 0x4 else 8
             for j in range(width):
                 if (word >> j) & 1:
-                    if time_high < 0:
-                        state[DROPPED_NO_TIME] += 1
-                    elif row < 0:
-                        state[DROPPED_NO_Y] += 1
-                    else:
-                        t_us[n] = (loops << 24) | (time_high << 12) | time_low
-                        x[n] = base_x + j
-                        y[n] = row
-                        p[n] = base_p
-                        n += 1
+                    n = _emit(state, t_us, x, y, p, n, loops, time_high, time_low, base_x + j, row, base_p)
             base_x += width
         elif kind == 0x6:  # EVT_TIME_LOW
             time_low = word & 0xFFF

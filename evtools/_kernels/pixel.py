@@ -75,6 +75,15 @@ def random_bits(key, pixel, draw):  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True, inline="always")
+def _noise_draw(key, pixel, draw, s, mass):  # pragma: no cover - compiled
+    """A noise event of a Poisson process at ``s``: its polarity (a fair coin) and the process's next event,
+    ``s`` plus an exponential gap of rate ``mass``, both from draw number ``draw`` of ``pixel`` in stream ``key``."""
+    bits = random_bits(key, pixel, draw)
+    u = float(bits >> _S11) * _TWO_POW_M53
+    return (bits & _ONE) == _ONE, s + -math.log(1.0 - u) / mass
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _lin_log(intensity):  # pragma: no cover - compiled
     if intensity <= LIN_LOG_KNEE:
         return intensity * LIN_LOG_SLOPE
@@ -316,20 +325,14 @@ def advance_pixels(
                     polarity = False
                     label = LABEL_SIGNAL
             elif shot_next == s:
-                bits = random_bits(shot_key, at, shot_n)
+                polarity, shot_next = _noise_draw(shot_key, at, shot_n, s, shot_mass)
                 shot_n += _ONE
-                polarity = (bits & _ONE) == _ONE
-                u = float(bits >> _S11) * _TWO_POW_M53
-                shot_next = s + -math.log(1.0 - u) / shot_mass
                 label = LABEL_SHOT
                 if free:
                     ref = lp_start + (signal_change + leak_drift) * s  # reset to the signal: lp - ref = 0
             else:
-                bits = random_bits(hot_key, at, hot_n)
+                polarity, hot_next = _noise_draw(hot_key, at, hot_n, s, hot_mass)
                 hot_n += _ONE
-                polarity = (bits & _ONE) == _ONE
-                u = float(bits >> _S11) * _TWO_POW_M53
-                hot_next = s + -math.log(1.0 - u) / hot_mass
                 label = LABEL_HOT
             if free:
                 if count >= capacity:
