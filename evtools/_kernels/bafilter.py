@@ -15,7 +15,7 @@ has not fired: ``t - NEVER`` is larger than any correlation window.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from evtools._kernels.jit import kernel
 
 from evtools._kernels.prefetch import prefetch
 
@@ -34,13 +34,13 @@ def padded_map(width: int, height: int, pad: int, start: int) -> np.ndarray:
     return time_map
 
 
-@njit(inline="always")
+@kernel(inline=True)
 def unpack(word):
     """x, y, p of an event's second 8 bytes (x int16 at byte 8, y int16 at byte 10, p bool at byte 12)."""
     return word & 0xFFFF, (word >> 16) & 0xFFFF, ((word >> 32) & 0xFF) != 0
 
 
-@njit(inline="always")
+@kernel(inline=True)
 def _keep(words, i, out, n, keep):
     """Copy record ``i`` to ``out[n]`` whether kept or not and return ``n + keep``: branch-free, because keep or
     reject is hard to predict (20 % faster on random events, measured with the bench's kernel rows)."""
@@ -49,7 +49,7 @@ def _keep(words, i, out, n, keep):
     return n + keep
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def baf(words, time_map, dt_us, first_rejected, out):
     """BAF: keep an event when one of its 8 neighbours (not itself) fired less than ``dt_us`` before it.
 
@@ -74,7 +74,7 @@ def baf(words, time_map, dt_us, first_rejected, out):
     return n
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def stcf(words, time_map, dt_us, radius, k, use_polarity, first_rejected, jaer_window, out):
     """STCF: keep an event when at least ``k`` pixels of its (2r+1)^2 window (itself excluded) fired less than
     ``dt_us`` before it, with its polarity when ``use_polarity``.
@@ -128,7 +128,7 @@ def stcf(words, time_map, dt_us, radius, k, use_polarity, first_rejected, jaer_w
     return n
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def dwf(words, kept_xy, rejected_xy, counters, distance, k, out):
     """DWF (Guo & Delbruck 2022): keep an event when at least ``k`` of the stored events lie at L1 distance
     ``< distance``; push it into the FIFO of kept events or of rejected ones.
@@ -179,7 +179,7 @@ def dwf(words, kept_xy, rejected_xy, counters, distance, k, out):
     return n
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def order_n(words, row_t, row_x, col_t, col_y, dt_us, self_counts, jaer_edges, out):
     """Khodamoradi & Kastner's O(W + H) filter: one memory per row (last time, its x) and per column (last time,
     its y); keep an event when an adjacent row (y-1..y+1) last fired less than ``dt_us`` ago at x-1..x+1, or an
@@ -215,7 +215,7 @@ def order_n(words, row_t, row_x, col_t, col_y, dt_us, self_counts, jaer_edges, o
     return n
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def refractory(words, time_map, dt_us, inclusive, out):
     """Drop an event less than ``dt_us`` after the same pixel's previous event (``<= dt_us`` when ``inclusive``,
     jAER); the previous event may itself have been dropped: every event writes its time. ``time_map`` unpadded."""
@@ -232,7 +232,7 @@ def refractory(words, time_map, dt_us, inclusive, out):
     return n
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def hot_pixels(words, hot_map, out):
     """Drop the events of the pixels marked in ``hot_map`` (height, width) bool."""
     width = hot_map.shape[1]
@@ -244,7 +244,7 @@ def hot_pixels(words, hot_map, out):
     return n
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def match_subsequence(t, x, y, p, labels, start, ft, fx, fy, fp, fstart, kept_per_label):
     """Match filtered events (``ft..fp`` from ``fstart``) to the input events (``t..p`` from ``start``) in order.
 

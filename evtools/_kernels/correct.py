@@ -45,7 +45,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from evtools._kernels.jit import kernel
 
 from evtools._kernels.prefetch import prefetch
 
@@ -61,7 +61,7 @@ ON_BIT = 1 << 32
 """The polarity bit of an event's second 8-byte word (x int16 at byte 8, y int16 at byte 10, p bool at byte 12)."""
 
 
-@njit(cache=True, nogil=True, inline="always")
+@kernel(inline=True)
 def _segment(level, delta, off0, off1, t_b, xy, target_on, target_off, out_t, out_w, n):
     """Re-sample the line from ``(t_b + off0, level)`` to ``(t_b + off1, level + delta)``; returns (level, n).
 
@@ -98,7 +98,7 @@ previous event's time (NO_EVENT_US before the first), the one before it when of 
 a rest (else NO_EVENT_US), and the pixel's thresholds (float32, the maps' precision)."""
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def correct_events(words, start, width, state, polarity, use, target_on, target_off, mode, turns, hold_us,
                    max_gap_us, tau_us, out_t, out_w, n):  # pragma: no cover - compiled
     """Process the events ``words[start:]`` ((n, 2) int64: time, then x, y, p as EVENT_DTYPE lays them out) while
@@ -180,7 +180,7 @@ def correct_events(words, start, width, state, polarity, use, target_on, target_
     return i, n
 
 
-@njit(cache=True, nogil=True, inline="always")
+@kernel(inline=True)
 def _merge(a_t, a_w, i, a_end, b_t, b_w, j, b_end, dst_t, dst_w, d):
     """Merge ``a[i:a_end]`` and ``b[j:b_end]`` (each sorted by time) into ``dst`` from ``d``, ``a`` first on ties;
     branch-free in the common part (which run is next is a coin toss)."""
@@ -206,7 +206,7 @@ def _merge(a_t, a_w, i, a_end, b_t, b_w, j, b_end, dst_t, dst_w, d):
     return d
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def release_sorted(held_t, held_w, h, new_t, new_w, n, bound, order, counts, sorted_t, sorted_w, out_t, out_w,
                    keep_t, keep_w):  # pragma: no cover - compiled
     """Merge the held events (sorted) with the new ones (creation order); split at ``bound``.

@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from evtools._kernels.jit import kernel
 
 from evtools._kernels.pixel import LIN_LOG_KNEE, LIN_LOG_SLOPE
 
@@ -39,7 +39,7 @@ PROFILE_INTENSITY = 0
 PROFILE_LOG = 1
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _offe_sample(cumulative, sums, times):  # pragma: no cover - compiled
     """Add ``times`` identical samples of every pixel's cumulative (E, P) to the fit sums."""
     for i in range(cumulative.shape[0]):
@@ -52,7 +52,7 @@ def _offe_sample(cumulative, sums, times):  # pragma: no cover - compiled
         sums[SUM_PP, i] += times * p * p
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def offe_accumulate(t, x, y, p, width, segment_us, cumulative, sums, state):  # pragma: no cover - compiled
     """Feed events to the offE sums.
 
@@ -79,7 +79,7 @@ def offe_accumulate(t, x, y, p, width, segment_us, cumulative, sums, state):  # 
         state[OFFE_PENDING] = 1
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def offe_finish(cumulative, sums, state):  # pragma: no cover - compiled
     """Take the last (partial) segment's sample if events arrived after the last boundary."""
     if state[OFFE_PENDING] != 0:
@@ -88,7 +88,7 @@ def offe_finish(cumulative, sums, state):  # pragma: no cover - compiled
         state[OFFE_PENDING] = 0
 
 
-@njit(cache=True, nogil=True, inline="always")
+@kernel(inline=True)
 def _triangle_level(phase, a, b, profile):  # pragma: no cover - compiled
     """L at ``phase`` (any real; period 1) of a triangle 0 at phase 0, 1 at phase 1/2, from ``a`` to ``b``."""
     phase -= math.floor(phase)
@@ -101,7 +101,7 @@ def _triangle_level(phase, a, b, profile):  # pragma: no cover - compiled
     return math.log(intensity)
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def stimulus_level(t_us, x, a, b, period_us, wavelength_px, profile):  # pragma: no cover - compiled
     """L(t) of column ``x`` under a triangle stimulus from ``a`` to ``b``.
 
@@ -121,7 +121,7 @@ def stimulus_level(t_us, x, a, b, period_us, wavelength_px, profile):  # pragma:
     return _triangle_level(phase, a, b, profile)
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def stimulus_table(a, b, period_us, profile, table):  # pragma: no cover - compiled
     """``table[j]`` = L at ``t = j`` microseconds, for a flicker whose period is ``table.shape[0]`` microseconds:
     bit for bit what :func:`stimulus_level` gives for any ``t = j + k * period``."""
@@ -146,7 +146,7 @@ ST_PAIRS = 6  # 6, 7: accepted ON, OFF changes
 ST_SIZE = 8
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _median_odd(seeds, i, slot):  # pragma: no cover - compiled
     """Median of ``seeds[i, slot]`` (an odd number of values) without allocating or making a view: the value
     with at most n // 2 others below it and at least n // 2 + 1 at or below it."""
@@ -163,7 +163,7 @@ def _median_odd(seeds, i, slot):  # pragma: no cover - compiled
     return seeds[i, slot, n // 2]  # not reached for real numbers
 
 
-@njit(cache=True, nogil=True, inline="always")
+@kernel(inline=True)
 def _accept(change, reference, slot, i, state):  # pragma: no cover - compiled
     # branch-free: adding 0.0 leaves the sums bit for bit unchanged, and a random accept costs no misprediction
     inside = 1.0 if (ACCEPT_LOW * reference <= change) & (change <= ACCEPT_HIGH * reference) else 0.0
@@ -171,7 +171,7 @@ def _accept(change, reference, slot, i, state):  # pragma: no cover - compiled
     state[i, ST_PAIRS + slot] += inside
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _seed(change, slot, i, state, seeds):  # pragma: no cover - compiled
     """Keep one of a polarity's first changes; at the last one, set the reference and accept those kept."""
     n = np.int64(-state[i, ST_REF + slot])
@@ -185,7 +185,7 @@ def _seed(change, slot, i, state, seeds):  # pragma: no cover - compiled
         _accept(seeds[i, slot, j], reference, slot, i, state)
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def stimulus_accumulate(
     t, x, y, p, width, a, b, period_us, wavelength_px, profile, table, state, seeds,
 ):  # pragma: no cover - compiled

@@ -12,7 +12,7 @@ Prophesee, "EVT 3.0 Format", https://docs.prophesee.ai/stable/data/encoding_form
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from evtools._kernels.jit import kernel
 
 # indices into the state array
 TIME_HIGH = 0
@@ -50,7 +50,7 @@ def new_evt3_state() -> np.ndarray:
     return state
 
 
-@njit(cache=True, nogil=True, inline="always")
+@kernel(inline=True)
 def _emit(state, t_us, x, y, p, n, loops, time_high, time_low, column, row, polarity):  # pragma: no cover
     """Write one CD event at ``n`` and return the new count; without a time or a row yet it is dropped and
     counted in ``state``."""
@@ -67,7 +67,7 @@ def _emit(state, t_us, x, y, p, n, loops, time_high, time_low, column, row, pola
     return n + 1
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def decode_evt3(words, state, t_us, x, y, p):  # pragma: no cover - compiled
     """Decode EVT 3.0 words into CD events until the words or the output space run out.
 

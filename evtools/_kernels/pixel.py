@@ -28,8 +28,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, types
-from numba.extending import overload
+from evtools._kernels.jit import deferred, kernel
 
 LIN_LOG_KNEE = 20.0
 """Below this intensity (0-255 scale) the photoreceptor response is linear, above it logarithmic (v2e)."""
@@ -61,20 +60,20 @@ _ZERO = np.uint64(0)
 _TWO_POW_M53 = 1.0 / 9007199254740992.0
 
 
-@njit(cache=True, nogil=True, inline="always")
+@kernel(inline=True)
 def _mix64(z):  # pragma: no cover - compiled
     z = (z ^ (z >> _S30)) * _MIX1
     z = (z ^ (z >> _S27)) * _MIX2
     return z ^ (z >> _S31)
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def random_bits(key, pixel, draw):  # pragma: no cover - compiled
     """64 random bits for draw number ``draw`` of pixel ``pixel`` in the stream ``key`` (all uint64)."""
     return _mix64(_mix64(key + pixel * _GOLDEN) + draw * _GOLDEN)
 
 
-@njit(cache=True, nogil=True, inline="always")
+@kernel(inline=True)
 def _noise_draw(key, pixel, draw, s, mass):  # pragma: no cover - compiled
     """A noise event of a Poisson process at ``s``: its polarity (a fair coin) and the process's next event,
     ``s`` plus an exponential gap of rate ``mass``, both from draw number ``draw`` of ``pixel`` in stream ``key``."""
@@ -83,14 +82,14 @@ def _noise_draw(key, pixel, draw, s, mass):  # pragma: no cover - compiled
     return (bits & _ONE) == _ONE, s + -math.log(1.0 - u) / mass
 
 
-@njit(cache=True, nogil=True, inline="always")
+@kernel(inline=True)
 def _lin_log(intensity):  # pragma: no cover - compiled
     if intensity <= LIN_LOG_KNEE:
         return intensity * LIN_LOG_SLOPE
     return math.log(intensity)
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def lin_log_frame(frame, out):  # pragma: no cover - compiled
     """``out[i] = lin_log(frame[i])`` (negative or NaN intensities count as 0)."""
     for i in range(frame.size):
@@ -105,6 +104,8 @@ LEVELS = 256
 
 
 def _is_8bit(frame):  # pragma: no cover - used at compile time
+    from numba import types
+
     return isinstance(frame.dtype, types.Integer) and frame.dtype.bitwidth == 8 and not frame.dtype.signed
 
 
@@ -113,7 +114,6 @@ def _pixel_log(frame, i, log_table):  # pragma: no cover - compiled: see its ove
     raise NotImplementedError
 
 
-@overload(_pixel_log, inline="always")
 def _pixel_log_overload(frame, i, log_table):  # pragma: no cover - compiled
     if _is_8bit(frame):
         return lambda frame, i, log_table: (float(frame[i]), log_table[frame[i]])
@@ -132,20 +132,30 @@ def _pixel_gain(frame, i, intensity, gain_table, lowpass_gain):  # pragma: no co
     raise NotImplementedError
 
 
-@overload(_pixel_gain, inline="always")
 def _pixel_gain_overload(frame, i, intensity, gain_table, lowpass_gain):  # pragma: no cover - compiled
     if _is_8bit(frame):
         return lambda frame, i, intensity, gain_table, lowpass_gain: gain_table[frame[i]]
     return lambda frame, i, intensity, gain_table, lowpass_gain: _lowpass_eps(intensity, lowpass_gain)
 
 
-@njit(cache=True, nogil=True, inline="always")
+def _register_overloads():
+    from numba.extending import overload
+
+    overload(_pixel_log, inline="always")(_pixel_log_overload)
+    overload(_pixel_gain, inline="always")(_pixel_gain_overload)
+    return True
+
+
+_OVERLOADS = deferred(_register_overloads)
+
+
+@kernel(inline=True)
 def _lowpass_eps(intensity, lowpass_gain):  # pragma: no cover - compiled
     eps = (intensity + LOWPASS_INTENSITY_OFFSET) / LOWPASS_INTENSITY_SCALE * lowpass_gain
     return 1.0 if eps > 1.0 else eps
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _level_tables(lowpass_gain):  # pragma: no cover - compiled
     """``lin_log`` and the low-pass gain of every level of an 8-bit frame, by the per-pixel expressions."""
     log_table = np.empty(LEVELS)
@@ -156,7 +166,7 @@ def _level_tables(lowpass_gain):  # pragma: no cover - compiled
     return log_table, gain_table
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def advance_pixels(
     frame, t0_us, t1_us, width, cutoff_hz, fixed_cutoff, refractory_us,
     on_thres, off_thres, leak_rate_hz, shot_rate_hz, hot_rate_hz, any_leak, any_shot, any_hot, shot_key, hot_key,
@@ -364,7 +374,7 @@ def advance_pixels(
     return count, n_pixels
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def time_order(t_us, max_span_us, order):  # pragma: no cover - compiled
     """The stable sort of ``t_us`` (``np.argsort(t_us, kind="stable")``) into ``order``, as a counting sort.
 
@@ -398,7 +408,7 @@ def time_order(t_us, max_span_us, order):  # pragma: no cover - compiled
     return True
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def sort_events(t_us, x, y, p, label, max_span_us, out_t_us, out_x, out_y, out_p, out_label):  # pragma: no cover
     """The events (five columns) into ``out_*`` in the order of :func:`time_order` (stable, by time).
 

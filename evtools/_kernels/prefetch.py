@@ -8,14 +8,14 @@ drop it. It changes no result, only timing.
 
 from __future__ import annotations
 
-from llvmlite import ir
-from numba import types
-from numba.extending import intrinsic
+from evtools._kernels.jit import deferred
 
 
-@intrinsic
-def prefetch(typingctx, array, index):
+def _prefetch(typingctx, array, index):
     """Prefetch the element ``index`` of the 1-D array ``array`` (no bounds check: any index is harmless)."""
+    from llvmlite import ir
+    from numba import types
+
     if not isinstance(array, types.Array) or array.ndim != 1 or not isinstance(index, types.Integer):
         return None
 
@@ -34,3 +34,12 @@ def prefetch(typingctx, array, index):
 
     return types.void(array, index), codegen
 
+
+
+def _build():
+    from numba.extending import intrinsic
+
+    return intrinsic(_prefetch)
+
+
+prefetch = deferred(_build)

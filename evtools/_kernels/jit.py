@@ -1,0 +1,374 @@
+"""Kernels compiled by numba, loaded without numba: every process starts ~0.25 s sooner.
+
+Importing numba (0.15 s) and the first call of a kernel from numba's cache (0.12 s, numba filling its typing and
+lowering registries) cost a process more than filtering 10M events takes. So a kernel here is compiled by numba
+once, as a C-callable wrapper (``numba.cfunc``) for the argument types it was called with, and its machine code
+is stored as an object file (:func:`cache_dir`); later processes load that object with llvmlite alone (numba's own
+code generator, 30 ms to import) and call it through ctypes, which releases the GIL as ``nogil`` did. numba is
+imported only when an object is missing or stale, or for a call the wrapper cannot express (see
+:func:`_describe`); either way the result is numba's, bit for bit (the wrapper calls the same compiled kernel).
+
+- ``@kernel`` replaces ``@njit(cache=True, nogil=True)`` (``@kernel(inline=True)``: numba's ``inline="always"``);
+  kernel modules never import numba at module level.
+- ``deferred(build)`` holds a numba extension (an intrinsic, an overload) made by ``build()`` when numba is first
+  imported: :func:`numba_module` builds every one of them before anything is compiled.
+
+An object is reused only under the same key: the kernels' sources, the argument types, numba's and llvmlite's
+installed files, the Python version, the host CPU and every ``NUMBA_*`` setting (:func:`_key`). Its undefined
+symbols are checked before it is loaded (a missing one would abort the process inside LLVM), else numba runs it.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import glob
+import hashlib
+import importlib.util
+import os
+import pickle
+import sys
+import tempfile
+import threading
+from pathlib import Path
+
+import numpy as np
+
+_LOCK = threading.RLock()
+_DEFERRED: list["deferred"] = []
+
+
+class deferred:
+    """A numba object (intrinsic, overload registration) built by ``build()`` once numba is imported."""
+
+    def __init__(self, build):
+        self.build_function = build
+        self.value = None
+        _DEFERRED.append(self)
+
+    def build(self):
+        if self.value is None:
+            self.value = self.build_function()
+        return self.value
+
+
+class Kernel:
+    """A numba kernel called from Python through its stored machine code (see the module docstring); inside other
+    kernels it is numba's own dispatcher (:func:`numba_module` registers its type)."""
+
+    def __init__(self, function, inline: bool):
+        self.py_func = function
+        self.inline = inline
+        self.__name__ = function.__name__
+        self.__qualname__ = function.__qualname__
+        self.__doc__ = function.__doc__
+        self.__module__ = function.__module__
+        self.__wrapped__ = function
+        self._dispatcher = None
+        self._calls: dict[tuple, object] = {}
+
+    @property
+    def dispatcher(self):
+        """numba's dispatcher of this kernel (imports numba)."""
+        if self._dispatcher is None:
+            numba = numba_module()
+            with _LOCK:
+                if self._dispatcher is None:
+                    options = {"cache": True, "nogil": True}
+                    if self.inline:
+                        options["inline"] = "always"
+                    self._dispatcher = numba.njit(**options)(self.py_func)
+        return self._dispatcher
+
+    def __call__(self, *args):
+        kinds = tuple(_describe(value) for value in args)
+        call = self._calls.get(kinds)
+        if call is None:
+            with _LOCK:
+                call = self._calls.get(kinds)
+                if call is None:
+                    call = self._calls[kinds] = _NativeCall.get(self, args, kinds) if None not in kinds else False
+        if call is False:
+            return self.dispatcher(*args)
+        return call(args)
+
+    def __repr__(self) -> str:
+        return f"<evtools kernel {self.__module__}.{self.__qualname__}>"
+
+
+def kernel(function=None, *, inline: bool = False):
+    """Decorator: ``@kernel`` or ``@kernel(inline=True)`` (see the module docstring)."""
+    if function is None:
+        return lambda f: Kernel(f, inline)
+    return Kernel(function, inline)
+
+
+# ---- numba, only when needed ----
+
+_NUMBA = None
+
+
+def numba_module():
+    """Import numba, teach it :class:`Kernel` (typed as its dispatcher) and build every :class:`deferred`."""
+    global _NUMBA
+    with _LOCK:
+        if _NUMBA is None:
+            import numba
+            from numba.extending import typeof_impl
+
+            typeof_impl.register(Kernel)(lambda value, context: numba.types.Dispatcher(value.dispatcher))
+            _NUMBA = numba
+            for item in list(_DEFERRED):
+                item.build()
+            for module in list(sys.modules.values()):  # kernel modules refer to deferred objects by name
+                if getattr(module, "__name__", "").startswith("evtools._kernels"):
+                    for name, value in list(vars(module).items()):
+                        if isinstance(value, deferred):
+                            setattr(module, name, value.build())
+    return _NUMBA
+
+
+# ---- argument descriptions ----
+
+_SCALAR_CTYPES = {"?": ctypes.c_bool, "b1": ctypes.c_bool, "i1": ctypes.c_int8, "u1": ctypes.c_uint8,
+                  "i2": ctypes.c_int16, "u2": ctypes.c_uint16, "i4": ctypes.c_int32, "u4": ctypes.c_uint32,
+                  "i8": ctypes.c_int64, "u8": ctypes.c_uint64, "f4": ctypes.c_float, "f8": ctypes.c_double}
+
+
+def _describe(value):
+    """What the C wrapper must know of one argument, or None when it cannot pass it (numba's dispatcher then
+    runs the call): numeric arrays that are C-contiguous, or 1-D with a positive stride that is a whole number
+    of items (a field of an event array); bools, ints (int64, as numba types them), floats, numpy scalars."""
+    if isinstance(value, np.ndarray):
+        code = value.dtype.str[1:]
+        if code not in _SCALAR_CTYPES or value.dtype.byteorder not in "=|<" or value.ndim == 0:
+            return None
+        step = 1
+        if not value.flags.c_contiguous:
+            stride = value.strides[0]
+            if value.ndim != 1 or stride <= 0 or stride % value.itemsize:
+                return None
+            step = stride // value.itemsize
+        return ("array", code, value.ndim, value.flags.writeable, step)
+    if isinstance(value, (bool, np.bool_)):
+        return ("scalar", "b1")
+    if isinstance(value, int):
+        return ("scalar", "i8") if -(1 << 63) <= value < (1 << 63) else None
+    if isinstance(value, float):
+        return ("scalar", "f8")
+    if isinstance(value, np.generic):
+        code = value.dtype.str[1:]
+        return ("scalar", code) if code in _SCALAR_CTYPES else None
+    return None
+
+
+# ---- the stored machine code ----
+
+def cache_dir() -> Path | None:
+    """Where objects are stored: ``__pycache__/native`` beside the kernels, else ``$XDG_CACHE_HOME/evtools``
+    (``~/.cache/evtools``) when the package is read-only; None when neither is writable."""
+    home = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+    for directory in (Path(__file__).parent / "__pycache__" / "native", home / "evtools" / "native"):
+        try:
+            directory.mkdir(parents=True, exist_ok=True)
+            if os.access(directory, os.W_OK):
+                return directory
+        except OSError:
+            continue
+    return None
+
+
+_KEY_BASE = None
+
+
+def _key_base() -> bytes:
+    """Everything an object depends on besides its kernel and argument types (computed once per process)."""
+    global _KEY_BASE
+    if _KEY_BASE is None:
+        import llvmlite.binding as ll
+
+        digest = hashlib.sha256()
+        for path in sorted(Path(__file__).parent.glob("*.py")):
+            digest.update(path.name.encode() + path.read_bytes())
+        for package in ("numba", "llvmlite"):
+            root = importlib.util.find_spec(package).submodule_search_locations[0]
+            for path in sorted(glob.glob(os.path.join(root, "*.py")) + glob.glob(os.path.join(root, "*.so"))):
+                status = os.stat(path)
+                digest.update(f"{path}:{status.st_size}:{status.st_mtime_ns}".encode())
+        digest.update(sys.version.encode())
+        digest.update(ll.get_host_cpu_name().encode() + ll.get_host_cpu_features().flatten().encode())
+        digest.update(repr(sorted((k, v) for k, v in os.environ.items() if k.startswith("NUMBA_"))).encode())
+        _KEY_BASE = digest.digest()
+    return _KEY_BASE
+
+
+def _key(kernel: Kernel, kinds: tuple) -> str:
+    digest = hashlib.sha256(_key_base())
+    digest.update(f"{kernel.__module__}.{kernel.__qualname__}{kinds!r}".encode())
+    if not kernel.__module__.startswith("evtools._kernels."):
+        digest.update(Path(sys.modules[kernel.__module__].__file__).read_bytes())  # a kernel defined elsewhere
+    return f"{kernel.__module__}.{kernel.__qualname__}.{digest.hexdigest()[:24]}"
+
+
+_ENGINE = None
+_KEEP = []  # compiled wrappers whose code is called without being stored
+
+
+def _engine():
+    """llvmlite's JIT (MCJIT) with the C helpers numba's code calls, taken from numba's extension modules without
+    importing numba itself (as numba registers them: ``numba_*`` helpers, ``NRT_*`` runtime, Python's None and
+    exceptions)."""
+    global _ENGINE
+    if _ENGINE is None:
+        import builtins
+
+        import llvmlite.binding as ll
+
+        def extension(name):
+            if name in sys.modules:
+                return sys.modules[name]
+            root = importlib.util.find_spec("numba").submodule_search_locations[0]
+            path = glob.glob(os.path.join(root, *name.split(".")[1:-1], name.rsplit(".", 1)[1] + ".*so"))[0]
+            spec = importlib.util.spec_from_file_location(name, path)
+            module = importlib.util.module_from_spec(spec)
+            spec.loader.exec_module(module)
+            return module
+
+        for name in ("numba._helperlib", "numba._dynfunc"):
+            for helper, address in extension(name).c_helpers.items():
+                ll.add_symbol("numba_" + helper, address)
+        for helper, address in extension("numba.core.runtime._nrt_python").c_helpers.items():
+            ll.add_symbol(helper if helper.startswith("_") else "NRT_" + helper, address)
+        ll.add_symbol("_Py_NoneStruct", id(None))
+        for value in vars(builtins).values():
+            if isinstance(value, type) and issubclass(value, BaseException):
+                ll.add_symbol(f"PyExc_{value.__name__}", id(value))
+        ll.initialize_native_target()
+        ll.initialize_native_asmprinter()
+        machine = ll.Target.from_default_triple().create_target_machine()
+        _ENGINE = ll.create_mcjit_compiler(ll.parse_assembly(""), machine)
+    return _ENGINE
+
+
+def _load(record: dict) -> int | None:
+    """The address of the stored wrapper, or None when one of its symbols cannot be resolved here."""
+    import llvmlite.binding as ll
+
+    engine = _engine()
+    if any(not ll.address_of_symbol(name) for name in record["undefined"]):
+        return None
+    engine.add_object_file(ll.ObjectFileRef.from_data(record["object"]))
+    engine.finalize_object()
+    return engine.get_function_address(record["name"]) or None
+
+
+def _compile(kernel: Kernel, args: tuple, kinds: tuple) -> dict | None:
+    """Compile the C wrapper of ``kernel`` for these arguments with numba: a record of its object code, symbol,
+    undefined symbols and result types, or None when its result is not scalars."""
+    numba = numba_module()
+    types = numba.types
+    # type the call as numba would (read-only arrays included): the wrapper only runs what this accepts
+    argument_types = tuple(numba.typeof(value) for value in args)
+    kernel.dispatcher.compile(argument_types)
+    result = kernel.dispatcher.overloads[argument_types].signature.return_type
+    results = list(result.types) if isinstance(result, types.BaseTuple) else [] if result == types.none else [result]
+    if not all(isinstance(item, (types.Integer, types.Float, types.Boolean)) for item in results):
+        return None
+    parameters, call, signature = [], [], []
+    for i, (kind, numba_type) in enumerate(zip(kinds, argument_types)):
+        if kind[0] == "scalar":
+            parameters.append(f"a{i}")
+            call.append(f"a{i}")
+            signature.append(numba_type)
+            continue
+        _, _, ndim, _, step = kind
+        shape = [f"a{i}_{d}" for d in range(ndim)]
+        parameters += [f"a{i}"] + shape
+        signature += [types.CPointer(numba_type.dtype)] + [types.int64] * ndim
+        if step == 1:
+            call.append(f"carray(a{i}, ({', '.join(shape)},))")
+        else:  # every step-th item of the block that spans the field
+            call.append(f"carray(a{i}, (({shape[0]} - 1) * {step} + 1,))[::{step}]")
+    outputs = [f"r{i}" for i in range(len(results))]
+    lines = [f"def wrapper({', '.join(parameters + outputs)}):", f"    result = kernel({', '.join(call)})"]
+    if isinstance(result, types.BaseTuple):
+        lines += [f"    r{i}[0] = result[{i}]" for i in range(len(results))]
+    elif results:
+        lines.append("    r0[0] = result")
+    namespace = {"kernel": kernel.dispatcher, "carray": numba.carray}
+    exec("\n".join(lines), namespace)
+    # a boolean result is stored as a byte (numba stores no i1 through a pointer); ctypes reads it as c_bool
+    signature += [types.CPointer(types.uint8 if isinstance(item, types.Boolean) else item) for item in results]
+    wrapper = numba.cfunc(types.void(*signature))(namespace["wrapper"])
+    library = wrapper._library
+    module = library._final_module
+    undefined = sorted({f.name for f in module.functions if f.is_declaration and not f.name.startswith("llvm.")}
+                       | {g.name for g in module.global_variables if g.is_declaration})
+    return {"name": wrapper.native_name, "object": library._codegen._tm.emit_object(module),
+            "undefined": undefined, "results": [str(item) for item in results],
+            "tuple": isinstance(result, types.BaseTuple), "wrapper": wrapper}
+
+
+class _NativeCall:
+    """One kernel for one tuple of argument kinds, called through ctypes."""
+
+    def __init__(self, function, kinds: tuple, results: list[str], is_tuple: bool):
+        self.function = function
+        self.kinds = kinds
+        self.result_ctypes = [_SCALAR_CTYPES[_numba_code(name)] for name in results]
+        self.is_tuple = is_tuple
+
+    @staticmethod
+    def get(kernel: Kernel, args: tuple, kinds: tuple):
+        """The native call for these kinds (from the store, else compiled and stored), or False for numba's."""
+        directory = cache_dir()
+        key = _key(kernel, kinds)
+        path = directory / f"{key}.pkl" if directory else None
+        record = None
+        if path is not None and path.exists():
+            try:
+                record = pickle.loads(path.read_bytes())
+            except Exception:  # a damaged store entry is rebuilt
+                record = None
+        if record is None:
+            record = _compile(kernel, args, kinds)
+            if record is None:
+                return False
+            if path is not None:
+                stored = {name: value for name, value in record.items() if name != "wrapper"}
+                handle, temporary = tempfile.mkstemp(dir=directory, suffix=".tmp")
+                with os.fdopen(handle, "wb") as file:
+                    pickle.dump(stored, file)
+                os.replace(temporary, path)
+        if "wrapper" in record:  # compiled in this process: numba's JIT already holds it
+            _KEEP.append(record["wrapper"])
+            address = record["wrapper"].address
+        else:
+            address = _load(record)
+            if address is None:
+                return False
+        argtypes = []
+        for kind in kinds:
+            argtypes += [_SCALAR_CTYPES[kind[1]]] if kind[0] == "scalar" else [ctypes.c_void_p] + [ctypes.c_int64] * kind[2]
+        argtypes += [ctypes.c_void_p] * len(record["results"])
+        function = ctypes.CFUNCTYPE(None, *argtypes)(address)
+        return _NativeCall(function, kinds, record["results"], record["tuple"])
+
+    def __call__(self, args: tuple):
+        flat = []
+        for kind, value in zip(self.kinds, args):
+            if kind[0] == "scalar":
+                flat.append(value)
+            else:
+                flat.append(value.ctypes.data)
+                flat += value.shape
+        outputs = [kind() for kind in self.result_ctypes]
+        self.function(*flat, *(ctypes.byref(item) for item in outputs))
+        values = tuple(item.value for item in outputs)
+        if self.is_tuple:
+            return values
+        return values[0] if values else None
+
+
+def _numba_code(name: str) -> str:
+    """numpy's type code of numba's scalar type name (``int64`` -> ``i8``, ``bool`` -> ``b1``)."""
+    return np.dtype(name).str[1:]
