@@ -136,11 +136,15 @@ _SCALAR_CTYPES = {"?": ctypes.c_bool, "b1": ctypes.c_bool, "i1": ctypes.c_int8, 
 
 def _describe(value):
     """What the C wrapper must know of one argument, or None when it cannot pass it (numba's dispatcher then
-    runs the call): numeric arrays that are C-contiguous, or 1-D with a positive stride that is a whole number
+    runs the call): arrays of numbers or of records that are C-contiguous, or 1-D with a positive stride that is a whole number
     of items (a field of an event array); bools, ints (int64, as numba types them), floats, numpy scalars."""
     if isinstance(value, np.ndarray):
-        code = value.dtype.str[1:]
-        if code not in _SCALAR_CTYPES or value.dtype.byteorder not in "=|<" or value.ndim == 0:
+        dtype = value.dtype
+        if dtype.names is not None:  # a structured array (a pixel state table): its layout is part of the key
+            code = repr(dtype) if not dtype.hasobject else None
+        else:
+            code = dtype.str[1:] if dtype.str[1:] in _SCALAR_CTYPES and dtype.byteorder in "=|<" else None
+        if code is None or value.ndim == 0:
             return None
         step = 1
         if not value.flags.c_contiguous:
@@ -201,12 +205,14 @@ def _key_base() -> bytes:
     return _KEY_BASE
 
 
-def _key(kernel: Kernel, kinds: tuple) -> str:
+def _key(kernel: Kernel, kinds: tuple) -> tuple[str, str]:
+    """The store's file name stem of ``kernel`` called with ``kinds``: (prefix naming the kernel and the state of
+    everything it depends on, suffix naming the argument kinds)."""
     digest = hashlib.sha256(_key_base())
-    digest.update(f"{kernel.__module__}.{kernel.__qualname__}{kinds!r}".encode())
-    if not kernel.__module__.startswith("evtools._kernels."):
-        digest.update(Path(sys.modules[kernel.__module__].__file__).read_bytes())  # a kernel defined elsewhere
-    return f"{kernel.__module__}.{kernel.__qualname__}.{digest.hexdigest()[:24]}"
+    if not kernel.__module__.startswith("evtools._kernels."):  # a kernel defined elsewhere (tests)
+        digest.update(Path(sys.modules[kernel.__module__].__file__).read_bytes())
+    kinds_digest = hashlib.sha256(repr(kinds).encode()).hexdigest()[:16]
+    return f"{kernel.__module__}.{kernel.__qualname__}.{digest.hexdigest()[:16]}", kinds_digest
 
 
 _ENGINE = None
@@ -311,8 +317,9 @@ def _compile(kernel: Kernel, args: tuple, kinds: tuple) -> dict | None:
 class _NativeCall:
     """One kernel for one tuple of argument kinds, called through ctypes."""
 
-    def __init__(self, function, kinds: tuple, results: list[str], is_tuple: bool):
+    def __init__(self, function, kinds: tuple, results: list[str], is_tuple: bool, origin: str):
         self.function = function
+        self.origin = origin  # "store" (loaded) or "compiled" (in this process)
         self.kinds = kinds
         self.result_ctypes = [_SCALAR_CTYPES[_numba_code(name)] for name in results]
         self.is_tuple = is_tuple
@@ -321,8 +328,8 @@ class _NativeCall:
     def get(kernel: Kernel, args: tuple, kinds: tuple):
         """The native call for these kinds (from the store, else compiled and stored), or False for numba's."""
         directory = cache_dir()
-        key = _key(kernel, kinds)
-        path = directory / f"{key}.pkl" if directory else None
+        prefix, suffix = _key(kernel, kinds)
+        path = directory / f"{prefix}.{suffix}.pkl" if directory else None
         record = None
         if path is not None and path.exists():
             try:
@@ -339,6 +346,9 @@ class _NativeCall:
                 with os.fdopen(handle, "wb") as file:
                     pickle.dump(stored, file)
                 os.replace(temporary, path)
+                for stale in directory.glob(f"{prefix.rsplit('.', 1)[0]}.*.pkl"):  # older sources or versions
+                    if not stale.name.startswith(prefix + "."):
+                        stale.unlink(missing_ok=True)
         if "wrapper" in record:  # compiled in this process: numba's JIT already holds it
             _KEEP.append(record["wrapper"])
             address = record["wrapper"].address
@@ -351,7 +361,8 @@ class _NativeCall:
             argtypes += [_SCALAR_CTYPES[kind[1]]] if kind[0] == "scalar" else [ctypes.c_void_p] + [ctypes.c_int64] * kind[2]
         argtypes += [ctypes.c_void_p] * len(record["results"])
         function = ctypes.CFUNCTYPE(None, *argtypes)(address)
-        return _NativeCall(function, kinds, record["results"], record["tuple"])
+        return _NativeCall(function, kinds, record["results"], record["tuple"],
+                           "compiled" if "wrapper" in record else "store")
 
     def __call__(self, args: tuple):
         flat = []

@@ -1,0 +1,169 @@
+"""Kernels called through their stored machine code (evtools/_kernels/jit.py) give numba's results and pure
+Python's, for every kind of argument the C wrapper passes; the store is rebuilt when stale or damaged; a process
+with a warm store never imports numba."""
+
+from __future__ import annotations
+
+import os
+import pickle
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from evtools._kernels import jit
+from evtools.events import EVENT_DTYPE
+
+ROOT = Path(__file__).resolve().parents[1]
+
+PAIR = np.dtype([("t", "<i8"), ("x", "<i2"), ("flag", "?")], align=True)
+
+
+def _twice(value):
+    return 2 * value
+
+
+def scale_and_count(values, factor, threshold, out):
+    """out = factor * values (an inline helper does the doubling); returns how many exceed threshold."""
+    count = 0
+    for i in range(values.size):
+        out[i] = values[i] * factor
+        count += out[i] > threshold
+    return _twice_kernel(count) // 2
+
+
+def field_sum(strided, table):
+    """Sum of a strided field plus the records' t where flag is set, and whether that sum is even (a tuple of an
+    int and a bool)."""
+    total = 0
+    for i in range(strided.size):
+        total += strided[i]
+    for i in range(table.size):
+        if table[i]["flag"]:
+            total += table[i]["t"]
+            table[i]["x"] += 1
+    return total, total % 2 == 0
+
+
+def mean_of(read_only):
+    """A float result from a read-only 2-D array."""
+    return read_only.sum() / read_only.size
+
+
+_twice_kernel = jit.kernel(_twice, inline=True)
+
+
+@pytest.fixture
+def store(tmp_path, monkeypatch):
+    """An empty store of machine code, used by the kernels made in the test."""
+    monkeypatch.setattr(jit, "cache_dir", lambda: tmp_path)
+    return tmp_path
+
+
+def _arguments(seed: int):
+    rng = np.random.default_rng(seed)
+    values = rng.normal(size=50)
+    table = np.zeros(20, PAIR)
+    table["t"] = rng.integers(-1000, 1000, 20)
+    table["flag"] = rng.integers(0, 2, 20).astype(bool)
+    events = np.zeros(30, EVENT_DTYPE)
+    events["x"] = rng.integers(0, 100, 30)
+    read_only = rng.normal(size=(4, 6))
+    read_only.flags.writeable = False
+    return values, table, events, read_only
+
+
+def _run(scale, fields, mean, seed):
+    values, table, events, read_only = _arguments(seed)
+    out = np.zeros_like(values)
+    count = scale(values, np.float32(1.5), 0.25, out)
+    total = fields(events["x"], table)  # a field of events: a strided view (every 8th int16)
+    return count, out, total, table, mean(read_only)
+
+
+def _assert_same(a, b):
+    for left, right in zip(a, b):
+        if isinstance(left, np.ndarray):
+            np.testing.assert_array_equal(left, right)
+        else:
+            assert left == right and type(left) is type(right)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_stored_code_gives_numbas_and_pythons_results(store, seed):
+    kernels = [jit.kernel(f) for f in (scale_and_count, field_sum, mean_of)]
+    native = _run(*kernels, seed)
+    assert {"scale_and_count", "field_sum", "mean_of"} == {p.name.split(".")[2] for p in store.glob("*.pkl")}
+    # a second set of kernels loads the stored objects instead of compiling
+    fresh = [jit.kernel(f) for f in (scale_and_count, field_sum, mean_of)]
+    from_store = _run(*fresh, seed)
+    assert [call.origin for k in kernels for call in k._calls.values()] == ["compiled"] * 3
+    assert [call.origin for k in fresh for call in k._calls.values()] == ["store"] * 3
+    by_numba = _run(*(k.dispatcher for k in kernels), seed)
+    by_python = _run(scale_and_count.__globals__["scale_and_count"], field_sum, mean_of, seed)
+    for result in (from_store, by_numba):
+        _assert_same(native, result)
+    assert native[0] == by_python[0] and native[2] == by_python[2]
+    np.testing.assert_allclose(native[1], by_python[1])
+    assert native[4] == pytest.approx(by_python[4])
+    assert isinstance(native[2][1], bool) and isinstance(native[4], float)
+
+
+def test_arguments_the_wrapper_cannot_pass_go_to_numba(store):
+    mean = jit.kernel(mean_of)
+    matrix = np.arange(24.0).reshape(4, 6)
+    assert mean(matrix[:, ::2]) == matrix[:, ::2].mean()  # 2-D, not contiguous
+    assert jit._describe(matrix[:, ::2]) is None and jit._describe([1, 2]) is None
+    assert jit._describe(1 << 64) is None and jit._describe(np.float16(1)) is None
+    assert mean._calls[tuple([None])] is False
+    assert not list(store.glob("*.pkl"))
+
+
+def test_a_damaged_or_stale_store_entry_is_rebuilt(store, monkeypatch):
+    values = np.arange(5.0)
+    jit.kernel(scale_and_count)(values, 2.0, 3.0, np.zeros(5))
+    [entry] = store.glob("*.pkl")
+    entry.write_bytes(b"not a pickle")
+    out = np.zeros(5)
+    assert jit.kernel(scale_and_count)(values, 2.0, 3.0, out) == 3
+    assert pickle.loads(entry.read_bytes())["object"]
+    monkeypatch.setattr(jit, "_KEY_BASE", b"another numba version")
+    assert jit.kernel(scale_and_count)(values, 2.0, 3.0, out) == 3
+    [rebuilt] = store.glob("*.pkl")
+    assert rebuilt.name != entry.name  # the stale entry is gone, the new one written
+    np.testing.assert_array_equal(out, 2 * values)
+
+
+def test_an_unresolvable_symbol_falls_back_to_numba(store):
+    values = np.arange(5.0)
+    jit.kernel(scale_and_count)(values, 2.0, 3.0, np.zeros(5))
+    [entry] = store.glob("*.pkl")
+    record = pickle.loads(entry.read_bytes())
+    assert jit._load(record)  # loads as stored
+    record["undefined"].append("evtools_no_such_symbol")
+    entry.write_bytes(pickle.dumps(record))
+    count = jit.kernel(scale_and_count)
+    assert count(values, 2.0, 3.0, np.zeros(5)) == 3
+    assert list(count._calls.values()) == [False]
+
+
+def test_a_process_with_a_warm_store_does_not_import_numba(tmp_path):
+    source = tmp_path / "in.csv"
+    source.write_text("t,x,y,p\n" + "".join(f"{10 * i},{i % 7},{i % 5},{i % 2}\n" for i in range(200)))
+    environment = {**os.environ, "PYTHONPATH": str(ROOT)}
+    outputs, imported = [], []
+    for run in range(2):  # the first run may compile and store; the second loads
+        output = tmp_path / f"out{run}.csv"
+        probe = ("import sys; from cli.main import cli; "
+                 f"cli(['-q', 'bafilter', {str(source)!r}, '--method', 'hotpixel,refractory,stcf', "
+                 f"'--sensor-size', '8x8', '-o', {str(output)!r}], standalone_mode=False); "
+                 "print('numba' in sys.modules)")
+        result = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, cwd=ROOT,
+                                env=environment, timeout=300)
+        assert result.returncode == 0, result.stderr
+        imported.append(result.stdout.strip())
+        outputs.append(output.read_text().splitlines())
+    assert imported[1] == "False"
+    assert outputs[0] == outputs[1] and 1 < len(outputs[1]) < 201
