@@ -133,6 +133,7 @@ def main() -> None:
     try:
         cli(prog_name="evtools")
     finally:
-        # Python's last garbage collections walk every object numba created (~0.2 s per process, measured with
-        # `time`); frozen objects are skipped. Files are closed and flushed as usual.
+        # When numba is loaded (a kernel compiled, or an argument only numba takes), Python's last garbage
+        # collections walk every object it created (~0.2 s per process, measured with `time`); frozen objects are
+        # skipped. Files are closed and flushed as usual.
         gc.freeze()

@@ -13,9 +13,11 @@ imported only when an object is missing or stale, or for a call the wrapper cann
 - ``deferred(build)`` holds a numba extension (an intrinsic, an overload) made by ``build()`` when numba is first
   imported: :func:`numba_module` builds every one of them before anything is compiled.
 
-An object is reused only under the same key: the kernels' sources, the argument types, numba's and llvmlite's
-installed files, the Python version, the host CPU and every ``NUMBA_*`` setting (:func:`_key`). Its undefined
-symbols are checked before it is loaded (a missing one would abort the process inside LLVM), else numba runs it.
+A kernel must not raise (its processor validates the parameters, divisors included): inside the C wrapper numba
+can only print an exception, not pass it on. An object is reused only under the same key: the kernels' sources, the
+argument types, numba's and llvmlite's installed files, the Python version, the host CPU and every ``NUMBA_*``
+setting (:func:`_key`). Its undefined symbols are checked before it is loaded (a missing one would abort the process
+inside LLVM), else numba runs it.
 """
 
 from __future__ import annotations
@@ -136,8 +138,9 @@ _SCALAR_CTYPES = {"?": ctypes.c_bool, "b1": ctypes.c_bool, "i1": ctypes.c_int8, 
 
 def _describe(value):
     """What the C wrapper must know of one argument, or None when it cannot pass it (numba's dispatcher then
-    runs the call): arrays of numbers or of records that are C-contiguous, or 1-D with a positive stride that is a whole number
-    of items (a field of an event array); bools, ints (int64, as numba types them), floats, numpy scalars."""
+    runs the call): arrays of numbers or of records that are C-contiguous, or 1-D with a positive stride that is a
+    whole number of items (a field of an event array); bools, ints (int64, as numba types them), floats, numpy
+    scalars."""
     if isinstance(value, np.ndarray):
         dtype = value.dtype
         if dtype.names is not None:  # a structured array (a pixel state table): its layout is part of the key
@@ -358,7 +361,10 @@ class _NativeCall:
                 return False
         argtypes = []
         for kind in kinds:
-            argtypes += [_SCALAR_CTYPES[kind[1]]] if kind[0] == "scalar" else [ctypes.c_void_p] + [ctypes.c_int64] * kind[2]
+            if kind[0] == "scalar":
+                argtypes.append(_SCALAR_CTYPES[kind[1]])
+            else:  # pointer, then the shape
+                argtypes += [ctypes.c_void_p] + [ctypes.c_int64] * kind[2]
         argtypes += [ctypes.c_void_p] * len(record["results"])
         function = ctypes.CFUNCTYPE(None, *argtypes)(address)
         return _NativeCall(function, kinds, record["results"], record["tuple"],

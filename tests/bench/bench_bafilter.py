@@ -4,8 +4,8 @@
   ``evtools bafilter --method baf --preset dv`` and by a dv-processing script (MonoCameraRecording,
   BackgroundActivityNoiseFilter, MonoCameraWriter); both timed as whole processes (interpreter start-up and
   imports included); the ratio is dv's time / evtools' time (> 1: evtools faster). A second row times both
-  in-process from opening the input to closing the output, imports done (numba's first call, which loads the
-  compiled kernel from its cache, included): the work itself, without the interpreter's start-up.
+  in-process from opening the input to closing the output, imports done (the first kernel call, which loads the
+  kernel's stored machine code, included): the work itself, without the interpreter's start-up.
 - ``kernel``: ``BAFilter.process`` alone per method on 4M in-memory events, at 346 x 260 and 1280 x 720.
 
 Every row is the fastest of ``--repeat`` runs (3); files go to ``/dev/shm`` when it has room (see
@@ -89,7 +89,7 @@ def child_dv(path: str, out: str) -> dict:
 
 def child_inproc(path: str, out: str) -> dict:
     """``evtools bafilter PATH --method baf --preset dv -o OUT`` run in this process, timed after the imports."""
-    import cli.bafilter  # noqa: F401  (what the command imports: numba, the kernels, the formats)
+    import cli.bafilter  # noqa: F401  (what the command imports: the kernels, the formats)
     import formats.aedat4  # noqa: F401
     from cli.main import cli
 
