@@ -167,3 +167,13 @@ def test_a_process_with_a_warm_store_does_not_import_numba(tmp_path):
         outputs.append(output.read_text().splitlines())
     assert imported[1] == "False"
     assert outputs[0] == outputs[1] and 1 < len(outputs[1]) < 201
+
+
+def test_kernel_modules_imported_after_numba_get_their_extensions_built():
+    probe = ("from evtools._kernels import jit; jit.numba_module(); "
+             "from evtools._kernels import bafilter, pixel; "
+             "print(type(bafilter.prefetch).__name__, pixel._OVERLOADS)")
+    result = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, cwd=ROOT, timeout=300,
+                            env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.split() == ["_Intrinsic", "True"]

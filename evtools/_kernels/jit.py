@@ -36,21 +36,30 @@ from pathlib import Path
 import numpy as np
 
 _LOCK = threading.RLock()
-_DEFERRED: list["deferred"] = []
+_DEFERRED: list["Deferred"] = []
+_NUMBA = None  # the numba module, once imported by numba_module()
 
 
-class deferred:
+class Deferred:
     """A numba object (intrinsic, overload registration) built by ``build()`` once numba is imported."""
 
     def __init__(self, build):
         self.build_function = build
         self.value = None
-        _DEFERRED.append(self)
 
     def build(self):
         if self.value is None:
             self.value = self.build_function()
         return self.value
+
+
+def deferred(build):
+    """``build()`` now when numba is imported, else a :class:`Deferred` that :func:`numba_module` builds."""
+    if _NUMBA is not None:
+        return build()
+    item = Deferred(build)
+    _DEFERRED.append(item)
+    return item
 
 
 class Kernel:
@@ -71,14 +80,12 @@ class Kernel:
     @property
     def dispatcher(self):
         """numba's dispatcher of this kernel (imports numba)."""
-        if self._dispatcher is None:
-            numba = numba_module()
-            with _LOCK:
-                if self._dispatcher is None:
-                    options = {"cache": True, "nogil": True}
-                    if self.inline:
-                        options["inline"] = "always"
-                    self._dispatcher = numba.njit(**options)(self.py_func)
+        if self._dispatcher is None:  # no lock: numba may ask for it while compiling (under its own lock), and
+            # two threads making it at once make equal dispatchers
+            options = {"cache": True, "nogil": True}
+            if self.inline:
+                options["inline"] = "always"
+            self._dispatcher = numba_module().njit(**options)(self.py_func)
         return self._dispatcher
 
     def __call__(self, *args):
@@ -106,26 +113,26 @@ def kernel(function=None, *, inline: bool = False):
 
 # ---- numba, only when needed ----
 
-_NUMBA = None
-
 
 def numba_module():
     """Import numba, teach it :class:`Kernel` (typed as its dispatcher) and build every :class:`deferred`."""
     global _NUMBA
+    if _NUMBA is not None:
+        return _NUMBA
     with _LOCK:
         if _NUMBA is None:
             import numba
             from numba.extending import typeof_impl
 
             typeof_impl.register(Kernel)(lambda value, context: numba.types.Dispatcher(value.dispatcher))
-            _NUMBA = numba
-            for item in list(_DEFERRED):
+            for item in _DEFERRED:
                 item.build()
             for module in list(sys.modules.values()):  # kernel modules refer to deferred objects by name
                 if getattr(module, "__name__", "").startswith("evtools._kernels"):
                     for name, value in list(vars(module).items()):
-                        if isinstance(value, deferred):
+                        if isinstance(value, Deferred):
                             setattr(module, name, value.build())
+            _NUMBA = numba
     return _NUMBA
 
 
