@@ -31,7 +31,7 @@ def child(total: int, mode: str) -> dict:
     rng = np.random.default_rng(0)
     on = rng.normal(0.2, 0.03, (HEIGHT, WIDTH)).clip(0.05)
     off = rng.normal(0.2, 0.03, (HEIGHT, WIDTH)).clip(0.05)
-    warm = make_events([0, 1], [0, 1], [0, 0], [1, 0])  # numba's first call (cache load) is not throughput
+    warm = make_events([0, 1], [0, 1], [0, 0], [1, 0])  # the first call (loading the stored kernel) is not throughput
     ThresholdCorrector(WIDTH, HEIGHT, on, off, target=0.2, mode=mode).process(warm)
     corrector = ThresholdCorrector(WIDTH, HEIGHT, on, off, target=0.2, mode=mode)
     spent, produced, t0 = 0.0, 0, 0

@@ -134,7 +134,7 @@ def main() -> None:
         scratch = Path(scratch)
         video = scratch / "pattern.mp4"
         make_video(video, args.frames)
-        # compile (or load) the numba kernels once, so that no measurement pays for it
+        # compile (or load) the kernels once, so that no measurement pays for it
         measure("scene", "gradient", "16x16", "10ms", "noisy")
         scene_size = f"{SCENE_SIZE[0]}x{SCENE_SIZE[1]}"
         print(f"pixel-frames/s of the pixel model (simulate; 'input s' = decoding or generating the frames, not "
