@@ -95,14 +95,14 @@ def _assert_same(a, b):
 def test_stored_code_gives_numbas_and_pythons_results(store, seed):
     kernels = [jit.kernel(f) for f in (scale_and_count, field_sum, mean_of)]
     native = _run(*kernels, seed)
-    assert {"scale_and_count", "field_sum", "mean_of"} == {p.name.split(".")[2] for p in store.glob("*.pkl")}
+    assert {"scale_and_count", "field_sum", "mean_of"} == {p.name.split(".")[2] for p in store.glob("*/*.pkl")}
     # a second set of kernels loads the stored objects instead of compiling
     fresh = [jit.kernel(f) for f in (scale_and_count, field_sum, mean_of)]
     from_store = _run(*fresh, seed)
     assert [call.origin for k in kernels for call in k._calls.values()] == ["compiled"] * 3
     assert [call.origin for k in fresh for call in k._calls.values()] == ["store"] * 3
     by_numba = _run(*(k.dispatcher for k in kernels), seed)
-    by_python = _run(scale_and_count.__globals__["scale_and_count"], field_sum, mean_of, seed)
+    by_python = _run(scale_and_count, field_sum, mean_of, seed)
     for result in (from_store, by_numba):
         _assert_same(native, result)
     assert native[0] == by_python[0] and native[2] == by_python[2]
@@ -118,28 +118,31 @@ def test_arguments_the_wrapper_cannot_pass_go_to_numba(store):
     assert jit._describe(matrix[:, ::2]) is None and jit._describe([1, 2]) is None
     assert jit._describe(1 << 64) is None and jit._describe(np.float16(1)) is None
     assert mean._calls[tuple([None])] is False
-    assert not list(store.glob("*.pkl"))
+    assert not list(store.glob("**/*.pkl"))
 
 
 def test_a_damaged_or_stale_store_entry_is_rebuilt(store, monkeypatch):
     values = np.arange(5.0)
     jit.kernel(scale_and_count)(values, 2.0, 3.0, np.zeros(5))
-    [entry] = store.glob("*.pkl")
+    [entry] = store.glob("*/*.pkl")
     entry.write_bytes(b"not a pickle")
     out = np.zeros(5)
     assert jit.kernel(scale_and_count)(values, 2.0, 3.0, out) == 3
     assert pickle.loads(entry.read_bytes())["object"]
-    monkeypatch.setattr(jit, "_KEY_BASE", b"another numba version")
+    monkeypatch.setattr(jit, "_SOURCES", b"edited kernels")
     assert jit.kernel(scale_and_count)(values, 2.0, 3.0, out) == 3
-    [rebuilt] = store.glob("*.pkl")
+    [rebuilt] = store.glob("*/*.pkl")
     assert rebuilt.name != entry.name  # the stale entry is gone, the new one written
+    monkeypatch.setattr(jit, "_ENVIRONMENT", "another-machine")
+    assert jit.kernel(scale_and_count)(values, 2.0, 3.0, out) == 3
+    assert rebuilt.exists() and len(list(store.glob("*/*.pkl"))) == 2  # each environment keeps its own
     np.testing.assert_array_equal(out, 2 * values)
 
 
 def test_an_unresolvable_symbol_falls_back_to_numba(store):
     values = np.arange(5.0)
     jit.kernel(scale_and_count)(values, 2.0, 3.0, np.zeros(5))
-    [entry] = store.glob("*.pkl")
+    [entry] = store.glob("*/*.pkl")
     record = pickle.loads(entry.read_bytes())
     assert jit._load(record)  # loads as stored
     record["undefined"].append("evtools_no_such_symbol")

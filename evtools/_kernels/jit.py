@@ -16,8 +16,8 @@ imported only when an object is missing or stale, or for a call the wrapper cann
 A kernel must not raise (its processor validates the parameters, divisors included): inside the C wrapper numba
 can only print an exception, not pass it on. An object is reused only under the same key: the kernels' sources, the
 argument types, numba's and llvmlite's installed files, the Python version, the host CPU and every ``NUMBA_*``
-setting (:func:`_key`). Its undefined symbols are checked before it is loaded (a missing one would abort the process
-inside LLVM), else numba runs it.
+setting (:func:`_environment`, :func:`_sources`). Its undefined symbols are checked before it is loaded (a missing
+one would abort the process inside LLVM), else numba runs it.
 """
 
 from __future__ import annotations
@@ -191,18 +191,18 @@ def cache_dir() -> Path | None:
     return None
 
 
-_KEY_BASE = None
+_ENVIRONMENT = None
 
 
-def _key_base() -> bytes:
-    """Everything an object depends on besides its kernel and argument types (computed once per process)."""
-    global _KEY_BASE
-    if _KEY_BASE is None:
+def _environment() -> str:
+    """What every stored object depends on (computed once per process): the installed numba and llvmlite, the
+    Python version, the host CPU and the ``NUMBA_*`` settings. Objects of different environments live side by side
+    (one folder each), so machines sharing an installation do not evict each other's."""
+    global _ENVIRONMENT
+    if _ENVIRONMENT is None:
         import llvmlite.binding as ll
 
         digest = hashlib.sha256()
-        for path in sorted(Path(__file__).parent.glob("*.py")):
-            digest.update(path.name.encode() + path.read_bytes())
         for package in ("numba", "llvmlite"):
             root = importlib.util.find_spec(package).submodule_search_locations[0]
             for path in sorted(glob.glob(os.path.join(root, "*.py")) + glob.glob(os.path.join(root, "*.so"))):
@@ -211,18 +211,43 @@ def _key_base() -> bytes:
         digest.update(sys.version.encode())
         digest.update(ll.get_host_cpu_name().encode() + ll.get_host_cpu_features().flatten().encode())
         digest.update(repr(sorted((k, v) for k, v in os.environ.items() if k.startswith("NUMBA_"))).encode())
-        _KEY_BASE = digest.digest()
-    return _KEY_BASE
+        _ENVIRONMENT = digest.hexdigest()[:16]
+    return _ENVIRONMENT
 
 
-def _key(kernel: Kernel, kinds: tuple) -> tuple[str, str]:
-    """The store's file name stem of ``kernel`` called with ``kinds``: (prefix naming the kernel and the state of
-    everything it depends on, suffix naming the argument kinds)."""
-    digest = hashlib.sha256(_key_base())
-    if not kernel.__module__.startswith("evtools._kernels."):  # a kernel defined elsewhere (tests)
+_SOURCES = None
+
+
+def _sources(kernel: Kernel) -> str:
+    """Digest of the kernels' sources (every module of ``evtools/_kernels``, as kernels call across modules), and
+    of the kernel's own module when it is defined elsewhere (tests)."""
+    global _SOURCES
+    if _SOURCES is None:
+        digest = hashlib.sha256()
+        for path in sorted(Path(__file__).parent.glob("*.py")):
+            digest.update(path.name.encode() + path.read_bytes())
+        _SOURCES = digest.digest()
+    digest = hashlib.sha256(_SOURCES)
+    if not kernel.__module__.startswith("evtools._kernels."):
         digest.update(Path(sys.modules[kernel.__module__].__file__).read_bytes())
-    kinds_digest = hashlib.sha256(repr(kinds).encode()).hexdigest()[:16]
-    return f"{kernel.__module__}.{kernel.__qualname__}.{digest.hexdigest()[:16]}", kinds_digest
+    return digest.hexdigest()[:16]
+
+
+def _store(record: dict, directory: Path, name: str, stale: str) -> None:
+    """Write ``record`` as ``directory/name`` (atomically: under a temporary name, then renamed) and remove the
+    files matching ``stale`` (the same kernel and kinds from older sources). A store that cannot be written
+    (read-only, full) only costs the next process a compile."""
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+        handle, temporary = tempfile.mkstemp(dir=directory, suffix=".tmp")
+        with os.fdopen(handle, "wb") as file:
+            pickle.dump(record, file)
+        os.replace(temporary, directory / name)
+        for path in directory.glob(stale):
+            if path.name != name:
+                path.unlink(missing_ok=True)
+    except OSError:
+        pass
 
 
 _ENGINE = None
@@ -337,28 +362,24 @@ class _NativeCall:
     @staticmethod
     def get(kernel: Kernel, args: tuple, kinds: tuple):
         """The native call for these kinds (from the store, else compiled and stored), or False for numba's."""
-        directory = cache_dir()
-        prefix, suffix = _key(kernel, kinds)
-        path = directory / f"{prefix}.{suffix}.pkl" if directory else None
+        root = cache_dir()
+        directory = root / _environment() if root else None
+        kernel_name = f"{kernel.__module__}.{kernel.__qualname__}"
+        kinds_digest = hashlib.sha256(repr(kinds).encode()).hexdigest()[:16]
+        name = f"{kernel_name}.{_sources(kernel)}.{kinds_digest}.pkl"
         record = None
-        if path is not None and path.exists():
+        if directory is not None and (directory / name).exists():
             try:
-                record = pickle.loads(path.read_bytes())
+                record = pickle.loads((directory / name).read_bytes())
             except Exception:  # a damaged store entry is rebuilt
                 record = None
         if record is None:
             record = _compile(kernel, args, kinds)
             if record is None:
                 return False
-            if path is not None:
-                stored = {name: value for name, value in record.items() if name != "wrapper"}
-                handle, temporary = tempfile.mkstemp(dir=directory, suffix=".tmp")
-                with os.fdopen(handle, "wb") as file:
-                    pickle.dump(stored, file)
-                os.replace(temporary, path)
-                for stale in directory.glob(f"{prefix.rsplit('.', 1)[0]}.*.pkl"):  # older sources or versions
-                    if not stale.name.startswith(prefix + "."):
-                        stale.unlink(missing_ok=True)
+            if directory is not None:
+                stored = {key: value for key, value in record.items() if key != "wrapper"}
+                _store(stored, directory, name, f"{kernel_name}.*.{kinds_digest}.pkl")
         if "wrapper" in record:  # compiled in this process: numba's JIT already holds it
             _KEEP.append(record["wrapper"])
             address = record["wrapper"].address
