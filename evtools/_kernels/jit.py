@@ -180,7 +180,7 @@ def _describe(value):
 def cache_dir() -> Path | None:
     """Where objects are stored: ``__pycache__/native`` beside the kernels, else ``$XDG_CACHE_HOME/evtools``
     (``~/.cache/evtools``) when the package is read-only; None when neither is writable."""
-    home = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+    home = Path(os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"))  # no error without a home
     for directory in (Path(__file__).parent / "__pycache__" / "native", home / "evtools" / "native"):
         try:
             directory.mkdir(parents=True, exist_ok=True)
