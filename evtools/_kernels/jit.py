@@ -25,6 +25,7 @@ from __future__ import annotations
 import ctypes
 import glob
 import hashlib
+import importlib.machinery
 import importlib.util
 import os
 import pickle
@@ -268,7 +269,9 @@ def _engine():
             if name in sys.modules:
                 return sys.modules[name]
             root = importlib.util.find_spec("numba").submodule_search_locations[0]
-            path = glob.glob(os.path.join(root, *name.split(".")[1:-1], name.rsplit(".", 1)[1] + ".*so"))[0]
+            stem = os.path.join(root, *name.split(".")[1:])
+            path = next(stem + suffix for suffix in importlib.machinery.EXTENSION_SUFFIXES
+                        if os.path.exists(stem + suffix))
             spec = importlib.util.spec_from_file_location(name, path)
             module = importlib.util.module_from_spec(spec)
             spec.loader.exec_module(module)
@@ -384,7 +387,10 @@ class _NativeCall:
             _KEEP.append(record["wrapper"])
             address = record["wrapper"].address
         else:
-            address = _load(record)
+            try:
+                address = _load(record)
+            except Exception:  # whatever keeps the stored code from loading here, numba can still run the kernel
+                address = None
             if address is None:
                 return False
         argtypes = []
