@@ -15,8 +15,8 @@ has not fired: ``t - NEVER`` is larger than any correlation window.
 from __future__ import annotations
 
 import numpy as np
-from evtools._kernels.jit import kernel
 
+from evtools._kernels.jit import kernel
 from evtools._kernels.prefetch import prefetch
 
 AHEAD = 16

@@ -45,8 +45,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from evtools._kernels.jit import kernel
 
+from evtools._kernels.jit import kernel
 from evtools._kernels.prefetch import prefetch
 
 MODE_FOH = 0

@@ -20,8 +20,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from evtools._kernels.jit import kernel
 
+from evtools._kernels.jit import kernel
 from evtools._kernels.pixel import LIN_LOG_KNEE, LIN_LOG_SLOPE
 
 # offE scalar state (int64 array): the segment clock

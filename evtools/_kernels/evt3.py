@@ -12,6 +12,7 @@ Prophesee, "EVT 3.0 Format", https://docs.prophesee.ai/stable/data/encoding_form
 from __future__ import annotations
 
 import numpy as np
+
 from evtools._kernels.jit import kernel
 
 # indices into the state array

@@ -28,6 +28,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
 from evtools._kernels.jit import deferred, kernel
 
 LIN_LOG_KNEE = 20.0
