@@ -1,10 +1,10 @@
-"""Kernels compiled by numba, loaded without numba: every process starts ~0.25 s sooner.
+"""Kernels compiled by numba, loaded without numba: every process starts 0.2-0.3 s sooner.
 
-Importing numba (0.15 s) and the first call of a kernel from numba's cache (0.12 s, numba filling its typing and
+Importing numba (0.15-0.21 s) and the first call of a kernel from numba's cache (0.12 s, numba filling its typing and
 lowering registries) cost a process more than filtering 10M events takes. So a kernel here is compiled by numba
 once, as a C-callable wrapper (``numba.cfunc``) for the argument types it was called with, and its machine code
 is stored as an object file (:func:`cache_dir`); later processes load that object with llvmlite alone (numba's own
-code generator, 30 ms to import) and call it through ctypes, which releases the GIL as ``nogil`` did. numba is
+code generator, 28-39 ms to import) and call it through ctypes, which releases the GIL as ``nogil`` did. numba is
 imported only when an object is missing or stale, or for a call the wrapper cannot express (see
 :func:`_describe`); either way the result is numba's, bit for bit (the wrapper calls the same compiled kernel).
 
