@@ -13,7 +13,8 @@ event may precede events already created for others. The corrector keeps the cre
 and releases, sorted by time (ties in creation order, a stable sort), those no later event can precede: every
 future event is created at or after ``bound = max(min over pixels of their last event time, t_now - window)``,
 with ``window`` = ``max_gap_us`` (``hold_us`` in all modes but ``foh`` when smaller; with turns, a pixel that has not
-fired yet counts as having fired at the stream's start). So the latency and the buffer are bounded by ``window``
+fired yet counts as having fired at the stream's start, and a segment waiting for the pixel's next event starts
+at most one window before its event and waits at most one window, so the bound is ``t_now - 2 window``). So the latency and the buffer are bounded by ``window``
 of output, whatever the gaps. The created events of a chunk are sorted by a counting sort over their time span
 (a stable merge sort when the span is large) and merged with the held ones inside a numba kernel. When every
 pixel's thresholds equal the target, each input event creates exactly itself, and the output is the input, bit
@@ -39,6 +40,7 @@ from evtools._kernels.correct import (
     PIXEL_DTYPE,
     correct_events,
     release_sorted,
+    settle_all,
 )
 from evtools.errors import EvtoolsError
 from evtools.events import EVENT_DTYPE, check_sensor_size, empty_events, join
@@ -47,7 +49,8 @@ __all__ = ["CORRECT_DEFAULTS", "MODES", "CorrectionError", "ThresholdCorrector",
 
 MODES = {"highpass": MODE_HIGHPASS, "turns": MODE_STEP, "step": MODE_STEP, "foh": MODE_FOH}
 """Reconstruction modes by name (see :mod:`evtools._kernels.correct`): ``foh`` and ``step`` are the report's;
-``turns`` is ``step`` with the reconstruction anchored at the stream's start and an extremum at every reversal;
+``turns`` is ``step`` with the reconstruction anchored at the stream's start and the extremum of every reversal
+where the lines of the runs on both sides meet;
 ``highpass`` (the default) is ``turns`` plus the decay of the carried level over rests."""
 
 CORRECT_DEFAULTS: dict[str, Any] = {
@@ -65,9 +68,14 @@ class CorrectionError(EvtoolsError, ValueError):
     """Bad parameters or thresholds for the correction."""
 
 
+MAX_WINDOW_US = 2**31 - 1
+"""The longest hold and gap (35 min): a pixel's pending segment length is stored in 32 bits."""
+
+
 def _positive_int(name: str, value) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-        raise CorrectionError(f"{name} must be a whole number of microseconds >= 1, got {value!r}")
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 1 <= value <= MAX_WINDOW_US:
+        raise CorrectionError(f"{name} must be a whole number of microseconds from 1 to {MAX_WINDOW_US}, "
+                              f"got {value!r}")
     return int(value)
 
 
@@ -114,8 +122,9 @@ class ThresholdCorrector:
         The threshold every pixel is re-sampled at (one value for ON and OFF), or the median of the maps.
     mode : {"highpass", "turns", "step", "foh"}
         ``foh``: the report's first-order hold; ``step``: stepwise over gaps longer than ``hold_us`` (the report's
-        section 5.2); ``turns``: ``step`` anchored at the stream's start, with an extremum inserted at every
-        polarity reversal (exact on log-linear ramps with exact thresholds); ``highpass`` (default): ``turns`` plus
+        section 5.2); ``turns``: ``step`` anchored at the stream's start, with the extremum of every polarity
+        reversal where the lines of the two runs meet (waiting for the second event after the turn), the first
+        ramp extended back the same way (exact on piecewise log-linear signals with exact thresholds); ``highpass`` (default): ``turns`` plus
         an exponential decay of the carried level over rests (time constant ``tau_us``): the corrected reference
         relaxes to the pixel's own, which keeps estimation errors from accumulating.
     hold_us : int
@@ -179,13 +188,17 @@ class ThresholdCorrector:
         self._state["on"] = on.reshape(-1)
         self._state["off"] = off.reshape(-1)
         self._state["last_us"] = NO_EVENT_US
-        self._state["previous_us"] = NO_EVENT_US
-        self._polarity = np.zeros(n, dtype=np.int8)
+        self._status = np.zeros(n, dtype=np.int8)
         # pixels already at the target need no work (and their events stay bit for bit what they were)
         at_target = (on == np.float32(self.target_on)) & (off == np.float32(self.target_off))
         self._use = ~at_target.reshape(-1)
         self.usable = usable
         self.window_us = self.max_gap_us if mode == "foh" else min(self.max_gap_us, self.hold_us)
+        # with turns a segment may wait up to window_us for the pixel's next event, and start window_us before it
+        self.latency_us = 2 * self.window_us if self.turns else self.window_us
+        self._queue_pixel = np.empty(1 << 16, dtype=np.int64)
+        self._queue_us = np.empty(1 << 16, dtype=np.int64)
+        self._head = self._tail = 0
         self._started = False
         self._new = self._buffers(1 << 16)
         self._held = self._buffers(1 << 16)
@@ -228,15 +241,29 @@ class ThresholdCorrector:
         words = np.ascontiguousarray(chunk).view(np.int64).reshape(-1, 2)
         if len(self._new[0]) < 2 * len(chunk):
             self._new = self._buffers(2 * len(chunk))
+        self._make_queue_room(len(chunk))
         start, n = 0, 0
         while True:
-            start, n = correct_events(
-                words, start, self.width, self._state, self._polarity, self._use, self.target_on, self.target_off,
-                MODES[self.mode], self.turns, self.hold_us, self.max_gap_us, self.tau_us, *self._new, n,
+            start, n, self._head, self._tail = correct_events(
+                words, start, self.width, self._state, self._status, self._use, self.target_on, self.target_off,
+                MODES[self.mode], self.turns, self.hold_us, self.max_gap_us, self.tau_us, self.window_us,
+                self._queue_pixel, self._queue_us, self._head, self._tail, *self._new, n,
             )
             if start >= len(chunk):
                 return n
             self._new = self._grown(self._new, 2 * len(self._new[0]), n)
+
+    def _make_queue_room(self, count: int) -> None:
+        """Room for ``count`` more waiting pixels (one per input event at most); the live part moved to the front."""
+        live = self._tail - self._head
+        if live + count > len(self._queue_us):
+            size = 2 * (live + count)
+            pixels, times = np.empty(size, np.int64), np.empty(size, np.int64)
+        else:
+            pixels, times = self._queue_pixel, self._queue_us
+        pixels[:live] = self._queue_pixel[self._head:self._tail]
+        times[:live] = self._queue_us[self._head:self._tail]
+        self._queue_pixel, self._queue_us, self._head, self._tail = pixels, times, 0, live
 
     def process(self, chunk: np.ndarray) -> np.ndarray:
         """The corrected events that are final once ``chunk`` (time-sorted, after the previous ones) is seen."""
@@ -248,8 +275,15 @@ class ThresholdCorrector:
             self._start(int(chunk["t"][0]))
         n = self._resample(chunk)
         t_now = int(chunk["t"][-1])
-        # every later event is created at or after the earliest interpolation start any pixel may still use
-        bound = max(int(self._state["last_us"].min()) if self._use.any() else t_now, t_now - self.window_us)
+        # every later event is created at or after the earliest segment start any pixel may still use: its latest
+        # event, or the start of the segment that waits for its next event
+        earliest = t_now
+        if self._use.any():
+            waiting = np.abs(self._status) >= 2
+            earliest = int(self._state["last_us"].min())
+            if waiting.any():
+                earliest = min(earliest, int((self._state["last_us"][waiting] - self._state["pending_us"][waiting]).min()))
+        bound = max(earliest, t_now - self.latency_us)
         return self._release(n, min(bound, t_now))
 
     def _release(self, n: int, bound: int) -> np.ndarray:
@@ -271,12 +305,21 @@ class ThresholdCorrector:
         return out[:released]
 
     def flush(self) -> np.ndarray:
-        """Whatever is still held (the stream ended)."""
-        h, self._n_held = self._n_held, 0
-        out = empty_events(h)
-        words = out.view(np.int64).reshape(-1, 2)
-        words[:, 0], words[:, 1] = self._held[0][:h], self._held[1][:h]
-        return out
+        """The segments still waiting for a next event, re-sampled with what is known, and everything held (the
+        stream ended)."""
+        n = 0
+        while self._head < self._tail:
+            n, self._head = settle_all(self.width, self._state, self._status, self.target_on, self.target_off,
+                                       self._queue_pixel, self._queue_us, self._head, self._tail, *self._new, n)
+            if self._head < self._tail:
+                self._new = self._grown(self._new, 2 * len(self._new[0]), n)
+        if n == 0:
+            h, self._n_held = self._n_held, 0
+            out = empty_events(h)
+            words = out.view(np.int64).reshape(-1, 2)
+            words[:, 0], words[:, 1] = self._held[0][:h], self._held[1][:h]
+            return out
+        return self._release(n, NO_EVENT_US)
 
 
 def correct_thresholds(events: np.ndarray, width: int, height: int, on, off, valid=None, **options) -> np.ndarray:

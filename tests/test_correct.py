@@ -70,15 +70,17 @@ def test_chunking_does_not_change_the_output(cuts, mode, turns):
     assert np.all(np.diff(chunked["t"]) >= 0)
 
 
-def test_output_is_sorted_and_held_events_are_bounded():
+@pytest.mark.parametrize("mode, latency_us", [("foh", 500), ("highpass", 1000)])
+def test_output_is_sorted_and_held_events_are_bounded(mode, latency_us):
     events = random_events(20000, W, H, seed=3)
     on, off = thresholds(3, sigma=0.06)
-    corrector = ThresholdCorrector(W, H, on, off, target=0.2, mode="foh", max_gap_us=500)
+    corrector = ThresholdCorrector(W, H, on, off, target=0.2, mode=mode, max_gap_us=500)
+    assert corrector.latency_us == latency_us  # with turns a segment waits up to one window for the next event
     released = []
     for chunk in cut(events, range(0, 20000, 997)):
         released.append(corrector.process(chunk))
-        if len(chunk):  # nothing held is older than the window before the newest input
-            assert corrector.held == 0 or corrector._held[0][0] >= chunk["t"][-1] - 500
+        if len(chunk):  # nothing held is older than the latency bound before the newest input
+            assert corrector.held == 0 or corrector._held[0][0] >= chunk["t"][-1] - latency_us
     out = join(released + [corrector.flush()])
     assert out.dtype == EVENT_DTYPE and np.all(np.diff(out["t"]) >= 0)
 

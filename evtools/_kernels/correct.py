@@ -20,16 +20,18 @@ With ``turns`` (on in the ``turns`` and ``highpass`` modes of the corrector) the
 - anchored: every pixel's reconstruction starts at level 0 (its reference) at the stream's start (the caller sets
   ``last_us`` of every pixel to that time), so the crossings of its first event are interpolated too (unless the
   first event comes after a rest);
-- turned: when the polarity reverses without a rest, the signal went on beyond the last event of the run (by
-  less than that run's threshold, else the pixel would have fired again) before it turned. A virtual extremum P is
-  inserted between the run's last event ``(t_a, R)`` and the reversing event ``t_b``: assuming the run's slope
-  ``s = theta_run / (t_a - t_prev)`` on both sides of the turn, ``P - R = (s (t_b - t_a) - theta_new) / 2`` at
-  ``t_a + (P - R) / s``, clamped to ``[0, theta_run]``; ``theta_run / 2`` at the midpoint when the run has one
-  event. The line then goes ``(t_a, R) -> P -> (t_b, R -/+ theta_new)``, both segments re-sampled. On a
-  log-linear triangle with exact thresholds this is the signal itself, so the re-sampling is exact.
+- turned, exactly: on a ramp linear in log intensity consecutive events are one threshold apart, so the run's
+  last two events give its slope, and after the run's last event ``(t_a, R)`` the first event of the other
+  polarity lies exactly one of its thresholds beyond ``R`` (the DVS reset rule). So the segment that ends at a
+  reversal waits for the pixel's next event: of the same polarity, it gives the new ramp's slope, and the extremum
+  is where the two lines meet (:func:`_resolve`); the first ramp is extended back the same way to the start level.
+  With a slope unknown (a ramp of one event, a rest, the end of the stream) the known slope is assumed on both
+  sides; with neither, half a threshold at the midpoint. On a piecewise-linear log signal with exact thresholds
+  this is the signal itself wherever its ramps have two events or more, so the re-sampling is exact.
 
-Every re-sampled event of input event j lies in ``[start, t_j]`` with ``start`` the pixel's previous event (or
-``max(origin, t_j - max_gap_us)``), the ordering argument of :class:`evtools.correct.ThresholdCorrector`.
+Every re-sampled event lies after the start of the segment it belongs to: the pixel's previous event, or
+``max(origin, t_j - max_gap_us)``; a waiting segment starts at most ``window_us`` before its event and waits at
+most ``window_us`` (the ordering argument of :class:`evtools.correct.ThresholdCorrector`).
 Pixels whose ``use`` flag is False pass through unchanged. ``tests/naive/correct.py`` holds the pure-Python
 reference.
 
@@ -91,93 +93,211 @@ AHEAD = 16
 """How many events ahead the kernel prefetches a pixel's state (events hit random pixels: 20 % faster on the
 bench stream than a plain load ahead, which was itself 20 % faster than none)."""
 
-PIXEL_DTYPE = np.dtype([("level", np.float64), ("last_us", np.int64), ("previous_us", np.int64),
-                        ("on", np.float32), ("off", np.float32)])
-"""Per-pixel state, 32 bytes (one cache line holds two pixels, so an event touches one): the carried level, the
-previous event's time (NO_EVENT_US before the first), the one before it when of the same polarity and not across
-a rest (else NO_EVENT_US), and the pixel's thresholds (float32, the maps' precision)."""
+PIXEL_DTYPE = np.dtype([("level", np.float64), ("last_us", np.int64), ("slope", np.float32),
+                        ("pending_us", np.int32), ("on", np.float32), ("off", np.float32)])
+"""Per-pixel state, 32 bytes (one cache line holds two pixels, so an event touches one): the carried level (at the
+start of the pending segment while one waits), the latest event's time (NO_EVENT_US before the first; the stream's
+start with turns), the slope of the current run in log units per us (from its last two events; 0 when unknown:
+one event so far, or after a rest), the length of the pending segment (its start is ``last_us - pending_us``), and
+the pixel's thresholds (float32, the maps' precision)."""
+
+SETTLED = 1
+"""``status`` of a pixel (int8, signed by its latest event's polarity, 0 before the first): nothing pending."""
+TURN = 2
+"""``status``: the latest event reversed the run; its segment waits for the next event (the slope after the turn)."""
+FIRST = 3
+"""``status``: the pixel's first event (reconstruction anchored at the stream's start); its segment waits for the
+next event (the slope of the first ramp, to extrapolate it back)."""
+
+
+@kernel(inline=True)
+def _resolve(level, t_b, pending_us, kind, up, slope_a, slope_b, theta_on, theta_off, xy, target_on, target_off,
+             out_t, out_w, n):
+    """Re-sample the pending segment that ends at the event ``(t_b, up)``; returns (level, n).
+
+    ``slope_b`` is the slope of the ramp that event starts (0: unknown, the ramp has a single event), ``slope_a``
+    that of the run before a turn (0: unknown).
+
+    - ``FIRST``: the first ramp, extended back to the pixel's start level, starts ``theta / slope_b`` before
+      ``t_b`` (the signal held its start level until then), never before the anchor ``pending_us`` back; with an
+      unknown slope the line from the anchor (the hold of the report).
+    - ``TURN``: the extremum is the intersection of the run's line through its last event ``(t_a, R)`` and the
+      new ramp's line through ``(t_b, R -/+ theta_b)``: with ``G = t_b - t_a`` it lies ``u = (slope_b G -
+      theta_b) / (slope_a + slope_b)`` after ``t_a``, ``slope_a u`` beyond ``R`` (clamped to ``[0, G]`` and to
+      ``[0, theta_run]``: further and the pixel would have fired again). With one slope unknown, the known one on
+      both sides; with neither, half a threshold at the midpoint.
+    """
+    theta_b = theta_on if up else theta_off
+    d = theta_b if up else -theta_b
+    gap = float(pending_us)
+    if kind == FIRST:
+        back = gap
+        if slope_b > 0.0:
+            back = min(gap, theta_b / slope_b)
+        return _segment(level, d, -back, 0.0, t_b, xy, target_on, target_off, out_t, out_w, n)
+    theta_a = theta_off if up else theta_on  # the run before the turn went the other way
+    if slope_a > 0.0 and slope_b > 0.0:
+        u = min(max((slope_b * gap - theta_b) / (slope_a + slope_b), 0.0), gap)
+        excess = min(slope_a * u, theta_a)
+    elif slope_a > 0.0:
+        excess = min(max(0.5 * (slope_a * gap - theta_b), 0.0), theta_a)
+        u = excess / slope_a
+    elif slope_b > 0.0:
+        excess = min(max(0.5 * (slope_b * gap - theta_b), 0.0), theta_a)
+        u = max(gap - (excess + theta_b) / slope_b, 0.0)
+    else:
+        excess = 0.5 * theta_a
+        u = 0.5 * gap
+    run = -1.0 if up else 1.0
+    level, n = _segment(level, run * excess, -gap, u - gap, t_b, xy, target_on, target_off, out_t, out_w, n)
+    return _segment(level, d - run * excess, u - gap, 0.0, t_b, xy, target_on, target_off, out_t, out_w, n)
+
+
+@kernel(inline=True)
+def _room(level, theta_on, theta_off, min_target):
+    """The most events one input event can create at a pixel: a pending segment (the carried level, an extremum
+    below one threshold, the event's threshold) and the event's own segment."""
+    return (abs(level) + 3.0 * (theta_on + theta_off)) / min_target + 6.0
+
+
+@kernel(inline=True)
+def _settle(state, status, pixel, width, slope_b, target_on, target_off, out_t, out_w, n):
+    """Re-sample the pending segment of ``pixel`` (the slope after its event ``slope_b``, 0 unknown); returns n.
+
+    Afterwards the pixel's level is at its latest event and its run's slope is known only for a first ramp
+    resolved by its anchored line (the line from the anchor is then that ramp)."""
+    row = state[pixel]
+    up = status[pixel] > 0
+    kind = abs(status[pixel])
+    theta_on = float(row.on)
+    theta_off = float(row.off)
+    xy = ((pixel // width) << 16) | (pixel % width)
+    row.level, n = _resolve(row.level, row.last_us, row.pending_us, kind, up, float(row.slope), slope_b, theta_on,
+                            theta_off, xy, target_on, target_off, out_t, out_w, n)
+    row.slope = 0.0
+    if kind == FIRST and slope_b == 0.0 and row.pending_us > 0:
+        row.slope = (theta_on if up else theta_off) / row.pending_us
+    row.pending_us = 0
+    status[pixel] = SETTLED if up else -SETTLED
+    return n
+
+
+@kernel(inline=True)
+def _settle_waiting(state, status, width, target_on, target_off, min_target, queue_pixel, queue_us, head, tail,
+                    before_us, out_t, out_w, n):
+    """Settle, in queue order, the waiting pixels that started to wait before ``before_us``, slope unknown.
+
+    Returns (count, queue head); the head stops early when the output arrays are full. A queue entry whose pixel
+    has had an event since is stale and skipped."""
+    capacity = out_t.shape[0]
+    while head < tail and queue_us[head] < before_us:
+        pixel = queue_pixel[head]
+        row = state[pixel]
+        if abs(status[pixel]) >= TURN and row.last_us == queue_us[head]:
+            if n + _room(row.level, float(row.on), float(row.off), min_target) > capacity:
+                return n, head
+            n = _settle(state, status, pixel, width, 0.0, target_on, target_off, out_t, out_w, n)
+        head += 1
+    return n, head
 
 
 @kernel
-def correct_events(words, start, width, state, polarity, use, target_on, target_off, mode, turns, hold_us,
-                   max_gap_us, tau_us, out_t, out_w, n):  # pragma: no cover - compiled
+def correct_events(words, start, width, state, status, use, target_on, target_off, mode, turns, hold_us,
+                   max_gap_us, tau_us, window_us, queue_pixel, queue_us, head, tail, out_t, out_w,
+                   n):  # pragma: no cover - compiled
     """Process the events ``words[start:]`` ((n, 2) int64: time, then x, y, p as EVENT_DTYPE lays them out) while
     their worst case fits in the output arrays.
 
-    Returns (next input, count).
+    Returns (next input, count, queue head, queue tail).
 
-    ``state`` (:data:`PIXEL_DTYPE`) and ``polarity`` (int8: +1, -1, 0 before the first event) are per pixel (index
-    ``y * width + x``) and updated in place; ``use`` says which pixels are re-sampled. Events are written from
-    index ``n`` on, in creation order, as times ``out_t`` and second words ``out_w`` (padding zero).
+    ``state`` (:data:`PIXEL_DTYPE`) and ``status`` (int8, see :data:`SETTLED`) are per pixel (index ``y * width +
+    x``) and updated in place; ``use`` says which pixels are re-sampled. Events are written from index ``n`` on, in
+    creation order, as times ``out_t`` and second words ``out_w`` (padding zero).
+
+    With ``turns``, a pixel's segment that ends at a reversal (or at its first event) waits for the pixel's next
+    event. ``queue_pixel[head:tail]`` / ``queue_us`` list the waiting pixels in the order they started to wait
+    (so by time); before each event at ``t``, every pixel that has waited more than ``window_us`` is settled with
+    the slope after its event unknown (its next event, if any, comes after a rest or beyond ``max_gap_us``, where
+    no slope is taken either), so the result does not depend on where the stream was cut. The caller makes room
+    for one queue entry per input event.
     """
     capacity = out_t.shape[0]
     min_target = min(target_on, target_off)
     end = words.shape[0]
     i = start
     while i < end:
+        t_b = words[i, 0]
+        if head < tail:
+            n, head = _settle_waiting(state, status, width, target_on, target_off, min_target, queue_pixel,
+                                      queue_us, head, tail, t_b - window_us, out_t, out_w, n)
+            if head < tail and queue_us[head] < t_b - window_us:
+                return i, n, head, tail
         if i + AHEAD < end:  # the state of a pixel a few events ahead: its cache miss overlaps this work
             ahead = words[i + AHEAD, 1]
             prefetch(state, ((ahead >> 16) & 0xFFFF) * width + (ahead & 0xFFFF))
-        t_b = words[i, 0]
         word = words[i, 1]
         xy = word & 0xFFFFFFFF
         on = ((word >> 32) & 0xFF) != 0
         pixel = ((word >> 16) & 0xFFFF) * width + (word & 0xFFFF)
         if not use[pixel]:
             if n >= capacity:
-                return i, n
+                return i, n, head, tail
             out_t[n] = t_b
             out_w[n] = xy | ON_BIT if on else xy
             n += 1
             i += 1
             continue
         row = state[pixel]
-        a = row.level
         theta_on = float(row.on)
         theta_off = float(row.off)
-        last_polarity = polarity[pixel]
-        t_a = row.last_us
-        t_prev = row.previous_us
-        sign = 1 if on else -1
+        if n + _room(row.level, theta_on, theta_off, min_target) > capacity:
+            return i, n, head, tail
+        theta = theta_on if on else theta_off
         d = theta_on if on else -theta_off
-        # worst case: |a| < max target, an extremum < one threshold, the event's own threshold
-        if n + (abs(a) + theta_on + theta_off) / min_target + 3.0 > capacity:
-            return i, n
-        off_start = 0.0
-        turn = False
-        rest = False
-        if t_a != NO_EVENT_US:
-            gap = t_b - t_a
-            rest = mode != MODE_FOH and gap > hold_us
-            if rest:
-                if mode == MODE_HIGHPASS:
-                    a = a * math.exp(-(gap - hold_us) / tau_us)
-            else:
-                off_start = -float(min(gap, max_gap_us))
-                turn = turns and last_polarity == -sign and gap <= max_gap_us
-        if turn:
-            run = -float(sign)  # the run's direction: the opposite of this event's
-            theta_run = theta_on if run > 0.0 else theta_off
-            gap_f = float(t_b - t_a)
-            if t_prev != NO_EVENT_US and t_a > t_prev:
-                slope = theta_run / float(t_a - t_prev)
-                excess = 0.5 * (slope * gap_f - abs(d))
-                excess = min(max(excess, 0.0), theta_run)
-                off_peak = -gap_f + excess / slope
-            else:
-                excess = 0.5 * theta_run
-                off_peak = -0.5 * gap_f
-            a, n = _segment(a, run * excess, -gap_f, off_peak, t_b, xy, target_on, target_off, out_t, out_w, n)
-            a, n = _segment(a, d - run * excess, off_peak, 0.0, t_b, xy, target_on, target_off, out_t, out_w, n)
+        sign = 1 if on else -1
+        t_a = row.last_us
+        gap = t_b - t_a
+        if abs(status[pixel]) >= TURN:  # the pending segment waited for this event (at most window_us)
+            same = (on == (status[pixel] > 0)) and gap > 0
+            n = _settle(state, status, pixel, width, theta / float(gap) if same else 0.0, target_on, target_off,
+                        out_t, out_w, n)
+        last = status[pixel]
+        a = row.level
+        if t_a == NO_EVENT_US:  # a first event with nothing before it: its crossings at its own time
+            a, n = _segment(a, d, 0.0, 0.0, t_b, xy, target_on, target_off, out_t, out_w, n)
+            row.slope = 0.0
+            status[pixel] = sign
+        elif mode != MODE_FOH and gap > hold_us:  # a rest: held, everything at t_b
+            if mode == MODE_HIGHPASS:
+                a = a * math.exp(-(gap - hold_us) / tau_us)
+            a, n = _segment(a, d, 0.0, 0.0, t_b, xy, target_on, target_off, out_t, out_w, n)
+            row.slope = 0.0
+            status[pixel] = sign
+        elif turns and (last == 0 or last == -sign) and gap <= max_gap_us:  # wait for the pixel's next event
+            row.pending_us = gap
+            status[pixel] = sign * (FIRST if last == 0 else TURN)
+            queue_pixel[tail] = pixel
+            queue_us[tail] = t_b
+            tail += 1
         else:
-            a, n = _segment(a, d, off_start, 0.0, t_b, xy, target_on, target_off, out_t, out_w, n)
+            a, n = _segment(a, d, -float(min(gap, max_gap_us)), 0.0, t_b, xy, target_on, target_off, out_t, out_w,
+                            n)
+            row.slope = theta / float(gap) if (last == sign and gap > 0) else 0.0
+            status[pixel] = sign
         row.level = a
-        polarity[pixel] = sign
-        # the run's previous event, for its slope (not across a rest: that is no ramp)
-        row.previous_us = t_a if (last_polarity == sign and not rest) else NO_EVENT_US
         row.last_us = t_b
         i += 1
-    return i, n
+    return i, n, head, tail
+
+
+@kernel
+def settle_all(width, state, status, target_on, target_off, queue_pixel, queue_us, head, tail, out_t, out_w,
+               n):  # pragma: no cover - compiled
+    """The end of the stream: settle every pixel still waiting, in queue order, its next slope unknown.
+
+    Returns (count, queue head): the head stops short of ``tail`` when the output arrays are full."""
+    return _settle_waiting(state, status, width, target_on, target_off, min(target_on, target_off), queue_pixel,
+                           queue_us, head, tail, NO_EVENT_US, out_t, out_w, n)
 
 
 @kernel(inline=True)

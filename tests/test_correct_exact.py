@@ -1,0 +1,130 @@
+"""``correct`` is exact wherever the events determine the signal (issue 12), on waveforms drawn at random.
+
+An independent ideal pixel (``tests/naive/ideal_pixel.py``: analytic crossing times, no frames, none of the
+simulator's code) watches per-pixel log-linear triangle waves (own phase, rise and fall times, amplitude) once
+with mismatched thresholds and once with the target threshold. The mismatched stream corrected with its exact
+thresholds must be the ideal stream wherever the pixel's events determine the signal: from the stream's start
+(when the pixel fires before the wave's first turn) or from its first turn, to its last event (or the last event
+before its final turn, when the final ramp has a single event: that turn's second line is never seen). There,
+every corrected event has an ideal partner of the same polarity within 10 us, and at most one ideal event per
+pixel has none (a dip before a pixel's first event that its own threshold could not see, but the target could).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import strategies as st
+
+from evtools.correct import correct_thresholds
+from evtools.events import make_events
+from tests.naive.ideal_pixel import ideal_events, triangle_corners
+
+TARGET = float(np.float32(0.2))
+TOLERANCE_US = 10
+WIDTH = 3
+
+
+def stream(waves, thresholds):
+    """Events of all pixels (pixel i at x = i % WIDTH, y = i // WIDTH), times rounded to whole us."""
+    t, x, y, p = [], [], [], []
+    for i, (corners, (on, off)) in enumerate(zip(waves, thresholds)):
+        for when, polarity in ideal_events(corners, on, off):
+            t.append(int(np.floor(when + 0.5)))
+            x.append(i % WIDTH)
+            y.append(i // WIDTH)
+            p.append(polarity)
+    order = np.argsort(t, kind="stable")
+    return make_events(np.array(t, np.int64)[order], np.array(x)[order], np.array(y)[order], np.array(p)[order])
+
+
+def match(mine, theirs):
+    """Greedy one-to-one matching of two sorted time arrays within TOLERANCE_US: (unmatched mine, unmatched
+    theirs, worst matched difference)."""
+    i = j = lost_mine = lost_theirs = 0
+    worst = 0
+    while i < len(mine) and j < len(theirs):
+        if abs(int(mine[i]) - int(theirs[j])) <= TOLERANCE_US:
+            worst = max(worst, abs(int(mine[i]) - int(theirs[j])))
+            i += 1
+            j += 1
+        elif mine[i] < theirs[j]:
+            lost_mine += 1
+            i += 1
+        else:
+            lost_theirs += 1
+            j += 1
+    return lost_mine + len(mine) - i, lost_theirs + len(theirs) - j, worst
+
+
+AMBIGUOUS = 0.002
+"""An extremum this close (log units) to one of the ideal pixel's levels is a tie that the event times, rounded to
+whole microseconds, cannot decide (the reconstruction's level is good to ~1e-5): such waves are not drawn."""
+
+
+def touches_a_level(corners):
+    """Whether an extremum of the wave lies within AMBIGUOUS of the ideal pixel's levels (start + k * TARGET)."""
+    start = corners[0][1]
+    for _, level in corners[1:-1]:
+        k = (level - start) / TARGET
+        if abs(k - round(k)) * TARGET < AMBIGUOUS:
+            return True
+    return False
+
+
+def determined_span(corners, events):
+    """Where a pixel's events determine its signal (see the module docstring)."""
+    first_turn = corners[1][0]
+    start = corners[0][0] if events["t"][0] < first_turn else first_turn
+    polarity = events["p"]
+    last_run = len(polarity) - 1
+    while last_run > 0 and polarity[last_run - 1] == polarity[-1]:
+        last_run -= 1
+    end = events["t"][-1] if last_run < len(polarity) - 1 else events["t"][last_run - 1]
+    return start, end
+
+
+waveform = st.fixed_dictionaries({
+    "amplitude": st.floats(0.9, 2.5),  # >= theta_on + 2 theta_off: every whole ramp has two events or more
+    "rise_us": st.floats(20_000, 150_000),
+    "fall_us": st.floats(20_000, 150_000),
+    "phase": st.floats(0.0, 1.0, exclude_max=True),
+    "base": st.floats(-1.0, 1.0),
+    "on": st.floats(0.14, 0.26),
+    "off": st.floats(0.14, 0.26),
+})
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(pixels=st.lists(waveform, min_size=1, max_size=6), mode=st.sampled_from(["turns", "highpass"]))
+def test_log_linear_waves_with_exact_thresholds_give_the_ideal_stream(pixels, mode):
+    end_us = 2_000_000
+    waves = [triangle_corners(0, end_us, w["base"], w["amplitude"], w["rise_us"], w["fall_us"], w["phase"])
+             for w in pixels]
+    assume(not any(touches_a_level(corners) for corners in waves))
+    # the maps the corrector gets are float32: the mismatched pixel has exactly those thresholds
+    thresholds = [(float(np.float32(w["on"])), float(np.float32(w["off"]))) for w in pixels]
+    mismatched = stream(waves, thresholds)
+    ideal = stream(waves, [(TARGET, TARGET)] * len(pixels))
+    height = (len(pixels) + WIDTH - 1) // WIDTH
+    on = np.full((height, WIDTH), TARGET, np.float32)
+    off = np.full((height, WIDTH), TARGET, np.float32)
+    for i, (theta_on, theta_off) in enumerate(thresholds):
+        on[i // WIDTH, i % WIDTH], off[i // WIDTH, i % WIDTH] = theta_on, theta_off
+    out = correct_thresholds(mismatched, WIDTH, height, on, off, target=TARGET, mode=mode, start_us=0)
+    assert np.all(np.diff(out["t"]) >= 0)
+    for i, corners in enumerate(waves):
+        def of_pixel(events):
+            return events[(events["x"] == i % WIDTH) & (events["y"] == i // WIDTH)]
+
+        raw, mine, theirs = of_pixel(mismatched), of_pixel(out), of_pixel(ideal)
+        start, end = determined_span(corners, raw)
+        for polarity in (True, False):
+            a = mine["t"][(mine["p"] == polarity) & (mine["t"] >= start) & (mine["t"] <= end)]
+            b_wide = theirs["t"][(theirs["p"] == polarity) & (theirs["t"] >= start - 20) & (theirs["t"] <= end + 20)]
+            b = theirs["t"][(theirs["p"] == polarity) & (theirs["t"] >= start + 20) & (theirs["t"] <= end - 20)]
+            lost_mine, _, worst = match(a, b_wide)
+            _, lost_theirs, _ = match(a, b)
+            assert lost_mine == 0, (i, polarity, "a corrected event the ideal pixel does not have")
+            assert lost_theirs <= 1, (i, polarity, lost_theirs, "ideal events the corrected stream misses")
+            assert worst <= TOLERANCE_US
