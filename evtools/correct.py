@@ -7,15 +7,15 @@ processor, :func:`correct_thresholds` the one-shot convenience; ``evtools/_kerne
 per-event loop and the modes (``foh``, ``step``, ``turns``, ``highpass``), plus the merge that releases the
 created events in time order.
 
-Ordering. A re-sampled event lies between its pixel's previous original event (or the interpolation start, never
-earlier than ``max_gap_us`` before the current event) and the current one, so the events created for one input
+Ordering. A re-sampled event lies between the start of its segment (the pixel's previous original event, never
+earlier than ``max_gap_us`` before the current event) and the current event, so the events created for one input
 event may precede events already created for others. The corrector keeps the created events in a reorder buffer
 and releases, sorted by time (ties in creation order, a stable sort), those no later event can precede: every
-future event is created at or after ``bound = max(min over pixels of their last event time, t_now - window)``,
-with ``window`` = ``max_gap_us`` (``hold_us`` in all modes but ``foh`` when smaller; with turns, a pixel that has not
-fired yet counts as having fired at the stream's start, and a segment waiting for the pixel's next event starts
-at most one window before its event and waits at most one window, so the bound is ``t_now - 2 window``). So the latency and the buffer are bounded by ``window``
-of output, whatever the gaps. The created events of a chunk are sorted by a counting sort over their time span
+future event is created at or after ``bound = max(earliest segment start of any pixel, t_now - latency_us)``.
+``latency_us`` is one window, ``max_gap_us`` (``hold_us`` in all modes but ``foh`` when smaller), or three with
+turns: a segment that waits for the pixel's next event starts at most one window before its event and waits at
+most two (a pixel that has not fired yet counts as having fired at the stream's start). So the latency and
+the buffer are bounded by ``latency_us`` of output, whatever the gaps. The created events of a chunk are sorted by a counting sort over their time span
 (a stable merge sort when the span is large) and merged with the held ones inside a numba kernel. When every
 pixel's thresholds equal the target, each input event creates exactly itself, and the output is the input, bit
 for bit and in its order.
@@ -40,7 +40,7 @@ from evtools._kernels.correct import (
     PIXEL_DTYPE,
     correct_events,
     release_sorted,
-    settle_all,
+    settle_waiting,
 )
 from evtools.errors import EvtoolsError
 from evtools.events import EVENT_DTYPE, check_sensor_size, empty_events, join
@@ -194,11 +194,12 @@ class ThresholdCorrector:
         self._use = ~at_target.reshape(-1)
         self.usable = usable
         self.window_us = self.max_gap_us if mode == "foh" else min(self.max_gap_us, self.hold_us)
-        # with turns a segment may wait up to window_us for the pixel's next event, and start window_us before it
-        self.latency_us = 2 * self.window_us if self.turns else self.window_us
+        # with turns a segment starts up to one window before its event and may wait up to two for the next one
+        self.latency_us = 3 * self.window_us if self.turns else self.window_us
         self._queue_pixel = np.empty(1 << 16, dtype=np.int64)
         self._queue_us = np.empty(1 << 16, dtype=np.int64)
         self._head = self._tail = 0
+        self._due_us = -NO_EVENT_US  # when waiting pixels are next checked (see correct_events)
         self._started = False
         self._new = self._buffers(1 << 16)
         self._held = self._buffers(1 << 16)
@@ -244,23 +245,23 @@ class ThresholdCorrector:
         self._make_queue_room(len(chunk))
         start, n = 0, 0
         while True:
-            start, n, self._head, self._tail = correct_events(
+            start, n, self._head, self._tail, self._due_us = correct_events(
                 words, start, self.width, self._state, self._status, self._use, self.target_on, self.target_off,
                 MODES[self.mode], self.turns, self.hold_us, self.max_gap_us, self.tau_us, self.window_us,
-                self._queue_pixel, self._queue_us, self._head, self._tail, *self._new, n,
+                self._queue_pixel, self._queue_us, self._head, self._tail, self._due_us, *self._new, n,
             )
             if start >= len(chunk):
                 return n
             self._new = self._grown(self._new, 2 * len(self._new[0]), n)
 
     def _make_queue_room(self, count: int) -> None:
-        """Room for ``count`` more waiting pixels (one per input event at most); the live part moved to the front."""
+        """Room for ``count`` more waiting pixels (one per input event at most): when the end is reached, the live
+        part moves to the front (grown if need be), so each entry is copied O(1) times on average."""
+        if self._tail + count <= len(self._queue_us):
+            return
         live = self._tail - self._head
-        if live + count > len(self._queue_us):
-            size = 2 * (live + count)
-            pixels, times = np.empty(size, np.int64), np.empty(size, np.int64)
-        else:
-            pixels, times = self._queue_pixel, self._queue_us
+        size = max(len(self._queue_us), 2 * (live + count))
+        pixels, times = np.empty(size, np.int64), np.empty(size, np.int64)
         pixels[:live] = self._queue_pixel[self._head:self._tail]
         times[:live] = self._queue_us[self._head:self._tail]
         self._queue_pixel, self._queue_us, self._head, self._tail = pixels, times, 0, live
@@ -309,8 +310,9 @@ class ThresholdCorrector:
         stream ended)."""
         n = 0
         while self._head < self._tail:
-            n, self._head = settle_all(self.width, self._state, self._status, self.target_on, self.target_off,
-                                       self._queue_pixel, self._queue_us, self._head, self._tail, *self._new, n)
+            n, self._head = settle_waiting(self.width, self._state, self._status, self.target_on, self.target_off,
+                                           self._queue_pixel, self._queue_us, self._head, self._tail, NO_EVENT_US,
+                                           *self._new, n)
             if self._head < self._tail:
                 self._new = self._grown(self._new, 2 * len(self._new[0]), n)
         if n == 0:

@@ -93,12 +93,12 @@ AHEAD = 16
 """How many events ahead the kernel prefetches a pixel's state (events hit random pixels: 20 % faster on the
 bench stream than a plain load ahead, which was itself 20 % faster than none)."""
 
-PIXEL_DTYPE = np.dtype([("level", np.float64), ("last_us", np.int64), ("slope", np.float32),
+PIXEL_DTYPE = np.dtype([("level", np.float64), ("last_us", np.int64), ("interval_us", np.float32),
                         ("pending_us", np.int32), ("on", np.float32), ("off", np.float32)])
 """Per-pixel state, 32 bytes (one cache line holds two pixels, so an event touches one): the carried level (at the
 start of the pending segment while one waits), the latest event's time (NO_EVENT_US before the first; the stream's
-start with turns), the slope of the current run in log units per us (from its last two events; 0 when unknown:
-one event so far, or after a rest), the length of the pending segment (its start is ``last_us - pending_us``), and
+start with turns), the time between the current run's last two events (its slope is one threshold per that
+interval; 0 when unknown: one event so far, or after a rest), the length of the pending segment (its start is ``last_us - pending_us``), and
 the pixel's thresholds (float32, the maps' precision)."""
 
 SETTLED = 1
@@ -111,43 +111,48 @@ next event (the slope of the first ramp, to extrapolate it back)."""
 
 
 @kernel(inline=True)
-def _resolve(level, t_b, pending_us, kind, up, slope_a, slope_b, theta_on, theta_off, xy, target_on, target_off,
-             out_t, out_w, n):
+def _resolve(level, t_b, pending_us, kind, up, interval_a, interval_b, theta_on, theta_off, xy, target_on,
+             target_off, out_t, out_w, n):
     """Re-sample the pending segment that ends at the event ``(t_b, up)``; returns (level, n).
 
-    ``slope_b`` is the slope of the ramp that event starts (0: unknown, the ramp has a single event), ``slope_a``
-    that of the run before a turn (0: unknown).
+    A ramp's slope is one threshold per interval between its events: ``interval_b`` is that of the ramp the event
+    starts (the time to the next event; 0: unknown, the ramp has a single event), ``interval_a`` that of the run
+    before a turn (0: unknown).
 
-    - ``FIRST``: the first ramp, extended back to the pixel's start level, starts ``theta / slope_b`` before
-      ``t_b`` (the signal held its start level until then), never before the anchor ``pending_us`` back; with an
-      unknown slope the line from the anchor (the hold of the report).
+    - ``FIRST``: the first ramp, extended back to the pixel's start level, starts ``interval_b`` before ``t_b``
+      (the signal held its start level until then), never before the anchor ``pending_us`` back; with the interval
+      unknown, the line from the anchor (the hold of the report).
     - ``TURN``: the extremum is the intersection of the run's line through its last event ``(t_a, R)`` and the
-      new ramp's line through ``(t_b, R -/+ theta_b)``: with ``G = t_b - t_a`` it lies ``u = (slope_b G -
-      theta_b) / (slope_a + slope_b)`` after ``t_a``, ``slope_a u`` beyond ``R`` (clamped to ``[0, G]`` and to
-      ``[0, theta_run]``: further and the pixel would have fired again). With one slope unknown, the known one on
-      both sides; with neither, half a threshold at the midpoint.
+      new ramp's line through ``(t_b, R -/+ theta_b)``. With ``G = t_b - t_a`` and ``D = theta_a interval_b +
+      theta_b interval_a`` it lies ``u = theta_b (G - interval_b) interval_a / D`` after ``t_a`` and ``theta_a
+      theta_b (G - interval_b) / D`` beyond ``R`` (0 when ``G <= interval_b``; at most ``theta_a`` beyond, at
+      ``u = interval_a``: further and the pixel would have fired again). A slope not known takes the other's;
+      with neither, both are the symmetric slope that turns half a threshold beyond ``R``. One division: the
+      kernel's speed on reversing streams depends on it.
     """
     theta_b = theta_on if up else theta_off
     d = theta_b if up else -theta_b
     gap = float(pending_us)
     if kind == FIRST:
-        back = gap
-        if slope_b > 0.0:
-            back = min(gap, theta_b / slope_b)
+        back = min(gap, interval_b) if interval_b > 0.0 else gap
         return _segment(level, d, -back, 0.0, t_b, xy, target_on, target_off, out_t, out_w, n)
     theta_a = theta_off if up else theta_on  # the run before the turn went the other way
-    if slope_a > 0.0 and slope_b > 0.0:
-        u = min(max((slope_b * gap - theta_b) / (slope_a + slope_b), 0.0), gap)
-        excess = min(slope_a * u, theta_a)
-    elif slope_a > 0.0:
-        excess = min(max(0.5 * (slope_a * gap - theta_b), 0.0), theta_a)
-        u = excess / slope_a
-    elif slope_b > 0.0:
-        excess = min(max(0.5 * (slope_b * gap - theta_b), 0.0), theta_a)
-        u = max(gap - (excess + theta_b) / slope_b, 0.0)
-    else:
-        excess = 0.5 * theta_a
-        u = 0.5 * gap
+    if interval_a <= 0.0 and interval_b <= 0.0:
+        interval_a = theta_a * gap / (theta_a + theta_b)
+        interval_b = theta_b * gap / (theta_a + theta_b)
+    elif interval_a <= 0.0:
+        interval_a = theta_a * interval_b / theta_b
+    elif interval_b <= 0.0:
+        interval_b = theta_b * interval_a / theta_a
+    u = 0.0
+    excess = 0.0
+    if gap > interval_b:
+        scale = theta_b * (gap - interval_b) / (theta_a * interval_b + theta_b * interval_a)
+        u = scale * interval_a
+        excess = scale * theta_a
+        if excess > theta_a:
+            u = interval_a
+            excess = theta_a
     run = -1.0 if up else 1.0
     level, n = _segment(level, run * excess, -gap, u - gap, t_b, xy, target_on, target_off, out_t, out_w, n)
     return _segment(level, d - run * excess, u - gap, 0.0, t_b, xy, target_on, target_off, out_t, out_w, n)
@@ -161,65 +166,71 @@ def _room(level, theta_on, theta_off, min_target):
 
 
 @kernel(inline=True)
-def _settle(state, status, pixel, width, slope_b, target_on, target_off, out_t, out_w, n):
-    """Re-sample the pending segment of ``pixel`` (the slope after its event ``slope_b``, 0 unknown); returns n.
+def _settle(state, status, pixel, xy, interval_b, target_on, target_off, out_t, out_w, n):
+    """Re-sample the pending segment of ``pixel`` (at ``xy``, the low word of its events; ``interval_b`` the time
+    from its event to the next of the same polarity, 0 unknown); returns n.
 
-    Afterwards the pixel's level is at its latest event and its run's slope is known only for a first ramp
+    Afterwards the pixel's level is at its latest event and its run's interval is known only for a first ramp
     resolved by its anchored line (the line from the anchor is then that ramp)."""
     row = state[pixel]
     up = status[pixel] > 0
     kind = abs(status[pixel])
     theta_on = float(row.on)
     theta_off = float(row.off)
-    xy = ((pixel // width) << 16) | (pixel % width)
-    row.level, n = _resolve(row.level, row.last_us, row.pending_us, kind, up, float(row.slope), slope_b, theta_on,
-                            theta_off, xy, target_on, target_off, out_t, out_w, n)
-    row.slope = 0.0
-    if kind == FIRST and slope_b == 0.0 and row.pending_us > 0:
-        row.slope = (theta_on if up else theta_off) / row.pending_us
+    row.level, n = _resolve(row.level, row.last_us, row.pending_us, kind, up, float(row.interval_us), interval_b,
+                            theta_on, theta_off, xy, target_on, target_off, out_t, out_w, n)
+    row.interval_us = row.pending_us if (kind == FIRST and interval_b == 0.0) else 0.0
     row.pending_us = 0
     status[pixel] = SETTLED if up else -SETTLED
     return n
 
 
-@kernel(inline=True)
-def _settle_waiting(state, status, width, target_on, target_off, min_target, queue_pixel, queue_us, head, tail,
-                    before_us, out_t, out_w, n):
-    """Settle, in queue order, the waiting pixels that started to wait before ``before_us``, slope unknown.
+@kernel
+def settle_waiting(width, state, status, target_on, target_off, queue_pixel, queue_us, head, tail, before_us, out_t,
+                   out_w, n):  # pragma: no cover - compiled
+    """Settle, in queue order, the pixels that started to wait before ``before_us``, their next slope unknown
+    (``before_us`` = NO_EVENT_US: all of them, the stream ended). Called out of line: rarely due, and kept out of
+    the per-event loop it is faster (the loop's code stays small).
 
     Returns (count, queue head); the head stops early when the output arrays are full. A queue entry whose pixel
     has had an event since is stale and skipped."""
     capacity = out_t.shape[0]
+    min_target = min(target_on, target_off)
     while head < tail and queue_us[head] < before_us:
+        if head + AHEAD < tail:  # the queue is read in order: its pixels' states can be fetched early
+            prefetch(state, queue_pixel[head + AHEAD])
         pixel = queue_pixel[head]
         row = state[pixel]
         if abs(status[pixel]) >= TURN and row.last_us == queue_us[head]:
             if n + _room(row.level, float(row.on), float(row.off), min_target) > capacity:
                 return n, head
-            n = _settle(state, status, pixel, width, 0.0, target_on, target_off, out_t, out_w, n)
+            xy = ((pixel // width) << 16) | (pixel % width)
+            n = _settle(state, status, pixel, xy, 0.0, target_on, target_off, out_t, out_w, n)
         head += 1
     return n, head
 
 
 @kernel
 def correct_events(words, start, width, state, status, use, target_on, target_off, mode, turns, hold_us,
-                   max_gap_us, tau_us, window_us, queue_pixel, queue_us, head, tail, out_t, out_w,
+                   max_gap_us, tau_us, window_us, queue_pixel, queue_us, head, tail, due_us, out_t, out_w,
                    n):  # pragma: no cover - compiled
     """Process the events ``words[start:]`` ((n, 2) int64: time, then x, y, p as EVENT_DTYPE lays them out) while
     their worst case fits in the output arrays.
 
-    Returns (next input, count, queue head, queue tail).
+    Returns (next input, count, queue head, queue tail, next due time).
 
     ``state`` (:data:`PIXEL_DTYPE`) and ``status`` (int8, see :data:`SETTLED`) are per pixel (index ``y * width +
     x``) and updated in place; ``use`` says which pixels are re-sampled. Events are written from index ``n`` on, in
     creation order, as times ``out_t`` and second words ``out_w`` (padding zero).
 
     With ``turns``, a pixel's segment that ends at a reversal (or at its first event) waits for the pixel's next
-    event. ``queue_pixel[head:tail]`` / ``queue_us`` list the waiting pixels in the order they started to wait
-    (so by time); before each event at ``t``, every pixel that has waited more than ``window_us`` is settled with
-    the slope after its event unknown (its next event, if any, comes after a rest or beyond ``max_gap_us``, where
-    no slope is taken either), so the result does not depend on where the stream was cut. The caller makes room
-    for one queue entry per input event.
+    event; that event gives the slope after the turn if it comes within ``window_us`` (else the slope is unknown,
+    as after a rest). ``queue_pixel[head:tail]`` / ``queue_us`` list the waiting pixels in the order they started to
+    wait (so by time). At the first event at or after ``due_us`` (then ``due_us`` moves one window on) every pixel
+    that has waited more than ``window_us`` is settled with its next slope unknown: what it would get from its own
+    next event, so only the order of creation changes, and that only with the events' times, never with where the
+    stream was cut. Checking a window at a time (not at every event) keeps the loop fast; a segment then waits at
+    most two windows. The caller makes room for one queue entry per input event.
     """
     capacity = out_t.shape[0]
     min_target = min(target_on, target_off)
@@ -227,11 +238,12 @@ def correct_events(words, start, width, state, status, use, target_on, target_of
     i = start
     while i < end:
         t_b = words[i, 0]
-        if head < tail:
-            n, head = _settle_waiting(state, status, width, target_on, target_off, min_target, queue_pixel,
-                                      queue_us, head, tail, t_b - window_us, out_t, out_w, n)
+        if t_b >= due_us:  # settle the pixels that waited too long
+            n, head = settle_waiting(width, state, status, target_on, target_off, queue_pixel, queue_us, head, tail,
+                                     t_b - window_us, out_t, out_w, n)
             if head < tail and queue_us[head] < t_b - window_us:
-                return i, n, head, tail
+                return i, n, head, tail, due_us
+            due_us = t_b + window_us
         if i + AHEAD < end:  # the state of a pixel a few events ahead: its cache miss overlaps this work
             ahead = words[i + AHEAD, 1]
             prefetch(state, ((ahead >> 16) & 0xFFFF) * width + (ahead & 0xFFFF))
@@ -241,7 +253,7 @@ def correct_events(words, start, width, state, status, use, target_on, target_of
         pixel = ((word >> 16) & 0xFFFF) * width + (word & 0xFFFF)
         if not use[pixel]:
             if n >= capacity:
-                return i, n, head, tail
+                return i, n, head, tail, due_us
             out_t[n] = t_b
             out_w[n] = xy | ON_BIT if on else xy
             n += 1
@@ -251,27 +263,26 @@ def correct_events(words, start, width, state, status, use, target_on, target_of
         theta_on = float(row.on)
         theta_off = float(row.off)
         if n + _room(row.level, theta_on, theta_off, min_target) > capacity:
-            return i, n, head, tail
-        theta = theta_on if on else theta_off
+            return i, n, head, tail, due_us
         d = theta_on if on else -theta_off
         sign = 1 if on else -1
         t_a = row.last_us
         gap = t_b - t_a
-        if abs(status[pixel]) >= TURN:  # the pending segment waited for this event (at most window_us)
-            same = (on == (status[pixel] > 0)) and gap > 0
-            n = _settle(state, status, pixel, width, theta / float(gap) if same else 0.0, target_on, target_off,
-                        out_t, out_w, n)
+        if abs(status[pixel]) >= TURN:  # the pending segment waited for this event
+            same = (on == (status[pixel] > 0)) and 0 < gap <= window_us
+            n = _settle(state, status, pixel, xy, float(gap) if same else 0.0, target_on, target_off, out_t, out_w,
+                        n)
         last = status[pixel]
         a = row.level
         if t_a == NO_EVENT_US:  # a first event with nothing before it: its crossings at its own time
             a, n = _segment(a, d, 0.0, 0.0, t_b, xy, target_on, target_off, out_t, out_w, n)
-            row.slope = 0.0
+            row.interval_us = 0.0
             status[pixel] = sign
         elif mode != MODE_FOH and gap > hold_us:  # a rest: held, everything at t_b
             if mode == MODE_HIGHPASS:
                 a = a * math.exp(-(gap - hold_us) / tau_us)
             a, n = _segment(a, d, 0.0, 0.0, t_b, xy, target_on, target_off, out_t, out_w, n)
-            row.slope = 0.0
+            row.interval_us = 0.0
             status[pixel] = sign
         elif turns and (last == 0 or last == -sign) and gap <= max_gap_us:  # wait for the pixel's next event
             row.pending_us = gap
@@ -282,22 +293,12 @@ def correct_events(words, start, width, state, status, use, target_on, target_of
         else:
             a, n = _segment(a, d, -float(min(gap, max_gap_us)), 0.0, t_b, xy, target_on, target_off, out_t, out_w,
                             n)
-            row.slope = theta / float(gap) if (last == sign and gap > 0) else 0.0
+            row.interval_us = gap if (last == sign and gap > 0) else 0
             status[pixel] = sign
         row.level = a
         row.last_us = t_b
         i += 1
-    return i, n, head, tail
-
-
-@kernel
-def settle_all(width, state, status, target_on, target_off, queue_pixel, queue_us, head, tail, out_t, out_w,
-               n):  # pragma: no cover - compiled
-    """The end of the stream: settle every pixel still waiting, in queue order, its next slope unknown.
-
-    Returns (count, queue head): the head stops short of ``tail`` when the output arrays are full."""
-    return _settle_waiting(state, status, width, target_on, target_off, min(target_on, target_off), queue_pixel,
-                           queue_us, head, tail, NO_EVENT_US, out_t, out_w, n)
+    return i, n, head, tail, due_us
 
 
 @kernel(inline=True)

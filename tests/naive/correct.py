@@ -4,7 +4,10 @@ Follows the founding report's section 4.2 literally, with this project's additio
 reconstruction is a polyline through points (time, level); each original event adds a point one of the pixel's
 own thresholds up (ON) or down (OFF). With ``turns`` the polyline also starts at (stream start, 0), and the
 segment that ends at a pixel's first event or at a polarity reversal is drawn only when the pixel's next event is
-known (or the stream ends, or more than the window has passed):
+known: if it comes within the window (``max_gap_us``, or ``hold_us`` when smaller and the mode is not foh), it
+gives the slope after the turn; otherwise (or when the stream ends first) that slope is unknown. Waiting pixels
+are also settled, slope unknown, whenever the stream has moved a window on since the last such check (they
+would get the same from their own next event, so this only fixes the order in which events are created):
 
 - at a reversal, the polyline goes through the extremum where the line of the run before (through its last two
   events) meets the line of the run after (through its first two events);
@@ -45,20 +48,28 @@ def _clamp(value, low, high):
     return min(max(value, low), high)
 
 
-def extremum(gap, theta_before, slope_before, theta_after, slope_after):
-    """Where a run (slope ``slope_before``, 0 unknown) turns between its last event and, ``gap`` us later, the
-    first event of the other polarity (``theta_after`` beyond): (us after the last event, level beyond it)."""
-    if slope_before > 0 and slope_after > 0:
-        # beyond = slope_before * u  and  beyond + theta_after = slope_after * (gap - u)
-        u = _clamp((slope_after * gap - theta_after) / (slope_before + slope_after), 0.0, gap)
-        return u, min(slope_before * u, theta_before)
-    if slope_before > 0 or slope_after > 0:  # the known slope on both sides
-        slope = slope_before if slope_before > 0 else slope_after
-        beyond = _clamp((slope * gap - theta_after) / 2, 0.0, theta_before)
-        if slope_before > 0:
-            return beyond / slope_before, beyond
-        return max(gap - (beyond + theta_after) / slope_after, 0.0), beyond
-    return gap / 2, theta_before / 2
+def extremum(gap, theta_before, interval_before, theta_after, interval_after):
+    """Where a run turns between its last event and, ``gap`` us later, the first event of the other polarity
+    (``theta_after`` beyond): (us after the last event, level beyond it). A ramp's slope is one threshold per
+    interval between its events (``interval_*``, 0 unknown).
+
+    The two lines meet where ``beyond = theta_before / interval_before * u`` and ``beyond + theta_after =
+    theta_after / interval_after * (gap - u)``. A slope not known takes the other's; neither known: both are the
+    slope of a symmetric turn half a threshold beyond the run's last level."""
+    if interval_before <= 0 and interval_after <= 0:
+        slope = (theta_before + theta_after) / gap
+        interval_before, interval_after = theta_before / slope, theta_after / slope
+    elif interval_before <= 0:
+        interval_before = theta_before * interval_after / theta_after
+    elif interval_after <= 0:
+        interval_after = theta_after * interval_before / theta_before
+    if gap <= interval_after:  # the new ramp's line reaches its first event's level only from the last event on
+        return 0.0, 0.0
+    # solve both line equations for u (multiplying out the slopes' divisions)
+    scale = theta_after * (gap - interval_after) / (theta_before * interval_after + theta_after * interval_before)
+    if scale * theta_before > theta_before:  # would have fired again: the extremum a whole threshold beyond
+        return interval_before, theta_before
+    return scale * interval_before, scale * theta_before
 
 
 def correct_naive(events, on, off, target_on, target_off, mode=FOH, hold_us=100_000, max_gap_us=1_000_000,
@@ -73,10 +84,11 @@ def correct_naive(events, on, off, target_on, target_off, mode=FOH, hold_us=100_
             return on[y][x] == target_on and off[y][x] == target_off
 
     window = max_gap_us if mode == FOH else min(max_gap_us, hold_us)
+    due = None  # when the waiting pixels are next checked
     origin = None
     last = {}  # pixel -> time of its latest original event (or the stream start, with turns)
     polarity = {}  # pixel -> polarity of its latest event
-    slope = {}  # pixel -> slope of its current run (log units per us) from its last two events; 0 unknown
+    interval = {}  # pixel -> time between the last two events of its current run (us; 0 unknown)
     level = {}  # pixel -> reconstruction minus corrected reference, at the start of what is not drawn yet
     waiting = {}  # pixel -> (kind "first" or "turn", segment length us) of a segment not drawn yet
     created = []
@@ -90,7 +102,7 @@ def correct_naive(events, on, off, target_on, target_off, mode=FOH, hold_us=100_
             created.extend((when, x, y, p) for when, p in made)
         level[pixel] = a
 
-    def settle(pixel, slope_after):
+    def settle(pixel, interval_after):
         kind, gap = waiting.pop(pixel)
         x, y = pixel
         up = polarity[pixel]
@@ -98,23 +110,25 @@ def correct_naive(events, on, off, target_on, target_off, mode=FOH, hold_us=100_
         step = theta if up else -theta
         t = last[pixel]
         if kind == "first":
-            back = min(gap, theta / slope_after) if slope_after > 0 else gap
+            back = min(gap, interval_after) if interval_after > 0 else gap  # the first ramp's line back to 0
             draw(pixel, [(-float(back), 0.0), (0.0, step)], t)
-            slope[pixel] = theta / gap if slope_after == 0 and gap > 0 else 0.0
+            interval[pixel] = gap if interval_after == 0 else 0  # the anchored line is the first ramp
             return
         theta_before = float(off[y][x]) if up else float(on[y][x])
-        u, beyond = extremum(float(gap), theta_before, slope[pixel], theta, slope_after)
+        u, beyond = extremum(float(gap), theta_before, float(interval[pixel]), theta, float(interval_after))
         signed = -beyond if up else beyond
         draw(pixel, [(-float(gap), 0.0), (u - gap, signed), (0.0, step - signed)], t)
-        slope[pixel] = 0.0
+        interval[pixel] = 0
 
     for t, x, y, p in events:
         t, x, y, p = int(t), int(x), int(y), bool(p)
         if origin is None:
             origin = t if start_us is None else min(start_us, t)
-        for pixel in sorted(waiting, key=lambda q: last[q]):  # stable: pixels started waiting in that order
-            if t - last[pixel] > window:
-                settle(pixel, 0.0)
+        if due is None or t >= due:
+            for pixel in sorted(waiting, key=lambda q: last[q]):  # stable: pixels started waiting in that order
+                if t - last[pixel] > window:
+                    settle(pixel, 0.0)
+            due = t + window
         if passthrough(x, y):
             created.append((t, x, y, p))
             continue
@@ -123,12 +137,12 @@ def correct_naive(events, on, off, target_on, target_off, mode=FOH, hold_us=100_
         step = theta if p else -theta
         if turns and pixel not in last:
             last[pixel] = origin
-        if pixel in waiting:  # (waited at most the window)
+        if pixel in waiting:
             gap = t - last[pixel]
-            settle(pixel, theta / gap if polarity[pixel] == p and gap > 0 else 0.0)
+            settle(pixel, gap if polarity[pixel] == p and 0 < gap <= window else 0)
         if pixel not in last:
             draw(pixel, [(0.0, 0.0), (0.0, step)], t)
-            slope[pixel] = 0.0
+            interval[pixel] = 0
         else:
             gap = t - last[pixel]
             before = polarity.get(pixel)
@@ -136,12 +150,12 @@ def correct_naive(events, on, off, target_on, target_off, mode=FOH, hold_us=100_
                 if mode == HIGHPASS:
                     level[pixel] = level.get(pixel, 0.0) * math.exp(-(gap - hold_us) / tau_us)
                 draw(pixel, [(0.0, 0.0), (0.0, step)], t)
-                slope[pixel] = 0.0
+                interval[pixel] = 0
             elif turns and before != p and gap <= max_gap_us:
                 waiting[pixel] = ("first" if before is None else "turn", gap)
             else:
                 draw(pixel, [(-float(min(gap, max_gap_us)), 0.0), (0.0, step)], t)
-                slope[pixel] = theta / gap if before == p and gap > 0 else 0.0
+                interval[pixel] = gap if before == p and gap > 0 else 0
         polarity[pixel] = p
         last[pixel] = t
     for pixel in sorted(waiting, key=lambda q: last[q]):
