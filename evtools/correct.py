@@ -16,7 +16,7 @@ future event is created at or after ``bound = max(earliest segment start of any 
 turns: a segment that waits for the pixel's next event starts at most one window before its event and waits at
 most two (a pixel that has not fired yet counts as having fired at the stream's start). So the latency and
 the buffer are bounded by ``latency_us`` of output, whatever the gaps. The created events of a chunk are sorted by a counting sort over their time span
-(a stable merge sort when the span is large) and merged with the held ones inside a numba kernel. When every
+(coarser buckets, each put in order by insertion, when the span is large) and merged with the held ones inside a numba kernel. When every
 pixel's thresholds equal the target, each input event creates exactly itself, and the output is the input, bit
 for bit and in its order.
 
@@ -205,7 +205,6 @@ class ThresholdCorrector:
         self._held = self._buffers(1 << 16)
         self._keep = self._buffers(1 << 16)
         self._n_held = 0
-        self._order = np.empty(1 << 16, dtype=np.int64)
         self._sorted = self._buffers(1 << 16)
         self._counts = np.empty(1 << 18, dtype=np.int64)
         self.parameters: dict[str, Any] = {
@@ -290,8 +289,7 @@ class ThresholdCorrector:
     def _release(self, n: int, bound: int) -> np.ndarray:
         """Merge the held and the ``n`` new events; return those at or before ``bound``, hold the rest."""
         h = self._n_held
-        if len(self._order) < n:
-            self._order = np.empty(2 * n, dtype=np.int64)
+        if len(self._sorted[0]) < n:
             self._sorted = self._buffers(2 * n)
         if len(self._counts) < 4 * n:
             self._counts = np.empty(4 * n, dtype=np.int64)
@@ -299,7 +297,7 @@ class ThresholdCorrector:
             self._keep = self._buffers(2 * (h + n))
         out = np.empty(h + n, dtype=EVENT_DTYPE)
         words = out.view(np.int64).reshape(-1, 2)
-        released, kept = release_sorted(*self._held, h, *self._new, n, bound, self._order, self._counts,
+        released, kept = release_sorted(*self._held, h, *self._new, n, bound, self._counts,
                                         *self._sorted, words[:, 0], words[:, 1], *self._keep)
         self._held, self._keep = self._keep, self._held
         self._n_held = kept

@@ -293,7 +293,7 @@ def correct_events(words, start, width, state, status, use, target_on, target_of
         else:
             a, n = _segment(a, d, -float(min(gap, max_gap_us)), 0.0, t_b, xy, target_on, target_off, out_t, out_w,
                             n)
-            row.interval_us = gap if (last == sign and gap > 0) else 0
+            row.interval_us = gap if (last == sign and 0 < gap <= window_us) else 0  # a ramp within the window
             status[pixel] = sign
         row.level = a
         row.last_us = t_b
@@ -328,13 +328,13 @@ def _merge(a_t, a_w, i, a_end, b_t, b_w, j, b_end, dst_t, dst_w, d):
 
 
 @kernel
-def release_sorted(held_t, held_w, h, new_t, new_w, n, bound, order, counts, sorted_t, sorted_w, out_t, out_w,
+def release_sorted(held_t, held_w, h, new_t, new_w, n, bound, counts, sorted_t, sorted_w, out_t, out_w,
                    keep_t, keep_w):  # pragma: no cover - compiled
     """Merge the held events (sorted) with the new ones (creation order); split at ``bound``.
 
-    The new events are sorted by time into ``sorted_*``, ties in creation order (a counting sort that scatters
-    them straight to their places when ``counts`` covers their time span, else a stable merge sort and a
-    gather). The merged stream is sorted, so the events at or before ``bound`` are its first ones: the runs' parts
+    The new events are sorted by time into ``sorted_*``, ties in creation order: a counting sort that scatters
+    them straight to their places, with a bucket per us when ``counts`` covers their time span, else buckets of
+    ``2**shift`` us, each then put in order by a stable insertion sort. The merged stream is sorted, so the events at or before ``bound`` are its first ones: the runs' parts
     up to ``bound`` are merged into ``out_*``, the rest into ``keep_*`` (held first on ties: they were created
     earlier). Returns (released, kept).
     """
@@ -344,32 +344,51 @@ def release_sorted(held_t, held_w, h, new_t, new_w, n, bound, order, counts, sor
         for k in range(n):
             low = min(low, new_t[k])
             high = max(high, new_t[k])
-        span = high - low + 1
-        if span <= counts.shape[0]:
-            counts[:span] = 0
+        shift = 0  # buckets of 2**shift us, so that the span fits the counts
+        while ((high - low) >> shift) + 1 > counts.shape[0]:
+            shift += 1
+        buckets = ((high - low) >> shift) + 1
+        counts[:buckets] = 0
+        for k in range(n):
+            counts[(new_t[k] - low) >> shift] += 1
+        total = 0
+        for b in range(buckets):
+            c = counts[b]
+            counts[b] = total
+            total += c
+        if shift == 0:  # a bucket per us: reads in order, writes scattered (stores do not stall like loads)
             for k in range(n):
-                counts[new_t[k] - low] += 1
-            total = 0
-            for b in range(span):
-                c = counts[b]
-                counts[b] = total
-                total += c
-            for k in range(n):  # reads in order, writes scattered: stores do not stall like loads
                 bucket = new_t[k] - low
                 place = counts[bucket]
                 counts[bucket] = place + 1
                 sorted_w[place] = new_w[k]
             place = 0  # counts[b] is now where bucket b ends: the times follow in order, no scatter needed
-            for b in range(span):
+            for b in range(buckets):
                 while place < counts[b]:
                     sorted_t[place] = low + b
                     place += 1
-        else:
-            order[:n] = np.argsort(new_t[:n], kind="mergesort")
-            for j in range(n):
-                k = order[j]
-                sorted_t[j] = new_t[k]
-                sorted_w[j] = new_w[k]
+        else:  # a long span (a slow stream): coarser buckets, then each sorted by time (stable insertion sort;
+            # created events are nearly in order, so buckets are short and mostly sorted already)
+            for k in range(n):
+                bucket = (new_t[k] - low) >> shift
+                place = counts[bucket]
+                counts[bucket] = place + 1
+                sorted_t[place] = new_t[k]
+                sorted_w[place] = new_w[k]
+            begin = 0
+            for b in range(buckets):
+                end = counts[b]
+                for j in range(begin + 1, end):
+                    t = sorted_t[j]
+                    w = sorted_w[j]
+                    i = j - 1
+                    while i >= begin and sorted_t[i] > t:
+                        sorted_t[i + 1] = sorted_t[i]
+                        sorted_w[i + 1] = sorted_w[i]
+                        i -= 1
+                    sorted_t[i + 1] = t
+                    sorted_w[i + 1] = w
+                begin = end
     held_end = np.searchsorted(held_t[:h], bound, side="right")
     new_end = np.searchsorted(sorted_t[:n], bound, side="right")
     released = _merge(held_t, held_w, 0, held_end, sorted_t, sorted_w, 0, new_end, out_t, out_w, 0)

@@ -57,8 +57,9 @@ def extremum(gap, theta_before, interval_before, theta_after, interval_after):
     theta_after / interval_after * (gap - u)``. A slope not known takes the other's; neither known: both are the
     slope of a symmetric turn half a threshold beyond the run's last level."""
     if interval_before <= 0 and interval_after <= 0:
-        slope = (theta_before + theta_after) / gap
-        interval_before, interval_after = theta_before / slope, theta_after / slope
+        # slope (theta_before + theta_after) / gap on both sides
+        interval_before = theta_before * gap / (theta_before + theta_after)
+        interval_after = theta_after * gap / (theta_before + theta_after)
     elif interval_before <= 0:
         interval_before = theta_before * interval_after / theta_after
     elif interval_after <= 0:
@@ -88,7 +89,7 @@ def correct_naive(events, on, off, target_on, target_off, mode=FOH, hold_us=100_
     origin = None
     last = {}  # pixel -> time of its latest original event (or the stream start, with turns)
     polarity = {}  # pixel -> polarity of its latest event
-    interval = {}  # pixel -> time between the last two events of its current run (us; 0 unknown)
+    interval = {}  # pixel -> time between the last two events of its current run (us; 0 unknown or > window)
     level = {}  # pixel -> reconstruction minus corrected reference, at the start of what is not drawn yet
     waiting = {}  # pixel -> (kind "first" or "turn", segment length us) of a segment not drawn yet
     created = []
@@ -155,7 +156,7 @@ def correct_naive(events, on, off, target_on, target_off, mode=FOH, hold_us=100_
                 waiting[pixel] = ("first" if before is None else "turn", gap)
             else:
                 draw(pixel, [(-float(min(gap, max_gap_us)), 0.0), (0.0, step)], t)
-                interval[pixel] = gap if before == p and gap > 0 else 0
+                interval[pixel] = gap if before == p and 0 < gap <= window else 0
         polarity[pixel] = p
         last[pixel] = t
     for pixel in sorted(waiting, key=lambda q: last[q]):
