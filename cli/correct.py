@@ -6,7 +6,7 @@ import click
 
 from cli.options import output_option, read_options
 from cli.progress import process_stream
-from evtools.correct import CORRECT_DEFAULTS, MODES, CorrectionError, ThresholdCorrector
+from evtools.correct import CORRECT_DEFAULTS, MAX_WINDOW_US, MODES, CorrectionError, ThresholdCorrector
 from formats import create_events, open_events
 from formats.thresholds import read_thresholds
 
@@ -35,9 +35,10 @@ def _target(ctx, param, value):
               help="foh: the report's first-order hold; step: its step-aware variant (held over gaps > --hold-us); "
                    "turns: step anchored at the stream's start, with an extremum at each polarity reversal; "
                    "highpass: turns plus a decay of the carried level over rests.")
-@click.option("--hold-us", type=click.IntRange(min=1), default=CORRECT_DEFAULTS["hold_us"], show_default=True,
+@click.option("--hold-us", type=click.IntRange(1, MAX_WINDOW_US), default=CORRECT_DEFAULTS["hold_us"],
+              show_default=True,
               help="All but foh: a gap longer than this is a rest (held constant, no interpolation).")
-@click.option("--max-gap-us", type=click.IntRange(min=1), default=CORRECT_DEFAULTS["max_gap_us"],
+@click.option("--max-gap-us", type=click.IntRange(1, MAX_WINDOW_US), default=CORRECT_DEFAULTS["max_gap_us"],
               show_default=True, help="Interpolation never reaches further back than this: bounds latency/memory.")
 @click.option("--tau-us", type=click.FloatRange(min=0, min_open=True), default=CORRECT_DEFAULTS["tau_us"],
               show_default=True, help="highpass: time constant of the decay of the carried level over a rest.")

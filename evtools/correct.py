@@ -45,7 +45,7 @@ from evtools._kernels.correct import (
 from evtools.errors import EvtoolsError
 from evtools.events import EVENT_DTYPE, check_sensor_size, empty_events, join
 
-__all__ = ["CORRECT_DEFAULTS", "MODES", "CorrectionError", "ThresholdCorrector", "correct_thresholds"]
+__all__ = ["CORRECT_DEFAULTS", "MAX_WINDOW_US", "MODES", "CorrectionError", "ThresholdCorrector", "correct_thresholds"]
 
 MODES = {"highpass": MODE_HIGHPASS, "turns": MODE_STEP, "step": MODE_STEP, "foh": MODE_FOH}
 """Reconstruction modes by name (see :mod:`evtools._kernels.correct`): ``foh`` and ``step`` are the report's;
