@@ -33,7 +33,8 @@ def _target(ctx, param, value):
               help="The threshold every pixel is re-sampled at (log units), or the median of the maps.")
 @click.option("--mode", type=click.Choice(list(MODES)), default=CORRECT_DEFAULTS["mode"], show_default=True,
               help="foh: the report's first-order hold; step: its step-aware variant (held over gaps > --hold-us); "
-                   "turns: step anchored at the stream's start, with an extremum at each polarity reversal; "
+                   "turns: step anchored at the stream's start, each polarity reversal's extremum where the lines "
+                   "of the runs on both sides meet (exact on log-linear ramps); "
                    "highpass: turns plus a decay of the carried level over rests.")
 @click.option("--hold-us", type=click.IntRange(1, MAX_WINDOW_US), default=CORRECT_DEFAULTS["hold_us"],
               show_default=True,
