@@ -33,11 +33,13 @@ from typing import Any
 import numpy as np
 
 from evtools._kernels.correct import (
+    FIRST,
     MODE_FOH,
     MODE_HIGHPASS,
     MODE_STEP,
     NO_EVENT_US,
     PIXEL_DTYPE,
+    TURN,
     correct_events,
     release_sorted,
     settle_waiting,
@@ -47,11 +49,14 @@ from evtools.events import EVENT_DTYPE, check_sensor_size, empty_events, join
 
 __all__ = ["CORRECT_DEFAULTS", "MAX_WINDOW_US", "MODES", "CorrectionError", "ThresholdCorrector", "correct_thresholds"]
 
-MODES = {"highpass": MODE_HIGHPASS, "turns": MODE_STEP, "step": MODE_STEP, "foh": MODE_FOH}
+MODES = {"highpass": MODE_HIGHPASS, "exponential": MODE_STEP, "turns": MODE_STEP, "step": MODE_STEP,
+         "foh": MODE_FOH}
 """Reconstruction modes by name (see :mod:`evtools._kernels.correct`): ``foh`` and ``step`` are the report's;
 ``turns`` is ``step`` with the reconstruction anchored at the stream's start and the extremum of every reversal
 where the lines of the runs on both sides meet;
-``highpass`` (the default) is ``turns`` plus the decay of the carried level over rests."""
+``highpass`` is ``turns`` plus the decay of the carried level over rests; ``exponential`` is ``highpass`` with the
+segments of a run that slows down drawn as the exponential approach through its last three events, and that
+approach's tail re-sampled when the pixel stops firing (a photoreceptor's first-order low-pass after a step)."""
 
 CORRECT_DEFAULTS: dict[str, Any] = {
     "mode": "highpass",
@@ -147,7 +152,7 @@ class ThresholdCorrector:
     def __init__(self, width: int, height: int, on, off, valid=None, *, target="median",
                  mode: str = CORRECT_DEFAULTS["mode"], hold_us: int = CORRECT_DEFAULTS["hold_us"],
                  max_gap_us: int = CORRECT_DEFAULTS["max_gap_us"], tau_us: float = CORRECT_DEFAULTS["tau_us"],
-                 turns: bool | None = None, start_us: int | None = None):
+                 turns: bool | None = None, curves: bool | None = None, start_us: int | None = None):
         check_sensor_size(width, height)
         self.width, self.height = int(width), int(height)
         on = np.asarray(on, dtype=np.float32)
@@ -168,7 +173,8 @@ class ThresholdCorrector:
             raise CorrectionError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
         self.target_on, self.target_off = resolve_target(target, on, off, usable)
         self.mode = mode
-        self.turns = (mode in ("turns", "highpass")) if turns is None else bool(turns)
+        self.turns = (mode in ("turns", "highpass", "exponential")) if turns is None else bool(turns)
+        self.curves = (mode == "exponential") if curves is None else bool(curves)
         self.hold_us = _positive_int("hold_us", hold_us)
         self.max_gap_us = _positive_int("max_gap_us", max_gap_us)
         tau_us = float(tau_us)
@@ -194,8 +200,9 @@ class ThresholdCorrector:
         self._use = ~at_target.reshape(-1)
         self.usable = usable
         self.window_us = self.max_gap_us if mode == "foh" else min(self.max_gap_us, self.hold_us)
-        # with turns a segment starts up to one window before its event and may wait up to two for the next one
-        self.latency_us = 3 * self.window_us if self.turns else self.window_us
+        # with turns a segment starts up to one window before its event and may wait up to two for the next one;
+        # a tail starts at its event and waits up to two windows
+        self.latency_us = 3 * self.window_us if self.turns else 2 * self.window_us if self.curves else self.window_us
         self._queue_pixel = np.empty(1 << 16, dtype=np.int64)
         self._queue_us = np.empty(1 << 16, dtype=np.int64)
         self._head = self._tail = 0
@@ -209,7 +216,8 @@ class ThresholdCorrector:
         self._counts = np.empty(1 << 18, dtype=np.int64)
         self.parameters: dict[str, Any] = {
             "target_on": self.target_on, "target_off": self.target_off, "mode": mode, "hold_us": self.hold_us,
-            "max_gap_us": self.max_gap_us, "tau_us": self.tau_us, "turns": self.turns, "start_us": self.start_us,
+            "max_gap_us": self.max_gap_us, "tau_us": self.tau_us, "turns": self.turns, "curves": self.curves,
+            "start_us": self.start_us,
         }
 
     @staticmethod
@@ -246,7 +254,7 @@ class ThresholdCorrector:
         while True:
             start, n, self._head, self._tail, self._due_us = correct_events(
                 words, start, self.width, self._state, self._status, self._use, self.target_on, self.target_off,
-                MODES[self.mode], self.turns, self.hold_us, self.max_gap_us, self.tau_us, self.window_us,
+                MODES[self.mode], self.turns, self.curves, self.hold_us, self.max_gap_us, self.tau_us, self.window_us,
                 self._queue_pixel, self._queue_us, self._head, self._tail, self._due_us, *self._new, n,
             )
             if start >= len(chunk):
@@ -276,10 +284,10 @@ class ThresholdCorrector:
         n = self._resample(chunk)
         t_now = int(chunk["t"][-1])
         # every later event is created at or after the earliest segment start any pixel may still use: its latest
-        # event, or the start of the segment that waits for its next event
+        # event, or the start of the segment that waits for its next event (a tail starts at the latest event)
         earliest = t_now
         if self._use.any():
-            waiting = np.abs(self._status) >= 2
+            waiting = (np.abs(self._status) == TURN) | (np.abs(self._status) == FIRST)
             earliest = int(self._state["last_us"].min())
             if waiting.any():
                 earliest = min(earliest, int((self._state["last_us"][waiting] - self._state["pending_us"][waiting]).min()))
@@ -309,7 +317,7 @@ class ThresholdCorrector:
         n = 0
         while self._head < self._tail:
             n, self._head = settle_waiting(self.width, self._state, self._status, self.target_on, self.target_off,
-                                           self._queue_pixel, self._queue_us, self._head, self._tail, NO_EVENT_US,
+                                           self.window_us, self._queue_pixel, self._queue_us, self._head, self._tail, NO_EVENT_US,
                                            *self._new, n)
             if self._head < self._tail:
                 self._new = self._grown(self._new, 2 * len(self._new[0]), n)

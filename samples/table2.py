@@ -78,7 +78,7 @@ def step_tables():
     for seed in SEEDS:
         events, sensor = simulate("step", seed, 3_000_000, **cutoff)
         ideal, _ = simulate("step", seed, 3_000_000, sigma_thres=0.0, **cutoff)
-        edges = edges_from_starts(ideal, STEP_EDGES_US)
+        edges = edges_from_starts(ideal, STEP_EDGES_US, end_us=3_000_000)
         rows.setdefault("before", []).append(edge_uniformity(events, SIZE, edges, ideal)["summary"])
         first.setdefault("before", []).append(edge_uniformity(events, SIZE, edges[:1], ideal)["summary"])
         for label, error in (("exact", 0.0), ("1%", 0.01), ("5%", 0.05)):

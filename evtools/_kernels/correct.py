@@ -109,6 +109,81 @@ FIRST = 3
 """``status``: the pixel's first event (reconstruction anchored at the stream's start); its segment waits for the
 next event (the slope of the first ramp, to extrapolate it back)."""
 
+TAIL = 4
+"""``status`` (``curves``): the latest event continued a run that slows down as an exponential approach whose rest
+(up to its asymptote) crosses a target level that the pixel's own next threshold lies beyond; the tail waits a
+window for the pixel's next event: if one comes the run went on (the tail is dropped), else it is re-sampled.
+While a pixel waits so, ``pending_us`` holds the approach's time constant (us) instead of a segment length."""
+
+MIN_CURVE_RATIO = 1.01
+"""``curves``: a run's segment is an exponential approach when its interval exceeds the run's previous one by more
+than this factor; intervals within 1 % (or shrinking) give a straight line."""
+
+TAIL_TAUS = 3.0
+"""``curves``: a tail is re-sampled over at most this many time constants after the run's last event (95 % of the
+approach); later crossings lie where the distance left to the asymptote is within the fit's own error (a target
+level at the asymptote itself would fire at a time set by rounding)."""
+
+MAX_TAU_US = 2**31 - 1
+"""The longest time constant kept (it waits in ``pending_us``, 32 bits)."""
+
+_LN2 = math.log(2.0)
+
+
+@kernel(inline=True)
+def _approach_rate(interval_a, interval_b):
+    """``1 / tau`` (per us) of the exponential approach ``L_inf - B exp(-t / tau)`` through three events one
+    threshold apart, ``interval_a`` then ``interval_b`` apart (``interval_b > interval_a > 0``).
+
+    Equal level steps give ``exp(-t1/tau) - exp(-t2/tau) = exp(-t2/tau) - exp(-t3/tau)``, i.e. with ``y =
+    interval_a / tau`` and ``r = interval_b / interval_a``: ``exp(y) + exp(-r y) = 2``. Newton's method from ``y =
+    ln 2`` (right of the root, where the convex function rises) converges monotonically."""
+    ratio = interval_b / interval_a
+    y = _LN2
+    for _ in range(60):
+        grow = math.exp(y)
+        decay = math.exp(-ratio * y)
+        step = (grow + decay - 2.0) / (grow - ratio * decay)
+        y -= step
+        if step <= 1e-13 * y:
+            break
+    return y / interval_a
+
+
+@kernel(inline=True)
+def _curve(level, delta, off0, span, rate, t_b, xy, target_on, target_off, out_t, out_w, n):
+    """Re-sample the exponential approach (rate ``1 / tau`` per us) from ``(t_b + off0, level)`` to ``(t_b + off0
+    + span, level + delta)``: ``level + delta (1 - exp(-rate s)) / (1 - exp(-rate span))`` at ``s`` us; returns
+    (level, n)."""
+    shrink = -math.expm1(-rate * span)
+    if delta > 0.0:
+        k = 1.0
+        while level + delta >= k * target_on:
+            s = -math.log1p(-(k * target_on - level) / delta * shrink) / rate
+            out_t[n] = t_b + np.int64(math.floor(off0 + s + 0.5))
+            out_w[n] = xy | ON_BIT
+            n += 1
+            k += 1.0
+        return level + delta - (k - 1.0) * target_on, n
+    if delta < 0.0:
+        k = 1.0
+        while level + delta <= -k * target_off:
+            s = -math.log1p(-(-k * target_off - level) / delta * shrink) / rate
+            out_t[n] = t_b + np.int64(math.floor(off0 + s + 0.5))
+            out_w[n] = xy
+            n += 1
+            k += 1.0
+        return level + delta + (k - 1.0) * target_off, n
+    return level, n
+
+
+@kernel(inline=True)
+def _tail(theta, interval_us, tau_us, span):
+    """How far the exponential approach (time constant ``tau_us``) that rose by ``theta`` over the last
+    ``interval_us`` goes on in the ``span`` us after the event: ``theta / (exp(interval / tau) - 1)`` towards its
+    asymptote, of which ``1 - exp(-span / tau)`` within the span."""
+    return theta / math.expm1(interval_us / tau_us) * -math.expm1(-span / tau_us)
+
 
 @kernel(inline=True)
 def _resolve(level, t_b, pending_us, kind, up, interval_a, interval_b, theta_on, theta_off, xy, target_on,
@@ -166,17 +241,31 @@ def _room(level, theta_on, theta_off, min_target):
 
 
 @kernel(inline=True)
-def _settle(state, status, pixel, xy, interval_b, target_on, target_off, out_t, out_w, n):
+def _settle(state, status, pixel, xy, interval_b, span_us, target_on, target_off, out_t, out_w, n):
     """Re-sample the pending segment of ``pixel`` (at ``xy``, the low word of its events; ``interval_b`` the time
-    from its event to the next of the same polarity, 0 unknown); returns n.
+    from its event to the next of the same polarity, 0 unknown), or its tail over the ``span_us`` after its event;
+    returns n.
 
-    Afterwards the pixel's level is at its latest event and its run's interval is known only for a first ramp
-    resolved by its anchored line (the line from the anchor is then that ramp)."""
+    Afterwards the pixel's level is at its latest event (a tail's crossings move the corrected reference, the
+    level returns to the pixel's own reference level, from which its next event counts) and its run's interval is
+    known only for a first ramp resolved by its anchored line (the line from the anchor is then that ramp)."""
     row = state[pixel]
     up = status[pixel] > 0
     kind = abs(status[pixel])
     theta_on = float(row.on)
     theta_off = float(row.off)
+    if kind == TAIL:
+        tau = float(row.pending_us)
+        span_us = min(span_us, TAIL_TAUS * tau)
+        tail = _tail(theta_on if up else theta_off, float(row.interval_us), tau, span_us)
+        tail = tail if up else -tail
+        level, n = _curve(row.level, tail, 0.0, span_us, 1.0 / tau, row.last_us, xy, target_on, target_off, out_t,
+                          out_w, n)
+        row.level = level - tail
+        row.interval_us = 0.0
+        row.pending_us = 0
+        status[pixel] = SETTLED if up else -SETTLED
+        return n
     row.level, n = _resolve(row.level, row.last_us, row.pending_us, kind, up, float(row.interval_us), interval_b,
                             theta_on, theta_off, xy, target_on, target_off, out_t, out_w, n)
     row.interval_us = row.pending_us if (kind == FIRST and interval_b == 0.0) else 0.0
@@ -186,11 +275,11 @@ def _settle(state, status, pixel, xy, interval_b, target_on, target_off, out_t, 
 
 
 @kernel
-def settle_waiting(width, state, status, target_on, target_off, queue_pixel, queue_us, head, tail, before_us, out_t,
-                   out_w, n):  # pragma: no cover - compiled
+def settle_waiting(width, state, status, target_on, target_off, window_us, queue_pixel, queue_us, head, tail,
+                   before_us, out_t, out_w, n):  # pragma: no cover - compiled
     """Settle, in queue order, the pixels that started to wait before ``before_us``, their next slope unknown
-    (``before_us`` = NO_EVENT_US: all of them, the stream ended). Called out of line: rarely due, and kept out of
-    the per-event loop it is faster (the loop's code stays small).
+    (``before_us`` = NO_EVENT_US: all of them, the stream ended), tails over (at most) one window. Called out of
+    line: rarely due, and kept out of the per-event loop it is faster (the loop's code stays small).
 
     Returns (count, queue head); the head stops early when the output arrays are full. A queue entry whose pixel
     has had an event since is stale and skipped."""
@@ -205,13 +294,13 @@ def settle_waiting(width, state, status, target_on, target_off, queue_pixel, que
             if n + _room(row.level, float(row.on), float(row.off), min_target) > capacity:
                 return n, head
             xy = ((pixel // width) << 16) | (pixel % width)
-            n = _settle(state, status, pixel, xy, 0.0, target_on, target_off, out_t, out_w, n)
+            n = _settle(state, status, pixel, xy, 0.0, float(window_us), target_on, target_off, out_t, out_w, n)
         head += 1
     return n, head
 
 
 @kernel
-def correct_events(words, start, width, state, status, use, target_on, target_off, mode, turns, hold_us,
+def correct_events(words, start, width, state, status, use, target_on, target_off, mode, turns, curves, hold_us,
                    max_gap_us, tau_us, window_us, queue_pixel, queue_us, head, tail, due_us, out_t, out_w,
                    n):  # pragma: no cover - compiled
     """Process the events ``words[start:]`` ((n, 2) int64: time, then x, y, p as EVENT_DTYPE lays them out) while
@@ -239,8 +328,8 @@ def correct_events(words, start, width, state, status, use, target_on, target_of
     while i < end:
         t_b = words[i, 0]
         if t_b >= due_us:  # settle the pixels that waited too long
-            n, head = settle_waiting(width, state, status, target_on, target_off, queue_pixel, queue_us, head, tail,
-                                     t_b - window_us, out_t, out_w, n)
+            n, head = settle_waiting(width, state, status, target_on, target_off, window_us, queue_pixel,
+                                     queue_us, head, tail, t_b - window_us, out_t, out_w, n)
             if head < tail and queue_us[head] < t_b - window_us:
                 return i, n, head, tail, due_us
             due_us = t_b + window_us
@@ -268,10 +357,13 @@ def correct_events(words, start, width, state, status, use, target_on, target_of
         sign = 1 if on else -1
         t_a = row.last_us
         gap = t_b - t_a
-        if abs(status[pixel]) >= TURN:  # the pending segment waited for this event
+        kind = abs(status[pixel])
+        if kind == TAIL and gap <= window_us:  # the pixel fired again: the run went on (or turned), no tail
+            status[pixel] = SETTLED if status[pixel] > 0 else -SETTLED
+        elif kind >= TURN:  # the pending segment (or tail) waited for this event
             same = (on == (status[pixel] > 0)) and 0 < gap <= window_us
-            n = _settle(state, status, pixel, xy, float(gap) if same else 0.0, target_on, target_off, out_t, out_w,
-                        n)
+            n = _settle(state, status, pixel, xy, float(gap) if same else 0.0, float(window_us), target_on,
+                        target_off, out_t, out_w, n)
         last = status[pixel]
         a = row.level
         if t_a == NO_EVENT_US:  # a first event with nothing before it: its crossings at its own time
@@ -290,6 +382,20 @@ def correct_events(words, start, width, state, status, use, target_on, target_of
             queue_pixel[tail] = pixel
             queue_us[tail] = t_b
             tail += 1
+        elif curves and last == sign and 0.0 < row.interval_us and gap <= window_us and (
+                gap > MIN_CURVE_RATIO * row.interval_us):  # a run that slows down: an exponential approach
+            span = float(gap)
+            tau = min(math.floor(1.0 / _approach_rate(float(row.interval_us), span) + 0.5), MAX_TAU_US)
+            a, n = _curve(a, d, -span, span, 1.0 / tau, t_b, xy, target_on, target_off, out_t, out_w, n)
+            row.interval_us = gap
+            status[pixel] = sign
+            rest = _tail(theta_on if on else theta_off, span, tau, min(float(window_us), TAIL_TAUS * tau))
+            if rest < (theta_on if on else theta_off) and (a + rest >= target_on if on else a - rest <= -target_off):
+                row.pending_us = tau  # the approach crosses a target level the pixel will not fire at: wait
+                status[pixel] = sign * TAIL
+                queue_pixel[tail] = pixel
+                queue_us[tail] = t_b
+                tail += 1
         else:
             a, n = _segment(a, d, -float(min(gap, max_gap_us)), 0.0, t_b, xy, target_on, target_off, out_t, out_w,
                             n)

@@ -89,14 +89,18 @@ def detect_edges(events: np.ndarray, bin_us: int = BIN_US, quiet_us: int = QUIET
     return edges
 
 
-def edges_from_starts(events: np.ndarray, starts_us) -> list[Edge]:
-    """Edges starting at the given times, each ending where the next starts (the last at the stream's end)."""
+def edges_from_starts(events: np.ndarray, starts_us, end_us: int | None = None) -> list[Edge]:
+    """Edges starting at the given times, each ending where the next starts (the last at ``end_us``, default just
+    after the stream's last event)."""
     starts = [int(s) for s in starts_us]
     if not starts:
         raise UniformityError("give at least one edge time")
     if any(b <= a for a, b in zip(starts, starts[1:])):
         raise UniformityError("edge times must increase")
-    end = int(events["t"][-1]) + 1 if len(events) else starts[-1] + 1
+    if end_us is not None:
+        end = int(end_us)
+    else:
+        end = int(events["t"][-1]) + 1 if len(events) else starts[-1] + 1
     edges = []
     for k, start in enumerate(starts):
         stop = starts[k + 1] if k + 1 < len(starts) else max(end, start + 1)
