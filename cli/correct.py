@@ -35,6 +35,8 @@ def _target(ctx, param, value):
               help="foh: the report's first-order hold; step: its step-aware variant (held over gaps > --hold-us); "
                    "turns: step anchored at the stream's start, each polarity reversal's extremum where the lines "
                    "of the runs on both sides meet (exact on log-linear ramps); "
+                   "exponential: turns, and where a run slows down the exponential approach through its last three "
+                   "events, with the tail the pixel no longer fires for (a photoreceptor low-pass after a step); "
                    "highpass: turns plus a decay of the carried level over rests.")
 @click.option("--hold-us", type=click.IntRange(1, MAX_WINDOW_US), default=CORRECT_DEFAULTS["hold_us"],
               show_default=True,
@@ -44,7 +46,7 @@ def _target(ctx, param, value):
 @click.option("--tau-us", type=click.FloatRange(min=0, min_open=True), default=CORRECT_DEFAULTS["tau_us"],
               show_default=True, help="highpass: time constant of the decay of the carried level over a rest.")
 @click.option("--start-us", type=int, default=None, metavar="T",
-              help="turns, highpass: time the sensor started (every pixel at its reference); default: the first "
+              help="exponential, turns, highpass: time the sensor started (every pixel at its reference); default: the first "
                    "event.")
 def correct(input, input_format, sensor_size, aedat2_layout, output, thresholds_path, target, mode, hold_us,
             max_gap_us, tau_us, start_us):

@@ -54,17 +54,18 @@ MODES = {"highpass": MODE_HIGHPASS, "exponential": MODE_STEP, "turns": MODE_STEP
 """Reconstruction modes by name (see :mod:`evtools._kernels.correct`): ``foh`` and ``step`` are the report's;
 ``turns`` is ``step`` with the reconstruction anchored at the stream's start and the extremum of every reversal
 where the lines of the runs on both sides meet;
-``highpass`` is ``turns`` plus the decay of the carried level over rests; ``exponential`` is ``highpass`` with the
-segments of a run that slows down drawn as the exponential approach through its last three events, and that
-approach's tail re-sampled when the pixel stops firing (a photoreceptor's first-order low-pass after a step)."""
+``highpass`` is ``turns`` plus the decay of the carried level over rests; ``exponential`` (the default) is ``turns``
+with the segments of a run that slows down drawn as the exponential approach through its last three events, and
+that approach's tail re-sampled when the pixel stops firing (a photoreceptor's first-order low-pass after a
+step)."""
 
 CORRECT_DEFAULTS: dict[str, Any] = {
-    "mode": "highpass",
+    "mode": "exponential",
     "hold_us": 300_000,
     "max_gap_us": 1_000_000,
     "tau_us": 100_000.0,
 }
-"""Defaults: ``highpass`` (it wins on the Table 2 metrics, see the README), 300 ms hold (above the inter-event times
+"""Defaults: ``exponential`` (it wins on the Table 2 metrics and is exact on log-linear ramps, see the README), 300 ms hold (above the inter-event times
 in the tail of a photoreceptor low-pass of ~20 ms, below the rests between stimulus edges), 100 ms decay time
 constant, a 1 s reordering bound."""
 
@@ -125,13 +126,14 @@ class ThresholdCorrector:
         median of the usable pixels' thresholds, ON and OFF separately.
     target : float or "median"
         The threshold every pixel is re-sampled at (one value for ON and OFF), or the median of the maps.
-    mode : {"highpass", "turns", "step", "foh"}
+    mode : {"exponential", "highpass", "turns", "step", "foh"}
         ``foh``: the report's first-order hold; ``step``: stepwise over gaps longer than ``hold_us`` (the report's
         section 5.2); ``turns``: ``step`` anchored at the stream's start, with the extremum of every polarity
         reversal where the lines of the two runs meet (waiting for the second event after the turn), the first
-        ramp extended back the same way (exact on piecewise log-linear signals with exact thresholds); ``highpass`` (default): ``turns`` plus
-        an exponential decay of the carried level over rests (time constant ``tau_us``): the corrected reference
-        relaxes to the pixel's own, which keeps estimation errors from accumulating.
+        ramp extended back the same way (exact on piecewise log-linear signals with exact thresholds);
+        ``exponential`` (default): ``turns`` with model-based steps (``curves``); ``highpass``: ``turns`` plus an
+        exponential decay of the carried level over rests (time constant ``tau_us``): the corrected reference
+        relaxes to the pixel's own.
     hold_us : int
         Gaps longer than this are rests (held constant until the next event; all but ``foh``).
     max_gap_us : int
@@ -139,7 +141,14 @@ class ThresholdCorrector:
     tau_us : float
         ``highpass``: time constant of the decay of the carried level towards the pixel's own reference.
     turns : bool or None
-        Anchor and reversal extremum on or off regardless of the mode (None: on for ``turns`` and ``highpass``).
+        Anchor and reversal extremum on or off regardless of the mode (None: on for ``turns``, ``highpass`` and
+        ``exponential``).
+    curves : bool or None
+        Model-based steps on or off regardless of the mode (None: on for ``exponential``): a segment between two
+        events of a run whose interval is more than 1 % longer than the run's previous one is the exponential
+        approach ``L_inf - B exp(-t / tau)`` through the run's last three events (one threshold apart: ``tau``
+        from the two intervals alone); when the pixel then stops firing for a window, the approach's remaining
+        rise towards its asymptote (followed for at most ``3 tau``) is re-sampled too.
     start_us : int or None
         With turns: when every pixel's reconstruction starts at level 0 (the sensor's start); default the first
         event of the stream.

@@ -104,7 +104,7 @@ def measure(modes):
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--repo", default=str(ROOT))
-    parser.add_argument("--modes", default="highpass,turns,step,foh")
+    parser.add_argument("--modes", default="exponential,highpass,turns,step,foh")
     args = parser.parse_args()
     sys.path.insert(0, args.repo)
     rows = measure(args.modes.split(","))

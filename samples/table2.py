@@ -32,8 +32,8 @@ from evtools.simulate import DvsSimulator, scene_frames  # noqa: E402
 SIZE = 10
 SEEDS = range(10)
 REPORT = {"before": (0.57, 15.0), "exact": (0.46, 2.23), "1%": (0.74, 12.2), "5%": (0.72, 12.3)}
-VARIANTS = {"turns": {"mode": "turns"}, "highpass": {"mode": "highpass"}, "foh": {"mode": "foh"},
-            "step": {"mode": "step"}}
+VARIANTS = {"exponential": {"mode": "exponential"}, "turns": {"mode": "turns"}, "highpass": {"mode": "highpass"},
+            "foh": {"mode": "foh"}, "step": {"mode": "step"}}
 STEP_EDGES_US = [500_000, 1_000_000, 1_500_000, 2_000_000, 2_500_000]
 """The step scene's edges (period 1 s: up at 0.5 s, down at 1 s, ...); the last one runs to the stream's end."""
 FIXED = "fixed_cutoff" in inspect.signature(DvsSimulator.__init__).parameters
@@ -89,7 +89,7 @@ def step_tables():
                 first.setdefault(f"{label} {name}", []).append(
                     edge_uniformity(out, SIZE, edges[:1], ideal)["summary"])
             if error == 0.05:
-                for name in ("turns", "step"):
+                for name in ("exponential", "turns", "step"):
                     for hold_ms in (50, 100, 200, 300, 450):
                         out = correct_thresholds(events, SIZE, SIZE, on, off, target=0.2, hold_us=hold_ms * 1000,
                                                  mode=name)
@@ -111,10 +111,10 @@ def drift_row():
     for seed in range(3):
         events, sensor = simulate("step", seed, 25_000_000, **cutoff)
         on, off = with_error(sensor, 0.05, seed)
-        edges = edges_from_starts(events, [500_000 * k for k in range(1, 50)])
+        edges = edges_from_starts(events, [500_000 * k for k in range(1, 50)], end_us=25_000_000)
         streams = {"uncorrected": events}
         streams.update({name: correct_thresholds(events, SIZE, SIZE, on, off, target=0.2, mode=name)
-                        for name in ("turns", "highpass", "step", "foh")})
+                        for name in ("exponential", "turns", "highpass", "step", "foh")})
         for name, stream in streams.items():
             rows = edge_uniformity(stream, SIZE, edges)["edges"][1:]
             found.setdefault(name, []).append((np.mean([e["last_std_ms"] for e in rows[:10]]),
@@ -138,12 +138,19 @@ def flicker_table():
                                        stimulus=Stimulus(50.0, 200.0, 500_000.0))
         runs = {"before (raw)": events, "bafilter": filtered,
                 "bafilter + correct highpass (estimated)": correct_thresholds(filtered, size, size, estimate.on,
-                                                                     estimate.off, estimate.valid, target=0.2),
+                                                                     estimate.off, estimate.valid, target=0.2,
+                                                                     mode="highpass"),
+                "bafilter + correct exponential (estimated)": correct_thresholds(filtered, size, size, estimate.on,
+                                                                         estimate.off, estimate.valid, target=0.2,
+                                                                         mode="exponential"),
                 "bafilter + correct foh (estimated)": correct_thresholds(filtered, size, size, estimate.on,
                                                                          estimate.off, estimate.valid, target=0.2,
                                                                          mode="foh"),
                 "bafilter + correct highpass (exact)": correct_thresholds(filtered, size, size, sensor.on_thres,
-                                                                 sensor.off_thres, target=0.2)}
+                                                                 sensor.off_thres, target=0.2, mode="highpass"),
+                "bafilter + correct exponential (exact)": correct_thresholds(filtered, size, size, sensor.on_thres,
+                                                                    sensor.off_thres, target=0.2,
+                                                                    mode="exponential")}
         for name, stream in runs.items():
             rows.setdefault(name, []).append(edge_uniformity(stream, size, edges, ideal)["summary"])
         error = np.sqrt(np.mean(((estimate.on - sensor.on_thres) / sensor.on_thres)[estimate.usable()] ** 2))

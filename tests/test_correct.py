@@ -39,11 +39,12 @@ def as_tuples(events):
 
 @pytest.mark.parametrize("mode", MODES)
 @pytest.mark.parametrize("turns", [False, True])
-def test_kernel_equals_naive(mode, turns):
+@pytest.mark.parametrize("curves", [False, True])
+def test_kernel_equals_naive(mode, turns, curves):
     events = random_events(3000, W, H, seed=1)
     events["t"] //= 3  # some ties, and gaps on both sides of hold_us
     on, off = thresholds(1)
-    options = dict(mode=mode, hold_us=300, max_gap_us=2000, tau_us=150.0, turns=turns,
+    options = dict(mode=mode, hold_us=300, max_gap_us=2000, tau_us=150.0, turns=turns, curves=curves,
                    start_us=-500 if turns else None)
     out = correct_thresholds(events, W, H, on, off, target=0.2, **options)
     expected = correct_naive(as_tuples(events), on.astype(float).tolist(), off.astype(float).tolist(),
@@ -58,7 +59,8 @@ def test_kernel_equals_naive_on_a_slow_stream(mode):
     events = random_events(3000, W, H, seed=5)
     events["t"] *= 500  # 30 s, with ties kept
     on, off = thresholds(5)
-    options = dict(mode=mode, hold_us=200_000, max_gap_us=2_000_000, tau_us=150_000.0, turns=True, start_us=0)
+    options = dict(mode=mode, hold_us=200_000, max_gap_us=2_000_000, tau_us=150_000.0, turns=True, curves=True,
+                   start_us=0)
     out = correct_thresholds(events, W, H, on, off, target=0.2, **options)
     assert out["t"][-1] - out["t"][0] > 1 << 18  # the span the exact buckets cover
     expected = correct_naive(as_tuples(events), on.astype(float).tolist(), off.astype(float).tolist(),
@@ -80,18 +82,19 @@ def test_default_mode_turns_and_anchors():
 
 
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(cuts=st.lists(st.integers(0, 2000), max_size=6), mode=st.sampled_from(MODES), turns=st.booleans())
-def test_chunking_does_not_change_the_output(cuts, mode, turns):
+@given(cuts=st.lists(st.integers(0, 2000), max_size=6), mode=st.sampled_from(MODES), turns=st.booleans(),
+       curves=st.booleans())
+def test_chunking_does_not_change_the_output(cuts, mode, turns, curves):
     events = random_events(2000, W, H, seed=2)
     on, off = thresholds(2)
-    options = dict(target=0.2, mode=mode, max_gap_us=5000, hold_us=2000, turns=turns)
+    options = dict(target=0.2, mode=mode, max_gap_us=5000, hold_us=2000, turns=turns, curves=curves)
     whole = correct_thresholds(events, W, H, on, off, **options)
     chunked = run_chunked(ThresholdCorrector(W, H, on, off, **options), cut(events, cuts))
     assert_same_events(chunked, whole)
     assert np.all(np.diff(chunked["t"]) >= 0)
 
 
-@pytest.mark.parametrize("mode, latency_us", [("foh", 500), ("highpass", 1500)])
+@pytest.mark.parametrize("mode, latency_us", [("foh", 500), ("highpass", 1500), ("exponential", 1500)])
 def test_output_is_sorted_and_held_events_are_bounded(mode, latency_us):
     events = random_events(20000, W, H, seed=3)
     on, off = thresholds(3, sigma=0.06)

@@ -13,6 +13,14 @@ would get the same from their own next event, so this only fixes the order in wh
   events) meets the line of the run after (through its first two events);
 - at a first event, the first run's line is followed back to the start level; the polyline is flat before.
 
+With ``curves``, a segment between two events of a run (same polarity, within the window) whose interval is more
+than 1 % longer than the run's previous interval is not a line but the exponential approach ``A (1 - exp(-s /
+tau))`` through the run's last three events (levels one threshold apart), tau solved by bisection and kept to the
+whole us. Beyond the event, that approach goes on towards its asymptote: if within min(window, 3 tau) it rises by
+less than a threshold (the pixel will not fire again) but far enough to cross a target level, the pixel waits a
+window: an event of its own within the window drops that tail, otherwise (or at the stream's end) the tail's
+crossings are made and the level returns to the pixel's own reference level.
+
 Every segment of the polyline is re-sampled: an event wherever it crosses the corrected reference plus or minus
 the target threshold, at the crossing time on the segment. The whole output is then sorted by time, ties in
 creation order.
@@ -42,6 +50,41 @@ def _crossings(level, change, t_from, t_to, t_event, target_on, target_off):
         events.append((t_event + math.floor(t_from + where * (t_to - t_from) + 0.5), False))
         reference = -k * target_off
     return events, level + change - reference
+
+
+def _curve_crossings(level, change, t_from, span, tau, t_event, target_on, target_off):
+    """As :func:`_crossings` for the exponential approach ``level + change (1 - exp(-s / tau)) / (1 - exp(-span /
+    tau))`` for s from 0 (time ``t_event + t_from``) to ``span``."""
+    events = []
+    reference = 0.0
+    k = 0
+    full = 1.0 - math.exp(-span / tau)
+    while change > 0 and level + change >= (k + 1) * target_on:
+        k += 1
+        s = -tau * math.log(1.0 - (k * target_on - level) / change * full)
+        events.append((t_event + math.floor(t_from + s + 0.5), True))
+        reference = k * target_on
+    while change < 0 and level + change <= -(k + 1) * target_off:
+        k += 1
+        s = -tau * math.log(1.0 - (-k * target_off - level) / change * full)
+        events.append((t_event + math.floor(t_from + s + 0.5), False))
+        reference = -k * target_off
+    return events, level + change - reference
+
+
+def approach_tau(interval_a, interval_b):
+    """Time constant of ``A (1 - exp(-t / tau))`` through (0, 0), (interval_a, theta), (interval_a + interval_b,
+    2 theta), by bisection on log(tau) (the ratio of the two rises grows with tau, from 1 to (a + b) / a > 2)."""
+    def ratio(tau):
+        return (1.0 - math.exp(-(interval_a + interval_b) / tau)) / (1.0 - math.exp(-interval_a / tau))
+    low, high = math.log(interval_a * 1e-3), math.log(interval_a * 1e9)
+    for _ in range(200):
+        middle = 0.5 * (low + high)
+        if ratio(math.exp(middle)) < 2.0:
+            low = middle
+        else:
+            high = middle
+    return math.exp(0.5 * (low + high))
 
 
 def _clamp(value, low, high):
@@ -74,7 +117,7 @@ def extremum(gap, theta_before, interval_before, theta_after, interval_after):
 
 
 def correct_naive(events, on, off, target_on, target_off, mode=FOH, hold_us=100_000, max_gap_us=1_000_000,
-                  tau_us=100_000.0, turns=False, start_us=None, passthrough=None):
+                  tau_us=100_000.0, turns=False, curves=False, start_us=None, passthrough=None):
     """``(t, x, y, p)`` tuples of the corrected stream.
 
     ``on[y][x]``, ``off[y][x]`` are the pixel thresholds (floats); ``passthrough(x, y)`` says which pixels are left
@@ -91,7 +134,7 @@ def correct_naive(events, on, off, target_on, target_off, mode=FOH, hold_us=100_
     polarity = {}  # pixel -> polarity of its latest event
     interval = {}  # pixel -> time between the last two events of its current run (us; 0 unknown or > window)
     level = {}  # pixel -> reconstruction minus corrected reference, at the start of what is not drawn yet
-    waiting = {}  # pixel -> (kind "first" or "turn", segment length us) of a segment not drawn yet
+    waiting = {}  # pixel -> (kind "first", "turn" or "tail", segment length us or tail's tau) not drawn yet
     created = []
 
     def draw(pixel, points, t):
@@ -103,6 +146,11 @@ def correct_naive(events, on, off, target_on, target_off, mode=FOH, hold_us=100_
             created.extend((when, x, y, p) for when, p in made)
         level[pixel] = a
 
+    def tail_of(theta, interval_us, tau):
+        """How far the approach goes on after its event, within the span it is followed."""
+        span = min(float(window), 3.0 * tau)
+        return theta / (math.exp(interval_us / tau) - 1.0) * (1.0 - math.exp(-span / tau)), span
+
     def settle(pixel, interval_after):
         kind, gap = waiting.pop(pixel)
         x, y = pixel
@@ -110,6 +158,14 @@ def correct_naive(events, on, off, target_on, target_off, mode=FOH, hold_us=100_
         theta = float(on[y][x]) if up else float(off[y][x])
         step = theta if up else -theta
         t = last[pixel]
+        if kind == "tail":
+            rise, span = tail_of(theta, float(interval[pixel]), float(gap))
+            rise = rise if up else -rise
+            made, a = _curve_crossings(level[pixel], rise, 0.0, span, float(gap), t, target_on, target_off)
+            created.extend((when, x, y, p) for when, p in made)
+            level[pixel] = a - rise
+            interval[pixel] = 0
+            return
         if kind == "first":
             back = min(gap, interval_after) if interval_after > 0 else gap  # the first ramp's line back to 0
             draw(pixel, [(-float(back), 0.0), (0.0, step)], t)
@@ -140,7 +196,10 @@ def correct_naive(events, on, off, target_on, target_off, mode=FOH, hold_us=100_
             last[pixel] = origin
         if pixel in waiting:
             gap = t - last[pixel]
-            settle(pixel, gap if polarity[pixel] == p and 0 < gap <= window else 0)
+            if waiting[pixel][0] == "tail" and gap <= window:
+                del waiting[pixel]  # the pixel fired again: no tail
+            else:
+                settle(pixel, gap if polarity[pixel] == p and 0 < gap <= window else 0)
         if pixel not in last:
             draw(pixel, [(0.0, 0.0), (0.0, step)], t)
             interval[pixel] = 0
@@ -154,6 +213,17 @@ def correct_naive(events, on, off, target_on, target_off, mode=FOH, hold_us=100_
                 interval[pixel] = 0
             elif turns and before != p and gap <= max_gap_us:
                 waiting[pixel] = ("first" if before is None else "turn", gap)
+            elif curves and before == p and 0 < interval[pixel] and gap <= window and gap > 1.01 * interval[pixel]:
+                tau = min(math.floor(approach_tau(float(interval[pixel]), float(gap)) + 0.5), 2**31 - 1)
+                made, a = _curve_crossings(level.get(pixel, 0.0), step, -float(gap), float(gap), float(tau), t,
+                                           target_on, target_off)
+                created.extend((when, x, y, q) for when, q in made)
+                level[pixel] = a
+                interval[pixel] = gap
+                rise, _ = tail_of(theta, float(gap), float(tau))
+                reaches = (a + rise >= target_on) if p else (a - rise <= -target_off)
+                if rise < theta and reaches:
+                    waiting[pixel] = ("tail", tau)
             else:
                 draw(pixel, [(-float(min(gap, max_gap_us)), 0.0), (0.0, step)], t)
                 interval[pixel] = gap if before == p and 0 < gap <= window else 0

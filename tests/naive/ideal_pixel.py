@@ -66,3 +66,28 @@ def ideal_events(corners, theta_on, theta_off):
                 reference -= theta_off
                 events.append((t0 + (reference - l0) / (l1 - l0) * (t1 - t0), False))
     return events
+
+
+def step_response_events(edges, end_us, tau_us, level0, theta_on, theta_off):
+    """[(t_us float, polarity)] of an ideal pixel behind a first-order low-pass (time constant ``tau_us``) watching
+    log-intensity steps: from ``level0``, at each edge ``(t_us, target)`` the signal starts to approach ``target``
+    as ``target + (v - target) exp(-(t - t_edge) / tau)`` (``v`` its value at the edge), until the next edge or
+    ``end_us``. Each crossing time is solved in closed form (the signal is monotone between edges)."""
+    reference = value = float(level0)
+    events = []
+    bounds = [t for t, _ in edges[1:]] + [end_us]
+    for (t_edge, target), t_next in zip(edges, bounds):
+        def crossing(level):  # when the approach from value to target passes level (inf: never)
+            remaining = (target - level) / (target - value)
+            return t_edge - tau_us * math.log(remaining) if remaining > 0 else math.inf
+
+        if target > value:
+            while reference + theta_on < target and crossing(reference + theta_on) < t_next:
+                reference += theta_on
+                events.append((crossing(reference), True))
+        elif target < value:
+            while reference - theta_off > target and crossing(reference - theta_off) < t_next:
+                reference -= theta_off
+                events.append((crossing(reference), False))
+        value = target + (value - target) * math.exp(-(t_next - t_edge) / tau_us)
+    return events
