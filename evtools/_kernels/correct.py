@@ -127,7 +127,23 @@ level at the asymptote itself would fire at a time set by rounding)."""
 MAX_TAU_US = 2**31 - 1
 """The longest time constant kept (it waits in ``pending_us``, 32 bits)."""
 
-_LN2 = math.log(2.0)
+def _newton_root(ratio: float, y: float) -> float:
+    """The positive root ``y`` of ``exp(y) + exp(-ratio y) = 2`` (``ratio > 1``) by Newton's method from ``y`` at or
+    right of the root: the function is convex and rises there, so the steps shrink monotonically."""
+    for _ in range(200):
+        step = (math.expm1(y) + math.expm1(-ratio * y)) / (math.exp(y) - ratio * math.exp(-ratio * y))
+        y -= step
+        if step <= 1e-13 * y:
+            break
+    return y
+
+
+_SHAPE_CELLS = 32
+_SHAPE = np.array([math.log(2.0)] + [_newton_root(_SHAPE_CELLS / k, math.log(2.0)) / (1.0 - k / _SHAPE_CELLS)
+                                     for k in range(1, _SHAPE_CELLS)] + [1.0])
+"""``y / (1 - x)`` at ``x = 1 / ratio = k / 32``: smooth and rising from ln 2 (``ratio`` infinite) to 1 (``ratio``
+-> 1), so ``(1 - x)`` times the value at a cell's right end is a start right of the root, close enough that Newton
+needs 3-4 steps (from ln 2: up to 12)."""
 
 
 @kernel(inline=True)
@@ -136,14 +152,15 @@ def _approach_rate(interval_a, interval_b):
     threshold apart, ``interval_a`` then ``interval_b`` apart (``interval_b > interval_a > 0``).
 
     Equal level steps give ``exp(-t1/tau) - exp(-t2/tau) = exp(-t2/tau) - exp(-t3/tau)``, i.e. with ``y =
-    interval_a / tau`` and ``r = interval_b / interval_a``: ``exp(y) + exp(-r y) = 2``. Newton's method from ``y =
-    ln 2`` (right of the root, where the convex function rises) converges monotonically."""
+    interval_a / tau`` and ``r = interval_b / interval_a``: ``exp(y) + exp(-r y) = 2``, solved as
+    :func:`_newton_root` does, from the table :data:`_SHAPE`."""
     ratio = interval_b / interval_a
-    y = _LN2
+    x = interval_a / interval_b
+    y = (1.0 - x) * _SHAPE[min(int(x * _SHAPE_CELLS), _SHAPE_CELLS - 1) + 1]
     for _ in range(60):
-        grow = math.exp(y)
-        decay = math.exp(-ratio * y)
-        step = (grow + decay - 2.0) / (grow - ratio * decay)
+        grow = math.expm1(y)
+        decay = math.expm1(-ratio * y)
+        step = (grow + decay) / (grow + 1.0 - ratio * (decay + 1.0))
         y -= step
         if step <= 1e-13 * y:
             break
@@ -300,6 +317,32 @@ def settle_waiting(width, state, status, target_on, target_off, window_us, queue
 
 
 @kernel
+def curve_run(state, status, pixel, xy, on, t_b, window_us, target_on, target_off, queue_pixel, queue_us, tail, out_t,
+              out_w, n):  # pragma: no cover - compiled
+    """The segment that the event ``(t_b, on)`` adds to its pixel's slowing run, as the exponential approach through
+    the run's last three events (``curves``); queues the pixel when the approach's tail will cross a target level
+    (:data:`TAIL`). Returns (n, queue tail). Out of line: it keeps the per-event loop's code small."""
+    row = state[pixel]
+    theta = float(row.on) if on else float(row.off)
+    span = float(t_b - row.last_us)
+    tau = min(math.floor(1.0 / _approach_rate(float(row.interval_us), span) + 0.5), MAX_TAU_US)
+    level, n = _curve(row.level, theta if on else -theta, -span, span, 1.0 / tau, t_b, xy, target_on, target_off,
+                      out_t, out_w, n)
+    row.level = level
+    row.interval_us = span
+    sign = 1 if on else -1
+    status[pixel] = sign
+    rest = _tail(theta, span, tau, min(float(window_us), TAIL_TAUS * tau))
+    if rest < theta and (level + rest >= target_on if on else level - rest <= -target_off):
+        row.pending_us = tau  # the approach crosses a target level the pixel will not fire at: wait
+        status[pixel] = sign * TAIL
+        queue_pixel[tail] = pixel
+        queue_us[tail] = t_b
+        tail += 1
+    return n, tail
+
+
+@kernel
 def correct_events(words, start, width, state, status, use, target_on, target_off, mode, turns, curves, hold_us,
                    max_gap_us, tau_us, window_us, queue_pixel, queue_us, head, tail, due_us, out_t, out_w,
                    n):  # pragma: no cover - compiled
@@ -384,18 +427,9 @@ def correct_events(words, start, width, state, status, use, target_on, target_of
             tail += 1
         elif curves and last == sign and 0.0 < row.interval_us and gap <= window_us and (
                 gap > MIN_CURVE_RATIO * row.interval_us):  # a run that slows down: an exponential approach
-            span = float(gap)
-            tau = min(math.floor(1.0 / _approach_rate(float(row.interval_us), span) + 0.5), MAX_TAU_US)
-            a, n = _curve(a, d, -span, span, 1.0 / tau, t_b, xy, target_on, target_off, out_t, out_w, n)
-            row.interval_us = gap
-            status[pixel] = sign
-            rest = _tail(theta_on if on else theta_off, span, tau, min(float(window_us), TAIL_TAUS * tau))
-            if rest < (theta_on if on else theta_off) and (a + rest >= target_on if on else a - rest <= -target_off):
-                row.pending_us = tau  # the approach crosses a target level the pixel will not fire at: wait
-                status[pixel] = sign * TAIL
-                queue_pixel[tail] = pixel
-                queue_us[tail] = t_b
-                tail += 1
+            n, tail = curve_run(state, status, pixel, xy, on, t_b, window_us, target_on, target_off, queue_pixel,
+                                queue_us, tail, out_t, out_w, n)
+            a = row.level
         else:
             a, n = _segment(a, d, -float(min(gap, max_gap_us)), 0.0, t_b, xy, target_on, target_off, out_t, out_w,
                             n)

@@ -128,7 +128,7 @@ def main() -> None:
     for column in ("stream", "mode", "Mev/s", "peak RSS MB", "max latency ms", "target"):
         table.add_column(column, justify="right")
     for source in sources:
-        rows = [(mode, None) for mode in ("highpass", "turns", "step", "foh")]
+        rows = [(mode, None) for mode in ("exponential", "highpass", "turns", "step", "foh")]
         if args.baseline:
             rows.append(("default", args.baseline))
         for mode, repo in rows:
