@@ -127,23 +127,22 @@ level at the asymptote itself would fire at a time set by rounding)."""
 MAX_TAU_US = 2**31 - 1
 """The longest time constant kept (it waits in ``pending_us``, 32 bits)."""
 
-def _newton_root(ratio: float, y: float) -> float:
-    """The positive root ``y`` of ``exp(y) + exp(-ratio y) = 2`` (``ratio > 1``) by Newton's method from ``y`` at or
-    right of the root: the function is convex and rises there, so the steps shrink monotonically."""
-    for _ in range(200):
-        step = (math.expm1(y) + math.expm1(-ratio * y)) / (math.exp(y) - ratio * math.exp(-ratio * y))
-        y -= step
-        if step <= 1e-13 * y:
-            break
-    return y
+def _shape_table(cells: int) -> np.ndarray:
+    """``y / (1 - x)`` at ``x = 1 / ratio = k / cells``, ``y`` the positive root of ``exp(y) + exp(-ratio y) = 2``:
+    Newton's method from ``ln 2`` (right of the root, where the convex function rises, so it converges
+    monotonically), all cells at once; the ends are the limits ln 2 (``ratio`` infinite) and 1 (``ratio`` -> 1)."""
+    x = np.arange(1, cells) / cells
+    ratio = 1.0 / x
+    y = np.full(cells - 1, math.log(2.0))
+    for _ in range(100):
+        y = y - (np.expm1(y) + np.expm1(-ratio * y)) / (np.exp(y) - ratio * np.exp(-ratio * y))
+    return np.concatenate([[math.log(2.0)], y / (1.0 - x), [1.0]])
 
 
-_SHAPE_CELLS = 32
-_SHAPE = np.array([math.log(2.0)] + [_newton_root(_SHAPE_CELLS / k, math.log(2.0)) / (1.0 - k / _SHAPE_CELLS)
-                                     for k in range(1, _SHAPE_CELLS)] + [1.0])
-"""``y / (1 - x)`` at ``x = 1 / ratio = k / 32``: smooth and rising from ln 2 (``ratio`` infinite) to 1 (``ratio``
--> 1), so ``(1 - x)`` times the value at a cell's right end is a start right of the root, close enough that Newton
-needs 3-4 steps (from ln 2: up to 12)."""
+_SHAPE_CELLS = 4096
+_SHAPE = _shape_table(_SHAPE_CELLS)
+"""The root ``y`` of :func:`_approach_rate`'s equation as ``y / (1 - x)`` (smooth, from ln 2 to 1) over ``x = 1 /
+ratio``: linear interpolation is within ~1e-8 of the root, one Newton step then within rounding."""
 
 
 @kernel(inline=True)
@@ -152,18 +151,16 @@ def _approach_rate(interval_a, interval_b):
     threshold apart, ``interval_a`` then ``interval_b`` apart (``interval_b > interval_a > 0``).
 
     Equal level steps give ``exp(-t1/tau) - exp(-t2/tau) = exp(-t2/tau) - exp(-t3/tau)``, i.e. with ``y =
-    interval_a / tau`` and ``r = interval_b / interval_a``: ``exp(y) + exp(-r y) = 2``, solved as
-    :func:`_newton_root` does, from the table :data:`_SHAPE`."""
+    interval_a / tau`` and ``r = interval_b / interval_a``: ``exp(y) + exp(-r y) = 2``, interpolated in the table
+    :data:`_SHAPE` and refined by one Newton step."""
     ratio = interval_b / interval_a
     x = interval_a / interval_b
-    y = (1.0 - x) * _SHAPE[min(int(x * _SHAPE_CELLS), _SHAPE_CELLS - 1) + 1]
-    for _ in range(60):
-        grow = math.expm1(y)
-        decay = math.expm1(-ratio * y)
-        step = (grow + decay) / (grow + 1.0 - ratio * (decay + 1.0))
-        y -= step
-        if step <= 1e-13 * y:
-            break
+    where = x * _SHAPE_CELLS
+    cell = min(int(where), _SHAPE_CELLS - 1)
+    y = (1.0 - x) * (_SHAPE[cell] + (_SHAPE[cell + 1] - _SHAPE[cell]) * (where - cell))
+    grow = math.expm1(y)
+    decay = math.expm1(-ratio * y)
+    y -= (grow + decay) / (grow + 1.0 - ratio * (decay + 1.0))
     return y / interval_a
 
 
@@ -332,6 +329,8 @@ def curve_run(state, status, pixel, xy, on, t_b, window_us, target_on, target_of
     row.interval_us = span
     sign = 1 if on else -1
     status[pixel] = sign
+    if (level + theta < target_on) if on else (level - theta > -target_off):
+        return n, tail  # a tail (less than a threshold) cannot reach a target level
     rest = _tail(theta, span, tau, min(float(window_us), TAIL_TAUS * tau))
     if rest < theta and (level + rest >= target_on if on else level - rest <= -target_off):
         row.pending_us = tau  # the approach crosses a target level the pixel will not fire at: wait
