@@ -19,12 +19,16 @@ from cli.main import LazyGroup
     "thresholds": ("cli.metrics_thresholds:thresholds",
                    "Relative RMSE, bias and correlation of ON and OFF thresholds over valid pixels, and the invalid "
                    "fraction."),
+    "reconstruction": ("cli.metrics_reconstruction:reconstruction",
+                       "RMSE and SSIM of the log intensity that EVENTS integrate to, against TRUTH.h5's true "
+                       "frames."),
     "uniformity": ("cli.metrics_uniformity:uniformity",
                    "Per stimulus edge of IN: std across pixels of the first and last event times, count CV, errors "
                    "vs IDEAL."),
 })
 def metrics() -> None:
-    """Measure denoising (denoise, roc, esr), threshold estimation (thresholds) and uniformity (uniformity).
+    """Measure denoising (denoise, roc, esr), threshold estimation (thresholds), uniformity (uniformity) and
+    reconstruction (reconstruction).
 
     Each prints a table on a terminal and JSON when stdout is not a terminal or with --json.
     """

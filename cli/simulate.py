@@ -25,6 +25,7 @@ from evtools.simulate import (
     PRESETS,
     SCENES,
     DvsSimulator,
+    lin_log,
     SimulationError,
 )
 from formats import create_events, open_events
@@ -348,6 +349,9 @@ def _float_option(name: str, help: str):
 @click.option("--truth", type=click.Path(dir_okay=False), default=None,
               help="Write the ground truth (per-event `label`, noise maps, parameters; the thresholds maps `on`, "
                    "`off` for frame sources) to this HDF5 file.")
+@click.option("--truth-frame-rate", "truth_frame_rate", type=click.FloatRange(min=0), default=None, metavar="HZ",
+              help="Frame sources: also store the true log intensity (`log_frames`, `log_frame_t_us`) in --truth "
+                   "at this rate, for `metrics reconstruction` [default: 100; 0: none].")
 @input_format_option
 @sensor_size_option
 @aedat2_layout_option
@@ -394,8 +398,8 @@ def _float_option(name: str, help: str):
 @click.option("--min-level", type=float, default=None, help="Scene's darkest intensity, 0-255 (default 50).")
 @click.option("--max-level", type=float, default=None, help="Scene's brightest intensity, 0-255 (default 200).")
 @click.option("--level", type=float, default=None, help="static: intensity, 0-255 (default 128).")
-def simulate(source, output, output_format, truth, input_format, sensor_size, aedat2_layout, size, duration, fps,
-             timestamps, preset, seed, **options):
+def simulate(source, output, output_format, truth, truth_frame_rate, input_format, sensor_size, aedat2_layout, size,
+             duration, fps, timestamps, preset, seed, **options):
     """Simulate a DVS looking at SOURCE: a video file, a folder of images, or scene:NAME; or add labelled noise
     to SOURCE when it is an event stream (any readable format, `-` for stdin).
 
@@ -412,7 +416,8 @@ def simulate(source, output, output_format, truth, input_format, sensor_size, ae
     given = {name: value for name, value in options.items() if value is not None}
     if is_event_stream(source, input_format):
         frame_only = [name for name, value in (("--size", size), ("--duration", duration), ("--fps", fps),
-                                               ("--timestamps", timestamps)) if value is not None]
+                                               ("--timestamps", timestamps),
+                                               ("--truth-frame-rate", truth_frame_rate)) if value is not None]
         frame_only += ["--" + name.replace("_", "-") for name in given if name not in NOISE_DEFAULTS]
         if frame_only:
             hint = " (the sensor size of a stream that does not store it is --sensor-size)" if size else ""
@@ -452,7 +457,8 @@ def simulate(source, output, output_format, truth, input_format, sensor_size, ae
 
             with output_stream(truth, binary_name="HDF5", needs_seek=True) as stream, h5py.File(stream, "w") as h5:
                 _start_truth(h5, simulator, frames, preset)
-                _run(simulator, frames, writer, h5["label"])
+                rate_hz = TRUTH_FRAME_RATE_HZ if truth_frame_rate is None else truth_frame_rate
+                _run(simulator, frames, writer, h5["label"], _LogFrames(h5, frames, rate_hz) if rate_hz else None)
 
 
 def _start_truth(h5, simulator: DvsSimulator, frames: FrameSource, preset: str | None) -> None:
@@ -510,9 +516,42 @@ class _LabelledSink:
         self.pending, self.pending_labels, self.held = [], [], 0
 
 
-def _run(simulator: DvsSimulator, frames: FrameSource, writer, labels_dataset) -> None:
+TRUTH_FRAME_RATE_HZ = 100.0
+"""Default rate of the true log-intensity frames in a truth file (``--truth-frame-rate``)."""
+
+
+class _LogFrames:
+    """Appends the scene's true log intensity (the pixel model's lin-log of the frame) to the truth file: the first
+    frame, then the first at or after every further ``1 / rate`` (datasets ``log_frames``, float32 (n, height,
+    width), and ``log_frame_t_us``, int64, on the events' clock), a frame at a time (memory does not grow)."""
+
+    def __init__(self, h5, frames: FrameSource, rate_hz: float) -> None:
+        self.period_us = 1e6 / rate_hz
+        self.next_us = None
+        shape = (0, frames.height, frames.width)
+        self.frames = h5.create_dataset("log_frames", shape=shape, maxshape=(None, *shape[1:]), dtype=np.float32,
+                                        chunks=(1, *shape[1:]), compression="gzip")
+        self.times = h5.create_dataset("log_frame_t_us", shape=(0,), maxshape=(None,), dtype=np.int64,
+                                       chunks=(1024,))
+        self.frames.attrs["units"] = "log intensity (lin-log of the 0-255 frame)"
+        h5.attrs["truth_frame_rate_hz"] = rate_hz
+
+    def add(self, t_us: int, frame: np.ndarray) -> None:
+        if self.next_us is not None and t_us < self.next_us:
+            return
+        self.next_us = (t_us if self.next_us is None else self.next_us) + self.period_us
+        n = self.frames.shape[0]
+        self.frames.resize(n + 1, axis=0)
+        self.frames[n] = lin_log(frame).astype(np.float32)
+        self.times.resize((n + 1,))
+        self.times[n] = t_us
+
+
+def _run(simulator: DvsSimulator, frames: FrameSource, writer, labels_dataset, log_frames=None) -> None:
     sink = _LabelledSink(writer, labels_dataset)
     for t_us, frame in _progress(frames):
+        if log_frames is not None:
+            log_frames.add(int(t_us), frame)
         sink.add(*simulator.process_labelled(t_us, frame))
     sink.add(*simulator.flush_labelled())
     sink.write()

@@ -1,0 +1,117 @@
+"""``evtools metrics reconstruction``: how well EVENTS reconstruct the true log intensity (issue 12 part 3)."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import click
+import numpy as np
+
+from cli.options import json_option, wants_json
+from evtools.metrics.reconstruction import HighPassReconstructor, ReconstructionError, reconstruction_errors
+from formats import open_events
+from formats.io import output_stream
+from formats.thresholds import read_thresholds
+
+DEFAULT_CUTOFF_HZ = 0.0
+"""Pure integration by default: what threshold mismatch does to a reconstruction shows undamped (a cut-off hides
+it as it forgets); give ``--cutoff-hz`` for the paper's high-pass (a few Hz there)."""
+
+
+def read_true_frames(path: str) -> tuple[np.ndarray, np.ndarray]:
+    """(times us, log frames) of a truth file, or a one-line error saying how to make them."""
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as h5:
+            if "log_frames" not in h5 or "log_frame_t_us" not in h5 or len(h5["log_frame_t_us"]) == 0:
+                raise ReconstructionError(
+                    f"{path}: no true log-intensity frames; make them with `evtools simulate SOURCE --truth {path} "
+                    f"--truth-frame-rate 100` (frame sources only)")
+            return h5["log_frame_t_us"][:].astype(np.int64), h5["log_frames"][:].astype(np.float64)
+    except OSError as error:
+        raise ReconstructionError(f"{path}: not a readable HDF5 truth file ({error})") from None
+
+
+@click.command()
+@click.argument("events_path", metavar="EVENTS")
+@click.option("--truth", "truth_path", required=True, metavar="TRUTH.h5", type=click.Path(dir_okay=False),
+              help="`evtools simulate ... --truth TRUTH.h5` (with its true log frames, `--truth-frame-rate`).")
+@click.option("--thresholds", "thresholds_path", default=None, metavar="TH.h5", type=click.Path(dir_okay=False),
+              help="Each pixel's contrast per event (`estimate`'s output or a truth file); default --contrast.")
+@click.option("--contrast", default=0.2, show_default=True, type=float,
+              help="What one event adds (log units) when no --thresholds: e.g. correct's --target.")
+@click.option("--cutoff-hz", default=DEFAULT_CUTOFF_HZ, show_default=True, type=float,
+              help="High-pass cut-off (alpha / 2 pi); 0: pure integration.")
+@click.option("--plot", "plot_path", default=None, metavar="FIG.png", type=click.Path(dir_okay=False),
+              help="Also draw true (top) and reconstructed (bottom) log intensity at five frames.")
+@json_option
+def reconstruction(events_path, truth_path, thresholds_path, contrast, cutoff_hz, plot_path, as_json):
+    """RMSE and SSIM of the log intensity reconstructed from EVENTS against the true frames of TRUTH.h5.
+
+    Each pixel integrates its events (+contrast ON, -contrast OFF) from the first true frame, decaying towards
+    it at --cutoff-hz: the complementary filter of Scheerlinck, Barnes, Mahony (ACCV 2018). Run it on a stream
+    before and after `correct` to see what correction changes for a vision task.
+
+    \b
+    evtools metrics reconstruction step.aedat4 --truth t.h5 --thresholds t.h5
+    evtools metrics reconstruction corrected.aedat4 --truth t.h5 --contrast 0.2 --plot recon.png
+    """
+    if not math.isfinite(contrast) or contrast <= 0:
+        raise ReconstructionError(f"--contrast must be a positive number of log units, got {contrast}")
+    times, truth = read_true_frames(truth_path)
+    height, width = truth.shape[1:]
+    if thresholds_path is not None:
+        maps = read_thresholds(thresholds_path)
+        maps.check_size(width, height, thresholds_path)
+        on, off = maps.on, maps.off
+    else:
+        on = off = contrast
+    try:
+        recon = HighPassReconstructor(truth[0], times, on, off, cutoff_hz)
+    except ReconstructionError as error:
+        raise ReconstructionError(f"{thresholds_path or '--contrast'}: {error}") from None
+    with open_events(events_path) as stream:
+        if (stream.info.width, stream.info.height) != (width, height):
+            raise ReconstructionError(f"{events_path}: the stream is {stream.info.width}x{stream.info.height} but "
+                                      f"the truth {truth_path} is {width}x{height}")
+        for chunk in stream:
+            recon.process(chunk)
+    estimated = recon.flush()
+    result = {"events": events_path, "truth": truth_path, "contrast": thresholds_path or contrast,
+              "cutoff_hz": cutoff_hz, **reconstruction_errors(estimated, truth)}
+    if plot_path is not None:
+        _plot(plot_path, truth, estimated, times)
+    if wants_json(as_json):
+        click.echo(json.dumps(result, indent=2))
+    else:
+        from rich.console import Console
+
+        Console().print(f"{events_path}: {result['frames']} frames, RMSE {result['rmse']:.4f} log units, "
+                        f"SSIM {result['ssim']:.4f} (cut-off {cutoff_hz:g} Hz)")
+
+
+def _plot(path: str, truth: np.ndarray, estimated: np.ndarray, times: np.ndarray) -> None:
+    """True (top row) and reconstructed (bottom row) frames at five times, one grey scale (the true range)."""
+    import cv2
+
+    picks = np.unique(np.linspace(0, len(truth) - 1, 5).round().astype(int))
+    low, high = float(truth.min()), float(truth.max())
+    scale = 255.0 / max(high - low, 1e-6)
+    cell = max(1, 160 // max(truth.shape[1:]))
+
+    def tile(frame, label):
+        image = np.clip((frame - low) * scale, 0, 255).astype(np.uint8)
+        image = cv2.resize(image, None, fx=cell, fy=cell, interpolation=cv2.INTER_NEAREST)
+        image = cv2.copyMakeBorder(image, 18, 4, 4, 4, cv2.BORDER_CONSTANT, value=255)
+        cv2.putText(image, label, (4, 13), cv2.FONT_HERSHEY_SIMPLEX, 0.4, 0, 1, cv2.LINE_AA)
+        return image
+
+    rows = [np.hstack([tile(truth[k], f"true {times[k] / 1e3:.0f} ms") for k in picks]),
+            np.hstack([tile(estimated[k], f"recon {times[k] / 1e3:.0f} ms") for k in picks])]
+    ok, encoded = cv2.imencode(".png", np.vstack(rows))
+    if not ok:
+        raise ReconstructionError(f"{path}: OpenCV could not encode the picture")
+    with output_stream(path, binary_name="PNG", needs_seek=True) as stream:
+        stream.write(encoded.tobytes())
