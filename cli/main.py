@@ -78,8 +78,8 @@ COMMANDS = {
                 "Re-sample every pixel of IN (default stdin) at one target threshold; write -o OUT (default "
                 "stdout)."),
     "metrics": ("cli.metrics:metrics",
-                "Measure denoising (denoise, roc, esr), threshold estimation (thresholds) and uniformity "
-                "(uniformity)."),
+                "Measure denoising (denoise, roc, esr), threshold estimation (thresholds), uniformity "
+                "(uniformity) and reconstruction (reconstruction)."),
 }
 
 

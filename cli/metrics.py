@@ -20,8 +20,8 @@ from cli.main import LazyGroup
                    "Relative RMSE, bias and correlation of ON and OFF thresholds over valid pixels, and the invalid "
                    "fraction."),
     "reconstruction": ("cli.metrics_reconstruction:reconstruction",
-                       "RMSE and SSIM of the log intensity that EVENTS integrate to, against TRUTH.h5's true "
-                       "frames."),
+                       "RMSE and SSIM of the log intensity reconstructed from EVENTS against the true frames of "
+                       "TRUTH.h5."),
     "uniformity": ("cli.metrics_uniformity:uniformity",
                    "Per stimulus edge of IN: std across pixels of the first and last event times, count CV, errors "
                    "vs IDEAL."),
