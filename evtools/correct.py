@@ -28,6 +28,7 @@ C. Scheerlinck, N. Barnes, R. Mahony, "Continuous-time Intensity Estimation Usin
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
@@ -46,6 +47,9 @@ from evtools._kernels.correct import (
 )
 from evtools.errors import EvtoolsError
 from evtools.events import EVENT_DTYPE, check_sensor_size, empty_events, join
+
+PART = 1 << 18
+"""Events per part of a long chunk (see :meth:`ThresholdCorrector.process`)."""
 
 __all__ = ["CORRECT_DEFAULTS", "MAX_WINDOW_US", "MODES", "CorrectionError", "ThresholdCorrector", "correct_thresholds"]
 
@@ -218,6 +222,8 @@ class ThresholdCorrector:
         self._due_us = -NO_EVENT_US  # when waiting pixels are next checked (see correct_events)
         self._started = False
         self._new = self._buffers(1 << 16)
+        self._spare = self._buffers(1 << 16)  # the created events of the part being released (see process)
+        self._pool = None
         self._held = self._buffers(1 << 16)
         self._keep = self._buffers(1 << 16)
         self._n_held = 0
@@ -283,28 +289,56 @@ class ThresholdCorrector:
         self._queue_pixel, self._queue_us, self._head, self._tail = pixels, times, 0, live
 
     def process(self, chunk: np.ndarray) -> np.ndarray:
-        """The corrected events that are final once ``chunk`` (time-sorted, after the previous ones) is seen."""
+        """The corrected events that are final once ``chunk`` (time-sorted, after the previous ones) is seen.
+
+        A long chunk is taken in parts of :data:`PART` events, pipelined on two threads: while one part's created
+        events are sorted and merged (:meth:`_release`), the next part is re-sampled. The output is the same as
+        for the whole chunk at once (the corrector does not depend on where a stream is cut)."""
         if len(chunk) == 0:
             return empty_events()
         if chunk.dtype != EVENT_DTYPE:
             raise CorrectionError(f"chunk has dtype {chunk.dtype}, expected EVENT_DTYPE")
         if not self._started:
             self._start(int(chunk["t"][0]))
-        n = self._resample(chunk)
-        t_now = int(chunk["t"][-1])
-        # every later event is created at or after the earliest segment start any pixel may still use: its latest
-        # event, or the start of the segment that waits for its next event (a tail starts at the latest event)
+        if len(chunk) <= PART:
+            n = self._resample(chunk)
+            return self._release(self._new, n, self._bound(int(chunk["t"][-1])))
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(1, thread_name_prefix="evtools-correct")
+        pieces, pending = [], None
+        for begin in range(0, len(chunk), PART):
+            part = chunk[begin:begin + PART]
+            n = self._resample(part)
+            bound = self._bound(int(part["t"][-1]))
+            if pending is not None:
+                pieces.append(pending.result())
+            new, self._new, self._spare = self._new, self._spare, self._new  # the next part writes the other pair
+            pending = self._pool.submit(self._release, new, n, bound)
+        pieces.append(pending.result())
+        return join(pieces)
+
+    def __getstate__(self) -> dict:
+        state = dict(self.__dict__)
+        state["_pool"] = None  # a thread pool does not pickle; a copy makes its own
+        return state
+
+    def _bound(self, t_now: int) -> int:
+        """The time up to which created events are final once the stream has reached ``t_now``: every later event
+        is created at or after the earliest segment start any pixel may still use (its latest event, or the start
+        of the segment that waits for its next event; a tail starts at the latest event), and at most
+        ``latency_us`` before ``t_now``."""
         earliest = t_now
         if self._use.any():
             waiting = (np.abs(self._status) == TURN) | (np.abs(self._status) == FIRST)
             earliest = int(self._state["last_us"].min())
             if waiting.any():
                 earliest = min(earliest, int((self._state["last_us"][waiting] - self._state["pending_us"][waiting]).min()))
-        bound = max(earliest, t_now - self.latency_us)
-        return self._release(n, min(bound, t_now))
+        return min(max(earliest, t_now - self.latency_us), t_now)
 
-    def _release(self, n: int, bound: int) -> np.ndarray:
-        """Merge the held and the ``n`` new events; return those at or before ``bound``, hold the rest."""
+    def _release(self, new: tuple[np.ndarray, np.ndarray], n: int, bound: int) -> np.ndarray:
+        """Merge the held and the ``n`` events created in ``new``; return those at or before ``bound``, hold the
+        rest. (Runs on the pool's thread while the next part is re-sampled: it touches only the release's own
+        buffers.)"""
         h = self._n_held
         if len(self._sorted[0]) < n:
             self._sorted = self._buffers(2 * n)
@@ -314,7 +348,7 @@ class ThresholdCorrector:
             self._keep = self._buffers(2 * (h + n))
         out = np.empty(h + n, dtype=EVENT_DTYPE)
         words = out.view(np.int64).reshape(-1, 2)
-        released, kept = release_sorted(*self._held, h, *self._new, n, bound, self._counts,
+        released, kept = release_sorted(*self._held, h, *new, n, bound, self._counts,
                                         *self._sorted, words[:, 0], words[:, 1], *self._keep)
         self._held, self._keep = self._keep, self._held
         self._n_held = kept
@@ -336,7 +370,7 @@ class ThresholdCorrector:
             words = out.view(np.int64).reshape(-1, 2)
             words[:, 0], words[:, 1] = self._held[0][:h], self._held[1][:h]
             return out
-        return self._release(n, NO_EVENT_US)
+        return self._release(self._new, n, NO_EVENT_US)
 
 
 def correct_thresholds(events: np.ndarray, width: int, height: int, on, off, valid=None, **options) -> np.ndarray:

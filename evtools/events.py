@@ -107,9 +107,16 @@ def as_chunk(chunk) -> np.ndarray:
     return chunk
 
 
+_RECORD = np.dtype((np.void, EVENT_DTYPE.itemsize))
+"""An event as 16 raw bytes: copies of these are memory copies (a structured copy goes field by field, ~7x slower)."""
+
+
 def join(chunks: list[np.ndarray]) -> np.ndarray:
-    """``np.concatenate`` that keeps :data:`EVENT_DTYPE` (plain concatenate drops its padding to 13 bytes)."""
-    return np.concatenate(chunks, dtype=EVENT_DTYPE)
+    """The chunks one after the other, as one :data:`EVENT_DTYPE` array (other layouts of the same fields are
+    converted); the records are copied as raw bytes."""
+    records = [np.asarray(chunk) for chunk in chunks]
+    records = [(chunk if chunk.dtype == EVENT_DTYPE else chunk.astype(EVENT_DTYPE)).view(_RECORD) for chunk in records]
+    return np.concatenate(records).view(EVENT_DTYPE)
 
 
 def rechunk(chunks: Iterable[np.ndarray], size: int) -> Iterator[np.ndarray]:

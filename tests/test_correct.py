@@ -9,13 +9,13 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from evtools.correct import CorrectionError, ThresholdCorrector, correct_thresholds
+from evtools.correct import CORRECT_DEFAULTS, CorrectionError, ThresholdCorrector, correct_thresholds
 from evtools.events import EVENT_DTYPE, join, make_events
 from evtools.simulate import DvsSimulator
 from evtools.metrics.uniformity import detect_edges, edge_uniformity, edges_from_starts
 from formats.thresholds import ThresholdMap, read_thresholds, write_thresholds
 from tests.helpers import assert_clean_error, assert_same_events, cut, random_events, read_all, run
-from tests.naive.correct import correct_naive
+from tests.naive.correct import STEP, correct_naive
 
 W, H = 8, 6
 MODES = ("foh", "step", "highpass")
@@ -51,6 +51,24 @@ def test_kernel_equals_naive(mode, turns, curves):
                              float(np.float32(0.2)), float(np.float32(0.2)), **options)
     assert as_tuples(out) == expected
     assert len(out) != len(events)  # the thresholds differ from the target: the stream changed
+
+
+@pytest.mark.parametrize("late_us", [40, 2000, 299_000])
+def test_a_run_that_stops_short_ends_its_curve_at_its_event(late_us):
+    # intervals 1 us then late_us: exp(-late_us / tau) underflows (tau ~ 1.4 us) beyond ~1000 us, so the
+    # crossing at the event itself is log(0) unless it is held to the segment's end (seen as a time of -2**63
+    # on 38 M events of a real recording)
+    on = np.full((H, W), 0.2, np.float32)
+    off = np.full((H, W), 0.25, np.float32)
+    events = make_events([0, 1, 1 + late_us, 3 + late_us], [1, 1, 1, 2], [1, 1, 1, 2], [1, 1, 1, 0])
+    out = correct_thresholds(events, W, H, on, off, target=0.2, start_us=0)
+    expected = correct_naive(as_tuples(events), on.astype(float).tolist(), off.astype(float).tolist(),
+                             float(np.float32(0.2)), float(np.float32(0.2)), mode=STEP, turns=True,
+                             curves=True, start_us=0, max_gap_us=CORRECT_DEFAULTS["max_gap_us"],
+                             hold_us=CORRECT_DEFAULTS["hold_us"])
+    assert as_tuples(out) == expected
+    assert out["t"].min() >= 0 and out["t"].max() <= 3 + late_us
+    assert (out["x"] == 1).sum() == 3  # the pixel's three ON events, at its target: 3 events
 
 
 @pytest.mark.parametrize("mode", MODES)
@@ -92,6 +110,22 @@ def test_chunking_does_not_change_the_output(cuts, mode, turns, curves):
     chunked = run_chunked(ThresholdCorrector(W, H, on, off, **options), cut(events, cuts))
     assert_same_events(chunked, whole)
     assert np.all(np.diff(chunked["t"]) >= 0)
+
+
+@settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(part=st.integers(1, 700), mode=st.sampled_from(MODES + ("exponential",)))
+def test_long_chunks_pipelined_in_parts_give_the_same_output(part, mode):
+    # process() releases one part on a second thread while it re-samples the next (PART events each)
+    events = random_events(3000, W, H, seed=6)
+    on, off = thresholds(6)
+    options = dict(target=0.2, mode=mode, max_gap_us=5000, hold_us=2000)
+    whole = correct_thresholds(events, W, H, on, off, **options)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr("evtools.correct.PART", part)
+        corrector = ThresholdCorrector(W, H, on, off, **options)
+        pipelined = run_chunked(corrector, cut(events, [1000, 1001]))
+        assert corrector._pool is not None  # the parts went through the pool
+    assert_same_events(pipelined, whole)
 
 
 @pytest.mark.parametrize("mode, latency_us", [("foh", 500), ("highpass", 1500), ("exponential", 1500)])

@@ -6,7 +6,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from evtools.errors import InvalidEventsError
-from evtools.events import EVENT_DTYPE, StreamChecker, StreamInfo, concatenate, make_events, parse_sensor_size, rechunk
+from evtools.events import (EVENT_DTYPE, StreamChecker, StreamInfo, concatenate, join, make_events, parse_sensor_size,
+                            rechunk)
 from tests.helpers import cut, random_events
 
 
@@ -19,6 +20,15 @@ def test_dtype_is_the_aedat4_event_struct():
 def test_concatenate_keeps_the_dtype():
     events = random_events(10)
     assert concatenate([events[:3], events[3:]]).dtype == EVENT_DTYPE
+
+
+def test_join_copies_records_of_any_stride_and_converts_other_layouts():
+    events = random_events(50, seed=4)
+    packed = events.astype(np.dtype([("t", "<i8"), ("x", "<i2"), ("y", "<i2"), ("p", "?")]))  # 13-byte records
+    joined = join([events[::3], packed[5:9], events[:0], events[::-7]])
+    expected = [tuple(e) for e in events[::3]] + [tuple(e) for e in events[5:9]] + [tuple(e) for e in events[::-7]]
+    assert joined.dtype == EVENT_DTYPE and joined.flags.c_contiguous
+    assert [tuple(e) for e in joined] == expected
 
 
 @pytest.mark.parametrize("text,size", [("346x260", (346, 260)), ("128X128", (128, 128)), ("640,480", (640, 480))])

@@ -142,38 +142,45 @@ def _shape_table(cells: int) -> np.ndarray:
 _SHAPE_CELLS = 4096
 _SHAPE = _shape_table(_SHAPE_CELLS)
 """The root ``y`` of :func:`_approach_rate`'s equation as ``y / (1 - x)`` (smooth, from ln 2 to 1) over ``x = 1 /
-ratio``: linear interpolation is within ~1e-8 of the root, one Newton step then within rounding."""
+ratio``: cubic interpolation in it is within 2e-11 of the root (relative), so the time constant rounded to whole
+us is the root's but where the root lies within 2e-11 of a half us."""
 
 
 @kernel(inline=True)
-def _approach_rate(interval_a, interval_b):
-    """``1 / tau`` (per us) of the exponential approach ``L_inf - B exp(-t / tau)`` through three events one
-    threshold apart, ``interval_a`` then ``interval_b`` apart (``interval_b > interval_a > 0``).
+def _approach_tau(interval_a, interval_b):
+    """The time constant ``tau`` (us) of the exponential approach ``L_inf - B exp(-t / tau)`` through three events
+    one threshold apart, ``interval_a`` then ``interval_b`` apart (``interval_b > interval_a > 0``).
 
     Equal level steps give ``exp(-t1/tau) - exp(-t2/tau) = exp(-t2/tau) - exp(-t3/tau)``, i.e. with ``y =
-    interval_a / tau`` and ``r = interval_b / interval_a``: ``exp(y) + exp(-r y) = 2``, interpolated in the table
-    :data:`_SHAPE` and refined by one Newton step."""
-    ratio = interval_b / interval_a
+    interval_a / tau`` and ``r = interval_b / interval_a``: ``exp(y) + exp(-r y) = 2``, its root interpolated
+    (cubic Lagrange, four cells) in the table :data:`_SHAPE`: no transcendental function."""
     x = interval_a / interval_b
     where = x * _SHAPE_CELLS
-    cell = min(int(where), _SHAPE_CELLS - 1)
-    y = (1.0 - x) * (_SHAPE[cell] + (_SHAPE[cell + 1] - _SHAPE[cell]) * (where - cell))
-    grow = math.expm1(y)
-    decay = math.expm1(-ratio * y)
-    y -= (grow + decay) / (grow + 1.0 - ratio * (decay + 1.0))
-    return y / interval_a
+    cell = min(max(int(where), 1), _SHAPE_CELLS - 2)
+    f = where - cell
+    p0 = _SHAPE[cell - 1]
+    p1 = _SHAPE[cell]
+    p2 = _SHAPE[cell + 1]
+    p3 = _SHAPE[cell + 2]
+    shape = p1 + 0.5 * f * (p2 - p0 + f * (2.0 * p0 - 5.0 * p1 + 4.0 * p2 - p3 + f * (3.0 * (p1 - p2) + p3 - p0)))
+    return interval_a / ((1.0 - x) * shape)
 
 
 @kernel(inline=True)
-def _curve(level, delta, off0, span, rate, t_b, xy, target_on, target_off, out_t, out_w, n):
-    """Re-sample the exponential approach (rate ``1 / tau`` per us) from ``(t_b + off0, level)`` to ``(t_b + off0
-    + span, level + delta)``: ``level + delta (1 - exp(-rate s)) / (1 - exp(-rate span))`` at ``s`` us; returns
-    (level, n)."""
-    shrink = -math.expm1(-rate * span)
+def _curve(level, delta, off0, span, shrink, tau, t_b, xy, target_on, target_off, out_t, out_w, n):
+    """Re-sample the exponential approach (time constant ``tau`` us) from ``(t_b + off0, level)`` to ``(t_b + off0
+    + span, level + delta)``: ``level + delta (1 - exp(-s / tau)) / shrink`` at ``s`` us, where ``shrink = 1 -
+    exp(-span / tau)``; returns (level, n).
+
+    ``log`` rather than ``log1p``: rounding ``1 - z`` moves a crossing by about ``tau * 1e-16`` us, and ``log``
+    is the faster. A crossing at the segment's end (``z = shrink``) is at ``span``, also where ``exp(-span /
+    tau)`` underflows (``shrink`` 1, ``z`` 1: ``log(0)``) or rounding puts ``z`` past ``shrink``."""
+    scale = shrink / delta
     if delta > 0.0:
         k = 1.0
         while level + delta >= k * target_on:
-            s = -math.log1p(-(k * target_on - level) / delta * shrink) / rate
+            rest = 1.0 - (k * target_on - level) * scale
+            s = min(-tau * math.log(rest), span) if rest > 0.0 else span
             out_t[n] = t_b + np.int64(math.floor(off0 + s + 0.5))
             out_w[n] = xy | ON_BIT
             n += 1
@@ -182,7 +189,8 @@ def _curve(level, delta, off0, span, rate, t_b, xy, target_on, target_off, out_t
     if delta < 0.0:
         k = 1.0
         while level + delta <= -k * target_off:
-            s = -math.log1p(-(-k * target_off - level) / delta * shrink) / rate
+            rest = 1.0 - (-k * target_off - level) * scale
+            s = min(-tau * math.log(rest), span) if rest > 0.0 else span
             out_t[n] = t_b + np.int64(math.floor(off0 + s + 0.5))
             out_w[n] = xy
             n += 1
@@ -191,12 +199,16 @@ def _curve(level, delta, off0, span, rate, t_b, xy, target_on, target_off, out_t
     return level, n
 
 
+TAIL_SHARE = -math.expm1(-TAIL_TAUS)
+"""``1 - exp(-TAIL_TAUS)``: the share of an approach's rest that a tail of ``TAIL_TAUS`` time constants covers."""
+
+
 @kernel(inline=True)
-def _tail(theta, interval_us, tau_us, span):
-    """How far the exponential approach (time constant ``tau_us``) that rose by ``theta`` over the last
-    ``interval_us`` goes on in the ``span`` us after the event: ``theta / (exp(interval / tau) - 1)`` towards its
-    asymptote, of which ``1 - exp(-span / tau)`` within the span."""
-    return theta / math.expm1(interval_us / tau_us) * -math.expm1(-span / tau_us)
+def _tail(beyond, tau_us, span):
+    """How far an exponential approach (time constant ``tau_us``) that is ``beyond`` away from its asymptote at an
+    event goes on in the ``span`` us after it: ``beyond (1 - exp(-span / tau))``. (After a rise by ``theta`` over
+    an interval, ``beyond = theta / (exp(interval / tau) - 1)``.)"""
+    return beyond * (TAIL_SHARE if span >= TAIL_TAUS * tau_us else -math.expm1(-span / tau_us))
 
 
 @kernel(inline=True)
@@ -271,9 +283,10 @@ def _settle(state, status, pixel, xy, interval_b, span_us, target_on, target_off
     if kind == TAIL:
         tau = float(row.pending_us)
         span_us = min(span_us, TAIL_TAUS * tau)
-        tail = _tail(theta_on if up else theta_off, float(row.interval_us), tau, span_us)
+        tail = _tail((theta_on if up else theta_off) / math.expm1(float(row.interval_us) / tau), tau, span_us)
         tail = tail if up else -tail
-        level, n = _curve(row.level, tail, 0.0, span_us, 1.0 / tau, row.last_us, xy, target_on, target_off, out_t,
+        shrink = TAIL_SHARE if span_us >= TAIL_TAUS * tau else -math.expm1(-span_us / tau)
+        level, n = _curve(row.level, tail, 0.0, span_us, shrink, tau, row.last_us, xy, target_on, target_off, out_t,
                           out_w, n)
         row.level = level - tail
         row.interval_us = 0.0
@@ -301,10 +314,15 @@ def settle_waiting(width, state, status, target_on, target_off, window_us, queue
     min_target = min(target_on, target_off)
     while head < tail and queue_us[head] < before_us:
         if head + AHEAD < tail:  # the queue is read in order: its pixels' states can be fetched early
-            prefetch(state, queue_pixel[head + AHEAD])
+            ahead = queue_pixel[head + AHEAD]
+            if abs(status[ahead]) >= TURN:  # (most tails were dropped by their pixel's next event)
+                prefetch(state, ahead)
         pixel = queue_pixel[head]
+        if abs(status[pixel]) < TURN:
+            head += 1
+            continue
         row = state[pixel]
-        if abs(status[pixel]) >= TURN and row.last_us == queue_us[head]:
+        if row.last_us == queue_us[head]:
             if n + _room(row.level, float(row.on), float(row.off), min_target) > capacity:
                 return n, head
             xy = ((pixel // width) << 16) | (pixel % width)
@@ -321,17 +339,23 @@ def curve_run(state, status, pixel, xy, on, t_b, window_us, target_on, target_of
     (:data:`TAIL`). Returns (n, queue tail). Out of line: it keeps the per-event loop's code small."""
     row = state[pixel]
     theta = float(row.on) if on else float(row.off)
+    delta = theta if on else -theta
+    level = row.level
+    interval_a = float(row.interval_us)
     span = float(t_b - row.last_us)
-    tau = min(math.floor(1.0 / _approach_rate(float(row.interval_us), span) + 0.5), MAX_TAU_US)
-    level, n = _curve(row.level, theta if on else -theta, -span, span, 1.0 / tau, t_b, xy, target_on, target_off,
-                      out_t, out_w, n)
-    row.level = level
     row.interval_us = span
     sign = 1 if on else -1
     status[pixel] = sign
+    if (level + 2.0 * theta < target_on) if on else (level - 2.0 * theta > -target_off):
+        row.level = level + delta  # no crossing, and no tail (less than theta) can reach one: the shape is moot
+        return n, tail
+    tau = min(math.floor(_approach_tau(interval_a, span) + 0.5), MAX_TAU_US)
+    shrink = -math.expm1(-span / tau)  # how much of the approach's rest the segment covers
+    level, n = _curve(level, delta, -span, span, shrink, tau, t_b, xy, target_on, target_off, out_t, out_w, n)
+    row.level = level
     if (level + theta < target_on) if on else (level - theta > -target_off):
         return n, tail  # a tail (less than a threshold) cannot reach a target level
-    rest = _tail(theta, span, tau, min(float(window_us), TAIL_TAUS * tau))
+    rest = _tail(theta * (1.0 - shrink) / shrink, tau, min(float(window_us), TAIL_TAUS * tau))
     if rest < theta and (level + rest >= target_on if on else level - rest <= -target_off):
         row.pending_us = tau  # the approach crosses a target level the pixel will not fire at: wait
         status[pixel] = sign * TAIL

@@ -61,15 +61,21 @@ def _curve_crossings(level, change, t_from, span, tau, t_event, target_on, targe
     full = 1.0 - math.exp(-span / tau)
     while change > 0 and level + change >= (k + 1) * target_on:
         k += 1
-        s = -tau * math.log(1.0 - (k * target_on - level) / change * full)
+        s = _curve_time(1.0 - (k * target_on - level) / change * full, tau, span)
         events.append((t_event + math.floor(t_from + s + 0.5), True))
         reference = k * target_on
     while change < 0 and level + change <= -(k + 1) * target_off:
         k += 1
-        s = -tau * math.log(1.0 - (-k * target_off - level) / change * full)
+        s = _curve_time(1.0 - (-k * target_off - level) / change * full, tau, span)
         events.append((t_event + math.floor(t_from + s + 0.5), False))
         reference = -k * target_off
     return events, level + change - reference
+
+
+def _curve_time(remaining, tau, span):
+    """When ``1 - exp(-s / tau)`` reaches ``1 - remaining``; never after the segment's end (a crossing at the end
+    itself may compute slightly past it, or at ``log(0)`` when ``exp(-span / tau)`` underflows)."""
+    return span if remaining <= 0 else min(-tau * math.log(remaining), span)
 
 
 def approach_tau(interval_a, interval_b):
@@ -149,7 +155,8 @@ def correct_naive(events, on, off, target_on, target_off, mode=FOH, hold_us=100_
     def tail_of(theta, interval_us, tau):
         """How far the approach goes on after its event, within the span it is followed."""
         span = min(float(window), 3.0 * tau)
-        return theta / (math.exp(interval_us / tau) - 1.0) * (1.0 - math.exp(-span / tau)), span
+        decay = math.exp(-interval_us / tau)  # the rest to the asymptote is theta * decay / (1 - decay)
+        return theta * decay / (1.0 - decay) * (1.0 - math.exp(-span / tau)), span
 
     def settle(pixel, interval_after):
         kind, gap = waiting.pop(pixel)
