@@ -6,7 +6,7 @@ import math
 
 import click
 
-from cli.options import read_options
+from cli.options import Duration, read_options
 from cli.progress import with_progress
 from evtools.estimate import (
     DEFAULT_MIN_EVENTS,
@@ -21,26 +21,6 @@ from formats import open_events
 from formats.thresholds import ThresholdMap, write_thresholds
 
 DEFAULT_LEVELS = (50.0, 200.0)
-
-
-def _duration_us(ctx, param, value):
-    """``500ms``, ``0.5s``, ``500000us`` or a bare number of microseconds."""
-    if value is None:
-        return None
-    text = str(value).strip().lower()
-    for suffix, factor in (("us", 1.0), ("ms", 1e3), ("s", 1e6)):
-        if text.endswith(suffix):
-            number, scale = text[: -len(suffix)], factor
-            break
-    else:
-        number, scale = text, 1.0
-    try:
-        result = float(number) * scale
-    except ValueError:
-        raise click.BadParameter(f"{value!r} is not a duration such as 500ms, 0.5s or 500000us") from None
-    if not result > 0:
-        raise click.BadParameter(f"must be positive, got {value!r}")
-    return result
 
 
 def _levels(ctx, param, value):
@@ -99,8 +79,8 @@ def _stimulus(levels, period_us, profile, amplitude, speed, wavelength) -> Stimu
 @click.option("--stimulus-levels", callback=_levels, default=None, metavar="LOW,HIGH",
               help="stimulus: the triangle's ends: intensities 0-255 (profile intensity, default 50,200: "
                    "simulate's --min-level, --max-level) or log intensities (profile log).")
-@click.option("--stimulus-period", callback=_duration_us, default="500ms", show_default=True, metavar="TIME",
-              help="stimulus: time of one rise and fall (flicker; simulate's --period).")
+@click.option("--stimulus-period", type=Duration(), default="500ms", show_default=True, metavar="TIME",
+              help="stimulus: time of one rise and fall, with its unit (flicker; simulate's --period).")
 @click.option("--stimulus-profile", type=click.Choice(["intensity", "log"]), default=None,
               help="stimulus: the triangle is linear in intensity (default; simulate's scenes) or in log intensity.")
 @click.option("--stimulus-speed", type=click.FloatRange(min=0, min_open=True), default=None, metavar="PX/S",

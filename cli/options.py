@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import sys
 
 import click
@@ -18,6 +19,38 @@ def _sensor_size(ctx, param, value):
         return parse_sensor_size(value)
     except EvtoolsError as error:
         raise click.BadParameter(str(error)) from None
+
+
+DURATION_UNITS_US = {"us": 1, "ms": 1_000, "s": 1_000_000, "min": 60_000_000}
+DURATION_FORMS = "2s, 500ms, 250us, 1.5min"
+
+
+class Duration(click.ParamType):
+    """A time with its unit (``us``, ``ms``, ``s``, ``min``), as whole microseconds (int).
+
+    Every time option of the CLI whose name carries no unit takes this; a bare number is refused (is ``0.25``
+    seconds or microseconds?) with the accepted forms. Options named with their unit (``--dt-us``) take plain
+    numbers in that unit instead. ``minimum_us``: the smallest value accepted (1: a positive duration)."""
+
+    name = "duration"
+
+    def __init__(self, minimum_us: int = 1) -> None:
+        self.minimum_us = minimum_us
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, int) and not isinstance(value, bool):
+            return value  # already converted (a default given in microseconds)
+        text = str(value).strip()
+        match = re.fullmatch(r"([-+]?[0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*(us|ms|s|min)?", text)
+        if not match:
+            self.fail(f"{value!r} is not a time; give a number with its unit: {DURATION_FORMS}", param, ctx)
+        if match.group(2) is None:
+            self.fail(f"{value!r} has no unit; give one: {DURATION_FORMS}", param, ctx)
+        value_us = round(float(match.group(1)) * DURATION_UNITS_US[match.group(2)])
+        if value_us < self.minimum_us:
+            least = "longer than 0 us" if self.minimum_us == 1 else f"at least {self.minimum_us} us"
+            self.fail(f"{value!r} must be {least}", param, ctx)
+        return int(value_us)
 
 
 input_argument = click.argument("input", default="-", metavar="[IN]", type=click.Path(dir_okay=False, allow_dash=True))

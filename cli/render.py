@@ -8,7 +8,7 @@ import os
 import click
 import numpy as np
 
-from cli.options import read_options
+from cli.options import Duration, read_options
 from cli.progress import with_progress
 from evtools.render import (
     BACKGROUNDS,
@@ -56,8 +56,9 @@ def _refuse(ctx: click.Context, names: dict[str, str], why: str) -> None:
               help="OUT.png (or .jpg): one window; OUT.mp4 (or .avi): a video of the whole stream.")
 @click.option("--window-us", type=click.IntRange(min=1), default=DEFAULT_WINDOW_US, show_default=True,
               help="Time window accumulated into one frame, microseconds.")
-@click.option("--start", "start_us", type=int, default=None, metavar="T_US",
-              help="Start of the first window, microseconds on the stream's clock (default: the first event).")
+@click.option("--start", "start_us", type=Duration(minimum_us=0), default=None, metavar="TIME",
+              help="Start of the first window on the stream's clock, with its unit (e.g. 136.6s; default: the first "
+                   "event).")
 @click.option("--scale", type=click.IntRange(1, 64), default=None, metavar="K",
               help="Enlarge K times, nearest neighbour (default: enough for about 480 pixels; maps: 256 per map).")
 @click.option("--fps", type=click.FloatRange(min=0, min_open=True, max=1000), default=DEFAULT_FPS,

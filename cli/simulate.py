@@ -14,7 +14,7 @@ from typing import Any, Iterator
 import click
 import numpy as np
 
-from cli.options import aedat2_layout_option, input_format_option, sensor_size_option
+from cli.options import Duration, aedat2_layout_option, input_format_option, sensor_size_option
 from cli.progress import with_progress
 from evtools.events import CHUNK_EVENTS, StreamInfo, join, parse_sensor_size
 from evtools.noise import NOISE_DEFAULTS, NoiseInjector
@@ -34,24 +34,10 @@ from formats.registry import FORMATS, detect
 
 DEFAULT_SCENE_SIZE = "346x260"
 """A DAVIS346, the sensor v2e and the report emulate."""
-DEFAULT_DURATION = "1s"
+DEFAULT_DURATION_US = 1_000_000
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".pbm", ".webp", ".exr")
 TIMESTAMPS_FILE = "timestamps.txt"
 """Looked for inside an image folder when --timestamps is not given."""
-
-_UNITS_US = {"us": 1.0, "ms": 1e3, "s": 1e6, "min": 60e6, "": 1e6}
-
-
-def parse_duration_us(text: str, what: str = "duration") -> int:
-    """``"2s"``, ``"500ms"``, ``"250us"``, ``"1.5"`` (seconds) or ``"2min"`` as whole microseconds."""
-    match = re.fullmatch(r"\s*([0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*(us|ms|s|min|)\s*", str(text))
-    if not match:
-        raise SimulationError(f"{what} {text!r} is not a time such as 2s, 500ms or 250us")
-    value_us = round(float(match.group(1)) * _UNITS_US[match.group(2)])
-    if value_us <= 0:
-        raise SimulationError(f"{what} {text!r} must be longer than 0 us")
-    return int(value_us)
-
 
 # -- frame sources -----------------------------------------------------------------------------------------------
 
@@ -72,11 +58,11 @@ class FrameSource:
     attributes: dict[str, Any] = field(default_factory=dict)
 
 
-def scene_source(name: str, size: str | None, duration: str | None, options: dict[str, Any]) -> FrameSource:
+def scene_source(name: str, size: str | None, duration_us: int | None, options: dict[str, Any]) -> FrameSource:
     if name not in SCENES:
         raise SimulationError(f"unknown scene {name!r}; choose one of {', '.join(SCENES)}")
     width, height = parse_sensor_size(size or DEFAULT_SCENE_SIZE)
-    duration_us = parse_duration_us(duration or DEFAULT_DURATION)
+    duration_us = duration_us or DEFAULT_DURATION_US
     accepted = inspect.signature(SCENES[name]).parameters
     for key in options:
         if key not in accepted:
@@ -357,8 +343,8 @@ def _float_option(name: str, help: str):
 @aedat2_layout_option
 @click.option("--size", metavar="WxH", default=None,
               help=f"Sensor size of a scene (default {DEFAULT_SCENE_SIZE}); for a video or images: resize to it.")
-@click.option("--duration", metavar="TIME", default=None,
-              help=f"Scene length, e.g. 2s, 500ms (default {DEFAULT_DURATION}).")
+@click.option("--duration", type=Duration(), metavar="TIME", default=None,
+              help="Scene length with its unit: 2s, 500ms, 1.5min (default 1s).")
 @click.option("--fps", type=float, default=None,
               help="Frame rate of an image folder without timestamps, or to override a video's.")
 @click.option("--timestamps", type=click.Path(dir_okay=False), default=None,
@@ -387,7 +373,8 @@ def _float_option(name: str, help: str):
 @click.option("--seed", type=int, default=None,
               help="Seed of every random draw (default: a fresh one, recorded in --truth and the output's source).")
 @click.option("--frame-rate", type=float, default=None, help="Scene frame rate, Hz (default 1000).")
-@click.option("--period", default=None, metavar="TIME", help="flicker, step: period (default 500ms, 1s).")
+@click.option("--period", type=Duration(), default=None, metavar="TIME",
+              help="flicker, step: period with its unit (default 500ms, 1s).")
 @click.option("--profile", type=click.Choice(FLICKER_PROFILES), default=None,
               help="flicker: the wave is linear in intensity (default) or in log intensity.")
 @click.option("--phase", type=float, default=None, help="flicker: the wave's phase at time 0, periods (0 = valley).")
@@ -439,7 +426,7 @@ def simulate(source, output, output_format, truth, truth_frame_rate, input_forma
     for keyword, name in _SCENE_OPTIONS.items():
         value = options.pop(name)
         if value is not None:
-            scene_options[keyword] = parse_duration_us(value, "--period") * 1e-6 if name == "period" else value
+            scene_options[keyword] = value * 1e-6 if name == "period" else value
     parameters = model_parameters(preset, options)
     frames = open_source(source, size, duration, fps, timestamps, scene_options)
     simulator = _build(DvsSimulator, frames.width, frames.height, seed=seed, **parameters)

@@ -174,6 +174,23 @@ def test_usage_errors_exit_2(sample):
     assert run("info", path, "--sensor-size", "0x3", check=False).returncode == 2
 
 
+@pytest.mark.parametrize("command, option, good", [
+    (["simulate", "scene:flicker", "--size", "8x6", "-o", "{out}.aedat4"], "--duration", "0.25s"),
+    (["simulate", "scene:flicker", "--size", "8x6", "-o", "{out}.aedat4"], "--period", "250ms"),
+    (["estimate", "{sample}", "--method", "stimulus", "-o", "{out}.h5"], "--stimulus-period", "0.5min"),
+    (["render", "{sample}", "-o", "{out}.png"], "--start", "0us"),
+])
+def test_every_time_option_wants_its_unit(sample, tmp_path, command, option, good):
+    args = [part.format(sample=sample[0], out=tmp_path / "out") for part in command]
+    for value in ("0.25", "soon", "2 hours"):  # a bare number (seconds? microseconds?) and nonsense: usage errors
+        bad = run(*args, option, value, check=False)
+        assert bad.returncode == 2, bad.stderr
+        assert b"2s, 500ms, 250us, 1.5min" in bad.stderr and option.encode() in bad.stderr
+        assert not list(tmp_path.glob("out.*"))
+    accepted = run(*args, option, good, check=False)
+    assert b"no unit" not in accepted.stderr and accepted.returncode in (0, 1), accepted.stderr
+
+
 def test_output_files_get_ordinary_permissions(sample, tmp_path):
     path, _ = sample
     run("convert", path, "-o", tmp_path / "out.h5")
