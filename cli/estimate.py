@@ -9,6 +9,7 @@ import click
 from cli.options import Duration, read_options
 from cli.progress import with_progress
 from evtools.estimate import (
+    DEFAULT_MAX_FIT,
     DEFAULT_MIN_EVENTS,
     DEFAULT_NOMINAL,
     DEFAULT_SEGMENT_US,
@@ -73,6 +74,9 @@ def _stimulus(levels, period_us, profile, amplitude, speed, wavelength) -> Stimu
               help="offe: the median pixel's threshold (log units); events alone do not give the scale.")
 @click.option("--min-events", type=click.IntRange(min=1), default=DEFAULT_MIN_EVENTS, show_default=True,
               help="Pixels with fewer events are marked invalid (and get the median).")
+@click.option("--max-fit", type=click.FloatRange(min=0, min_open=True), default=DEFAULT_MAX_FIT, show_default=True,
+              metavar="F", help="stimulus: pixels whose events fit the stimulus worse than this are invalid (the RMS "
+                                "deviation of their level changes, in thresholds; written as the fit map).")
 @click.option("--stimulus-amplitude", type=click.FloatRange(min=0, min_open=True), default=None, metavar="A",
               help="stimulus: a triangle linear in log intensity, A log units peak to peak (the same as "
                    "--stimulus-profile log --stimulus-levels 0,A; the base level does not matter).")
@@ -89,7 +93,7 @@ def _stimulus(levels, period_us, profile, amplitude, speed, wavelength) -> Stimu
 @click.option("--stimulus-wavelength", type=click.FloatRange(min=0, min_open=True), default=None, metavar="PX",
               help="stimulus: a moving gradient's rise-and-fall length (simulate's --wavelength).")
 def estimate(input, input_format, sensor_size, aedat2_layout, output, method, segment_us, nominal, min_events,
-             stimulus_amplitude, stimulus_levels, stimulus_period, stimulus_profile, stimulus_speed,
+             max_fit, stimulus_amplitude, stimulus_levels, stimulus_period, stimulus_profile, stimulus_speed,
              stimulus_wavelength):
     """Estimate every pixel's ON and OFF contrast thresholds from IN (default stdin), streaming, into -o FILE.
 
@@ -110,7 +114,7 @@ def estimate(input, input_format, sensor_size, aedat2_layout, output, method, se
         try:
             estimator = ThresholdEstimator(
                 stream.info.width, stream.info.height, method, nominal=nominal, segment_us=segment_us,
-                stimulus=stimulus, min_events=min_events,
+                stimulus=stimulus, min_events=min_events, max_fit=max_fit,
             )
             for chunk in with_progress(stream, stream, f"estimating from {stream.name}"):
                 estimator.process(chunk)
@@ -118,4 +122,4 @@ def estimate(input, input_format, sensor_size, aedat2_layout, output, method, se
         except EstimationError as error:
             raise EstimationError(f"{stream.name}: {error}") from None
         attributes = {**result.attributes, "input": stream.name}
-    write_thresholds(output, ThresholdMap(result.on, result.off, result.valid, attributes))
+    write_thresholds(output, ThresholdMap(result.on, result.off, result.valid, attributes, result.fit))

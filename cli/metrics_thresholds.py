@@ -45,6 +45,8 @@ def thresholds(estimate_path, truth_path, plot_path, as_json):
     except ThresholdMetricsError as error:
         raise ThresholdMetricsError(f"{estimate_path}: {error}") from None
     result = {"estimate": estimate_path, "truth": truth_path, "method": estimate.attributes.get("method"), **result}
+    if "rejected_by_fit" in estimate.attributes:  # pixels with enough events whose events did not fit the model
+        result["rejected_by_fit"] = int(estimate.attributes["rejected_by_fit"])
     if plot_path is not None:
         _write_picture(plot_path, extension, estimation_picture(
             estimate.on, estimate.off, estimate.valid, truth.on, truth.off))
@@ -80,4 +82,6 @@ def _print_table(result: dict) -> None:
                             ("pixels", "pixels", str)):
         table.add_row(label, fmt(result["on"][key]), fmt(result["off"][key]))
     table.add_row("invalid pixels", f"{100 * result['invalid_fraction']:.2f} %", "")
+    if "rejected_by_fit" in result:
+        table.add_row("of which rejected by fit", str(result["rejected_by_fit"]), "")
     Console().print(table)

@@ -32,10 +32,12 @@ from evtools._kernels.estimate import (
     PROFILE_INTENSITY,
     PROFILE_LOG,
     SEED_PAIRS,
+    ST_ALL,
     ST_EVENTS,
     ST_PAIRS,
     ST_REF,
     ST_SIZE,
+    ST_SQUARES,
     ST_SUM,
     SUM_E,
     SUM_EE,
@@ -74,6 +76,18 @@ RCOND_LIMIT = 1e-14
 """offE: a fit whose normal matrix has a reciprocal condition number below this is singular (the reference's)."""
 MAX_SCALE_FACTOR = 10.0
 """offE: ``c > 10 * nominal`` is unrealistic and left invalid (the reference replaces it by the nominal value)."""
+DEFAULT_MAX_FIT = 0.5
+"""stimulus: a pixel whose fit (RMS deviation of its level changes from its thresholds, in thresholds, a change
+that does not fit counting as one) exceeds this is invalid. An ideal pixel under the described stimulus fits to
+~1e-4; noise left by a denoiser (one change in 10-20 spoilt, on the report's 2 s calibrations) gives 0.2-0.4; a
+period 10-30 % wrong, per-pixel phases or a natural scene give 0.75-0.95 (measured)."""
+MIN_FITTING_SHARE = 0.5
+"""stimulus: when fewer than half of the pixels with enough events fit, the stream as a whole does not show the
+described stimulus (a calibration shows it to the whole view): an error rather than the few chance fits (4 of
+2,229 pixels of a street scene fit the default flicker within 0.5)."""
+FIT_MIN_CHANGES = 8
+"""stimulus: a pixel whose events make fewer level changes than this cannot show that it fits (two or three
+changes agree by chance on a natural scene) and is invalid."""
 MAX_TABLE_US = 1 << 21
 """stimulus: a flicker whose period is a whole number of microseconds up to this (2.1 s, a 16 MB table) is
 tabulated at 1 us over one period; longer periods compute L per event (the same values, slower)."""
@@ -175,6 +189,9 @@ class ThresholdEstimate:
     off: np.ndarray
     valid: np.ndarray
     attributes: dict[str, Any] = field(default_factory=dict)
+    fit: np.ndarray | None = None
+    """Per pixel, how well its events fit the method's model (stimulus: see :data:`DEFAULT_MAX_FIT`; NaN where
+    there is nothing to fit); None for methods without a fit measure."""
 
     def usable(self) -> np.ndarray:
         return self.valid & np.isfinite(self.on) & np.isfinite(self.off) & (self.on > 0) & (self.off > 0)
@@ -205,6 +222,11 @@ class ThresholdEstimator:
         The stimulus, for ``method="stimulus"``.
     min_events : int
         Pixels with fewer events are invalid.
+    max_fit : float
+        stimulus: pixels whose fit is worse are invalid (:data:`DEFAULT_MAX_FIT`). The fit is the RMS deviation
+        of the pixel's level changes from its estimated thresholds, in thresholds, every change that ended in an
+        event counted and one outside the acceptance window (or of the wrong sign) counting as a whole threshold:
+        so a wrong period, a wrong waveform or a scene that is no stimulus cannot give confident values.
 
     References
     ----------
@@ -224,6 +246,7 @@ class ThresholdEstimator:
         segment_us: int = DEFAULT_SEGMENT_US,
         stimulus: Stimulus | None = None,
         min_events: int = DEFAULT_MIN_EVENTS,
+        max_fit: float = DEFAULT_MAX_FIT,
     ) -> None:
         check_sensor_size(width, height)
         if method not in METHODS:
@@ -234,6 +257,8 @@ class ThresholdEstimator:
             raise EstimationError(f"segment length must be a whole number of microseconds >= 1, got {segment_us}")
         if int(min_events) != min_events or min_events < 1:
             raise EstimationError(f"min_events must be a whole number >= 1, got {min_events}")
+        if not max_fit > 0:
+            raise EstimationError(f"max_fit must be a positive number of thresholds (inf: no limit), got {max_fit}")
         if method == "stimulus" and stimulus is None:
             raise EstimationError("method stimulus needs the stimulus (levels, period, and for a gradient its motion)")
         self.width, self.height = int(width), int(height)
@@ -242,6 +267,7 @@ class ThresholdEstimator:
         self.segment_us = int(segment_us)
         self.stimulus = stimulus
         self.min_events = int(min_events)
+        self.max_fit = float(max_fit)
         n = self.width * self.height
         self.events = 0
         self.t_first_us: int | None = None
@@ -272,6 +298,7 @@ class ThresholdEstimator:
             parameters["segment_us"] = self.segment_us
         if self.method == "stimulus":
             parameters.update(self.stimulus.as_dict())
+            parameters["max_fit"] = self.max_fit
         return parameters
 
     def process(self, chunk: np.ndarray) -> np.ndarray:
@@ -306,10 +333,20 @@ class ThresholdEstimator:
         """
         if not self.events:
             raise EstimationError("the stream has no events: nothing to estimate thresholds from")
+        fit = None
         if self.method == "offe":
             on, off, valid, extra = self._offe(self._cumulative[:, 0] >= self.min_events)
         else:
-            on, off, valid, extra = self._stimulus(self._state[:, ST_EVENTS] >= self.min_events)
+            on, off, valid, fit, extra = self._stimulus(self._state[:, ST_EVENTS] >= self.min_events)
+            fitting = valid & (fit <= self.max_fit)
+            if valid.any() and fitting.sum() < MIN_FITTING_SHARE * valid.sum():
+                raise EstimationError(
+                    f"the events do not fit the described stimulus: {int(fitting.sum())} of {int(valid.sum())} "
+                    f"pixels fit within {self.max_fit:g} thresholds (median fit {np.median(fit[valid]):.2f}); check "
+                    "the period and the waveform, or the stream shows no calibration stimulus"
+                )
+            extra["rejected_by_fit"] = int((valid & ~fitting).sum())
+            valid = fitting
         if not valid.any():
             raise EstimationError(
                 f"no pixel could be estimated by {self.method} (fewer than {self.min_events} events or no usable "
@@ -325,7 +362,10 @@ class ThresholdEstimator:
             "t_first_us": int(self.t_first_us), "t_last_us": int(self.t_last_us),
             "valid_pixels": int(valid.sum()), "on_median": on_median, "off_median": off_median,
         }
-        return ThresholdEstimate(on, off, valid.reshape(self.height, self.width), attributes)
+        if fit is not None:
+            fit = fit.astype(np.float32).reshape(self.height, self.width)
+            attributes["fit_median"] = float(np.median(fit[valid.reshape(fit.shape)]))
+        return ThresholdEstimate(on, off, valid.reshape(self.height, self.width), attributes, fit)
 
     def finish(self) -> ThresholdEstimate:
         """Alias of :meth:`result`."""
@@ -364,9 +404,12 @@ class ThresholdEstimator:
         self._finished = True
         references = self._state[:, ST_REF:ST_REF + 2].T
         level_sums = self._state[:, ST_SUM:ST_SUM + 2].T.copy()
+        squares = self._state[:, ST_SQUARES:ST_SQUARES + 2].T.copy()
         pairs = self._state[:, ST_PAIRS:ST_PAIRS + 2].T.copy()
+        changes = self._state[:, ST_ALL:ST_ALL + 2].T
         # a polarity with fewer than SEED_PAIRS changes (reference still -count): the median of those it has
         few = references <= 0
+        medians = None
         if few.any():
             counts = -references[few]
             seeds = self._seeds.transpose(1, 0, 2)[few]
@@ -374,13 +417,21 @@ class ThresholdEstimator:
             with np.errstate(all="ignore"), warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)
                 medians = np.nanmedian(seeds, axis=-1)
-            level_sums[few] = np.nan_to_num(medians) * counts
+            level_sums[few] = np.nansum(seeds, axis=-1)
+            squares[few] = np.nansum(seeds * seeds, axis=-1)
             pairs[few] = counts
         valid = enough & (pairs[0] > 0) & (pairs[1] > 0)
         with np.errstate(divide="ignore", invalid="ignore"):
-            on = level_sums[0] / pairs[0]
-            off = level_sums[1] / pairs[1]
-        return on, off, valid, {}
+            thresholds = level_sums / pairs
+            if medians is not None:
+                thresholds[few] = np.nan_to_num(medians)
+            # squared deviations of the accepted changes from the threshold, in thresholds, plus one per change
+            # that did not fit (outside the window or the wrong sign)
+            deviations = (squares - 2 * thresholds * level_sums + pairs * thresholds**2) / thresholds**2
+            misfits = np.where(pairs > 0, np.maximum(deviations, 0.0), 0.0) + (changes - pairs)
+            fit = np.sqrt(misfits.sum(axis=0) / changes.sum(axis=0))
+        fit[changes.sum(axis=0) < FIT_MIN_CHANGES] = np.inf  # too few changes to show a fit
+        return thresholds[0], thresholds[1], valid, fit, {}
 
 
 def _aligned_zeros(rows: int, columns: int, dtype) -> np.ndarray:

@@ -27,6 +27,8 @@ class ThresholdMap:
     off: np.ndarray
     valid: np.ndarray
     attributes: dict[str, Any] = field(default_factory=dict)
+    fit: np.ndarray | None = None
+    """Per pixel, how well its events fit the estimation method's model (dataset ``fit``; None when absent)."""
 
     @property
     def width(self) -> int:
@@ -90,20 +92,21 @@ def read_thresholds(path: str) -> ThresholdMap:
             on = np.asarray(h5["on"][()], dtype=np.float32)
             off = np.asarray(h5["off"][()], dtype=np.float32)
             valid = np.asarray(h5["valid"][()], dtype=bool) if isinstance(h5.get("valid"), h5py.Dataset) else None
+            fit = np.asarray(h5["fit"][()], dtype=np.float32) if isinstance(h5.get("fit"), h5py.Dataset) else None
         except OSError as error:
             raise FormatError(f"{path}: cannot read the maps ({error})") from None
         attributes = {key: _text(value) for key, value in h5.attrs.items()}
         units = _text(h5["on"].attrs.get("units", ""))
-    if on.ndim != 2 or on.shape != off.shape or (valid is not None and valid.shape != on.shape):
-        raise FormatError(f"{path}: datasets on, off (and valid) must be height x width arrays of one shape")
+    if on.ndim != 2 or on.shape != off.shape or any(m is not None and m.shape != on.shape for m in (valid, fit)):
+        raise FormatError(f"{path}: datasets on, off (and valid, fit) must be height x width arrays of one shape")
     if valid is None:
         valid = np.ones(on.shape, dtype=bool)
     attributes.setdefault("units", units)
-    return ThresholdMap(on, off, valid, attributes)
+    return ThresholdMap(on, off, valid, attributes, fit)
 
 
 def write_thresholds(path: str, thresholds: ThresholdMap) -> None:
-    """Write ``on``, ``off``, ``valid`` and the attributes to ``path`` atomically."""
+    """Write ``on``, ``off``, ``valid`` (and ``fit`` when known) and the attributes to ``path`` atomically."""
     import h5py
 
     with output_stream(path, binary_name="HDF5", needs_seek=True) as stream, h5py.File(stream, "w") as h5:
@@ -111,6 +114,9 @@ def write_thresholds(path: str, thresholds: ThresholdMap) -> None:
             h5.create_dataset(name, data=np.asarray(getattr(thresholds, name), dtype=np.float32))
             h5[name].attrs["units"] = "log intensity"
         h5.create_dataset("valid", data=np.asarray(thresholds.valid, dtype=bool))
+        if thresholds.fit is not None:
+            h5.create_dataset("fit", data=np.asarray(thresholds.fit, dtype=np.float32))
+            h5["fit"].attrs["units"] = "thresholds (RMS deviation of the level changes; a change that does not fit: 1)"
         for key, value in thresholds.attributes.items():
             if key == "units":
                 continue

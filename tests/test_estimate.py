@@ -3,13 +3,16 @@ dead pixels, exactness on an ideal pixel, accuracy on the report's scenes, the C
 
 from __future__ import annotations
 
+import json
+import math
+
 import h5py
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from evtools.estimate import EstimationError, Stimulus, ThresholdEstimator, estimate_thresholds
+from evtools.estimate import DEFAULT_MAX_FIT, EstimationError, Stimulus, ThresholdEstimator, estimate_thresholds
 from evtools.events import empty_events, make_events
 from evtools.metrics.thresholds import threshold_errors
 from evtools.simulate import DvsSimulator, scene_frames
@@ -17,7 +20,8 @@ from evtools.events import StreamInfo
 from formats import create_events
 from formats.thresholds import read_thresholds
 from tests.helpers import assert_clean_error, cut, random_events, run
-from tests.naive.estimate import naive_offe, naive_stimulus, robust_mean
+from tests.naive.ideal_pixel import ideal_events, triangle_corners
+from tests.naive.estimate import naive_fit, naive_offe, naive_stimulus, robust_mean
 
 W, H = 32, 24
 FLICKER = Stimulus(50.0, 200.0, 500_000.0)
@@ -51,6 +55,9 @@ def rel_rmse(estimate, simulator):
 def assert_same_estimate(a, b):
     for name in ("on", "off", "valid"):
         np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+    assert (a.fit is None) == (b.fit is None)
+    if a.fit is not None:
+        np.testing.assert_array_equal(a.fit, b.fit, err_msg="fit")
 
 
 # -- kernels against the naive references --------------------------------------------------------------------
@@ -78,17 +85,25 @@ def test_offe_on_random_events_matches_the_reference():
                                       Stimulus(50, 200, 333_333.5)])
 def test_stimulus_matches_the_reference(gradient, stimulus):
     events, _ = gradient
-    estimate = estimate_thresholds(events, W, H, "stimulus", stimulus=stimulus, min_events=1)
-    changes = naive_stimulus(events, W, H, stimulus.low, stimulus.high, stimulus.period_us,
-                             stimulus.wavelength_px, stimulus.profile)
+    # the stream is the gradient's: only GRADIENT describes it; with no fit limit every method's sums still match
+    estimate = estimate_thresholds(events, W, H, "stimulus", stimulus=stimulus, min_events=1, max_fit=math.inf)
+    described = (stimulus.low, stimulus.high, stimulus.period_us, stimulus.wavelength_px, stimulus.profile)
+    changes = naive_stimulus(events, W, H, *described)
+    fits = naive_fit(events, W, H, *described)
     checked = 0
     for (x, y), (on, off) in changes.items():
         if on and off:
             assert estimate.valid[y, x]
             assert estimate.on[y, x] == pytest.approx(robust_mean(on), rel=1e-6)  # float32 maps
             assert estimate.off[y, x] == pytest.approx(robust_mean(off), rel=1e-6)
+            assert estimate.fit[y, x] == pytest.approx(fits[x, y], rel=1e-5, abs=1e-6)
             checked += 1
     assert checked > W * H // 2
+    fitting = estimate.fit[estimate.valid] <= DEFAULT_MAX_FIT
+    if stimulus is GRADIENT:  # the stimulus the stream shows: every pixel fits (ideal pixels: to rounding)
+        assert fitting.all() and np.median(estimate.fit[estimate.valid]) < 1e-3
+    else:  # another stimulus: (nearly) no pixel fits
+        assert fitting.mean() < 0.1
 
 
 def test_flicker_table_gives_the_same_levels_as_the_formula(flicker, monkeypatch):
@@ -165,7 +180,7 @@ def _estimate_chunked(events, method, parts, **parameters):
 def test_chunking_does_not_change_the_estimate(flicker, cuts, method):
     events, _ = flicker
     parameters = {"offe": {"segment_us": 3_000}, "stimulus": {"stimulus": FLICKER},
-                  "gradient": {"stimulus": GRADIENT}}[method]
+                  "gradient": {"stimulus": GRADIENT, "max_fit": math.inf}}[method]  # (not the stream's stimulus)
     method = "stimulus" if method == "gradient" else method
     whole = _estimate_chunked(events, method, [events], **parameters)
     chunked = _estimate_chunked(events, method, cut(events, cuts), **parameters)
@@ -332,7 +347,67 @@ def test_with_noise_and_bafilter_first_the_best_method_stays_within_3_percent(tm
             out = tmp_path / f"{scene}.{method}.h5"
             run("estimate", kept, "-o", out, "--method", method, *stimulus_args)
             estimate = read_thresholds(str(out))
+            if method == "stimulus":  # the noise left by the filter spoils few pixels' fit
+                assert estimate.fit is not None and estimate.valid.mean() > 0.8, estimate.valid.mean()
+                report = json.loads(run("metrics", "thresholds", out, "--truth", truth, "--json").stdout)
+                assert report["rejected_by_fit"] == estimate.attributes["rejected_by_fit"]
             errors = threshold_errors(estimate.on, estimate.off, estimate.valid, true.on, true.off)
             best = min(best, max(errors["on"]["rel_rmse"], errors["off"]["rel_rmse"]))
         worst[scene] = best
     assert max(worst.values()) <= 0.03, worst
+
+
+# -- goodness of fit decides validity (issue 13) ----------------------------------------------------------------
+
+
+def _ideal_triangles(seed, period_us, phases, width=8, height=6, amplitude=1.5, rise=0.5, span_us=4_000_000):
+    """Ideal pixels (tests/naive/ideal_pixel.py, not the simulator) under a log triangle; per-pixel phases when
+    ``phases``, else every pixel at its valley at t = 0 (the stimulus method's convention)."""
+    rng = np.random.default_rng(seed)
+    on = rng.normal(0.2, 0.03, (height, width)).clip(0.1)
+    off = rng.normal(0.2, 0.03, (height, width)).clip(0.1)
+    rows = []
+    for j in range(height):
+        for i in range(width):
+            corners = triangle_corners(0, span_us, 0.0, amplitude, rise * period_us, (1 - rise) * period_us,
+                                       rng.uniform(0, 1) if phases else 0.0)
+            rows += [(math.floor(t + 0.5), i, j, p) for t, p in ideal_events(corners, on[j, i], off[j, i])]
+    rows.sort(key=lambda row: row[0])
+    t, x, y, p = zip(*rows)
+    return make_events(t, x, y, p), on, off
+
+
+@settings(max_examples=12, deadline=None)
+@given(seed=st.integers(0, 10**6), wrong=st.sampled_from([0.7, 0.8, 0.9, 1.1, 1.2, 1.3]), phases=st.booleans())
+def test_a_stream_that_does_not_show_the_described_stimulus_gives_no_confident_values(seed, wrong, phases):
+    period_us = 400_000
+    events, on, off = _ideal_triangles(seed, period_us, phases)
+    if not phases:  # the described stimulus: every pixel valid, exact to the microsecond rounding
+        right = estimate_thresholds(events, 8, 6, "stimulus", stimulus=Stimulus.log_triangle(1.5, period_us))
+        assert right.valid.all() and np.abs(right.on / on - 1).max() < 1e-3 and right.fit.max() < 0.01
+    for stimulus in ([Stimulus.log_triangle(1.5, period_us)] if phases else []) + [
+            Stimulus.log_triangle(1.5, wrong * period_us)]:
+        try:
+            estimate = estimate_thresholds(events, 8, 6, "stimulus", stimulus=stimulus)
+        except EstimationError as error:
+            assert "do not fit the described stimulus" in str(error)
+            continue
+        # the pixels it keeps are those whose events happen to fit: few, and their values are right
+        assert estimate.valid.mean() <= 0.25
+        kept = estimate.valid
+        assert np.abs(estimate.on[kept] / on[kept] - 1).max() < 0.05
+        assert np.abs(estimate.off[kept] / off[kept] - 1).max() < 0.05
+        assert estimate.attributes["rejected_by_fit"] >= 1
+
+
+def test_a_natural_scene_is_no_stimulus(tmp_path, dvxplorer_events):
+    """A real street scene, denoised as a calibration would be: not one pixel is claimed to fit the default flicker."""
+    path = tmp_path / "street.aedat4"
+    with create_events(str(path), StreamInfo(640, 480)) as sink:
+        sink.write(dvxplorer_events)
+    filtered = tmp_path / "filtered.aedat4"
+    run("bafilter", path, "--method", "stcf", "--k", "1", "--dt-us", "100000", "-o", filtered)
+    for extra in ([], ["--min-events", "3"]):
+        result = run("estimate", filtered, "--method", "stimulus", "-o", tmp_path / "t.h5", *extra, check=False)
+        assert_clean_error(result, "filtered.aedat4", "do not fit the described stimulus")
+        assert not (tmp_path / "t.h5").exists()

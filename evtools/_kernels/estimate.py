@@ -137,13 +137,15 @@ ACCEPT_HIGH = 1.25
 """stimulus: a change outside [0.8, 1.25] x the pixel's reference is not one threshold (a lost event makes it 2x,
 a noise event ends it early) and is left out."""
 
-# stimulus per-pixel state: one row of 8 float64 (64 bytes, one cache line) per pixel
+# stimulus per-pixel state: one row of 16 float64 (two cache lines, the first holding what every event reads)
 ST_LAST = 0  # L at the pixel's last event
 ST_EVENTS = 1  # the pixel's events so far (exact in float64 up to 2^53)
 ST_REF = 2  # 2 (ON), 3 (OFF): the reference change once seeded (> 0); before that -(seeds taken so far)
 ST_SUM = 4  # 4, 5: sum of accepted ON, OFF changes
 ST_PAIRS = 6  # 6, 7: accepted ON, OFF changes
-ST_SIZE = 8
+ST_SQUARES = 8  # 8, 9: sum of the squares of accepted ON, OFF changes (their scatter: the fit)
+ST_ALL = 10  # 10, 11: every change that ended in an ON, OFF event (accepted, outside the window, or the wrong sign)
+ST_SIZE = 16
 
 
 @kernel
@@ -168,6 +170,7 @@ def _accept(change, reference, slot, i, state):  # pragma: no cover - compiled
     # branch-free: adding 0.0 leaves the sums bit for bit unchanged, and a random accept costs no misprediction
     inside = 1.0 if (ACCEPT_LOW * reference <= change) & (change <= ACCEPT_HIGH * reference) else 0.0
     state[i, ST_SUM + slot] += inside * change
+    state[i, ST_SQUARES + slot] += inside * change * change
     state[i, ST_PAIRS + slot] += inside
 
 
@@ -196,8 +199,9 @@ def stimulus_accumulate(
     the stimulus too. A pixel's first event (reference unknown) and changes of the wrong sign for the polarity
     (impossible for a signal event: noise) are skipped. Per polarity (slot 0 ON, 1 OFF) the first
     :data:`SEED_PAIRS` changes are kept in ``seeds[i, slot]``; their median becomes the pixel's reference, and
-    from then on (those first ones included) only changes within [0.8, 1.25] x the reference are summed and
-    counted: robust to events lost by a denoiser and to noise events.
+    from then on (those first ones included) only changes within [0.8, 1.25] x the reference are summed (with
+    their squares) and counted: robust to events lost by a denoiser and to noise events. Every change is counted
+    per polarity in ``ST_ALL``, so the share that did not fit (outside the window, or the wrong sign) is known.
 
     L comes from ``table`` (one flicker period at 1 us, :func:`stimulus_table`) when it is not empty, else from
     :func:`stimulus_level`; ``state`` is (pixels, :data:`ST_SIZE`), see the ``ST_*`` columns.
@@ -216,6 +220,7 @@ def stimulus_accumulate(
         i = np.int64(y[k]) * width + x[k]
         if state[i, ST_EVENTS] > 0.0:
             change = level - state[i, ST_LAST]
+            state[i, ST_ALL + (0 if p[k] else 1)] += 1.0
             slot = -1
             if p[k]:
                 if change > 0.0:

@@ -95,3 +95,34 @@ def robust_mean(changes, seed_pairs=5, low=0.8, high=1.25):
     reference = float(np.median(changes[:seed_pairs]))
     kept = [c for c in changes if low * reference <= c <= high * reference]
     return float(np.mean(kept))
+
+
+def naive_fit(events, width, height, low, high, period_us, wavelength_px=0.0, profile="intensity", seed_pairs=5,
+              accept=(0.8, 1.25)):
+    """{(x, y): fit}: the RMS over every change between a pixel's consecutive events of ``change / threshold - 1``
+    (signed by the event's polarity), where a change outside the acceptance window around the reference (the
+    median of the polarity's first ``seed_pairs`` right-signed changes) or of the wrong sign counts 1."""
+    changes = naive_stimulus(events, width, height, low, high, period_us, wavelength_px, profile)
+    total = {}
+    last = {}
+    for t, x, y, p in zip(events["t"].tolist(), events["x"].tolist(), events["y"].tolist(), events["p"].tolist()):
+        if (x, y) in last:
+            on_off = total.setdefault((x, y), [0, 0])
+            on_off[0 if p else 1] += 1
+        last[(x, y)] = True
+    fits = {}
+    for pixel, counts in total.items():
+        misfit = 0.0
+        for polarity, kept in enumerate(changes.get(pixel, ([], []))):
+            if not kept:
+                misfit += counts[polarity]
+                continue
+            threshold = robust_mean(kept, seed_pairs, *accept)
+            if len(kept) < seed_pairs:
+                inside = kept
+            else:
+                reference = float(np.median(kept[:seed_pairs]))
+                inside = [c for c in kept if accept[0] * reference <= c <= accept[1] * reference]
+            misfit += sum((c / threshold - 1.0) ** 2 for c in inside) + (counts[polarity] - len(inside))
+        fits[pixel] = math.sqrt(misfit / sum(counts))
+    return fits
