@@ -64,16 +64,29 @@ ON_BIT = 1 << 32
 
 
 @kernel(inline=True)
-def _segment(level, delta, off0, off1, t_b, xy, target_on, target_off, out_t, out_w, n):
-    """Re-sample the line from ``(t_b + off0, level)`` to ``(t_b + off1, level + delta)``; returns (level, n).
+def _crossings(level, delta, off0, span, shrink, tau, t_b, xy, target_on, target_off, out_t, out_w, n):
+    """Re-sample the segment from ``(t_b + off0, level)`` to ``(t_b + off0 + span, level + delta)``: an event
+    wherever it reaches the next target level; returns (level, n).
+
+    ``tau`` 0: a straight line. Otherwise the exponential approach with time constant ``tau`` us, ``level + delta
+    (1 - exp(-s / tau)) / shrink`` at ``s`` us, ``shrink = 1 - exp(-span / tau)``: ``log`` rather than
+    ``log1p`` (rounding ``1 - z`` moves a crossing by about ``tau * 1e-16`` us, and ``log`` is the faster); a
+    crossing at the segment's end (``z = shrink``) is at ``span``, also where ``exp(-span / tau)`` underflows
+    (``shrink`` 1, ``z`` 1: ``log(0)``) or rounding puts ``z`` past ``shrink``.
 
     ``xy`` is the pixel's x and y as the low 32 bits of an event's second word; created events are written as
     (time, word) pairs."""
-    span = off1 - off0
+    scale = shrink / delta if tau > 0.0 and delta != 0.0 else 0.0
     if delta > 0.0:
         k = 1.0
         while level + delta >= k * target_on:
-            out_t[n] = t_b + np.int64(math.floor(off0 + (k * target_on - level) / delta * span + 0.5))
+            rise = k * target_on - level
+            if tau > 0.0:
+                rest = 1.0 - rise * scale
+                s = min(-tau * math.log(rest), span) if rest > 0.0 else span
+            else:
+                s = rise / delta * span
+            out_t[n] = t_b + np.int64(math.floor(off0 + s + 0.5))
             out_w[n] = xy | ON_BIT
             n += 1
             k += 1.0
@@ -81,12 +94,24 @@ def _segment(level, delta, off0, off1, t_b, xy, target_on, target_off, out_t, ou
     if delta < 0.0:
         k = 1.0
         while level + delta <= -k * target_off:
-            out_t[n] = t_b + np.int64(math.floor(off0 + (-k * target_off - level) / delta * span + 0.5))
+            fall = -k * target_off - level
+            if tau > 0.0:
+                rest = 1.0 - fall * scale
+                s = min(-tau * math.log(rest), span) if rest > 0.0 else span
+            else:
+                s = fall / delta * span
+            out_t[n] = t_b + np.int64(math.floor(off0 + s + 0.5))
             out_w[n] = xy
             n += 1
             k += 1.0
         return level + delta + (k - 1.0) * target_off, n
     return level, n
+
+
+@kernel(inline=True)
+def _segment(level, delta, off0, off1, t_b, xy, target_on, target_off, out_t, out_w, n):
+    """Re-sample the line from ``(t_b + off0, level)`` to ``(t_b + off1, level + delta)``; returns (level, n)."""
+    return _crossings(level, delta, off0, off1 - off0, 1.0, 0.0, t_b, xy, target_on, target_off, out_t, out_w, n)
 
 
 AHEAD = 16
@@ -166,49 +191,16 @@ def _approach_tau(interval_a, interval_b):
     return interval_a / ((1.0 - x) * shape)
 
 
-@kernel(inline=True)
-def _curve(level, delta, off0, span, shrink, tau, t_b, xy, target_on, target_off, out_t, out_w, n):
-    """Re-sample the exponential approach (time constant ``tau`` us) from ``(t_b + off0, level)`` to ``(t_b + off0
-    + span, level + delta)``: ``level + delta (1 - exp(-s / tau)) / shrink`` at ``s`` us, where ``shrink = 1 -
-    exp(-span / tau)``; returns (level, n).
-
-    ``log`` rather than ``log1p``: rounding ``1 - z`` moves a crossing by about ``tau * 1e-16`` us, and ``log``
-    is the faster. A crossing at the segment's end (``z = shrink``) is at ``span``, also where ``exp(-span /
-    tau)`` underflows (``shrink`` 1, ``z`` 1: ``log(0)``) or rounding puts ``z`` past ``shrink``."""
-    scale = shrink / delta
-    if delta > 0.0:
-        k = 1.0
-        while level + delta >= k * target_on:
-            rest = 1.0 - (k * target_on - level) * scale
-            s = min(-tau * math.log(rest), span) if rest > 0.0 else span
-            out_t[n] = t_b + np.int64(math.floor(off0 + s + 0.5))
-            out_w[n] = xy | ON_BIT
-            n += 1
-            k += 1.0
-        return level + delta - (k - 1.0) * target_on, n
-    if delta < 0.0:
-        k = 1.0
-        while level + delta <= -k * target_off:
-            rest = 1.0 - (-k * target_off - level) * scale
-            s = min(-tau * math.log(rest), span) if rest > 0.0 else span
-            out_t[n] = t_b + np.int64(math.floor(off0 + s + 0.5))
-            out_w[n] = xy
-            n += 1
-            k += 1.0
-        return level + delta + (k - 1.0) * target_off, n
-    return level, n
-
-
 TAIL_SHARE = -math.expm1(-TAIL_TAUS)
 """``1 - exp(-TAIL_TAUS)``: the share of an approach's rest that a tail of ``TAIL_TAUS`` time constants covers."""
 
 
 @kernel(inline=True)
-def _tail(beyond, tau_us, span):
-    """How far an exponential approach (time constant ``tau_us``) that is ``beyond`` away from its asymptote at an
-    event goes on in the ``span`` us after it: ``beyond (1 - exp(-span / tau))``. (After a rise by ``theta`` over
-    an interval, ``beyond = theta / (exp(interval / tau) - 1)``.)"""
-    return beyond * (TAIL_SHARE if span >= TAIL_TAUS * tau_us else -math.expm1(-span / tau_us))
+def _covered(span, tau_us):
+    """``1 - exp(-span / tau)``: how much of an exponential approach's rest the ``span`` us after an event cover
+    (the rest at an event that ended a rise by ``theta`` over an interval is ``theta / (exp(interval / tau) -
+    1)``)."""
+    return TAIL_SHARE if span >= TAIL_TAUS * tau_us else -math.expm1(-span / tau_us)
 
 
 @kernel(inline=True)
@@ -283,11 +275,11 @@ def _settle(state, status, pixel, xy, interval_b, span_us, target_on, target_off
     if kind == TAIL:
         tau = float(row.pending_us)
         span_us = min(span_us, TAIL_TAUS * tau)
-        tail = _tail((theta_on if up else theta_off) / math.expm1(float(row.interval_us) / tau), tau, span_us)
+        share = _covered(span_us, tau)
+        tail = (theta_on if up else theta_off) / math.expm1(float(row.interval_us) / tau) * share
         tail = tail if up else -tail
-        shrink = TAIL_SHARE if span_us >= TAIL_TAUS * tau else -math.expm1(-span_us / tau)
-        level, n = _curve(row.level, tail, 0.0, span_us, shrink, tau, row.last_us, xy, target_on, target_off, out_t,
-                          out_w, n)
+        level, n = _crossings(row.level, tail, 0.0, span_us, share, tau, row.last_us, xy, target_on, target_off,
+                              out_t, out_w, n)
         row.level = level - tail
         row.interval_us = 0.0
         row.pending_us = 0
@@ -351,11 +343,11 @@ def curve_run(state, status, pixel, xy, on, t_b, window_us, target_on, target_of
         return n, tail
     tau = min(math.floor(_approach_tau(interval_a, span) + 0.5), MAX_TAU_US)
     shrink = -math.expm1(-span / tau)  # how much of the approach's rest the segment covers
-    level, n = _curve(level, delta, -span, span, shrink, tau, t_b, xy, target_on, target_off, out_t, out_w, n)
+    level, n = _crossings(level, delta, -span, span, shrink, tau, t_b, xy, target_on, target_off, out_t, out_w, n)
     row.level = level
     if (level + theta < target_on) if on else (level - theta > -target_off):
         return n, tail  # a tail (less than a threshold) cannot reach a target level
-    rest = _tail(theta * (1.0 - shrink) / shrink, tau, min(float(window_us), TAIL_TAUS * tau))
+    rest = theta * (1.0 - shrink) / shrink * _covered(min(float(window_us), TAIL_TAUS * tau), tau)
     if rest < theta and (level + rest >= target_on if on else level - rest <= -target_off):
         row.pending_us = tau  # the approach crosses a target level the pixel will not fire at: wait
         status[pixel] = sign * TAIL
