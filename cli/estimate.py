@@ -14,6 +14,7 @@ from evtools.estimate import (
     DEFAULT_NOMINAL,
     DEFAULT_SEGMENT_US,
     METHODS,
+    PHASES,
     EstimationError,
     Stimulus,
     ThresholdEstimator,
@@ -36,7 +37,7 @@ def _levels(ctx, param, value):
     return low, high
 
 
-def _stimulus(levels, period_us, profile, amplitude, speed, wavelength) -> Stimulus:
+def _stimulus(levels, period_us, profile, amplitude, speed, wavelength, rise) -> Stimulus:
     """The stimulus the options describe (click usage errors for contradictory ones)."""
     if (speed is None) != (wavelength is None):
         raise click.UsageError("a moving stimulus needs both --stimulus-speed and --stimulus-wavelength")
@@ -55,8 +56,8 @@ def _stimulus(levels, period_us, profile, amplitude, speed, wavelength) -> Stimu
         raise click.BadParameter(f"intensities need 0 <= LOW < HIGH <= 255, got {levels[0]:g},{levels[1]:g}",
                                  param_hint="--stimulus-levels")
     if speed is not None:
-        return Stimulus.moving(*levels, speed, wavelength, profile)
-    return Stimulus(*levels, period_us, 0.0, profile)
+        return Stimulus.moving(*levels, speed, wavelength, profile, rise)
+    return Stimulus(*levels, period_us, 0.0, profile, rise)
 
 
 @click.command()
@@ -87,14 +88,20 @@ def _stimulus(levels, period_us, profile, amplitude, speed, wavelength) -> Stimu
               help="stimulus: time of one rise and fall, with its unit (flicker; simulate's --period).")
 @click.option("--stimulus-profile", type=click.Choice(["intensity", "log"]), default=None,
               help="stimulus: the triangle is linear in intensity (default; simulate's scenes) or in log intensity.")
+@click.option("--stimulus-rise", type=click.FloatRange(0, 1, min_open=True, max_open=True), default=0.5,
+              show_default=True, metavar="FRACTION",
+              help="stimulus: the fraction of a period spent rising (0.5 a symmetric triangle, 0.9 nearly a sawtooth).")
+@click.option("--stimulus-phase", type=click.Choice(PHASES), default="fit", show_default=True,
+              help="stimulus: fit each pixel's phase to its own events (any delay, start time or moving pattern), "
+                   "or take it as given: the low end at t = 0 (simulate's scenes; a gradient delayed by column).")
 @click.option("--stimulus-speed", type=click.FloatRange(min=0, min_open=True), default=None, metavar="PX/S",
               help="stimulus: a moving gradient's speed (simulate's --speed); with --stimulus-wavelength it "
                    "replaces --stimulus-period.")
 @click.option("--stimulus-wavelength", type=click.FloatRange(min=0, min_open=True), default=None, metavar="PX",
               help="stimulus: a moving gradient's rise-and-fall length (simulate's --wavelength).")
 def estimate(input, input_format, sensor_size, aedat2_layout, output, method, segment_us, nominal, min_events,
-             max_fit, stimulus_amplitude, stimulus_levels, stimulus_period, stimulus_profile, stimulus_speed,
-             stimulus_wavelength):
+             max_fit, stimulus_amplitude, stimulus_levels, stimulus_period, stimulus_profile, stimulus_rise,
+             stimulus_phase, stimulus_speed, stimulus_wavelength):
     """Estimate every pixel's ON and OFF contrast thresholds from IN (default stdin), streaming, into -o FILE.
 
     \b
@@ -109,12 +116,12 @@ def estimate(input, input_format, sensor_size, aedat2_layout, output, method, se
     stimulus = None
     if method == "stimulus":
         stimulus = _stimulus(stimulus_levels, stimulus_period, stimulus_profile, stimulus_amplitude, stimulus_speed,
-                             stimulus_wavelength)
+                             stimulus_wavelength, stimulus_rise)
     with open_events(input, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as stream:
         try:
             estimator = ThresholdEstimator(
                 stream.info.width, stream.info.height, method, nominal=nominal, segment_us=segment_us,
-                stimulus=stimulus, min_events=min_events, max_fit=max_fit,
+                stimulus=stimulus, phase=stimulus_phase, min_events=min_events, max_fit=max_fit,
             )
             for chunk in with_progress(stream, stream, f"estimating from {stream.name}"):
                 estimator.process(chunk)
@@ -122,4 +129,5 @@ def estimate(input, input_format, sensor_size, aedat2_layout, output, method, se
         except EstimationError as error:
             raise EstimationError(f"{stream.name}: {error}") from None
         attributes = {**result.attributes, "input": stream.name}
-    write_thresholds(output, ThresholdMap(result.on, result.off, result.valid, attributes, result.fit))
+    write_thresholds(output, ThresholdMap(result.on, result.off, result.valid, attributes, result.fit,
+                                          result.phase_us))

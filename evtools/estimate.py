@@ -33,9 +33,14 @@ from evtools._kernels.estimate import (
     PROFILE_LOG,
     SEED_PAIRS,
     ST_ALL,
+    RING,
+    WAVE_CELLS,
+    ST_FITTED,
+    ST_PHASE,
     ST_EVENTS,
     ST_PAIRS,
     ST_REF,
+    ST_SEEN,
     ST_SIZE,
     ST_SQUARES,
     ST_SUM,
@@ -47,7 +52,10 @@ from evtools._kernels.estimate import (
     offe_accumulate,
     offe_finish,
     stimulus_accumulate,
+    stimulus_fitted_accumulate,
+    stimulus_fitted_finish,
     stimulus_table,
+    wave_table,
 )
 from evtools._kernels.pixel import LIN_LOG_KNEE, LIN_LOG_SLOPE
 from evtools.errors import EvtoolsError
@@ -64,6 +72,8 @@ __all__ = [
 
 METHODS = ("offe", "stimulus")
 """The estimation methods, by name."""
+PHASES = ("fit", "given")
+"""stimulus: each pixel's phase fitted to its own events, or given by the stimulus (low end at t = 0)."""
 
 DEFAULT_NOMINAL = 0.2
 """Nominal threshold (log units) that sets the scale of the relative methods (v2e's and the report's 0.2)."""
@@ -120,10 +130,13 @@ class Stimulus:
     profile : {"intensity", "log"}
         What the triangle is linear in: intensity (``evtools simulate``'s scenes; L = lin_log(I)) or log
         intensity (L itself goes from ``low`` to ``high``).
+    rise : float
+        The fraction of a period spent rising, 0 < rise < 1 (0.5: a symmetric triangle; near 1 a sawtooth).
 
     Notes
     -----
-    The stimulus starts at t = 0 at its low level (phase 0), as the simulator's scenes do. For the ``log``
+    The stimulus starts at t = 0 at its low level (phase 0), as the simulator's scenes do (the estimator fits
+    every pixel's own phase unless told to take this one). For the ``log``
     profile only the amplitude ``high - low`` matters: thresholds are differences of L, so a base level
     ``L0`` cancels (:meth:`log_triangle` takes 0; any other base gives the same thresholds to rounding, ~1e-15).
     """
@@ -133,6 +146,7 @@ class Stimulus:
     period_us: float = 500_000.0
     wavelength_px: float = 0.0
     profile: str = "intensity"
+    rise: float = 0.5
 
     def __post_init__(self) -> None:
         if self.profile not in ("intensity", "log"):
@@ -145,22 +159,26 @@ class Stimulus:
             raise EstimationError(f"stimulus period must be positive, got {self.period_us} us")
         if not self.wavelength_px >= 0 or not math.isfinite(self.wavelength_px):
             raise EstimationError(f"stimulus wavelength must be >= 0 pixels, got {self.wavelength_px}")
+        if not 0 < self.rise < 1:
+            raise EstimationError(f"stimulus rise fraction must be between 0 and 1 (exclusive), got {self.rise}")
 
     @classmethod
-    def log_triangle(cls, amplitude: float, period_us: float, wavelength_px: float = 0.0) -> Stimulus:
+    def log_triangle(cls, amplitude: float, period_us: float, wavelength_px: float = 0.0,
+                     rise: float = 0.5) -> Stimulus:
         """A triangle linear in log intensity with peak-to-peak ``amplitude`` (log units): L from 0 to amplitude."""
         if not amplitude > 0 or not math.isfinite(amplitude):
             raise EstimationError(f"stimulus amplitude must be positive (log units), got {amplitude}")
-        return cls(0.0, float(amplitude), period_us, wavelength_px, "log")
+        return cls(0.0, float(amplitude), period_us, wavelength_px, "log", rise)
 
     @classmethod
-    def moving(cls, low: float, high: float, speed_px_s: float, wavelength_px: float, profile: str = "intensity"):
+    def moving(cls, low: float, high: float, speed_px_s: float, wavelength_px: float, profile: str = "intensity",
+               rise: float = 0.5):
         """The moving gradient of ``wavelength_px`` moving right at ``speed_px_s`` (period = wavelength / speed)."""
         if not speed_px_s > 0 or not wavelength_px > 0:
             raise EstimationError(
                 f"a moving stimulus needs a positive speed and wavelength, got {speed_px_s} px/s, {wavelength_px} px"
             )
-        return cls(low, high, 1e6 * wavelength_px / speed_px_s, wavelength_px, profile)
+        return cls(low, high, 1e6 * wavelength_px / speed_px_s, wavelength_px, profile, rise)
 
     @property
     def log_amplitude(self) -> float:
@@ -173,7 +191,7 @@ class Stimulus:
         return {
             "stimulus_low": self.low, "stimulus_high": self.high, "stimulus_period_us": self.period_us,
             "stimulus_wavelength_px": self.wavelength_px, "stimulus_profile": self.profile,
-            "stimulus_log_amplitude": self.log_amplitude,
+            "stimulus_rise": self.rise, "stimulus_log_amplitude": self.log_amplitude,
         }
 
 
@@ -192,6 +210,10 @@ class ThresholdEstimate:
     fit: np.ndarray | None = None
     """Per pixel, how well its events fit the method's model (stimulus: see :data:`DEFAULT_MAX_FIT`; NaN where
     there is nothing to fit); None for methods without a fit measure."""
+    phase_us: np.ndarray | None = None
+    """stimulus with fitted phases: per pixel, the time of a valley of its stimulus modulo the period
+    (microseconds; NaN where no phase was fitted). A moving pattern shows as a ramp across the sensor, a rolling
+    display refresh as one along its scan."""
 
     def usable(self) -> np.ndarray:
         return self.valid & np.isfinite(self.on) & np.isfinite(self.off) & (self.on > 0) & (self.off > 0)
@@ -210,7 +232,7 @@ class ThresholdEstimator:
         fitted by least squares ``P = m E + d``; r = RMS residual; ``c = nominal * median(r) / r``, ``b = -c m``,
         ``on = c + b``, ``off = c - b``. Invalid: fewer than ``min_events`` events, a singular fit (reciprocal
         condition number of the normal matrix < 1e-14), r = 0, or ``c > 10 * nominal`` (the reference's test).
-        ``stimulus``: the known ``stimulus`` L(t); ``on`` = mean of ``L(t_k) - L(t_{k-1})`` over ON events
+        ``stimulus``: the known ``stimulus`` waveform L; ``on`` = mean of ``L(t_k) - L(t_{k-1})`` over ON events
         that follow another event of the pixel, ``off`` likewise for OFF; absolute, ``nominal`` unused. Exact
         for an ideal pixel, whose reference is L at its previous event, so turn-arounds need no special case.
         Invalid: fewer than ``min_events`` events or no ON or no OFF pair.
@@ -220,6 +242,11 @@ class ThresholdEstimator:
         offE: segment length, microseconds.
     stimulus : Stimulus
         The stimulus, for ``method="stimulus"``.
+    phase : {"fit", "given"}
+        stimulus: ``fit`` (default) finds each pixel's phase from its own first events (its turns bracket the
+        stimulus's valleys and peaks; the phase that makes its level changes most alike is taken), so a per-pixel
+        delay, an unknown start time or a moving pattern need no description; ``given`` takes the stimulus's own
+        (low end at t = 0, delayed by the column for a gradient).
     min_events : int
         Pixels with fewer events are invalid.
     max_fit : float
@@ -245,6 +272,7 @@ class ThresholdEstimator:
         nominal: float = DEFAULT_NOMINAL,
         segment_us: int = DEFAULT_SEGMENT_US,
         stimulus: Stimulus | None = None,
+        phase: str = "fit",
         min_events: int = DEFAULT_MIN_EVENTS,
         max_fit: float = DEFAULT_MAX_FIT,
     ) -> None:
@@ -259,6 +287,8 @@ class ThresholdEstimator:
             raise EstimationError(f"min_events must be a whole number >= 1, got {min_events}")
         if not max_fit > 0:
             raise EstimationError(f"max_fit must be a positive number of thresholds (inf: no limit), got {max_fit}")
+        if phase not in PHASES:
+            raise EstimationError(f"unknown phase {phase!r}; choose one of {', '.join(PHASES)}")
         if method == "stimulus" and stimulus is None:
             raise EstimationError("method stimulus needs the stimulus (levels, period, and for a gradient its motion)")
         self.width, self.height = int(width), int(height)
@@ -266,6 +296,7 @@ class ThresholdEstimator:
         self.nominal = float(nominal)
         self.segment_us = int(segment_us)
         self.stimulus = stimulus
+        self.phase = phase
         self.min_events = int(min_events)
         self.max_fit = float(max_fit)
         n = self.width * self.height
@@ -281,13 +312,19 @@ class ThresholdEstimator:
             self._state = _aligned_zeros(n, ST_SIZE, np.float64)
             self._seeds = np.zeros((n, 2, SEED_PAIRS), dtype=np.float64)
             s = stimulus
-            self._levels = (float(s.low), float(s.high), float(s.period_us), float(s.wavelength_px),
-                            PROFILE_LOG if s.profile == "log" else PROFILE_INTENSITY)
-            self._table = np.zeros(0, dtype=np.float64)
-            if s.wavelength_px == 0 and s.period_us == int(s.period_us) and s.period_us <= MAX_TABLE_US:
-                self._table = np.empty(int(s.period_us), dtype=np.float64)
-                a, b, period_us, _, profile = self._levels
-                stimulus_table(a, b, period_us, profile, self._table)
+            profile = PROFILE_LOG if s.profile == "log" else PROFILE_INTENSITY
+            self._waveform = (float(s.low), float(s.high), float(s.period_us), float(s.rise))
+            self._profile = profile
+            if phase == "fit":
+                self._wave = np.empty((2, WAVE_CELLS + 1), dtype=np.float64)
+                wave_table(float(s.low), float(s.high), float(s.rise), profile, self._wave)
+                self._ring = np.zeros((n, RING), dtype=np.int64)
+                self._filled = np.zeros(n, dtype=np.int64)
+            else:
+                self._table = np.zeros(0, dtype=np.float64)
+                if s.wavelength_px == 0 and s.period_us == int(s.period_us) and s.period_us <= MAX_TABLE_US:
+                    self._table = np.empty(int(s.period_us), dtype=np.float64)
+                    stimulus_table(*self._waveform, profile, self._table)
 
     @property
     def parameters(self) -> dict[str, Any]:
@@ -298,6 +335,7 @@ class ThresholdEstimator:
             parameters["segment_us"] = self.segment_us
         if self.method == "stimulus":
             parameters.update(self.stimulus.as_dict())
+            parameters["stimulus_phase"] = self.phase
             parameters["max_fit"] = self.max_fit
         return parameters
 
@@ -314,8 +352,13 @@ class ThresholdEstimator:
         self.events += len(chunk)
         if self.method == "offe":
             offe_accumulate(t, x, y, p, self.width, self.segment_us, self._cumulative, self._sums, self._clock)
+        elif self.phase == "fit":
+            stimulus_fitted_accumulate(t, x, y, p, self.width, float(self.stimulus.period_us),
+                                       float(self.stimulus.rise), self._wave, self._state, self._seeds, self._ring,
+                                       self._filled)
         else:
-            stimulus_accumulate(t, x, y, p, self.width, *self._levels, self._table, self._state, self._seeds)
+            stimulus_accumulate(t, x, y, p, self.width, *self._waveform, float(self.stimulus.wavelength_px),
+                                self._profile, self._table, self._state, self._seeds)
         return empty_events()
 
     def flush(self) -> np.ndarray:
@@ -337,7 +380,7 @@ class ThresholdEstimator:
         if self.method == "offe":
             on, off, valid, extra = self._offe(self._cumulative[:, 0] >= self.min_events)
         else:
-            on, off, valid, fit, extra = self._stimulus(self._state[:, ST_EVENTS] >= self.min_events)
+            on, off, valid, fit, extra = self._stimulus()
             fitting = valid & (fit <= self.max_fit)
             if valid.any() and fitting.sum() < MIN_FITTING_SHARE * valid.sum():
                 raise EstimationError(
@@ -365,7 +408,12 @@ class ThresholdEstimator:
         if fit is not None:
             fit = fit.astype(np.float32).reshape(self.height, self.width)
             attributes["fit_median"] = float(np.median(fit[valid.reshape(fit.shape)]))
-        return ThresholdEstimate(on, off, valid.reshape(self.height, self.width), attributes, fit)
+        phase_us = None
+        if self.method == "stimulus" and self.phase == "fit":
+            fitted = self._state[:, ST_FITTED] > 0
+            phase_us = np.where(fitted, self._state[:, ST_PHASE], np.nan)
+            phase_us = phase_us.reshape(self.height, self.width)
+        return ThresholdEstimate(on, off, valid.reshape(self.height, self.width), attributes, fit, phase_us)
 
     def finish(self) -> ThresholdEstimate:
         """Alias of :meth:`result`."""
@@ -400,8 +448,13 @@ class ThresholdEstimator:
         b = -c * m
         return c + b, c - b, valid, {"segments": int(k)}
 
-    def _stimulus(self, enough):
+    def _stimulus(self):
+        if self.phase == "fit" and not self._finished:
+            stimulus_fitted_finish(float(self.stimulus.period_us), float(self.stimulus.rise), self._wave,
+                                   self._state, self._seeds, self._ring, self._filled)
+            self._ring = self._filled = None  # the rings are replayed: free their memory
         self._finished = True
+        enough = self._state[:, ST_SEEN if self.phase == "fit" else ST_EVENTS] >= self.min_events
         references = self._state[:, ST_REF:ST_REF + 2].T
         level_sums = self._state[:, ST_SUM:ST_SUM + 2].T.copy()
         squares = self._state[:, ST_SQUARES:ST_SQUARES + 2].T.copy()
@@ -421,6 +474,7 @@ class ThresholdEstimator:
             squares[few] = np.nansum(seeds * seeds, axis=-1)
             pairs[few] = counts
         valid = enough & (pairs[0] > 0) & (pairs[1] > 0)
+        extra = {}
         with np.errstate(divide="ignore", invalid="ignore"):
             thresholds = level_sums / pairs
             if medians is not None:
@@ -431,7 +485,7 @@ class ThresholdEstimator:
             misfits = np.where(pairs > 0, np.maximum(deviations, 0.0), 0.0) + (changes - pairs)
             fit = np.sqrt(misfits.sum(axis=0) / changes.sum(axis=0))
         fit[changes.sum(axis=0) < FIT_MIN_CHANGES] = np.inf  # too few changes to show a fit
-        return thresholds[0], thresholds[1], valid, fit, {}
+        return thresholds[0], thresholds[1], valid, fit, extra
 
 
 def _aligned_zeros(rows: int, columns: int, dtype) -> np.ndarray:

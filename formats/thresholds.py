@@ -29,6 +29,9 @@ class ThresholdMap:
     attributes: dict[str, Any] = field(default_factory=dict)
     fit: np.ndarray | None = None
     """Per pixel, how well its events fit the estimation method's model (dataset ``fit``; None when absent)."""
+    phase_us: np.ndarray | None = None
+    """stimulus with fitted phases: per pixel, a valley time of its stimulus modulo the period, microseconds
+    (dataset ``phase_us``, float64; NaN where none was fitted; None when absent)."""
 
     @property
     def width(self) -> int:
@@ -93,16 +96,21 @@ def read_thresholds(path: str) -> ThresholdMap:
             off = np.asarray(h5["off"][()], dtype=np.float32)
             valid = np.asarray(h5["valid"][()], dtype=bool) if isinstance(h5.get("valid"), h5py.Dataset) else None
             fit = np.asarray(h5["fit"][()], dtype=np.float32) if isinstance(h5.get("fit"), h5py.Dataset) else None
+            phase_us = h5.get("phase_us")
+            phase_us = np.asarray(phase_us[()], dtype=np.float64) if isinstance(phase_us, h5py.Dataset) else None
         except OSError as error:
             raise FormatError(f"{path}: cannot read the maps ({error})") from None
         attributes = {key: _text(value) for key, value in h5.attrs.items()}
         units = _text(h5["on"].attrs.get("units", ""))
-    if on.ndim != 2 or on.shape != off.shape or any(m is not None and m.shape != on.shape for m in (valid, fit)):
-        raise FormatError(f"{path}: datasets on, off (and valid, fit) must be height x width arrays of one shape")
+    maps = (valid, fit, phase_us)
+    if on.ndim != 2 or on.shape != off.shape or any(m is not None and m.shape != on.shape for m in maps):
+        raise FormatError(
+            f"{path}: datasets on, off (and valid, fit, phase_us) must be height x width arrays of one shape"
+        )
     if valid is None:
         valid = np.ones(on.shape, dtype=bool)
     attributes.setdefault("units", units)
-    return ThresholdMap(on, off, valid, attributes, fit)
+    return ThresholdMap(on, off, valid, attributes, fit, phase_us)
 
 
 def write_thresholds(path: str, thresholds: ThresholdMap) -> None:
@@ -117,6 +125,9 @@ def write_thresholds(path: str, thresholds: ThresholdMap) -> None:
         if thresholds.fit is not None:
             h5.create_dataset("fit", data=np.asarray(thresholds.fit, dtype=np.float32))
             h5["fit"].attrs["units"] = "thresholds (RMS deviation of the level changes; a change that does not fit: 1)"
+        if thresholds.phase_us is not None:
+            h5.create_dataset("phase_us", data=np.asarray(thresholds.phase_us, dtype=np.float64))
+            h5["phase_us"].attrs["units"] = "us (a valley of the stimulus, modulo its period)"
         for key, value in thresholds.attributes.items():
             if key == "units":
                 continue

@@ -5,11 +5,13 @@ segments hold 100,000 events) is generated chunk by chunk (1M events each) in th
 whole; only ``process`` is timed. Each method runs on 10M and 100M events, each in a fresh process whose peak
 RSS comes from ``wait4``: equal peaks show that memory does not grow with the stream. Target >= 50 Mev/s.
 
-Methods: ``offe``, ``stimulus`` (the flicker: L from a one-period table), ``gradient`` (stimulus on a moving
-gradient: L computed per event, one logarithm each). Random events are the worst case for ``stimulus``: every
-pixel's first changes (its seeding) and its accept test are unpredictable branches.
+Methods: ``offe``, ``stimulus`` (the flicker, every pixel's phase given: L from a one-period table), ``fitted``
+(the flicker, every pixel's phase fitted to its first events: a search per pixel, then L from the ramp table),
+``gradient`` (stimulus on a moving gradient, phases given: L computed per event, one logarithm each). Random events
+are the worst case for ``stimulus``: every pixel's first changes (its seeding) and its accept test are
+unpredictable branches, and every pixel shows turns at once (the phase search runs on all of them).
 
-Run: ``python -m tests.bench.bench_estimate [--events 10000000,100000000] [--methods offe,stimulus,gradient]``.
+Run: ``python -m tests.bench.bench_estimate [--events 10000000,100000000] [--methods offe,stimulus,fitted,gradient]``.
 """
 
 from __future__ import annotations
@@ -33,8 +35,10 @@ def child(method: str, events: int) -> dict:
     from evtools.events import make_events
 
     stimulus = Stimulus.moving(50, 200, 50, 64) if method == "gradient" else Stimulus()
-    method = "stimulus" if method == "gradient" else method
-    estimator = ThresholdEstimator(WIDTH, HEIGHT, method, stimulus=stimulus, segment_us=10_000)
+    phase = "fit" if method == "fitted" else "given"
+    method = "offe" if method == "offe" else "stimulus"
+    estimator = ThresholdEstimator(WIDTH, HEIGHT, method, stimulus=stimulus, segment_us=10_000, phase=phase,
+                                   max_fit=float("inf"))
     rng = np.random.default_rng(0)
     spent = 0.0
     done = 0
@@ -45,7 +49,8 @@ def child(method: str, events: int) -> dict:
         t0 = int(t[-1])
         chunk = make_events(t, rng.integers(0, WIDTH, n), rng.integers(0, HEIGHT, n), rng.integers(0, 2, n))
         if done == 0:  # compile outside the clock
-            estimator_warm = ThresholdEstimator(WIDTH, HEIGHT, method, stimulus=stimulus, segment_us=10_000)
+            estimator_warm = ThresholdEstimator(WIDTH, HEIGHT, method, stimulus=stimulus, segment_us=10_000,
+                                                phase=phase)
             estimator_warm.process(chunk[:1000])
         start = time.perf_counter()
         estimator.process(chunk)
@@ -66,7 +71,7 @@ def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--child", nargs=2)
     parser.add_argument("--events", default="10000000,100000000")
-    parser.add_argument("--methods", default="offe,stimulus,gradient")
+    parser.add_argument("--methods", default="offe,stimulus,fitted,gradient")
     args = parser.parse_args()
     if args.child:
         print(json.dumps(child(args.child[0], int(args.child[1]))))

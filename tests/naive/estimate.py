@@ -54,8 +54,8 @@ def naive_lin_log(intensity):
     return intensity * math.log(20.0) / 20.0 if intensity <= 20.0 else math.log(intensity)
 
 
-def naive_stimulus_level(t_us, x, low, high, period_us, wavelength_px=0.0, profile="intensity"):
-    """L at time t of column x: a triangle of phase t/period - (x + 0.5)/wavelength, 0 at phase 0, 1 at 1/2.
+def naive_stimulus_level(t_us, x, low, high, period_us, wavelength_px=0.0, profile="intensity", rise=0.5):
+    """L at time t of column x: a triangle of phase t/period - (x + 0.5)/wavelength, 0 at phase 0, 1 at ``rise``.
 
     A whole number of microseconds per period: t is reduced modulo the period first (as the kernel does).
     ``profile`` log: low and high are log levels already."""
@@ -63,18 +63,18 @@ def naive_stimulus_level(t_us, x, low, high, period_us, wavelength_px=0.0, profi
         t_us = t_us % int(period_us)
     phase = t_us / period_us - ((x + 0.5) / wavelength_px if wavelength_px > 0 else 0.0)
     phase -= math.floor(phase)
-    tri = 2 * phase if phase < 0.5 else 2 - 2 * phase
+    tri = phase / rise if phase < rise else (1 - phase) / (1 - rise)
     if profile == "log":
         return low + (high - low) * tri
     return naive_lin_log(low + (high - low) * tri)
 
 
-def naive_stimulus(events, width, height, low, high, period_us, wavelength_px=0.0, profile="intensity"):
+def naive_stimulus(events, width, height, low, high, period_us, wavelength_px=0.0, profile="intensity", rise=0.5):
     """Per pixel: lists of the ON changes and OFF changes (positive) of L between consecutive events."""
     last = {}
     changes = {}
     for t, x, y, p in zip(events["t"].tolist(), events["x"].tolist(), events["y"].tolist(), events["p"].tolist()):
-        level = naive_stimulus_level(t, x, low, high, period_us, wavelength_px, profile)
+        level = naive_stimulus_level(t, x, low, high, period_us, wavelength_px, profile, rise)
         if (x, y) in last:
             change = level - last[(x, y)]
             on, off = changes.setdefault((x, y), ([], []))
@@ -97,12 +97,12 @@ def robust_mean(changes, seed_pairs=5, low=0.8, high=1.25):
     return float(np.mean(kept))
 
 
-def naive_fit(events, width, height, low, high, period_us, wavelength_px=0.0, profile="intensity", seed_pairs=5,
-              accept=(0.8, 1.25)):
+def naive_fit(events, width, height, low, high, period_us, wavelength_px=0.0, profile="intensity", rise=0.5,
+              seed_pairs=5, accept=(0.8, 1.25)):
     """{(x, y): fit}: the RMS over every change between a pixel's consecutive events of ``change / threshold - 1``
     (signed by the event's polarity), where a change outside the acceptance window around the reference (the
     median of the polarity's first ``seed_pairs`` right-signed changes) or of the wrong sign counts 1."""
-    changes = naive_stimulus(events, width, height, low, high, period_us, wavelength_px, profile)
+    changes = naive_stimulus(events, width, height, low, high, period_us, wavelength_px, profile, rise)
     total = {}
     last = {}
     for t, x, y, p in zip(events["t"].tolist(), events["x"].tolist(), events["y"].tolist(), events["p"].tolist()):
@@ -126,3 +126,89 @@ def naive_fit(events, width, height, low, high, period_us, wavelength_px=0.0, pr
             misfit += sum((c / threshold - 1.0) ** 2 for c in inside) + (counts[polarity] - len(inside))
         fits[pixel] = math.sqrt(misfit / sum(counts))
     return fits
+
+
+RING = 32
+
+
+def _wave(phases, low, high, rise, profile):
+    """numpy: L at ``phases`` (any shape, period 1) of the triangle low at 0, high at ``rise``."""
+    u = phases - np.floor(phases)
+    tri = np.where(u < rise, u / rise, (1 - u) / (1 - rise))
+    level = low + (high - low) * tri
+    if profile == "log":
+        return level
+    return np.where(level <= 20.0, level * math.log(20.0) / 20.0, np.log(np.maximum(level, 20.0)))
+
+
+def _phase_costs(valleys, times, ons, low, high, period_us, rise, profile):
+    """For every candidate valley time: per level change between consecutive events (change / threshold - 1)^2,
+    or 1 outside [0.8, 1.25] x threshold or of the wrong sign, summed. A polarity's threshold: the mean of the
+    within-ramp changes (the previous event of the same polarity) within [0.8, 1.25] x their plain mean."""
+    levels = _wave((times[None, :] - valleys[:, None]) / period_us, low, high, rise, profile)
+    changes = np.diff(levels, axis=1) * np.where(ons[1:], 1.0, -1.0)
+    within_ramp = ons[1:] == ons[:-1]
+    cost = np.zeros(len(valleys))
+    for polarity in (True, False):
+        mine = ons[1:] == polarity
+        ramp = mine & within_ramp & (changes > 0)
+        with np.errstate(all="ignore"):
+            plain = np.where(ramp, changes, 0.0).sum(axis=1) / ramp.sum(axis=1)
+        plain = np.where(ramp.any(axis=1), plain, 1.0)
+        inside = ramp & (changes >= 0.8 * plain[:, None]) & (changes <= 1.25 * plain[:, None])
+        with np.errstate(all="ignore"):
+            trimmed = np.where(inside, changes, 0.0).sum(axis=1) / inside.sum(axis=1)
+        threshold = np.where(inside.any(axis=1), trimmed, plain)
+        deviation = changes / threshold[:, None] - 1.0
+        fits = (deviation >= -0.2) & (deviation <= 0.25)
+        cost += np.where(mine, np.where(fits, deviation**2, 1.0), 0.0).sum(axis=1)
+    return cost
+
+
+def naive_fitted_phase(times_us, ons, low, high, period_us, rise=0.5, profile="log"):
+    """The valley time (us, modulo the period) that best fits a pixel's events, by brute force: the cost on
+    200,000 phases over the whole period, then 20,000 over the two grid steps around the best."""
+    times = np.asarray(times_us, dtype=np.float64)
+    origin = times[0]
+    times = times - origin
+    ons = np.asarray(ons, dtype=bool)
+    grid = np.linspace(0.0, period_us, 200_000, endpoint=False)
+    best = grid[np.argmin(_phase_costs(grid, times, ons, low, high, period_us, rise, profile))]
+    step = period_us / 200_000
+    fine = np.linspace(best - step, best + step, 20_001)
+    best = fine[np.argmin(_phase_costs(fine, times, ons, low, high, period_us, rise, profile))]
+    return (origin + best) % period_us
+
+
+def naive_fitted_stimulus(events, low, high, period_us, rise=0.5, profile="log"):
+    """{(x, y): (valley_us, on changes, off changes)}: each pixel's phase fitted to the first 32 of its events
+    that show both a valley (OFF then ON) and a peak (ON then OFF), or to its last 32 events when none do, and
+    the level changes within a ramp (between two events of one polarity) of those events and every later one."""
+    per_pixel = {}
+    for t, x, y, p in zip(events["t"].tolist(), events["x"].tolist(), events["y"].tolist(), events["p"].tolist()):
+        per_pixel.setdefault((x, y), []).append((t, p))
+    results = {}
+    for pixel, pixel_events in per_pixel.items():
+        if len(pixel_events) < 2:
+            continue
+        start = max(0, len(pixel_events) - RING)
+        for end in range(RING, len(pixel_events) + 1):
+            window = [p for _, p in pixel_events[end - RING:end]]
+            pairs = list(zip(window, window[1:]))
+            if (False, True) in pairs and (True, False) in pairs:
+                start = end - RING
+                break
+        ring = pixel_events[start:start + RING]
+        valley = naive_fitted_phase([t for t, _ in ring], [p for _, p in ring], low, high, period_us, rise, profile)
+        used = pixel_events[start:]
+        levels = _wave((np.array([t for t, _ in used], dtype=float) - valley) / period_us, low, high, rise, profile)
+        on, off = [], []
+        for (_, previous), (_, p), change in zip(used, used[1:], np.diff(levels)):
+            if p != previous:  # only changes within a ramp are counted
+                continue
+            if p and change > 0:
+                on.append(float(change))
+            elif not p and change < 0:
+                off.append(float(-change))
+        results[pixel] = (valley, on, off)
+    return results
