@@ -191,13 +191,10 @@ def _seed(change, slot, i, state, seeds):  # pragma: no cover - compiled
 
 
 @kernel(inline=True)
-def _observe(level, on, i, state, seeds, runs_only):  # pragma: no cover - compiled
+def _observe(level, on, i, state, seeds):  # pragma: no cover - compiled
     """One event of pixel ``i`` at stimulus level ``level``: its change from the pixel's last event, if any, goes
-    to the polarity's sums (see :func:`stimulus_accumulate`); with ``runs_only``, only when the last event had the
-    same polarity (a change within one ramp of the stimulus)."""
-    same = (state[i, ST_LAST_ON] > 0.0) == on
-    state[i, ST_LAST_ON] = 1.0 if on else 0.0
-    if state[i, ST_EVENTS] > 0.0 and (same or not runs_only):
+    to the polarity's sums (see :func:`stimulus_accumulate`)."""
+    if state[i, ST_EVENTS] > 0.0:
         change = level - state[i, ST_LAST]
         state[i, ST_ALL + (0 if on else 1)] += 1.0
         slot = -1
@@ -247,7 +244,27 @@ def stimulus_accumulate(
             level = table[t[k] - base]
         else:
             level = stimulus_level(t[k], x[k], a, b, period_us, rise, wavelength_px, profile)
-        _observe(level, p[k], np.int64(y[k]) * width + x[k], state, seeds, False)
+        # _observe's body, written out: calling the inlined helper here measured half the speed (100 M random
+        # events at 346 x 260: 20-25 Mev/s against 53-63 written out, numba 0.68)
+        i = np.int64(y[k]) * width + x[k]
+        if state[i, ST_EVENTS] > 0.0:
+            change = level - state[i, ST_LAST]
+            state[i, ST_ALL + (0 if p[k] else 1)] += 1.0
+            slot = -1
+            if p[k]:
+                if change > 0.0:
+                    slot = 0
+            elif change < 0.0:
+                slot = 1
+                change = -change
+            if slot >= 0:
+                reference = state[i, ST_REF + slot]
+                if reference > 0.0:
+                    _accept(change, reference, slot, i, state)
+                else:
+                    _seed(change, slot, i, state, seeds)
+        state[i, ST_EVENTS] += 1.0
+        state[i, ST_LAST] = level
 
 
 # -- the phase found from each pixel's own events ------------------------------------------------------------------
@@ -295,6 +312,19 @@ def _wave_level(phase, rise, wave):  # pragma: no cover - compiled
     cell = (phase / rise if ramp == 0 else (phase - rise) / (1.0 - rise)) * WAVE_CELLS
     k = min(np.int64(cell), WAVE_CELLS - 1)
     return wave[ramp, k] + (cell - k) * (wave[ramp, k + 1] - wave[ramp, k])
+
+
+@kernel(inline=True)
+def _observe_within_ramp(level, on, i, state, seeds):  # pragma: no cover - compiled
+    """:func:`_observe`, the change counted only when the pixel's last event had the same polarity (a change
+    within one ramp of the stimulus)."""
+    same = (state[i, ST_LAST_ON] > 0.0) == on
+    state[i, ST_LAST_ON] = 1.0 if on else 0.0
+    if same:
+        _observe(level, on, i, state, seeds)
+    else:
+        state[i, ST_EVENTS] += 1.0
+        state[i, ST_LAST] = level
 
 
 @kernel(inline=True)
@@ -429,7 +459,7 @@ def _settle(i, ring, filled, period_us, rise, wave, state, seeds, times, ons):  
     for j in range(n):
         t_us, on = _ring_event(ring, i, filled, j)
         level = _wave_level((t_us - state[i, ST_PHASE]) / period_us, rise, wave)
-        _observe(level, on, i, state, seeds, True)
+        _observe_within_ramp(level, on, i, state, seeds)
 
 
 @kernel
@@ -451,7 +481,7 @@ def stimulus_fitted_accumulate(
         state[i, ST_SEEN] += 1.0
         if state[i, ST_FITTED] > 0.0:
             level = _wave_level((t[k] - state[i, ST_PHASE]) / period_us, rise, wave)
-            _observe(level, p[k], i, state, seeds, True)
+            _observe_within_ramp(level, p[k], i, state, seeds)
             continue
         ring[i, filled[i] % RING] = t[k] * 2 + (1 if p[k] else 0)
         filled[i] += 1
