@@ -245,8 +245,10 @@ class ThresholdEstimator:
     phase : {"fit", "given"}
         stimulus: ``fit`` (default) finds each pixel's phase from its own first events (its turns bracket the
         stimulus's valleys and peaks; the phase that makes its level changes most alike is taken), so a per-pixel
-        delay, an unknown start time or a moving pattern need no description; ``given`` takes the stimulus's own
-        (low end at t = 0, delayed by the column for a gradient).
+        delay, an unknown start time or a moving pattern need no description; only changes within a ramp (two
+        events of one polarity in a row) are counted, so a pixel firing once per ramp is invalid (its phase and
+        thresholds are not determined). ``given`` takes the stimulus's own (low end at t = 0, delayed by the
+        column for a gradient) and counts every change, turns included.
     min_events : int
         Pixels with fewer events are invalid.
     max_fit : float

@@ -8,6 +8,8 @@ references):
   ``P = m E + d`` needs (K, sum E, sum P, sum E^2, sum EP, sum P^2) are accumulated in exact integers.
 - :func:`stimulus_accumulate`: the known stimulus ``L(t)`` at each event (from a one-period table for a flicker:
   no logarithm per event); a pixel's consecutive events differ by exactly one threshold in L, summed per polarity.
+- :func:`stimulus_fitted_accumulate`: the same with each pixel's phase fitted to its own first events
+  (:func:`_fit_phase`), then only the changes within a ramp summed.
 
 Every kernel visits the events in stream order and updates only the state of the event's pixel (offE also every
 pixel at a segment boundary); L is a function of (t, x) alone, so chunking cannot change the sums. Each event
