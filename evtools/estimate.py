@@ -318,7 +318,7 @@ class ThresholdEstimator:
             self._waveform = (float(s.low), float(s.high), float(s.period_us), float(s.rise))
             self._profile = profile
             if phase == "fit":
-                self._wave = np.empty((2, WAVE_CELLS + 1), dtype=np.float64)
+                self._wave = np.empty((2, WAVE_CELLS + 2), dtype=np.float64)
                 wave_table(float(s.low), float(s.high), float(s.rise), profile, self._wave)
                 self._ring = np.zeros((n, RING), dtype=np.int64)
                 self._filled = np.zeros(n, dtype=np.int64)
