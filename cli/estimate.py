@@ -9,9 +9,11 @@ import click
 from cli.options import Duration, read_options
 from cli.progress import with_progress
 from evtools.estimate import (
+    DEFAULT_MAX_ERROR,
     DEFAULT_MAX_FIT,
     DEFAULT_MIN_EVENTS,
     DEFAULT_NOMINAL,
+    DEFAULT_RADIUS_PX,
     DEFAULT_SEGMENT_US,
     METHODS,
     PHASES,
@@ -68,16 +70,21 @@ def _stimulus(levels, period_us, profile, amplitude, speed, wavelength, rise) ->
 )
 @click.option("--method", type=click.Choice(METHODS), default="offe", show_default=True,
               help="offe: Wang et al.'s events-only least squares (relative, scaled by --nominal); stimulus: the "
-                   "known calibration stimulus (absolute, exact for an ideal pixel).")
+                   "known calibration stimulus (absolute, exact for an ideal pixel); natural: an ordinary moving "
+                   "scene, each pixel's event counts against its neighbours' (relative, scaled by --nominal).")
 @click.option("--segment-us", type=click.IntRange(min=1), default=DEFAULT_SEGMENT_US, show_default=True,
               help="offe: segment length, microseconds.")
 @click.option("--nominal", type=click.FloatRange(min=0, min_open=True), default=DEFAULT_NOMINAL, show_default=True,
-              help="offe: the median pixel's threshold (log units); events alone do not give the scale.")
+              help="offe: the median pixel's threshold; natural: the mean of on and off (log units); events alone "
+                   "do not give the scale.")
+@click.option("--radius", type=click.IntRange(min=1), default=DEFAULT_RADIUS_PX, show_default=True, metavar="PX",
+              help="natural: each pixel is compared with the pixels within PX of it.")
 @click.option("--min-events", type=click.IntRange(min=1), default=DEFAULT_MIN_EVENTS, show_default=True,
               help="Pixels with fewer events are marked invalid (and get the median).")
-@click.option("--max-fit", type=click.FloatRange(min=0, min_open=True), default=DEFAULT_MAX_FIT, show_default=True,
-              metavar="F", help="stimulus: pixels whose events fit the stimulus worse than this are invalid (the RMS "
-                                "deviation of their level changes, in thresholds; written as the fit map).")
+@click.option("--max-fit", type=click.FloatRange(min=0, min_open=True), default=None, metavar="F",
+              help=f"Pixels that fit worse are invalid (the fit map). stimulus: the RMS deviation of their level "
+                   f"changes, in thresholds (default {DEFAULT_MAX_FIT}); natural: the relative disagreement of two "
+                   f"halves of the stream (default {DEFAULT_MAX_ERROR}).")
 @click.option("--stimulus-amplitude", type=click.FloatRange(min=0, min_open=True), default=None, metavar="A",
               help="stimulus: a triangle linear in log intensity, A log units peak to peak (the same as "
                    "--stimulus-profile log --stimulus-levels 0,A; the base level does not matter).")
@@ -99,7 +106,7 @@ def _stimulus(levels, period_us, profile, amplitude, speed, wavelength, rise) ->
                    "replaces --stimulus-period.")
 @click.option("--stimulus-wavelength", type=click.FloatRange(min=0, min_open=True), default=None, metavar="PX",
               help="stimulus: a moving gradient's rise-and-fall length (simulate's --wavelength).")
-def estimate(input, input_format, sensor_size, aedat2_layout, output, method, segment_us, nominal, min_events,
+def estimate(input, input_format, sensor_size, aedat2_layout, output, method, segment_us, nominal, radius, min_events,
              max_fit, stimulus_amplitude, stimulus_levels, stimulus_period, stimulus_profile, stimulus_rise,
              stimulus_phase, stimulus_speed, stimulus_wavelength):
     """Estimate every pixel's ON and OFF contrast thresholds from IN (default stdin), streaming, into -o FILE.
@@ -110,6 +117,7 @@ def estimate(input, input_format, sensor_size, aedat2_layout, output, method, se
     evtools estimate monitor.aedat4 -o t.h5 --method stimulus --stimulus-amplitude 1.5 --stimulus-period 2s
     evtools estimate gradient.aedat4 -o t.h5 --method stimulus --stimulus-speed 50 --stimulus-wavelength 64
     evtools bafilter noisy.aedat4 --method stcf --k 1 --dt-us 100000 | evtools estimate - -o t.h5 --method stimulus
+    evtools bafilter street.aedat4 | evtools estimate - -o t.h5 --method natural      # any long moving scene
     """
     if output is None or output == "-":
         raise EstimationError("the thresholds file is HDF5 and cannot go to stdout: give -o THRESHOLDS.h5")
@@ -121,7 +129,7 @@ def estimate(input, input_format, sensor_size, aedat2_layout, output, method, se
         try:
             estimator = ThresholdEstimator(
                 stream.info.width, stream.info.height, method, nominal=nominal, segment_us=segment_us,
-                stimulus=stimulus, phase=stimulus_phase, min_events=min_events, max_fit=max_fit,
+                stimulus=stimulus, phase=stimulus_phase, min_events=min_events, max_fit=max_fit, radius_px=radius,
             )
             for chunk in with_progress(stream, stream, f"estimating from {stream.name}"):
                 estimator.process(chunk)

@@ -68,11 +68,25 @@ def scene_source(name: str, size: str | None, duration_us: int | None, options: 
         if key not in accepted:
             option = "--" + _SCENE_OPTIONS[key].replace("_", "-")
             raise SimulationError(f"scene {name} has no option {option}")
+    attributes = {"scene": name, "duration_us": duration_us, **options}
+    if "image" in options:  # a path: the scene takes the image itself; the truth file records its name
+        options = {**options, "image": read_image(options["image"])}
     frames = SCENES[name](width, height, duration_us, **options)
     rate = options.get("frame_rate_hz", accepted["frame_rate_hz"].default)
     count = int(math.floor(duration_us * 1e-6 * rate + 1e-9)) + 1
-    attributes = {"scene": name, "duration_us": duration_us, **options}
     return FrameSource(f"scene:{name}", width, height, frames, count, attributes)
+
+
+def read_image(path: str) -> np.ndarray:
+    """An image file as luma, 0-255 (``--image``)."""
+    import cv2
+
+    if not os.path.isfile(path):
+        raise SimulationError(f"{path}: no such image file")
+    image = cv2.imread(path, cv2.IMREAD_UNCHANGED)
+    if image is None:
+        raise SimulationError(f"{path}: cannot read this image (not a format OpenCV reads)")
+    return _luma(image, path)
 
 
 def _luma(frame: np.ndarray, name: str) -> np.ndarray:
@@ -270,6 +284,7 @@ _SCENE_OPTIONS = {  # keyword of the scene functions -> command-line option
     "min_level": "min_level",
     "max_level": "max_level",
     "level": "level",
+    "image": "image",
 }
 
 
@@ -378,7 +393,10 @@ def _float_option(name: str, help: str):
 @click.option("--profile", type=click.Choice(FLICKER_PROFILES), default=None,
               help="flicker: the wave is linear in intensity (default) or in log intensity.")
 @click.option("--phase", type=float, default=None, help="flicker: the wave's phase at time 0, periods (0 = valley).")
-@click.option("--speed", type=float, default=None, help="gradient, bars: speed in pixels per second (default 50).")
+@click.option("--speed", type=float, default=None,
+              help="gradient, bars, texture: speed in pixels per second (default 50).")
+@click.option("--image", type=click.Path(dir_okay=False), default=None, metavar="FILE",
+              help="texture: any image file (PNG, JPEG, ...) as the texture, in place of the built-in one.")
 @click.option("--wavelength", type=float, default=None, help="gradient: rise-and-fall length, pixels (default 64).")
 @click.option("--bar-width", type=float, default=None, help="bars: bar width, pixels (default 8).")
 @click.option("--orientation", type=click.Choice(["vertical", "horizontal"]), default=None, help="bars: direction.")
@@ -390,7 +408,8 @@ def simulate(source, output, output_format, truth, truth_frame_rate, input_forma
     """Simulate a DVS looking at SOURCE: a video file, a folder of images, or scene:NAME; or add labelled noise
     to SOURCE when it is an event stream (any readable format, `-` for stdin).
 
-    Scenes: flicker, gradient, bars, step, static. The pixel model is v2e's (lin-log, low-pass, threshold
+    Scenes: flicker, gradient, bars, step, static, texture (a natural-looking texture moving, turning and zooming;
+    --image FILE to use your own). The pixel model is v2e's (lin-log, low-pass, threshold
     mismatch, leak, shot noise, hot and dead pixels) with ESIM's per-pixel crossing times. On an event stream
     only the noise is added (leak, shot, hot pixels), each noise event labelled in --truth, the stream's own
     events unchanged (label 0): the way denoisers are measured on real recordings.
@@ -427,6 +446,7 @@ def simulate(source, output, output_format, truth, truth_frame_rate, input_forma
         value = options.pop(name)
         if value is not None:
             scene_options[keyword] = value * 1e-6 if name == "period" else value
+
     parameters = model_parameters(preset, options)
     frames = open_source(source, size, duration, fps, timestamps, scene_options)
     simulator = _build(DvsSimulator, frames.width, frames.height, seed=seed, **parameters)

@@ -8,6 +8,8 @@ Methods (``../shared/ALGORITHMS.md`` section 4):
   relative thresholds scaled by a nominal value.
 - ``stimulus``: the calibration stimulus is known (the flicker or moving-gradient scene); thresholds in absolute
   log units, exact for an ideal pixel.
+- ``natural``: an ordinary moving scene; each pixel's ON and OFF event counts against its neighbours' (relative
+  thresholds scaled by a nominal value), with a fit map from two interleaved halves of the stream.
 
 References
 ----------
@@ -49,6 +51,8 @@ from evtools._kernels.estimate import (
     SUM_EP,
     SUM_P,
     SUM_PP,
+    COUNT_SIZE,
+    count_accumulate,
     offe_accumulate,
     offe_finish,
     stimulus_accumulate,
@@ -70,7 +74,7 @@ __all__ = [
     "estimate_thresholds",
 ]
 
-METHODS = ("offe", "stimulus")
+METHODS = ("offe", "stimulus", "natural")
 """The estimation methods, by name."""
 PHASES = ("fit", "given")
 """stimulus: each pixel's phase fitted to its own events, or given by the stimulus (low end at t = 0)."""
@@ -98,6 +102,17 @@ described stimulus (a calibration shows it to the whole view): an error rather t
 FIT_MIN_CHANGES = 8
 """stimulus: a pixel whose events make fewer level changes than this cannot show that it fits (two or three
 changes agree by chance on a natural scene) and is invalid."""
+DEFAULT_RADIUS_PX = 3
+"""natural: a pixel is compared with the pixels within 3 of it (a 7 x 7 window less itself: 48 neighbours)."""
+DEFAULT_MAX_ERROR = 0.25
+"""natural: a pixel whose two halves' estimates differ by more than 25 % of their mean, or with fewer than 16
+events of either polarity (the fit map: about its relative error from counting, 0.08-0.09 at the median on 280
+events a pixel of the texture scene) is invalid."""
+BLOCK_US = 100_000
+"""natural: the stream is cut into 100 ms blocks, alternately counted in one half or the other (absolute time, so
+chunking cannot matter); the halves see nearly the same scene, so their difference measures the estimate's error."""
+MIN_NEIGHBOURS = 8
+"""natural: a pixel with fewer countable neighbours than this has no reference and is invalid."""
 MAX_TABLE_US = 1 << 21
 """stimulus: a flicker whose period is a whole number of microseconds up to this (2.1 s, a 16 MB table) is
 tabulated at 1 us over one period; longer periods compute L per event (the same values, slower)."""
@@ -226,7 +241,7 @@ class ThresholdEstimator:
     ----------
     width, height : int
         Sensor size.
-    method : {"offe", "stimulus"}
+    method : {"offe", "stimulus", "natural"}
         ``offe``: Wang et al.'s offE exactly as ``EventOnlyCalib.m``: the stream is cut into segments of
         ``segment_us``; per pixel, the cumulative polarity sum P_k and event count E_k at each segment end are
         fitted by least squares ``P = m E + d``; r = RMS residual; ``c = nominal * median(r) / r``, ``b = -c m``,
@@ -251,11 +266,22 @@ class ThresholdEstimator:
         column for a gradient) and counts every change, turns included.
     min_events : int
         Pixels with fewer events are invalid.
-    max_fit : float
-        stimulus: pixels whose fit is worse are invalid (:data:`DEFAULT_MAX_FIT`). The fit is the RMS deviation
-        of the pixel's level changes from its estimated thresholds, in thresholds, every change that ended in an
+        ``natural``: an ordinary moving scene, nothing known about it. Per pixel its ON and OFF events and its
+        polarity reversals are counted; with the turns' share (:func:`_effective_inverse`) they give the
+        thresholds up to the pixel's total log-intensity excursion, which its neighbours within ``radius_px``
+        share (edges pass over them all), so each pixel is scaled against its neighbours' mean and the whole
+        map by ``nominal`` (mean of on and off). The fit is the relative disagreement of the same estimate from
+        two halves of the stream (alternate 100 ms blocks), at least ``1 / sqrt(N)`` of its rarer polarity: about
+        the estimate's error from counting. Invalid:
+        fewer than ``min_events`` of either polarity, fewer than 8 such neighbours, or a fit above ``max_fit``.
+    max_fit : float, optional
+        Pixels whose fit is worse are invalid. stimulus (default :data:`DEFAULT_MAX_FIT`): the RMS deviation of
+        the pixel's level changes from its estimated thresholds, in thresholds, every change that ended in an
         event counted and one outside the acceptance window (or of the wrong sign) counting as a whole threshold:
         so a wrong period, a wrong waveform or a scene that is no stimulus cannot give confident values.
+        natural (default :data:`DEFAULT_MAX_ERROR`): the halves' relative disagreement.
+    radius_px : int
+        natural: the neighbourhood's half-width (:data:`DEFAULT_RADIUS_PX`).
 
     References
     ----------
@@ -276,7 +302,8 @@ class ThresholdEstimator:
         stimulus: Stimulus | None = None,
         phase: str = "fit",
         min_events: int = DEFAULT_MIN_EVENTS,
-        max_fit: float = DEFAULT_MAX_FIT,
+        max_fit: float | None = None,
+        radius_px: int = DEFAULT_RADIUS_PX,
     ) -> None:
         check_sensor_size(width, height)
         if method not in METHODS:
@@ -287,8 +314,12 @@ class ThresholdEstimator:
             raise EstimationError(f"segment length must be a whole number of microseconds >= 1, got {segment_us}")
         if int(min_events) != min_events or min_events < 1:
             raise EstimationError(f"min_events must be a whole number >= 1, got {min_events}")
+        if max_fit is None:
+            max_fit = DEFAULT_MAX_ERROR if method == "natural" else DEFAULT_MAX_FIT
         if not max_fit > 0:
-            raise EstimationError(f"max_fit must be a positive number of thresholds (inf: no limit), got {max_fit}")
+            raise EstimationError(f"max_fit must be positive (inf: no limit), got {max_fit}")
+        if int(radius_px) != radius_px or radius_px < 1:
+            raise EstimationError(f"radius must be a whole number of pixels >= 1, got {radius_px}")
         if phase not in PHASES:
             raise EstimationError(f"unknown phase {phase!r}; choose one of {', '.join(PHASES)}")
         if method == "stimulus" and stimulus is None:
@@ -301,6 +332,7 @@ class ThresholdEstimator:
         self.phase = phase
         self.min_events = int(min_events)
         self.max_fit = float(max_fit)
+        self.radius_px = int(radius_px)
         n = self.width * self.height
         self.events = 0
         self.t_first_us: int | None = None
@@ -310,6 +342,8 @@ class ThresholdEstimator:
             self._cumulative = _aligned_zeros(n, 2, np.int64)  # per pixel (E, P) so far
             self._sums = np.zeros((5, n), dtype=np.int64)
             self._clock = np.zeros(OFFE_STATE_SIZE, dtype=np.int64)
+        elif method == "natural":
+            self._counts = _aligned_zeros(n, COUNT_SIZE, np.int64)
         else:
             self._state = _aligned_zeros(n, ST_SIZE, np.float64)
             self._seeds = np.zeros((n, 2, SEED_PAIRS), dtype=np.float64)
@@ -335,6 +369,8 @@ class ThresholdEstimator:
         if self.method == "offe":
             parameters["nominal"] = self.nominal
             parameters["segment_us"] = self.segment_us
+        if self.method == "natural":
+            parameters.update(nominal=self.nominal, radius_px=self.radius_px, block_us=BLOCK_US, max_fit=self.max_fit)
         if self.method == "stimulus":
             parameters.update(self.stimulus.as_dict())
             parameters["stimulus_phase"] = self.phase
@@ -354,6 +390,8 @@ class ThresholdEstimator:
         self.events += len(chunk)
         if self.method == "offe":
             offe_accumulate(t, x, y, p, self.width, self.segment_us, self._cumulative, self._sums, self._clock)
+        elif self.method == "natural":
+            count_accumulate(t, x, y, p, self.width, BLOCK_US, self._counts)
         elif self.phase == "fit":
             stimulus_fitted_accumulate(t, x, y, p, self.width, float(self.stimulus.period_us),
                                        float(self.stimulus.rise), self._wave, self._state, self._seeds, self._ring,
@@ -381,6 +419,8 @@ class ThresholdEstimator:
         fit = None
         if self.method == "offe":
             on, off, valid, extra = self._offe(self._cumulative[:, 0] >= self.min_events)
+        elif self.method == "natural":
+            on, off, valid, fit, extra = self._natural()
         else:
             on, off, valid, fit, extra = self._stimulus()
             fitting = valid & (fit <= self.max_fit)
@@ -392,6 +432,13 @@ class ThresholdEstimator:
                 )
             extra["rejected_by_fit"] = int((valid & ~fitting).sum())
             valid = fitting
+        if not valid.any() and self.method == "natural":
+            raise EstimationError(
+                f"no pixel could be estimated by natural: none has {self.min_events} events of each polarity, "
+                f"{MIN_NEIGHBOURS} or more neighbours that do, and a fit within {self.max_fit:g} "
+                f"({self.events / (self.width * self.height):.1f} events per pixel on average); give a longer "
+                "recording (hundreds of events per pixel) or lower --min-events"
+            )
         if not valid.any():
             raise EstimationError(
                 f"no pixel could be estimated by {self.method} (fewer than {self.min_events} events or no usable "
@@ -450,6 +497,28 @@ class ThresholdEstimator:
         b = -c * m
         return c + b, c - b, valid, {"segments": int(k)}
 
+    def _natural(self):
+        counts = self._counts[:, :6].reshape(self.height, self.width, 2, 3).astype(np.float64)  # [y, x, half, k]
+        whole = counts.sum(axis=2)
+        enough = (whole[..., :2] >= self.min_events).all(axis=-1)
+        relative, neighbours = _relative_to_neighbours(_effective_inverse(whole), enough, self.radius_px)
+        halves = []
+        for h in (0, 1):
+            usable = enough & (counts[:, :, h, :2] > 0).all(axis=-1)
+            halves.append(_relative_to_neighbours(_effective_inverse(counts[:, :, h]), usable, self.radius_px)[0])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            disagreement = (halves[0] - halves[1]) / (halves[0] + halves[1])
+            # the halves of a pixel with few events can agree by chance: the counting error 1 / sqrt(N) of its
+            # rarer polarity is a floor (a pixel needs 16 events of each for a fit of 0.25)
+            fit = np.maximum(np.sqrt(np.mean(disagreement**2, axis=-1)), 1.0 / np.sqrt(whole[..., :2].min(axis=-1)))
+        fit = np.where(enough & (neighbours >= MIN_NEIGHBOURS), fit, np.nan)
+        valid = np.isfinite(fit) & (fit <= self.max_fit)
+        extra = {"rejected_by_neighbours": int((enough & (neighbours < MIN_NEIGHBOURS)).sum()),
+                 "rejected_by_fit": int((np.isfinite(fit) & ~valid).sum())}
+        on = np.where(valid, self.nominal * relative[..., 0], 0.0)
+        off = np.where(valid, self.nominal * relative[..., 1], 0.0)
+        return on.ravel(), off.ravel(), valid.ravel(), fit.ravel(), extra
+
     def _stimulus(self):
         if self.phase == "fit" and not self._finished:
             stimulus_fitted_finish(float(self.stimulus.period_us), float(self.stimulus.rise), self._wave,
@@ -488,6 +557,44 @@ class ThresholdEstimator:
             fit = np.sqrt(misfits.sum(axis=0) / changes.sum(axis=0))
         fit[changes.sum(axis=0) < FIT_MIN_CHANGES] = np.inf  # too few changes to show a fit
         return thresholds[0], thresholds[1], valid, fit, extra
+
+
+def _effective_inverse(counts: np.ndarray) -> np.ndarray:
+    """Per pixel, (u_on, u_off) with ``theta = D * u``: the thresholds up to the pixel's total log-intensity
+    excursion D, from its (ON events, OFF events, reversals) in ``counts[..., 0:3]``.
+
+    A pixel's rises sum to ``D = theta_on N_on + b (theta_on + theta_off)`` and its falls likewise with N_off
+    (the log intensity ends about where it began): at each turn the signal goes on past the last event by half a
+    threshold on average, and the first event after the turn needs a whole threshold from that last event, so
+    each rising run loses (theta_on + theta_off) / 2 of its rise to no event, and the runs of each kind are half
+    the reversals: ``b = reversals / 4``. Solving the two equations gives u. Without the turns' share, a
+    pixel's counts fall faster than 1 / theta (as theta^-1.28 on the texture scene) and the thresholds' spread
+    comes out too wide."""
+    n_on, n_off, b = counts[..., 0], counts[..., 1], counts[..., 2] / 4.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        det = (n_on + b) * (n_off + b) - b * b
+        return np.stack([n_off / det, n_on / det], axis=-1)
+
+
+def _relative_to_neighbours(inverse: np.ndarray, usable: np.ndarray, radius_px: int):
+    """Per pixel (``inverse``: height x width x 2, the (u_on, u_off) of :func:`_effective_inverse`), its
+    thresholds relative to its usable neighbours': ``2 u / mean(u_on + u_off over the neighbours)`` (mean
+    threshold 1), and the number of those neighbours (the window of ``radius_px`` around it, itself left out).
+
+    Neighbours see nearly the same log-intensity history as edges pass over them, so they share the excursion D
+    of ``theta = D u``, and the mean threshold over the window sets D. The window leaves the pixel out, so its
+    own counts do not pull its reference."""
+    import cv2
+
+    window = np.ones((2 * radius_px + 1, 2 * radius_px + 1), dtype=np.float64)
+    window[radius_px, radius_px] = 0.0
+    neighbours = cv2.filter2D(usable.astype(np.float64), -1, window, borderType=cv2.BORDER_CONSTANT)
+    total = np.where(usable, inverse.sum(axis=-1), 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        mean = cv2.filter2D(total, -1, window, borderType=cv2.BORDER_CONSTANT) / neighbours
+        relative = 2.0 * inverse / mean[..., None]
+    relative[~usable] = np.nan
+    return relative, np.round(neighbours)
 
 
 def _aligned_zeros(rows: int, columns: int, dtype) -> np.ndarray:

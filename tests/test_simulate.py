@@ -395,6 +395,37 @@ def test_gradient_moves_right_and_bars_move_along_their_direction():
         assert np.ptp(first, axis=1 - axis).max() == 0  # constant along the bars
 
 
+def test_texture_scene_moves_a_texture_or_a_given_image(tmp_path):
+    """The texture scene: levels within [min, max], every frame different (it moves), the view's first frame is
+    the texture's centre; ``image`` takes any grey image in its place (its own levels), and the command line's
+    --image reads a file (a missing or unreadable one: a clean error)."""
+    frames = [f for _, f in scene_frames("texture", 40, 30, 50_000, min_level=60.0, max_level=180.0)]
+    assert min(f.min() for f in frames) >= 60.0 - 1e-3 and max(f.max() for f in frames) <= 180.0 + 1e-3
+    assert all(np.abs(a - b).max() > 0 for a, b in zip(frames, frames[1:]))
+    assert frames[0].std() > 10  # a texture, not a flat field
+    image = np.zeros((50, 70), dtype=np.float32)
+    image[:, 35:] = 200.0  # a vertical edge at the image's centre
+    first = next(scene_frames("texture", 40, 30, 10_000, image=image))[1]
+    assert set(np.unique(np.round(first))) <= set(np.round(np.linspace(0, 200, 201)))
+    assert first[:, :5].max() < 100 < first[:, -5:].min()  # the edge in view, dark left, bright right
+    import cv2
+
+    cv2.imwrite(str(tmp_path / "edge.png"), image.astype(np.uint8))
+    out = tmp_path / "t.aedat4"
+    run("simulate", "scene:texture", "--image", tmp_path / "edge.png", "--size", "24x16", "--duration", "200ms",
+        "-o", out)
+    _, events = read_all(out)
+    assert len(events) > 0
+    (tmp_path / "bad.png").write_bytes(b"not an image")
+    for name, needle in (("bad.png", "cannot read this image"), ("missing.png", "no such image file")):
+        result = run("simulate", "scene:texture", "--image", tmp_path / name, "-o", tmp_path / "x.aedat4",
+                     check=False)
+        assert_clean_error(result, name, needle)
+    result = run("simulate", "scene:flicker", "--image", tmp_path / "edge.png", "-o", tmp_path / "x.aedat4",
+                 check=False)
+    assert result.returncode in (1, 2) and b"--image" in result.stderr
+
+
 def test_step_scene_through_the_lowpass_spreads_the_events():
     width, height = 10, 10
     frames = list(scene_frames("step", width, height, 900_000, period_s=1.0))

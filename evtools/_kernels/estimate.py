@@ -1,6 +1,6 @@
 """Threshold-estimation kernels: per-pixel sums accumulated event by event, in O(pixels) memory.
 
-Two accumulators, one per method of :mod:`evtools.estimate` (``tests/naive/estimate.py`` holds the pure-Python
+The accumulators, one per method of :mod:`evtools.estimate` (``tests/naive/estimate.py`` holds the pure-Python
 references):
 
 - :func:`offe_accumulate` (Wang et al. 2019, offE): each pixel's cumulative event count E and polarity sum P since
@@ -10,6 +10,7 @@ references):
   no logarithm per event); a pixel's consecutive events differ by exactly one threshold in L, summed per polarity.
 - :func:`stimulus_fitted_accumulate`: the same with each pixel's phase fitted to its own first events
   (:func:`_fit_phase`), then only the changes within a ramp summed.
+- :func:`count_accumulate` (natural scenes): each pixel's ON and OFF event counts, in two interleaved halves.
 
 Every kernel visits the events in stream order and updates only the state of the event's pixel (offE also every
 pixel at a segment boundary); L is a function of (t, x) alone, so chunking cannot change the sums. Each event
@@ -585,3 +586,26 @@ def stimulus_fitted_finish(period_us, rise, wave, state, seeds, ring, filled):  
     for i in range(filled.shape[0]):
         if state[i, ST_FITTED] == 0.0 and filled[i] >= 2:
             _settle(i, ring, filled, period_us, rise, wave, state, seeds, times, ons)
+
+
+# -- natural scenes: event counts per polarity, in two interleaved halves --------------------------------------------
+
+COUNT_SIZE = 8
+"""natural: per pixel (ON events, OFF events, polarity reversals) in the even time blocks, the same in the odd ones,
+then the last event's polarity (0 none yet, 1 ON, 2 OFF), and a spare column: 64 bytes, one cache line."""
+COUNT_LAST = 6
+
+
+@kernel
+def count_accumulate(t, x, y, p, width, block_us, counts):  # pragma: no cover - compiled
+    """Count each pixel's ON and OFF events and its polarity reversals (an event whose polarity differs from the
+    pixel's previous event's: a turn of its signal), separately in even and odd blocks of ``block_us`` (absolute
+    time: ``t // block_us`` even or odd), into ``counts`` (pixels, :data:`COUNT_SIZE`)."""
+    for k in range(t.shape[0]):
+        i = np.int64(y[k]) * width + x[k]
+        half = 3 * ((t[k] // block_us) % 2)
+        polarity = 1 if p[k] else 2
+        counts[i, half + polarity - 1] += 1
+        last = counts[i, COUNT_LAST]
+        counts[i, half + 2] += 1 if last != 0 and last != polarity else 0
+        counts[i, COUNT_LAST] = polarity

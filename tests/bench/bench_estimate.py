@@ -6,7 +6,7 @@ whole; only ``process`` is timed. Each method runs on 10M and 100M events, each 
 RSS comes from ``wait4``: equal peaks show that memory does not grow with the stream. Targets (issue 13):
 >= 50 Mev/s, >= 20 for the phase-free stimulus method.
 
-Methods: ``offe``, ``stimulus`` (the flicker, every pixel's phase given: L from a one-period table), ``fitted``
+Methods: ``offe``, ``natural`` (counts and reversals per pixel; the neighbours' means at the end), ``stimulus`` (the flicker, every pixel's phase given: L from a one-period table), ``fitted``
 (the flicker, every pixel's phase fitted to its first events: a search per pixel, then L from the ramp table),
 ``fitted-gradient`` (the same on a real calibration stream: two periods of the simulator's moving gradient,
 2.15 M events, repeated; 34 MB of it held), ``gradient`` (stimulus on a moving gradient, phases given: L computed
@@ -87,7 +87,7 @@ def child(method: str, events: int, scratch: str) -> dict:
     if method == "fitted-gradient":
         stimulus = Stimulus(50, 200, GRADIENT_S * 1e6 / 2)  # the gradient described by its period alone
     phase = "fit" if method.startswith("fitted") else "given"
-    kind = "offe" if method == "offe" else "stimulus"
+    kind = method if method in ("offe", "natural") else "stimulus"
     estimator = ThresholdEstimator(WIDTH, HEIGHT, kind, stimulus=stimulus, segment_us=10_000, phase=phase,
                                    max_fit=float("inf"))
     spent = 0.0
@@ -118,7 +118,7 @@ def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--child", nargs=3)
     parser.add_argument("--events", default="10000000,100000000")
-    parser.add_argument("--methods", default="offe,stimulus,fitted,fitted-gradient,gradient")
+    parser.add_argument("--methods", default="offe,natural,stimulus,fitted,fitted-gradient,gradient")
     args = parser.parse_args()
     if args.child:
         print(json.dumps(child(args.child[0], int(args.child[1]), args.child[2])))

@@ -212,3 +212,42 @@ def naive_fitted_stimulus(events, low, high, period_us, rise=0.5, profile="log")
                 off.append(float(-change))
         results[pixel] = (valley, on, off)
     return results
+
+
+def naive_natural(events, width, height, nominal=0.2, radius_px=3, min_events=10, block_us=100_000):
+    """(on, off, usable) by the natural-scene method, pixel by pixel in plain Python: per pixel the ON and OFF
+    events and polarity reversals of the whole stream; b = reversals / 4; (u_on, u_off) solves
+    u_on (N_on + b) + u_off b = 1 and u_off (N_off + b) + u_on b = 1; a pixel with at least ``min_events`` of
+    each polarity is usable; its thresholds are nominal * 2 u / (the mean of u_on + u_off over the usable pixels
+    within ``radius_px`` of it, itself left out)."""
+    n_on = {}
+    n_off = {}
+    reversals = {}
+    last = {}
+    for x, y, p in zip(events["x"].tolist(), events["y"].tolist(), events["p"].tolist()):
+        key = (x, y)
+        if p:
+            n_on[key] = n_on.get(key, 0) + 1
+        else:
+            n_off[key] = n_off.get(key, 0) + 1
+        if key in last and last[key] != p:
+            reversals[key] = reversals.get(key, 0) + 1
+        last[key] = p
+    u = {}
+    for key in last:
+        a, d = n_on.get(key, 0), n_off.get(key, 0)
+        if a >= min_events and d >= min_events:
+            b = reversals.get(key, 0) / 4
+            # Cramer's rule on [[a + b, b], [b, d + b]] u = (1, 1)
+            det = (a + b) * (d + b) - b * b
+            u[key] = ((d + b - b) / det, (a + b - b) / det)
+    on = np.full((height, width), np.nan)
+    off = np.full((height, width), np.nan)
+    for (x, y), (u_on, u_off) in u.items():
+        around = [sum(u[(i, j)]) for i in range(x - radius_px, x + radius_px + 1)
+                  for j in range(y - radius_px, y + radius_px + 1) if (i, j) != (x, y) and (i, j) in u]
+        if len(around) >= 8:
+            mean = sum(around) / len(around)
+            on[y, x] = nominal * 2 * u_on / mean
+            off[y, x] = nominal * 2 * u_off / mean
+    return on, off, np.isfinite(on)
