@@ -59,14 +59,16 @@ def correct(input, input_format, sensor_size, aedat2_layout, output, thresholds_
     \b
     evtools correct flicker.aedat4 --thresholds thresholds.h5 -o corrected.aedat4
     evtools simulate scene:step --truth t.h5 | evtools correct --thresholds t.h5 --mode foh | evtools info -
+    evtools correct drifting.aedat4 --thresholds series.h5 --target 0.2 -o corrected.aedat4  # estimate --online
     """
-    thresholds = read_thresholds(thresholds_path)
+    thresholds = read_thresholds(thresholds_path, series=True)
     with open_events(input, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as stream:
         thresholds.check_size(stream.info.width, stream.info.height, thresholds_path)
         try:
             corrector = ThresholdCorrector(
                 stream.info.width, stream.info.height, thresholds.on, thresholds.off, thresholds.valid,
                 target=target, mode=mode, hold_us=hold_us, max_gap_us=max_gap_us, tau_us=tau_us, start_us=start_us,
+                t_us=thresholds.t_us,
             )
         except CorrectionError as error:
             raise CorrectionError(f"{thresholds_path}: {error}") from None

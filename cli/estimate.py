@@ -79,6 +79,14 @@ def _stimulus(levels, period_us, profile, amplitude, speed, wavelength, rise) ->
                    "do not give the scale.")
 @click.option("--radius", type=click.IntRange(min=1), default=DEFAULT_RADIUS_PX, show_default=True, metavar="PX",
               help="natural: each pixel is compared with the pixels within PX of it.")
+@click.option("--online", is_flag=True,
+              help="stimulus, natural: also write a map every --interval, each from the events so far with "
+                   "exponential forgetting (a time series: on, off, valid with a leading time axis, and t_us); "
+                   "`correct --thresholds` then uses, at each event, the latest map estimated before it.")
+@click.option("--interval", type=Duration(), default=None, metavar="TIME",
+              help="--online: time between maps, with its unit (default 1s).")
+@click.option("--forget", type=Duration(), default=None, metavar="TIME",
+              help="--online: time constant of the forgetting, with its unit (default 3 intervals).")
 @click.option("--min-events", type=click.IntRange(min=1), default=DEFAULT_MIN_EVENTS, show_default=True,
               help="Pixels with fewer events are marked invalid (and get the median).")
 @click.option("--max-fit", type=click.FloatRange(min=0, min_open=True), default=None, metavar="F",
@@ -106,7 +114,8 @@ def _stimulus(levels, period_us, profile, amplitude, speed, wavelength, rise) ->
                    "replaces --stimulus-period.")
 @click.option("--stimulus-wavelength", type=click.FloatRange(min=0, min_open=True), default=None, metavar="PX",
               help="stimulus: a moving gradient's rise-and-fall length (simulate's --wavelength).")
-def estimate(input, input_format, sensor_size, aedat2_layout, output, method, segment_us, nominal, radius, min_events,
+def estimate(input, input_format, sensor_size, aedat2_layout, output, method, segment_us, nominal, radius, online,
+             interval, forget, min_events,
              max_fit, stimulus_amplitude, stimulus_levels, stimulus_period, stimulus_profile, stimulus_rise,
              stimulus_phase, stimulus_speed, stimulus_wavelength):
     """Estimate every pixel's ON and OFF contrast thresholds from IN (default stdin), streaming, into -o FILE.
@@ -118,9 +127,16 @@ def estimate(input, input_format, sensor_size, aedat2_layout, output, method, se
     evtools estimate gradient.aedat4 -o t.h5 --method stimulus --stimulus-speed 50 --stimulus-wavelength 64
     evtools bafilter noisy.aedat4 --method stcf --k 1 --dt-us 100000 | evtools estimate - -o t.h5 --method stimulus
     evtools bafilter street.aedat4 | evtools estimate - -o t.h5 --method natural      # any long moving scene
+    evtools estimate drifting.aedat4 -o series.h5 --method stimulus --online --interval 1s   # maps over time
     """
     if output is None or output == "-":
         raise EstimationError("the thresholds file is HDF5 and cannot go to stdout: give -o THRESHOLDS.h5")
+    if not online and (interval is not None or forget is not None):
+        raise click.UsageError("--interval and --forget apply to --online estimation")
+    if online and method == "offe":
+        raise click.UsageError("--online works with --method stimulus or natural (offE fits each pixel's whole "
+                               "history)")
+    interval_us = (interval or 1_000_000) if online else None
     stimulus = None
     if method == "stimulus":
         stimulus = _stimulus(stimulus_levels, stimulus_period, stimulus_profile, stimulus_amplitude, stimulus_speed,
@@ -130,6 +146,7 @@ def estimate(input, input_format, sensor_size, aedat2_layout, output, method, se
             estimator = ThresholdEstimator(
                 stream.info.width, stream.info.height, method, nominal=nominal, segment_us=segment_us,
                 stimulus=stimulus, phase=stimulus_phase, min_events=min_events, max_fit=max_fit, radius_px=radius,
+                interval_us=interval_us, forget_us=forget,
             )
             for chunk in with_progress(stream, stream, f"estimating from {stream.name}"):
                 estimator.process(chunk)
@@ -137,5 +154,10 @@ def estimate(input, input_format, sensor_size, aedat2_layout, output, method, se
         except EstimationError as error:
             raise EstimationError(f"{stream.name}: {error}") from None
         attributes = {**result.attributes, "input": stream.name}
-    write_thresholds(output, ThresholdMap(result.on, result.off, result.valid, attributes, result.fit,
-                                          result.phase_us))
+    if result.series is not None:
+        series = result.series
+        thresholds = ThresholdMap(series.on, series.off, series.valid, attributes, series.fit, result.phase_us,
+                                  series.t_us)
+    else:
+        thresholds = ThresholdMap(result.on, result.off, result.valid, attributes, result.fit, result.phase_us)
+    write_thresholds(output, thresholds)

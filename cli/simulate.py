@@ -371,6 +371,8 @@ def _float_option(name: str, help: str):
 @_float_option("--pos-thres", "Mean ON threshold, log units (default 0.2).")
 @_float_option("--neg-thres", "Mean OFF threshold, log units (default 0.2).")
 @_float_option("--sigma-thres", "Per-pixel threshold standard deviation (default 0.03).")
+@click.option("--thres-drift", "thres_drift", type=float, default=None, metavar="PERCENT_PER_S",
+              help="Every threshold drifts linearly by this percentage of its first value per second (default 0).")
 @_float_option("--correlated-sigma-thres", "Standard deviation of a spatially smooth threshold field (default 0).")
 @_float_option("--correlated-length-px", "Correlation length of that field, pixels (default 10).")
 @_float_option("--cutoff-hz", "Photoreceptor low-pass cutoff at full intensity; 0 = none (default).")
@@ -447,6 +449,9 @@ def simulate(source, output, output_format, truth, truth_frame_rate, input_forma
         if value is not None:
             scene_options[keyword] = value * 1e-6 if name == "period" else value
 
+    drift_percent = options.pop("thres_drift")
+    if drift_percent is not None:
+        options["thres_drift_per_s"] = drift_percent / 100.0
     parameters = model_parameters(preset, options)
     frames = open_source(source, size, duration, fps, timestamps, scene_options)
     simulator = _build(DvsSimulator, frames.width, frames.height, seed=seed, **parameters)

@@ -156,6 +156,10 @@ class ThresholdCorrector:
     start_us : int or None
         With turns: when every pixel's reconstruction starts at level 0 (the sensor's start); default the first
         event of the stream.
+    t_us : array_like of int, optional
+        A time series of maps (``estimate --online``): ``on``, ``off``, ``valid`` are (maps, height, width) and
+        map k is used for the events from ``t_us[k]`` on (the first map before its time too: it is the earliest
+        estimate); ``target="median"`` is the median over all maps.
 
     References
     ----------
@@ -165,16 +169,25 @@ class ThresholdCorrector:
     def __init__(self, width: int, height: int, on, off, valid=None, *, target="median",
                  mode: str = CORRECT_DEFAULTS["mode"], hold_us: int = CORRECT_DEFAULTS["hold_us"],
                  max_gap_us: int = CORRECT_DEFAULTS["max_gap_us"], tau_us: float = CORRECT_DEFAULTS["tau_us"],
-                 turns: bool | None = None, curves: bool | None = None, start_us: int | None = None):
+                 turns: bool | None = None, curves: bool | None = None, start_us: int | None = None,
+                 t_us=None):
         check_sensor_size(width, height)
         self.width, self.height = int(width), int(height)
         on = np.asarray(on, dtype=np.float32)
         off = np.asarray(off, dtype=np.float32)
-        if on.shape != (self.height, self.width) or off.shape != on.shape:
+        maps = 1 if t_us is None else len(np.atleast_1d(t_us))
+        shape = (self.height, self.width) if t_us is None else (maps, self.height, self.width)
+        if on.shape != shape or off.shape != on.shape:
+            size = f"{on.shape[-1]}x{on.shape[-2]}" if on.ndim >= 2 else "?"
             raise CorrectionError(
-                f"thresholds are {on.shape[1] if on.ndim == 2 else '?'}x{on.shape[0] if on.ndim == 2 else '?'} "
-                f"but the sensor is {self.width}x{self.height}; give the thresholds of this sensor"
+                f"thresholds are {size}{f' ({on.shape[0]} maps)' if on.ndim == 3 else ''} but the sensor is "
+                f"{self.width}x{self.height}{f' and {maps} map times are given' if t_us is not None else ''}; "
+                "give the thresholds of this sensor"
             )
+        if t_us is not None:
+            t_us = np.asarray(t_us)
+            if t_us.ndim != 1 or not np.issubdtype(t_us.dtype, np.integer) or np.any(np.diff(t_us) <= 0):
+                raise CorrectionError("the maps' times must be increasing whole microseconds")
         valid = np.ones(on.shape, dtype=bool) if valid is None else np.asarray(valid, dtype=bool)
         if valid.shape != on.shape:
             raise CorrectionError("the valid map must have the shape of the thresholds")
@@ -197,8 +210,16 @@ class ThresholdCorrector:
         if start_us is not None and (isinstance(start_us, bool) or not isinstance(start_us, (int, np.integer))):
             raise CorrectionError(f"start_us must be a whole number of microseconds, got {start_us!r}")
         self.start_us = None if start_us is None else int(start_us)
-        on = np.where(usable, on, np.median(on[usable])).astype(np.float32)
-        off = np.where(usable, off, np.median(off[usable])).astype(np.float32)
+        if t_us is None:
+            on = np.where(usable, on, np.median(on[usable])).astype(np.float32)
+            off = np.where(usable, off, np.median(off[usable])).astype(np.float32)
+            self._series = None
+        else:
+            filled_on, filled_off = _carried(on, usable), _carried(off, usable)
+            self._series = (t_us.astype(np.int64), filled_on.reshape(maps, -1), filled_off.reshape(maps, -1))
+            self._map = 0
+            on, off = filled_on[0], filled_off[0]
+            usable = usable.any(axis=0)
         n = self.width * self.height
         # one 32-byte row per pixel, aligned to a cache line (see PIXEL_DTYPE)
         raw = np.zeros(n * PIXEL_DTYPE.itemsize + 64, dtype=np.uint8)
@@ -210,7 +231,7 @@ class ThresholdCorrector:
         self._status = np.zeros(n, dtype=np.int8)
         # pixels already at the target need no work (and their events stay bit for bit what they were)
         at_target = (on == np.float32(self.target_on)) & (off == np.float32(self.target_off))
-        self._use = ~at_target.reshape(-1)
+        self._use = ~at_target.reshape(-1) if self._series is None else np.ones(n, dtype=bool)
         self.usable = usable
         self.window_us = self.max_gap_us if mode == "foh" else min(self.max_gap_us, self.hold_us)
         # with turns a segment starts up to one window before its event and may wait up to two for the next one;
@@ -300,6 +321,29 @@ class ThresholdCorrector:
             raise CorrectionError(f"chunk has dtype {chunk.dtype}, expected EVENT_DTYPE")
         if not self._started:
             self._start(int(chunk["t"][0]))
+        if self._series is not None:
+            return self._process_series(chunk)
+        return self._process(chunk)
+
+    def _process_series(self, chunk: np.ndarray) -> np.ndarray:
+        """:meth:`_process` in parts cut at the maps' times, each map taking over before its first event."""
+        times, maps_on, maps_off = self._series
+        pieces = []
+        while len(chunk):
+            if self._map + 1 < len(times) and chunk["t"][0] >= times[self._map + 1]:
+                self._map = int(np.searchsorted(times, chunk["t"][0], side="right")) - 1
+                self._state["on"] = maps_on[self._map]
+                self._state["off"] = maps_off[self._map]
+            end = len(chunk)
+            if self._map + 1 < len(times):
+                end = int(np.searchsorted(chunk["t"], times[self._map + 1], side="left"))
+            pieces.append(self._process(chunk[:end]))
+            chunk = chunk[end:]
+        return join(pieces)
+
+    def _process(self, chunk: np.ndarray) -> np.ndarray:
+        if not len(chunk):
+            return empty_events()
         if len(chunk) <= PART:
             n = self._resample(chunk)
             return self._release(self._new, n, self._bound(int(chunk["t"][-1])))
@@ -371,6 +415,23 @@ class ThresholdCorrector:
             words[:, 0], words[:, 1] = self._held[0][:h], self._held[1][:h]
             return out
         return self._release(self._new, n, NO_EVENT_US)
+
+
+def _carried(values: np.ndarray, usable: np.ndarray) -> np.ndarray:
+    """A series of maps (maps, height, width) with every unusable entry filled: a pixel keeps its latest usable
+    value; before its first one it takes that first one (its earliest estimate: early maps rest on the pixels
+    that fire most, whose median is biased low, 0.16 against 0.20 at 1 s of a flicker); a pixel never usable takes
+    the median of the last map's usable pixels."""
+    filled = np.where(usable, values, np.nan)
+    first = np.argmax(usable, axis=0)
+    ever = usable.any(axis=0)
+    last_usable = usable[np.flatnonzero(usable.any(axis=(1, 2)))[-1]]
+    start = np.where(ever, np.take_along_axis(values, first[None], axis=0)[0],
+                     np.median(values[np.flatnonzero(usable.any(axis=(1, 2)))[-1]][last_usable]))
+    filled[0] = np.where(usable[0], values[0], start)
+    for k in range(1, len(filled)):
+        filled[k] = np.where(usable[k], values[k], filled[k - 1])
+    return filled.astype(np.float32)
 
 
 def correct_thresholds(events: np.ndarray, width: int, height: int, on, off, valid=None, **options) -> np.ndarray:

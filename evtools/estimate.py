@@ -51,6 +51,7 @@ from evtools._kernels.estimate import (
     SUM_EP,
     SUM_P,
     SUM_PP,
+    COUNT_LAST,
     COUNT_SIZE,
     count_accumulate,
     offe_accumulate,
@@ -70,6 +71,7 @@ __all__ = [
     "EstimationError",
     "Stimulus",
     "ThresholdEstimate",
+    "ThresholdSeries",
     "ThresholdEstimator",
     "estimate_thresholds",
 ]
@@ -108,6 +110,9 @@ DEFAULT_MAX_ERROR = 0.25
 """natural: a pixel whose two halves' estimates differ by more than 25 % of their mean, or with fewer than 16
 events of either polarity (the fit map: about its relative error from counting, 0.08-0.09 at the median on 280
 events a pixel of the texture scene) is invalid."""
+DEFAULT_FORGET_INTERVALS = 3
+"""online: sums forget with a time constant of 3 intervals by default (each map then rests mostly on the last
+three intervals' events)."""
 BLOCK_US = 100_000
 """natural: the stream is cut into 100 ms blocks, alternately counted in one half or the other (absolute time, so
 chunking cannot matter); the halves see nearly the same scene, so their difference measures the estimate's error."""
@@ -230,8 +235,23 @@ class ThresholdEstimate:
     (microseconds; NaN where no phase was fitted). A moving pattern shows as a ramp across the sensor, a rolling
     display refresh as one along its scan."""
 
+    series: ThresholdSeries | None = None
+    """Online estimation: the map at every interval boundary (and the final one, at the last event + 1 us)."""
+
     def usable(self) -> np.ndarray:
         return self.valid & np.isfinite(self.on) & np.isfinite(self.off) & (self.on > 0) & (self.off > 0)
+
+
+@dataclass
+class ThresholdSeries:
+    """Maps over time (online estimation): map k holds from ``t_us[k]`` on. ``on``, ``off``, ``fit``: float32
+    (maps, height, width), NaN where not valid; ``valid``: bool (maps, height, width)."""
+
+    t_us: np.ndarray
+    on: np.ndarray
+    off: np.ndarray
+    valid: np.ndarray
+    fit: np.ndarray
 
 
 class ThresholdEstimator:
@@ -304,6 +324,8 @@ class ThresholdEstimator:
         min_events: int = DEFAULT_MIN_EVENTS,
         max_fit: float | None = None,
         radius_px: int = DEFAULT_RADIUS_PX,
+        interval_us: int | None = None,
+        forget_us: float | None = None,
     ) -> None:
         check_sensor_size(width, height)
         if method not in METHODS:
@@ -322,6 +344,17 @@ class ThresholdEstimator:
             raise EstimationError(f"radius must be a whole number of pixels >= 1, got {radius_px}")
         if phase not in PHASES:
             raise EstimationError(f"unknown phase {phase!r}; choose one of {', '.join(PHASES)}")
+        if interval_us is not None:
+            if method == "offe":
+                raise EstimationError("online estimation (an interval) works with the stimulus and natural methods; "
+                                      "offE fits each pixel's whole history")
+            if int(interval_us) != interval_us or interval_us < 1:
+                raise EstimationError(f"interval must be a whole number of microseconds >= 1, got {interval_us}")
+            forget_us = DEFAULT_FORGET_INTERVALS * interval_us if forget_us is None else forget_us
+            if not forget_us > 0:
+                raise EstimationError(f"forgetting time must be positive (inf: never forget), got {forget_us} us")
+        elif forget_us is not None:
+            raise EstimationError("a forgetting time applies to online estimation only: give an interval too")
         if method == "stimulus" and stimulus is None:
             raise EstimationError("method stimulus needs the stimulus (levels, period, and for a gradient its motion)")
         self.width, self.height = int(width), int(height)
@@ -333,6 +366,10 @@ class ThresholdEstimator:
         self.min_events = int(min_events)
         self.max_fit = float(max_fit)
         self.radius_px = int(radius_px)
+        self.interval_us = None if interval_us is None else int(interval_us)
+        self.forget_us = None if forget_us is None else float(forget_us)
+        self._next_snapshot_us: int | None = None
+        self._series: list[tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
         n = self.width * self.height
         self.events = 0
         self.t_first_us: int | None = None
@@ -343,7 +380,7 @@ class ThresholdEstimator:
             self._sums = np.zeros((5, n), dtype=np.int64)
             self._clock = np.zeros(OFFE_STATE_SIZE, dtype=np.int64)
         elif method == "natural":
-            self._counts = _aligned_zeros(n, COUNT_SIZE, np.int64)
+            self._counts = _aligned_zeros(n, COUNT_SIZE, np.float64)
         else:
             self._state = _aligned_zeros(n, ST_SIZE, np.float64)
             self._seeds = np.zeros((n, 2, SEED_PAIRS), dtype=np.float64)
@@ -371,6 +408,8 @@ class ThresholdEstimator:
             parameters["segment_us"] = self.segment_us
         if self.method == "natural":
             parameters.update(nominal=self.nominal, radius_px=self.radius_px, block_us=BLOCK_US, max_fit=self.max_fit)
+        if self.interval_us is not None:
+            parameters.update(interval_us=self.interval_us, forget_us=self.forget_us)
         if self.method == "stimulus":
             parameters.update(self.stimulus.as_dict())
             parameters["stimulus_phase"] = self.phase
@@ -383,6 +422,21 @@ class ThresholdEstimator:
             raise EstimationError("the estimate is already finished; make a new estimator for another stream")
         if not len(chunk):
             return empty_events()
+        if self.interval_us is not None:  # online: a map at every interval boundary, then the sums forget
+            if self._next_snapshot_us is None:
+                self._next_snapshot_us = int(chunk["t"][0]) + self.interval_us
+            while len(chunk) and chunk["t"][-1] >= self._next_snapshot_us:
+                before = int(np.searchsorted(chunk["t"], self._next_snapshot_us, side="left"))
+                self._accumulate(chunk[:before])
+                self._snapshot(self._next_snapshot_us)
+                self._next_snapshot_us += self.interval_us
+                chunk = chunk[before:]
+        self._accumulate(chunk)
+        return empty_events()
+
+    def _accumulate(self, chunk: np.ndarray) -> None:
+        if not len(chunk):
+            return
         t, x, y, p = chunk["t"], chunk["x"], chunk["y"], chunk["p"]
         if self.t_first_us is None:
             self.t_first_us = int(t[0])
@@ -399,7 +453,32 @@ class ThresholdEstimator:
         else:
             stimulus_accumulate(t, x, y, p, self.width, *self._waveform, float(self.stimulus.wavelength_px),
                                 self._profile, self._table, self._state, self._seeds)
-        return empty_events()
+
+    def _snapshot(self, t_us: int) -> None:
+        """Online: the maps as they stand at ``t_us`` (invalid where nothing is known yet), then every sum decays
+        by ``exp(-interval / forget)`` and the stimulus's acceptance windows re-centre on the current means (so
+        a threshold may drift beyond the window of its first changes)."""
+        if self.events:
+            on, off, valid, fit, _ = self._natural() if self.method == "natural" else self._stimulus(final=False)
+            valid = valid & (fit <= self.max_fit)
+        else:
+            on = off = fit = np.full(self.width * self.height, np.nan)
+            valid = np.zeros(self.width * self.height, dtype=bool)
+        shape = (self.height, self.width)
+        self._series.append((t_us, np.where(valid, on, np.nan).reshape(shape),
+                             np.where(valid, off, np.nan).reshape(shape), valid.reshape(shape), fit.reshape(shape)))
+        keep = math.exp(-self.interval_us / self.forget_us)
+        if self.method == "natural":
+            self._counts[:, :COUNT_LAST] *= keep
+            return
+        state = self._state
+        for column in (ST_SUM, ST_PAIRS, ST_SQUARES, ST_ALL):
+            state[:, column:column + 2] *= keep
+        seeded = state[:, ST_REF:ST_REF + 2] > 0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            mean = state[:, ST_SUM:ST_SUM + 2] / state[:, ST_PAIRS:ST_PAIRS + 2]
+        state[:, ST_REF:ST_REF + 2] = np.where(seeded & np.isfinite(mean) & (mean > 0), mean,
+                                               state[:, ST_REF:ST_REF + 2])
 
     def flush(self) -> np.ndarray:
         """No events to give back (the estimator consumes the stream); call :meth:`result` for the maps."""
@@ -462,7 +541,17 @@ class ThresholdEstimator:
             fitted = self._state[:, ST_FITTED] > 0
             phase_us = np.where(fitted, self._state[:, ST_PHASE], np.nan)
             phase_us = phase_us.reshape(self.height, self.width)
-        return ThresholdEstimate(on, off, valid.reshape(self.height, self.width), attributes, fit, phase_us)
+        series = None
+        if self.interval_us is not None:
+            final_fit = fit if fit is not None else np.full(on.shape, np.nan, np.float32)
+            maps = self._series + [(self.t_last_us + 1, np.where(valid.reshape(on.shape), on, np.nan),
+                                    np.where(valid.reshape(on.shape), off, np.nan), valid.reshape(on.shape),
+                                    final_fit)]
+            series = ThresholdSeries(np.array([m[0] for m in maps], dtype=np.int64),
+                                     *(np.stack([m[k] for m in maps]).astype(np.float32) for k in (1, 2)),
+                                     np.stack([m[3] for m in maps]), np.stack([m[4] for m in maps]).astype(np.float32))
+            attributes["maps"] = len(maps)
+        return ThresholdEstimate(on, off, valid.reshape(self.height, self.width), attributes, fit, phase_us, series)
 
     def finish(self) -> ThresholdEstimate:
         """Alias of :meth:`result`."""
@@ -519,12 +608,13 @@ class ThresholdEstimator:
         off = np.where(valid, self.nominal * relative[..., 1], 0.0)
         return on.ravel(), off.ravel(), valid.ravel(), fit.ravel(), extra
 
-    def _stimulus(self):
-        if self.phase == "fit" and not self._finished:
+    def _stimulus(self, final: bool = True):
+        if final and self.phase == "fit" and not self._finished:
             stimulus_fitted_finish(float(self.stimulus.period_us), float(self.stimulus.rise), self._wave,
                                    self._state, self._seeds, self._ring, self._filled)
             self._ring = self._filled = None  # the rings are replayed: free their memory
-        self._finished = True
+        if final:
+            self._finished = True
         enough = self._state[:, ST_SEEN if self.phase == "fit" else ST_EVENTS] >= self.min_events
         references = self._state[:, ST_REF:ST_REF + 2].T
         level_sums = self._state[:, ST_SUM:ST_SUM + 2].T.copy()

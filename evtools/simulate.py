@@ -56,6 +56,9 @@ MIN_THRESHOLD = 0.01
 DEAD_PIXEL_THRESHOLD = 100.0
 """Threshold of a dead pixel (log units): far beyond the 0-5.5 range of lin-log intensities, so it never fires."""
 
+MIN_THRESHOLD_FACTOR = 0.05
+"""A drift never takes a threshold below 5 % of its first value."""
+
 DEFAULT_PARAMETERS: dict[str, Any] = {
     "pos_thres": 0.2,
     "neg_thres": 0.2,
@@ -71,6 +74,7 @@ DEFAULT_PARAMETERS: dict[str, Any] = {
     "hot_pixel_fraction": 0.0,
     "hot_pixel_rate_hz": 100.0,
     "dead_pixel_fraction": 0.0,
+    "thres_drift_per_s": 0.0,
 }
 """v2e's ``EventEmulator`` defaults (thresholds 0.2 +- 0.03, no low-pass, leak 0.1 Hz, no shot noise), no hot or
 dead pixels, no spatially correlated mismatch."""
@@ -158,6 +162,10 @@ class DvsSimulator:
         Event rate of each hot pixel.
     dead_pixel_fraction : float
         Fraction of pixels that never fire: threshold :data:`DEAD_PIXEL_THRESHOLD`, no leak, no shot noise.
+    thres_drift_per_s : float
+        Every threshold changes by this fraction of its first value per second, linearly from the first frame
+        (0.01: +1 %/s, as a warming sensor's): each frame interval uses the thresholds at its middle; the truth
+        maps hold those at the first frame.
     seed : int or None
         Seed of every random draw; None draws one (see :attr:`seed`).
     thresholds : (ndarray, ndarray) or None
@@ -198,6 +206,7 @@ class DvsSimulator:
         hot_pixel_fraction: float = DEFAULT_PARAMETERS["hot_pixel_fraction"],
         hot_pixel_rate_hz: float = DEFAULT_PARAMETERS["hot_pixel_rate_hz"],
         dead_pixel_fraction: float = DEFAULT_PARAMETERS["dead_pixel_fraction"],
+        thres_drift_per_s: float = DEFAULT_PARAMETERS["thres_drift_per_s"],
         seed: int | None = None,
         thresholds: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> None:
@@ -231,9 +240,15 @@ class DvsSimulator:
             "hot_pixel_fraction": _check_fraction("hot_pixel_fraction", hot_pixel_fraction),
             "hot_pixel_rate_hz": _check_nonnegative("hot_pixel_rate_hz", hot_pixel_rate_hz),
             "dead_pixel_fraction": _check_fraction("dead_pixel_fraction", dead_pixel_fraction),
+            "thres_drift_per_s": float(thres_drift_per_s),
             "seed": self.seed,
         }
+        if not math.isfinite(thres_drift_per_s):
+            raise SimulationError(f"thres_drift_per_s must be a finite fraction per second, got {thres_drift_per_s}")
         self._draw_maps(thresholds)
+        self._t0_us: int | None = None  # the first frame's time: the drift's origin
+        if thres_drift_per_s != 0.0:  # the kernel's maps become copies, rescaled before every frame interval
+            self._on, self._off = self._on.copy(), self._off.copy()
         n = self.width * self.height
         self._lp_log = np.zeros(n)
         self._ref_log = np.zeros(n)
@@ -361,6 +376,11 @@ class DvsSimulator:
                 continue
             if t1 <= self._t_us:
                 raise SimulationError(f"frame times must increase: frame at {t1} us after one at {self._t_us} us")
+            drift = self.parameters["thres_drift_per_s"]
+            if drift != 0.0:  # thresholds at the interval's middle, (1 + drift * t) times those at the start
+                factor = max(1.0 + drift * ((self._t_us + t1) / 2 - self._t0_us) * 1e-6, MIN_THRESHOLD_FACTOR)
+                np.multiply(self.on_thres.reshape(-1), factor, out=self._on)
+                np.multiply(self.off_thres.reshape(-1), factor, out=self._off)
             pixel = 0
             while True:
                 count, pixel = advance_pixels(
@@ -387,6 +407,7 @@ class DvsSimulator:
         return empty_events(), np.empty(0, dtype=np.uint8)
 
     def _start(self, t_us: int, frame: np.ndarray) -> None:
+        self._t0_us = t_us
         lin_log_frame(frame, self._lp_log)
         # pixels with leak start at a random point of their leak cycle, as a sensor that has been on for a while
         self._ref_log[:] = self._lp_log - np.where(self._leak_rate_hz > 0, self._leak_phase * self._on, 0.0)

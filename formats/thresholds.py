@@ -32,14 +32,17 @@ class ThresholdMap:
     phase_us: np.ndarray | None = None
     """stimulus with fitted phases: per pixel, a valley time of its stimulus modulo the period, microseconds
     (dataset ``phase_us``, float64; NaN where none was fitted; None when absent)."""
+    t_us: np.ndarray | None = None
+    """A time series of maps (``estimate --online``): map k holds from ``t_us[k]`` on (int64, increasing), and
+    ``on``, ``off``, ``valid``, ``fit`` have a leading time axis; None for a single map."""
 
     @property
     def width(self) -> int:
-        return int(self.on.shape[1])
+        return int(self.on.shape[-1])
 
     @property
     def height(self) -> int:
-        return int(self.on.shape[0])
+        return int(self.on.shape[-2])
 
     def usable(self) -> np.ndarray:
         """Pixels marked valid whose ON and OFF thresholds are both finite and positive."""
@@ -76,11 +79,12 @@ def _text(value):
     return value
 
 
-def read_thresholds(path: str) -> ThresholdMap:
+def read_thresholds(path: str, series: bool = False) -> ThresholdMap:
     """Read a thresholds file (from ``estimate``) or a truth file (from ``simulate --truth``).
 
     Without a ``valid`` dataset every pixel is marked valid; :meth:`ThresholdMap.usable` also drops pixels whose
-    thresholds are not finite and positive.
+    thresholds are not finite and positive. A time series of maps (``estimate --online``: a ``t_us`` dataset and
+    maps with a leading time axis) is returned whole with ``series``, else as its last map.
     """
     import h5py
 
@@ -98,19 +102,33 @@ def read_thresholds(path: str) -> ThresholdMap:
             fit = np.asarray(h5["fit"][()], dtype=np.float32) if isinstance(h5.get("fit"), h5py.Dataset) else None
             phase_us = h5.get("phase_us")
             phase_us = np.asarray(phase_us[()], dtype=np.float64) if isinstance(phase_us, h5py.Dataset) else None
+            t_us = np.asarray(h5["t_us"][()]) if isinstance(h5.get("t_us"), h5py.Dataset) else None
         except OSError as error:
             raise FormatError(f"{path}: cannot read the maps ({error})") from None
         attributes = {key: _text(value) for key, value in h5.attrs.items()}
         units = _text(h5["on"].attrs.get("units", ""))
-    maps = (valid, fit, phase_us)
-    if on.ndim != 2 or on.shape != off.shape or any(m is not None and m.shape != on.shape for m in maps):
+    maps = (valid, fit)
+    if t_us is not None:
+        if t_us.ndim != 1 or not np.issubdtype(t_us.dtype, np.integer) or on.ndim != 3 or len(on) != len(t_us):
+            raise FormatError(f"{path}: a series of maps needs t_us (integer microseconds, one per map) and maps "
+                              "of maps x height x width")
+        if np.any(np.diff(t_us) <= 0):
+            k = int(np.argmax(np.diff(t_us) <= 0)) + 1
+            raise FormatError(f"{path}: the maps' times are out of order (t_us[{k}] = {int(t_us[k])} is not after "
+                              f"t_us[{k - 1}] = {int(t_us[k - 1])})")
+    elif on.ndim != 2:
+        raise FormatError(f"{path}: datasets on, off must be height x width arrays (or a series with t_us)")
+    if on.shape != off.shape or any(m is not None and m.shape != on.shape for m in maps) or (
+            phase_us is not None and phase_us.shape != on.shape[-2:]):
         raise FormatError(
             f"{path}: datasets on, off (and valid, fit, phase_us) must be height x width arrays of one shape"
         )
     if valid is None:
         valid = np.ones(on.shape, dtype=bool)
     attributes.setdefault("units", units)
-    return ThresholdMap(on, off, valid, attributes, fit, phase_us)
+    if t_us is not None and not series:  # the latest map
+        return ThresholdMap(on[-1], off[-1], valid[-1], attributes, None if fit is None else fit[-1], phase_us)
+    return ThresholdMap(on, off, valid, attributes, fit, phase_us, None if t_us is None else t_us.astype(np.int64))
 
 
 def write_thresholds(path: str, thresholds: ThresholdMap) -> None:
@@ -125,6 +143,9 @@ def write_thresholds(path: str, thresholds: ThresholdMap) -> None:
         if thresholds.fit is not None:
             h5.create_dataset("fit", data=np.asarray(thresholds.fit, dtype=np.float32))
             h5["fit"].attrs["units"] = "thresholds (RMS deviation of the level changes; a change that does not fit: 1)"
+        if thresholds.t_us is not None:
+            h5.create_dataset("t_us", data=np.asarray(thresholds.t_us, dtype=np.int64))
+            h5["t_us"].attrs["units"] = "us (map k holds from t_us[k] on)"
         if thresholds.phase_us is not None:
             h5.create_dataset("phase_us", data=np.asarray(thresholds.phase_us, dtype=np.float64))
             h5["phase_us"].attrs["units"] = "us (a valley of the stimulus, modulo its period)"

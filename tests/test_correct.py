@@ -112,6 +112,26 @@ def test_chunking_does_not_change_the_output(cuts, mode, turns, curves):
     assert np.all(np.diff(chunked["t"]) >= 0)
 
 
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(cuts=st.lists(st.integers(0, 2000), max_size=6), mode=st.sampled_from(MODES + ("exponential",)),
+       seed=st.integers(0, 1000))
+def test_a_series_of_maps_does_not_depend_on_chunking(cuts, mode, seed):
+    """Maps over time (estimate --online): map k takes over at its time, whatever the chunks; a series whose
+    maps are all one map gives exactly that map's output."""
+    events = random_events(2000, W, H, seed=2)
+    rng = np.random.default_rng(seed)
+    times = np.sort(rng.choice(np.arange(int(events["t"][0]), int(events["t"][-1])), 4, replace=False))
+    on = rng.uniform(0.12, 0.3, (4, H, W)).astype(np.float32)
+    off = rng.uniform(0.12, 0.3, (4, H, W)).astype(np.float32)
+    valid = rng.random((4, H, W)) < 0.8
+    options = dict(target=0.2, mode=mode, max_gap_us=5000, hold_us=2000)
+    whole = correct_thresholds(events, W, H, on, off, valid, t_us=times, **options)
+    chunked = run_chunked(ThresholdCorrector(W, H, on, off, valid, t_us=times, **options), cut(events, cuts))
+    assert_same_events(chunked, whole)
+    same = correct_thresholds(events, W, H, np.stack([on[0]] * 4), np.stack([off[0]] * 4), t_us=times, **options)
+    assert_same_events(same, correct_thresholds(events, W, H, on[0], off[0], **options))
+
+
 @settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(part=st.integers(1, 700), mode=st.sampled_from(MODES + ("exponential",)))
 def test_long_chunks_pipelined_in_parts_give_the_same_output(part, mode):

@@ -710,3 +710,89 @@ def test_natural_on_the_short_dvxplorer_recording(tmp_path):
     result = read_thresholds(out)
     counts = _polarity_counts(stream, 320, 240)
     assert result.valid.sum() > 0 and counts[result.valid].min() >= 9  # 1 / sqrt(9) = 0.33 <= 0.35
+
+
+# -- online estimation and drift ----------------------------------------------------------------------------------
+
+LOG_FLICKER = ["--profile", "log", "--min-level", "25", "--max-level", "250", "--period", "1s", "--leak-rate-hz", "0"]
+LOG_STIMULUS = ["--method", "stimulus", "--stimulus-profile", "log", "--stimulus-period", "1s",
+                "--stimulus-levels", f"{math.log(25)},{math.log(250)}"]
+
+
+@settings(max_examples=8, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), cuts=st.lists(st.integers(0, 10**6), max_size=6),
+       method=st.sampled_from(["natural", "given", "fit"]))
+def test_online_maps_do_not_depend_on_chunking(seed, cuts, method):
+    """The maps are taken at fixed times (every interval from the first event), whatever the chunks."""
+    events = _spread_events(seed, 6_000, 7, 5, 2_000_000)
+    kind = "natural" if method == "natural" else "stimulus"
+    options = dict(interval_us=300_000, forget_us=500_000, min_events=2, max_fit=math.inf)
+    if kind == "stimulus":
+        options.update(stimulus=Stimulus(period_us=400_000), phase=method)
+    whole = ThresholdEstimator(7, 5, kind, **options)
+    whole.process(events)
+    chunked = ThresholdEstimator(7, 5, kind, **options)
+    for part in cut(events, cuts):
+        chunked.process(part)
+    a, b = whole.result().series, chunked.result().series
+    np.testing.assert_array_equal(a.t_us, b.t_us)
+    for name in ("on", "off", "valid", "fit"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    assert a.t_us[0] == events["t"][0] + 300_000 and np.all(np.diff(a.t_us[:-1]) == 300_000)
+
+
+def test_online_estimate_follows_a_drift_and_its_correction_beats_one_map(tmp_path):
+    """simulate --thres-drift 2 (%/s) on a log flicker for 16 s: the online maps (1 s interval, 1 s forgetting)
+    follow the thresholds within 4 % at every map time (they lag by about the forgetting time); correcting with the
+    series leaves a count error against the ideal uniform-threshold stream at least 4x below that of a single map
+    calibrated on the first 2 s (the founding scheme's calibrate-once), and below that of the uncorrected stream."""
+    common = ["scene:flicker", "--size", "16x12", "--duration", "16s", *LOG_FLICKER, "--seed", "3"]
+    run("simulate", *common, "--thres-drift", "2", "--truth", tmp_path / "truth.h5", "-o", tmp_path / "drift.aedat4")
+    run("simulate", *common, "--sigma-thres", "0", "-o", tmp_path / "ideal.aedat4")
+    info, events = read_all(tmp_path / "drift.aedat4")
+    with create_events(str(tmp_path / "calib.aedat4"), info) as writer:
+        writer.write(events[events["t"] < 2_000_000])
+    run("estimate", tmp_path / "calib.aedat4", *LOG_STIMULUS, "-o", tmp_path / "calib.h5")
+    run("estimate", tmp_path / "drift.aedat4", *LOG_STIMULUS, "--online", "--interval", "1s", "--forget", "1s",
+        "-o", tmp_path / "series.h5")
+    series = read_thresholds(tmp_path / "series.h5", series=True)
+    truth = read_thresholds(tmp_path / "truth.h5")
+    assert series.on.shape == (16, 12, 16) and series.t_us[0] > 1_000_000  # 15 boundaries and the final map
+    later = series.t_us > 2_000_000
+    for maps, first in ((series.on, truth.on), (series.off, truth.off)):
+        ratio = np.nanmedian(maps[later] / first, axis=(1, 2))
+        expected = 1 + 0.02 * (series.t_us[later] / 1e6 - 1.0)  # a lag of about the forgetting time
+        assert np.all(np.abs(ratio / expected - 1) < 0.04), ratio
+        assert np.all(np.diff(ratio) > 0)
+    # the single latest map is what metrics and render see
+    assert read_thresholds(tmp_path / "series.h5").on.shape == (12, 16)
+    for name in ("calib", "series"):
+        run("correct", tmp_path / "drift.aedat4", "--thresholds", tmp_path / f"{name}.h5", "--target", "0.2",
+            "-o", tmp_path / f"{name}.corrected.aedat4")
+
+    def count_error(path):
+        counts = [np.bincount(e["y"].astype(np.int64) * 16 + e["x"], minlength=192)
+                  for e in (read_all(path)[1], read_all(tmp_path / "ideal.aedat4")[1])]
+        return np.abs(counts[0] - counts[1]).sum() / counts[1].sum()
+
+    raw, calibrated, online = (count_error(tmp_path / name) for name in
+                               ("drift.aedat4", "calib.corrected.aedat4", "series.corrected.aedat4"))
+    assert online * 4 <= calibrated and online < raw, (raw, calibrated, online)
+
+
+def test_online_usage_and_series_errors(tmp_path):
+    stream = tmp_path / "f.aedat4"
+    run("simulate", "scene:flicker", "--size", "8x6", "--duration", "2s", "-o", stream)
+    for args, needle in ((["--online", "--interval", "1"], "no unit"), (["--interval", "1s"], "--online"),
+                         (["--online"], "stimulus or natural")):
+        result = run("estimate", stream, "-o", tmp_path / "x.h5", *args, check=False)
+        assert result.returncode == 2 and needle in result.stderr.decode(), result.stderr
+    import h5py as h5
+
+    with h5.File(tmp_path / "bad.h5", "w") as file:
+        file["on"] = np.full((3, 6, 8), 0.2, np.float32)
+        file["off"] = np.full((3, 6, 8), 0.2, np.float32)
+        file["t_us"] = np.array([0, 2_000, 1_000], dtype=np.int64)
+    result = run("correct", stream, "--thresholds", tmp_path / "bad.h5", "-o", tmp_path / "c.aedat4", check=False)
+    assert_clean_error(result, "bad.h5", "out of order")
+    assert not (tmp_path / "c.aedat4").exists()
