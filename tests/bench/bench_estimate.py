@@ -8,7 +8,8 @@ RSS comes from ``wait4``: equal peaks show that memory does not grow with the st
 
 Methods: ``offe``, ``natural`` (counts and reversals per pixel; the neighbours' means at the end), ``stimulus`` (the flicker, every pixel's phase given: L from a one-period table), ``fitted``
 (the flicker, every pixel's phase fitted to its first events: a search per pixel, then L from the ramp table),
-``fitted-gradient`` (the same on a real calibration stream: two periods of the simulator's moving gradient,
+``natural-online``, ``stimulus-online`` (a map every second of the stream: 10 maps on 100M events at 10 Mev/s,
+each a few MB held for the output series), ``fitted-gradient`` (the same on a real calibration stream: two periods of the simulator's moving gradient,
 2.15 M events, repeated; 34 MB of it held), ``gradient`` (stimulus on a moving gradient, phases given: L computed
 per event, one logarithm each). Random events are the worst case for ``stimulus``: every pixel's first changes (its
 seeding) and its accept test are unpredictable branches, and every pixel shows ~16 polarity reversals in its
@@ -87,9 +88,11 @@ def child(method: str, events: int, scratch: str) -> dict:
     if method == "fitted-gradient":
         stimulus = Stimulus(50, 200, GRADIENT_S * 1e6 / 2)  # the gradient described by its period alone
     phase = "fit" if method.startswith("fitted") else "given"
+    online = method.endswith("-online")  # a map every second of the stream (10 maps on 100M events)
+    method = method.removesuffix("-online")
     kind = method if method in ("offe", "natural") else "stimulus"
     estimator = ThresholdEstimator(WIDTH, HEIGHT, kind, stimulus=stimulus, segment_us=10_000, phase=phase,
-                                   max_fit=float("inf"))
+                                   max_fit=float("inf"), interval_us=1_000_000 if online else None)
     spent = 0.0
     done = 0
     for chunk in chunks(method, events, scratch):
@@ -118,7 +121,8 @@ def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--child", nargs=3)
     parser.add_argument("--events", default="10000000,100000000")
-    parser.add_argument("--methods", default="offe,natural,stimulus,fitted,fitted-gradient,gradient")
+    parser.add_argument("--methods", default="offe,natural,natural-online,stimulus,stimulus-online,fitted,"
+                                                "fitted-gradient,gradient")
     args = parser.parse_args()
     if args.child:
         print(json.dumps(child(args.child[0], int(args.child[1]), args.child[2])))
