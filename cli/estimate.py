@@ -92,7 +92,8 @@ def _stimulus(levels, period_us, profile, amplitude, speed, wavelength, rise) ->
 @click.option("--max-fit", type=click.FloatRange(min=0, min_open=True), default=None, metavar="F",
               help=f"Pixels that fit worse are invalid (the fit map). stimulus: the RMS deviation of their level "
                    f"changes, in thresholds (default {DEFAULT_MAX_FIT}); natural: the relative disagreement of two "
-                   f"halves of the stream (default {DEFAULT_MAX_ERROR}).")
+                   f"halves of the stream; offe: the relative disagreement with the natural estimate (default "
+                   f"{DEFAULT_MAX_ERROR}; inf: offE's reference exactly).")
 @click.option("--stimulus-amplitude", type=click.FloatRange(min=0, min_open=True), default=None, metavar="A",
               help="stimulus: a triangle linear in log intensity, A log units peak to peak (the same as "
                    "--stimulus-profile log --stimulus-levels 0,A; the base level does not matter).")

@@ -596,16 +596,21 @@ then the last event's polarity (0 none yet, 1 ON, 2 OFF), and a spare column: 64
 COUNT_LAST = 6
 
 
+@kernel(inline=True)
+def _count(t_us, i, on, block_us, counts):  # pragma: no cover - compiled
+    """One event of pixel i into its counts (see :func:`count_accumulate`)."""
+    half = 3 * ((t_us // block_us) % 2)
+    polarity = 1 if on else 2
+    counts[i, half + polarity - 1] += 1
+    last = counts[i, COUNT_LAST]
+    counts[i, half + 2] += 1 if last != 0 and last != polarity else 0
+    counts[i, COUNT_LAST] = polarity
+
+
 @kernel
 def count_accumulate(t, x, y, p, width, block_us, counts):  # pragma: no cover - compiled
     """Count each pixel's ON and OFF events and its polarity reversals (an event whose polarity differs from the
     pixel's previous event's: a turn of its signal), separately in even and odd blocks of ``block_us`` (absolute
     time: ``t // block_us`` even or odd), into ``counts`` (pixels, :data:`COUNT_SIZE`)."""
     for k in range(t.shape[0]):
-        i = np.int64(y[k]) * width + x[k]
-        half = 3 * ((t[k] // block_us) % 2)
-        polarity = 1 if p[k] else 2
-        counts[i, half + polarity - 1] += 1
-        last = counts[i, COUNT_LAST]
-        counts[i, half + 2] += 1 if last != 0 and last != polarity else 0
-        counts[i, COUNT_LAST] = polarity
+        _count(t[k], np.int64(y[k]) * width + x[k], p[k], block_us, counts)
