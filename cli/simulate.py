@@ -277,6 +277,7 @@ _SCENE_OPTIONS = {  # keyword of the scene functions -> command-line option
     "period_s": "period",
     "profile": "profile",
     "phase": "phase",
+    "phase_spread": "phase_spread",
     "speed_px_s": "speed",
     "wavelength_px": "wavelength",
     "bar_width_px": "bar_width",
@@ -395,6 +396,8 @@ def _float_option(name: str, help: str):
 @click.option("--profile", type=click.Choice(FLICKER_PROFILES), default=None,
               help="flicker: the wave is linear in intensity (default) or in log intensity.")
 @click.option("--phase", type=float, default=None, help="flicker: the wave's phase at time 0, periods (0 = valley).")
+@click.option("--phase-spread", type=float, default=None, metavar="PERIODS",
+              help="flicker: delay each pixel by its own random fraction of PERIODS periods (default 0).")
 @click.option("--speed", type=float, default=None,
               help="gradient, bars, texture: speed in pixels per second (default 50).")
 @click.option("--image", type=click.Path(dir_okay=False), default=None, metavar="FILE",

@@ -517,14 +517,16 @@ FLICKER_PROFILES = ("intensity", "log")
 def flicker_scene(
     width: int, height: int, duration_us: int, *, frame_rate_hz: float = DEFAULT_FRAME_RATE_HZ,
     min_level: float = 50.0, max_level: float = 200.0, period_s: float = 0.5, profile: str = "intensity",
-    phase: float = 0.0,
+    phase: float = 0.0, phase_spread: float = 0.0,
 ) -> Iterator[tuple[int, np.ndarray]]:
     """Every pixel alike: a triangle wave from ``min_level`` up to ``max_level`` and back per ``period_s``.
 
     The report's flicker scene: every pixel sees the same log-intensity excursion, so per-pixel event counts
     reveal the thresholds. ``profile`` ``intensity``: linear in intensity (the report's); ``log``: linear in log
     intensity, so a pixel's log signal is exactly linear between its events (the case where first-order-hold
-    re-sampling is exact). ``phase`` (in periods, 0 = the valley) is where the wave is at time 0.
+    re-sampling is exact). ``phase`` (in periods, 0 = the valley) is where the wave is at time 0;
+    ``phase_spread`` > 0 delays each pixel by its own fraction of ``phase_spread`` periods (uniform, from a fixed
+    seed: the same every run), as a display's latency or an unknown start time per pixel would.
     """
     _check_levels(min_level, max_level)
     _check_positive("period", period_s)
@@ -534,13 +536,29 @@ def flicker_scene(
         raise SimulationError(f"a log profile needs min level > 0, got {min_level}")
     if not math.isfinite(phase):
         raise SimulationError(f"phase must be a finite number of periods, got {phase}")
+    if not 0.0 <= phase_spread < math.inf:
+        raise SimulationError(f"phase spread must be a number of periods >= 0, got {phase_spread}")
     times = _frame_times_us(duration_us, frame_rate_hz)
-    wave = _triangle(times * 1e-6 / period_s + phase)
-    if profile == "log":
-        levels = np.exp(math.log(min_level) + (math.log(max_level) - math.log(min_level)) * wave)
-    else:
-        levels = min_level + (max_level - min_level) * wave
-    return ((int(t), np.full((height, width), level, dtype=np.float32)) for t, level in zip(times, levels))
+    delays = phase_spread * np.random.default_rng(PHASE_SPREAD_SEED).random((height, width))
+
+    def frame(t_us):
+        wave = _triangle(t_us * 1e-6 / period_s + phase - delays)
+        if profile == "log":
+            return np.exp(math.log(min_level) + (math.log(max_level) - math.log(min_level)) * wave).astype(np.float32)
+        return (min_level + (max_level - min_level) * wave).astype(np.float32)
+
+    if phase_spread == 0.0:  # one level per frame
+        wave = _triangle(times * 1e-6 / period_s + phase)
+        if profile == "log":
+            levels = np.exp(math.log(min_level) + (math.log(max_level) - math.log(min_level)) * wave)
+        else:
+            levels = min_level + (max_level - min_level) * wave
+        return ((int(t), np.full((height, width), level, dtype=np.float32)) for t, level in zip(times, levels))
+    return ((int(t), frame(t)) for t in times)
+
+
+PHASE_SPREAD_SEED = 0
+"""flicker: the seed of the per-pixel delays of ``phase_spread`` (fixed: a scene is the same every run)."""
 
 
 def gradient_scene(

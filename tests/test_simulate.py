@@ -395,6 +395,20 @@ def test_gradient_moves_right_and_bars_move_along_their_direction():
         assert np.ptp(first, axis=1 - axis).max() == 0  # constant along the bars
 
 
+def test_flicker_phase_spread_delays_each_pixel_by_its_own_fraction():
+    """--phase-spread S: pixel (x, y) sees the flicker delayed by d(x, y) in [0, S) periods, the same every run."""
+    period_us = 400_000
+    frames = dict(scene_frames("flicker", 6, 4, 400_000, phase_spread=0.5, period_s=0.4, profile="log"))
+    again = dict(scene_frames("flicker", 6, 4, 400_000, phase_spread=0.5, period_s=0.4, profile="log"))
+    assert all(np.array_equal(frames[t], again[t]) for t in frames)
+    # each pixel's darkest frame (its valley) comes d * period after t = 0, d within [0, 0.5)
+    stack = np.stack([frames[t] for t in sorted(frames)])
+    valley_us = np.array(sorted(frames))[np.argmin(stack, axis=0)]
+    assert np.all(valley_us < 0.5 * period_us + 1_000) and len(np.unique(valley_us)) > 10
+    plain = dict(scene_frames("flicker", 6, 4, 10_000))
+    assert all(np.ptp(frame) == 0 for frame in plain.values())
+
+
 def test_texture_scene_moves_a_texture_or_a_given_image(tmp_path):
     """The texture scene: levels within [min, max], every frame different (it moves), the view's first frame is
     the texture's centre; ``image`` takes any grey image in its place (its own levels), and the command line's
