@@ -76,36 +76,27 @@ def _crossings(level, delta, off0, span, shrink, tau, t_b, xy, target_on, target
 
     ``xy`` is the pixel's x and y as the low 32 bits of an event's second word; created events are written as
     (time, word) pairs."""
-    scale = shrink / delta if tau > 0.0 and delta != 0.0 else 0.0
-    if delta > 0.0:
-        k = 1.0
-        while level + delta >= k * target_on:
-            rise = k * target_on - level
-            if tau > 0.0:
-                rest = 1.0 - rise * scale
-                s = min(-tau * math.log(rest), span) if rest > 0.0 else span
-            else:
-                s = rise / delta * span
-            out_t[n] = t_b + np.int64(math.floor(off0 + s + 0.5))
-            out_w[n] = xy | ON_BIT
-            n += 1
-            k += 1.0
-        return level + delta - (k - 1.0) * target_on, n
-    if delta < 0.0:
-        k = 1.0
-        while level + delta <= -k * target_off:
-            fall = -k * target_off - level
-            if tau > 0.0:
-                rest = 1.0 - fall * scale
-                s = min(-tau * math.log(rest), span) if rest > 0.0 else span
-            else:
-                s = fall / delta * span
-            out_t[n] = t_b + np.int64(math.floor(off0 + s + 0.5))
-            out_w[n] = xy
-            n += 1
-            k += 1.0
-        return level + delta + (k - 1.0) * target_off, n
-    return level, n
+    if delta == 0.0:
+        return level, n
+    scale = shrink / delta if tau > 0.0 else 0.0
+    # ON (delta > 0) and OFF alike with the sign: -(k * target) and (-k) * target are the same float, so this is
+    # bit for bit the two branches it replaces
+    sign = 1.0 if delta > 0.0 else -1.0
+    target = target_on if delta > 0.0 else target_off
+    word = xy | ON_BIT if delta > 0.0 else xy
+    k = 1.0
+    while sign * (level + delta) >= k * target:
+        step = sign * k * target - level  # the change to the next crossing, of delta's sign
+        if tau > 0.0:
+            rest = 1.0 - step * scale
+            s = min(-tau * math.log(rest), span) if rest > 0.0 else span
+        else:
+            s = step / delta * span
+        out_t[n] = t_b + np.int64(math.floor(off0 + s + 0.5))
+        out_w[n] = word
+        n += 1
+        k += 1.0
+    return level + delta - sign * (k - 1.0) * target, n
 
 
 @kernel(inline=True)
