@@ -8,11 +8,11 @@ import os
 import click
 import numpy as np
 
-from cli.options import output_option, read_options
-from cli.progress import process_stream
+from evtools.cli.options import output_option, read_options
+from evtools.cli.progress import process_stream
 from evtools.bafilter import METHODS, PRESETS, BAFilter, BAFilterError, parse_methods
 from evtools.errors import EvtoolsError
-from formats import create_events, open_events
+from evtools.formats import create_events, open_events
 
 log = logging.getLogger("evtools")
 

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import click
 
-from cli.options import output_option, read_options
-from cli.progress import with_progress
-from formats import create_events, open_events
-from formats.registry import FORMATS
+from evtools.cli.options import output_option, read_options
+from evtools.cli.progress import with_progress
+from evtools.formats import create_events, open_events
+from evtools.formats.registry import FORMATS
 
 
 @click.command()

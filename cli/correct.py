@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import click
 
-from cli.options import output_option, read_options
-from cli.progress import process_stream
+from evtools.cli.options import output_option, read_options
+from evtools.cli.progress import process_stream
 from evtools.correct import CORRECT_DEFAULTS, MAX_WINDOW_US, MODES, CorrectionError, ThresholdCorrector
-from formats import create_events, open_events
-from formats.thresholds import read_thresholds
+from evtools.formats import create_events, open_events
+from evtools.formats.thresholds import read_thresholds
 
 
 def _target(ctx, param, value):

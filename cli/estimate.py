@@ -6,8 +6,8 @@ import math
 
 import click
 
-from cli.options import Duration, read_options
-from cli.progress import with_progress
+from evtools.cli.options import Duration, read_options
+from evtools.cli.progress import with_progress
 from evtools.estimate import (
     DEFAULT_MAX_ERROR,
     DEFAULT_MAX_FIT,
@@ -21,8 +21,8 @@ from evtools.estimate import (
     Stimulus,
     ThresholdEstimator,
 )
-from formats import open_events
-from formats.thresholds import ThresholdMap, write_thresholds
+from evtools.formats import open_events
+from evtools.formats.thresholds import ThresholdMap, write_thresholds
 
 DEFAULT_LEVELS = (50.0, 200.0)
 

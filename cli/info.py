@@ -6,10 +6,10 @@ import json
 
 import click
 
-from cli.options import aedat2_layout_option, input_format_option, json_option, sensor_size_option, wants_json
-from cli.progress import with_progress
+from evtools.cli.options import aedat2_layout_option, input_format_option, json_option, sensor_size_option, wants_json
+from evtools.cli.progress import with_progress
 from evtools.summary import StreamSummary
-from formats import open_events
+from evtools.formats import open_events
 
 
 @click.command()

@@ -59,25 +59,25 @@ class LazyGroup(click.Group):
 
 
 COMMANDS = {
-    "info": ("cli.info:info",
+    "info": ("evtools.cli.info:info",
              "Format, sensor size, event count, time span, rate and ON fraction of each FILE (`-` = stdin)."),
-    "convert": ("cli.convert:convert",
+    "convert": ("evtools.cli.convert:convert",
                 "Convert IN (default stdin) to OUT or -o OUT (default stdout), chunk by chunk in bounded memory."),
-    "simulate": ("cli.simulate:simulate",
+    "simulate": ("evtools.cli.simulate:simulate",
                  "Simulate a DVS looking at SOURCE: a video file, a folder of images, or scene:NAME; or add "
                  "labelled noise to SOURCE when it is an event stream (any readable format, `-` for stdin)."),
-    "render": ("cli.render:render",
+    "render": ("evtools.cli.render:render",
                "Draw IN (default stdin) as event frames, or a thresholds map with --map: users look before they "
                "read."),
-    "bafilter": ("cli.bafilter:bafilter",
+    "bafilter": ("evtools.cli.bafilter:bafilter",
                  "Remove background activity from IN (default stdin), writing OUT or -o OUT (default stdout)."),
-    "estimate": ("cli.estimate:estimate",
+    "estimate": ("evtools.cli.estimate:estimate",
                  "Estimate every pixel's ON and OFF contrast thresholds from IN (default stdin), streaming, into "
                  "-o FILE."),
-    "correct": ("cli.correct:correct",
+    "correct": ("evtools.cli.correct:correct",
                 "Re-sample every pixel of IN (default stdin) at one target threshold; write -o OUT (default "
                 "stdout)."),
-    "metrics": ("cli.metrics:metrics",
+    "metrics": ("evtools.cli.metrics:metrics",
                 "Measure denoising (denoise, roc, esr), threshold estimation (thresholds), uniformity "
                 "(uniformity) and reconstruction (reconstruction)."),
 }

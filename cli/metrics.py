@@ -4,25 +4,25 @@ from __future__ import annotations
 
 import click
 
-from cli.main import LazyGroup
+from evtools.cli.main import LazyGroup
 
 
 @click.group(cls=LazyGroup, lazy_commands={
-    "denoise": ("cli.metrics_denoise:denoise",
+    "denoise": ("evtools.cli.metrics_denoise:denoise",
                 "TPR (signal kept), FPR (noise kept), precision, F1 and per-label counts of FILTERED against NOISY."),
-    "roc": ("cli.metrics_denoise:roc",
+    "roc": ("evtools.cli.metrics_denoise:roc",
             "DND21 ROC of each --method over --sweep on NOISY: (FPR, TPR) per value, (0,0) and (1,1), trapezoid "
             "AUC."),
-    "esr": ("cli.metrics_denoise:esr",
+    "esr": ("evtools.cli.metrics_denoise:esr",
             "E-MLB's event structural ratio per slice of IN and its mean, MESR (higher is better; no labels "
             "needed)."),
-    "thresholds": ("cli.metrics_thresholds:thresholds",
+    "thresholds": ("evtools.cli.metrics_thresholds:thresholds",
                    "Relative RMSE, bias and correlation of ON and OFF thresholds over valid pixels, and the invalid "
                    "fraction."),
-    "reconstruction": ("cli.metrics_reconstruction:reconstruction",
+    "reconstruction": ("evtools.cli.metrics_reconstruction:reconstruction",
                        "RMSE and SSIM of the log intensity reconstructed from EVENTS against the true frames of "
                        "TRUTH.h5."),
-    "uniformity": ("cli.metrics_uniformity:uniformity",
+    "uniformity": ("evtools.cli.metrics_uniformity:uniformity",
                    "Per stimulus edge of IN: std across pixels of the first and last event times, count CV, errors "
                    "vs IDEAL."),
 })

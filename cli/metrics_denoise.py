@@ -8,12 +8,12 @@ import math
 import click
 import numpy as np
 
-from cli.options import json_option, read_options, wants_json
-from cli.progress import with_progress
+from evtools.cli.options import json_option, read_options, wants_json
+from evtools.cli.progress import with_progress
 from evtools.bafilter import METHODS, BAFilter, BAFilterError, parse_methods
 from evtools.metrics.denoise import LABEL_NAMES, DenoiseMatcher, DenoiseMetricsError, EsrMeter, roc_auc
-from formats import open_events
-from formats.thresholds import read_labels
+from evtools.formats import open_events
+from evtools.formats.thresholds import read_labels
 
 
 def _labels_for(truth: str, n_events: int, name: str) -> np.ndarray:

@@ -8,11 +8,11 @@ import math
 import click
 import numpy as np
 
-from cli.options import json_option, wants_json
+from evtools.cli.options import json_option, wants_json
 from evtools.metrics.reconstruction import HighPassReconstructor, ReconstructionError, reconstruction_errors
-from formats import open_events
-from formats.io import output_stream
-from formats.thresholds import read_thresholds
+from evtools.formats import open_events
+from evtools.formats.io import output_stream
+from evtools.formats.thresholds import read_thresholds
 
 DEFAULT_CUTOFF_HZ = 0.0
 """Pure integration by default: what threshold mismatch does to a reconstruction shows undamped (a cut-off hides

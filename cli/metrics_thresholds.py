@@ -7,10 +7,10 @@ import json
 import click
 import numpy as np
 
-from cli.options import json_option, wants_json
+from evtools.cli.options import json_option, wants_json
 from evtools.metrics.thresholds import ThresholdMetricsError, estimation_picture, threshold_errors
-from formats.io import output_stream
-from formats.thresholds import read_thresholds
+from evtools.formats.io import output_stream
+from evtools.formats.thresholds import read_thresholds
 
 PICTURE_EXTENSIONS = {".png": "PNG", ".jpg": "JPEG", ".jpeg": "JPEG", ".bmp": "BMP", ".tif": "TIFF", ".tiff": "TIFF"}
 

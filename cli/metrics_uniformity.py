@@ -6,12 +6,12 @@ import json
 
 import click
 
-from cli.options import json_option, read_options, wants_json
+from evtools.cli.options import json_option, read_options, wants_json
 from evtools.events import concatenate
 from evtools.metrics.uniformity import (
     UniformityError, detect_edges, draw_edge_levels, edge_uniformity, edges_from_starts,
 )
-from formats import open_events
+from evtools.formats import open_events
 
 
 def _edges_at(ctx, param, value):

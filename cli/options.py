@@ -9,7 +9,7 @@ import click
 
 from evtools.errors import EvtoolsError
 from evtools.events import parse_sensor_size
-from formats.registry import BY_NAME
+from evtools.formats.registry import BY_NAME
 
 
 def _sensor_size(ctx, param, value):

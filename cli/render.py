@@ -8,8 +8,8 @@ import os
 import click
 import numpy as np
 
-from cli.options import Duration, read_options
-from cli.progress import with_progress
+from evtools.cli.options import Duration, read_options
+from evtools.cli.progress import with_progress
 from evtools.render import (
     BACKGROUNDS,
     EventFramer,
@@ -18,9 +18,9 @@ from evtools.render import (
     thresholds_picture,
     upscale,
 )
-from formats import open_events
-from formats.io import STDIO, atomic_path, output_stream, same_file
-from formats.thresholds import read_thresholds
+from evtools.formats import open_events
+from evtools.formats.io import STDIO, atomic_path, output_stream, same_file
+from evtools.formats.thresholds import read_thresholds
 
 log = logging.getLogger("evtools")
 

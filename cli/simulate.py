@@ -14,8 +14,8 @@ from typing import Any, Iterator
 import click
 import numpy as np
 
-from cli.options import Duration, aedat2_layout_option, input_format_option, sensor_size_option
-from cli.progress import with_progress
+from evtools.cli.options import Duration, aedat2_layout_option, input_format_option, sensor_size_option
+from evtools.cli.progress import with_progress
 from evtools.events import CHUNK_EVENTS, StreamInfo, join, parse_sensor_size
 from evtools.noise import NOISE_DEFAULTS, NoiseInjector
 from evtools.simulate import (
@@ -28,9 +28,9 @@ from evtools.simulate import (
     lin_log,
     SimulationError,
 )
-from formats import create_events, open_events
-from formats.io import STDIO, HEAD_BYTES, output_stream, same_file
-from formats.registry import FORMATS, detect
+from evtools.formats import create_events, open_events
+from evtools.formats.io import STDIO, HEAD_BYTES, output_stream, same_file
+from evtools.formats.registry import FORMATS, detect
 
 DEFAULT_SCENE_SIZE = "346x260"
 """A DAVIS346, the sensor v2e and the report emulate."""

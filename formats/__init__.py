@@ -10,9 +10,9 @@ from typing import Iterator
 import numpy as np
 
 from evtools.events import CHUNK_EVENTS, StreamChecker, StreamInfo
-from formats.errors import FormatError
-from formats.io import STDIO, Source, WriteBehind, output_stream, read_ahead, same_file
-from formats.registry import FORMATS, PIPE_FORMAT, ReadOptions, WriteOptions, by_name, detect, from_extension
+from evtools.formats.errors import FormatError
+from evtools.formats.io import STDIO, Source, WriteBehind, output_stream, read_ahead, same_file
+from evtools.formats.registry import FORMATS, PIPE_FORMAT, ReadOptions, WriteOptions, by_name, detect, from_extension
 
 __all__ = ["FORMATS", "EventStream", "FormatError", "ReadOptions", "WriteOptions", "create_events", "open_events"]
 

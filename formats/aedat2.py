@@ -29,9 +29,9 @@ import numpy as np
 
 import evtools
 from evtools.events import EVENT_DTYPE, StreamInfo
-from formats.errors import FormatError
-from formats.io import Source, resolve_sensor_size
-from formats.registry import ReadOptions, WriteOptions
+from evtools.formats.errors import FormatError
+from evtools.formats.io import Source, resolve_sensor_size
+from evtools.formats.registry import ReadOptions, WriteOptions
 
 log = logging.getLogger("evtools")
 
@@ -103,9 +103,9 @@ class Aedat2Reader:
 
     Parameters
     ----------
-    source : formats.io.Source
+    source : evtools.formats.io.Source
         The input, read once from its first byte (pipes work).
-    options : formats.registry.ReadOptions
+    options : evtools.formats.registry.ReadOptions
         ``aedat2_layout`` and ``sensor_size`` are used when the header has no known ``# AEChip:`` line.
 
     Notes
@@ -227,7 +227,7 @@ class Aedat2Writer:
         Where the bytes go (not closed by :meth:`close`).
     info : evtools.StreamInfo
         The stream's sensor size chooses the layout unless ``options.aedat2_layout`` names one.
-    options : formats.registry.WriteOptions
+    options : evtools.formats.registry.WriteOptions
         ``aedat2_layout``: dvs128, davis240 or davis346.
 
     Notes

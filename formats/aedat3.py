@@ -22,9 +22,9 @@ from typing import BinaryIO, Iterator
 import numpy as np
 
 from evtools.events import EVENT_DTYPE, StreamInfo
-from formats.errors import FormatError
-from formats.io import Source, resolve_sensor_size
-from formats.registry import ReadOptions
+from evtools.formats.errors import FormatError
+from evtools.formats.io import Source, resolve_sensor_size
+from evtools.formats.registry import ReadOptions
 
 MAGIC = b"#!AER-DAT3.1\r\n"
 END_HEADER = b"#!END-HEADER"
@@ -56,9 +56,9 @@ class Aedat3Reader:
 
     Parameters
     ----------
-    source : formats.io.Source
+    source : evtools.formats.io.Source
         The input, read once from its first byte (pipes work).
-    options : formats.registry.ReadOptions
+    options : evtools.formats.registry.ReadOptions
         ``sensor_size`` is used when the header does not tell it.
 
     Notes

@@ -23,9 +23,9 @@ from xml.sax.saxutils import escape
 import numpy as np
 
 from evtools.events import EVENT_DTYPE, StreamInfo, join
-from formats.errors import FormatError
-from formats.io import Source
-from formats.registry import ReadOptions, WriteOptions
+from evtools.formats.errors import FormatError
+from evtools.formats.io import Source
+from evtools.formats.registry import ReadOptions, WriteOptions
 
 MAGIC = b"#!AER-DAT4.0\r\n"
 COMPRESSION_CODES = {"none": 0, "lz4": 1, "lz4-high": 2, "zstd": 3, "zstd-high": 4}

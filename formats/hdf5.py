@@ -18,9 +18,9 @@ from typing import BinaryIO, Iterator
 import numpy as np
 
 from evtools.events import EVENT_DTYPE, StreamInfo
-from formats.errors import FormatError
-from formats.io import Source, resolve_sensor_size
-from formats.registry import ReadOptions, WriteOptions
+from evtools.formats.errors import FormatError
+from evtools.formats.io import Source, resolve_sensor_size
+from evtools.formats.registry import ReadOptions, WriteOptions
 
 ECF_FILTER_ID = 36559
 """HDF5 filter id of Prophesee's ECF codec."""
@@ -76,9 +76,9 @@ class Hdf5Reader:
 
     Parameters
     ----------
-    source : formats.io.Source
+    source : evtools.formats.io.Source
         The input; stdin is spooled to a temporary file (HDF5 needs random access).
-    options : formats.registry.ReadOptions
+    options : evtools.formats.registry.ReadOptions
         ``sensor_size`` is used when the file does not store it (else it is inferred by a scan, with a warning).
     """
 
@@ -238,7 +238,7 @@ class Hdf5Writer:
         A seekable binary stream opened for reading and writing.
     info : evtools.StreamInfo
         Sensor size of the stream.
-    options : formats.registry.WriteOptions
+    options : evtools.formats.registry.WriteOptions
         ``compression``: none, gzip, lzf or zstd; default zstd (level 1, readable with hdf5plugin), which writes
         well above 20 million events/s.
     """

@@ -12,7 +12,7 @@ import threading
 from queue import Full, Queue
 from typing import BinaryIO, Iterable, Iterator
 
-from formats.errors import FormatError
+from evtools.formats.errors import FormatError
 
 HEAD_BYTES = 4096
 """How many leading bytes format detection looks at."""

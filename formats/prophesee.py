@@ -27,9 +27,9 @@ import numpy as np
 from evtools._kernels.evt3 import (DROPPED_NO_TIME, DROPPED_NO_Y, MAX_EVENTS_PER_WORD, OTHER_WORDS, TRIGGERS,
                                    decode_evt3, new_evt3_state)
 from evtools.events import EVENT_DTYPE, StreamInfo
-from formats.errors import FormatError
-from formats.io import Source, resolve_sensor_size
-from formats.registry import ReadOptions
+from evtools.formats.errors import FormatError
+from evtools.formats.io import Source, resolve_sensor_size
+from evtools.formats.registry import ReadOptions
 
 EVT2_TIME_HIGH_BITS = 28
 GENERATION_SIZES = (("genx320", (320, 320)), ("imx636", (1280, 720)), ("gen4", (1280, 720)), ("gen3", (640, 480)))
@@ -87,9 +87,9 @@ class ProphesseeRawReader:
 
     Parameters
     ----------
-    source : formats.io.Source
+    source : evtools.formats.io.Source
         The input, read once from its first byte (pipes work).
-    options : formats.registry.ReadOptions
+    options : evtools.formats.registry.ReadOptions
         ``sensor_size`` is used when the header does not tell it.
 
     Notes

@@ -87,19 +87,19 @@ def _is_text(head: bytes, delimiter: bytes) -> bool:
 
 FORMATS: tuple[Format, ...] = (
     Format("aedat4", "AEDAT 4.0 (DV, dv-processing)", (".aedat4",), lambda h: h.startswith(b"#!AER-DAT4.0"),
-           "formats.aedat4:Aedat4Reader", "formats.aedat4:Aedat4Writer"),
+           "evtools.formats.aedat4:Aedat4Reader", "evtools.formats.aedat4:Aedat4Writer"),
     Format("aedat2", "AEDAT 2.0 (jAER)", (".aedat", ".dat"), lambda h: h.startswith(b"#!AER-DAT2"),
-           "formats.aedat2:Aedat2Reader", "formats.aedat2:Aedat2Writer"),
+           "evtools.formats.aedat2:Aedat2Reader", "evtools.formats.aedat2:Aedat2Writer"),
     Format("aedat3", "AEDAT 3.1 (cAER, libcaer)", (".aedat3",), lambda h: h.startswith(b"#!AER-DAT3"),
-           "formats.aedat3:Aedat3Reader", None),
+           "evtools.formats.aedat3:Aedat3Reader", None),
     Format("hdf5", "HDF5 (DSEC, event_utils, v2e, evtools)", (".h5", ".hdf5", ".hdf"), _is_hdf5,
-           "formats.hdf5:Hdf5Reader", "formats.hdf5:Hdf5Writer", writer_needs_seek=True),
+           "evtools.formats.hdf5:Hdf5Reader", "evtools.formats.hdf5:Hdf5Writer", writer_needs_seek=True),
     Format("prophesee", "Prophesee EVT 2.0 / 3.0 RAW", (".raw",), _is_prophesee,
-           "formats.prophesee:ProphesseeRawReader", None),
+           "evtools.formats.prophesee:ProphesseeRawReader", None),
     Format("csv", "CSV with a header (t,x,y,p)", (".csv",), lambda h: _is_text(h, b","),
-           "formats.text:TextReader", "formats.text:CsvWriter"),
+           "evtools.formats.text:TextReader", "evtools.formats.text:CsvWriter"),
     Format("txt", "text t x y p, t in seconds (rpg events.txt, v2e)", (".txt",), lambda h: _is_text(h, b" "),
-           "formats.text:TextReader", "formats.text:TxtWriter"),
+           "evtools.formats.text:TextReader", "evtools.formats.text:TxtWriter"),
 )
 
 BY_NAME = {f.name: f for f in FORMATS}
@@ -108,7 +108,7 @@ PIPE_FORMAT = "aedat4"
 
 
 def by_name(name: str) -> Format:
-    from formats.errors import FormatError
+    from evtools.formats.errors import FormatError
 
     try:
         return BY_NAME[name.lower()]

@@ -19,9 +19,9 @@ from typing import BinaryIO, Iterator
 import numpy as np
 
 from evtools.events import EVENT_DTYPE, MAX_SENSOR_SIDE, StreamInfo
-from formats.errors import FormatError
-from formats.io import Source, resolve_sensor_size
-from formats.registry import ReadOptions, WriteOptions
+from evtools.formats.errors import FormatError
+from evtools.formats.io import Source, resolve_sensor_size
+from evtools.formats.registry import ReadOptions, WriteOptions
 
 BLOCK_BYTES = 16 << 20
 """Bytes parsed at once (at most)."""
@@ -46,9 +46,9 @@ class TextReader:
 
     Parameters
     ----------
-    source : formats.io.Source
+    source : evtools.formats.io.Source
         The input (a file or stdin).
-    options : formats.registry.ReadOptions
+    options : evtools.formats.registry.ReadOptions
         ``sensor_size`` when the file does not give it; otherwise a seekable file is scanned once for it.
     """
 

@@ -15,8 +15,8 @@ from typing import Any
 
 import numpy as np
 
-from formats.errors import FormatError
-from formats.io import output_stream
+from evtools.formats.errors import FormatError
+from evtools.formats.io import output_stream
 
 
 @dataclass

@@ -83,7 +83,7 @@ def main() -> None:
 def draw(curves, path, title) -> None:
     """All methods' ROC curves of one recording in one PNG (evtools' OpenCV drawing)."""
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-    from cli.metrics_denoise import draw_roc
+    from evtools.cli.metrics_denoise import draw_roc
     from evtools.metrics.denoise import roc_auc
 
     drawn = []

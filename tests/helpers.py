@@ -10,7 +10,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from formats import WriteOptions, open_events
+from evtools.formats import WriteOptions, open_events
 
 
 def random_events(n: int, width: int = 346, height: int = 260, seed: int = 0, t0_us: int = 0) -> np.ndarray:

@@ -10,9 +10,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from evtools.events import StreamInfo, make_events
-from formats import FormatError, create_events
-from formats.aedat2 import LAYOUT_SIZES, Aedat2Writer
-from formats.registry import WriteOptions
+from evtools.formats import FormatError, create_events
+from evtools.formats.aedat2 import LAYOUT_SIZES, Aedat2Writer
+from evtools.formats.registry import WriteOptions
 from tests.conftest import data_file
 from tests.helpers import assert_same_events, cut, read_all
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from evtools.events import make_events
-from formats import FormatError
+from evtools.formats import FormatError
 from tests.conftest import data_file
 from tests.helpers import assert_same_events, read_all
 

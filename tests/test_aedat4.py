@@ -8,9 +8,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from evtools.events import StreamInfo
-from formats import FormatError, create_events
-from formats.aedat4 import Aedat4Writer
-from formats.registry import WriteOptions
+from evtools.formats import FormatError, create_events
+from evtools.formats.aedat4 import Aedat4Writer
+from evtools.formats.registry import WriteOptions
 from tests.conftest import data_file
 from tests.helpers import assert_same_events, cut, random_events, read_all
 

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from evtools.bafilter import BAFilter, BAFilterError, ba_filter
 from evtools.events import StreamInfo, join, make_events
-from formats import create_events
+from evtools.formats import create_events
 from tests.conftest import data_file
 from tests.helpers import EVTOOLS, assert_clean_error, assert_same_events, cut, read_all, run
 from tests.naive.bafilter import (naive_baf, naive_dwf, naive_hot_pixels, naive_order_n, naive_refractory,

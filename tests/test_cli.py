@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from evtools.events import StreamInfo
-from formats import create_events
-from formats.aedat4 import Aedat4Writer
-from formats.registry import WriteOptions
+from evtools.formats import create_events
+from evtools.formats.aedat4 import Aedat4Writer
+from evtools.formats.registry import WriteOptions
 from tests.conftest import data_file
 from tests.helpers import assert_clean_error, assert_same_events, EVTOOLS, random_events, read_all, run
 
@@ -203,8 +203,8 @@ def test_group_help_lists_the_commands_own_summaries_without_importing_them():
     import importlib
     import sys
 
-    from cli.main import COMMANDS
-    from cli.metrics import metrics
+    from evtools.cli.main import COMMANDS
+    from evtools.cli.metrics import metrics
 
     for group in (COMMANDS, metrics.lazy_commands):
         for name, (target, summary) in group.items():
@@ -212,7 +212,7 @@ def test_group_help_lists_the_commands_own_summaries_without_importing_them():
             command = getattr(importlib.import_module(module), function)
             assert summary == command.get_short_help_str(limit=1000), name
     # `evtools --help` and `evtools metrics --help` list them without loading numba (0.3 s) or h5py
-    probe = ("import sys; from click.testing import CliRunner; from cli.main import cli; r = CliRunner(); "
+    probe = ("import sys; from click.testing import CliRunner; from evtools.cli.main import cli; r = CliRunner(); "
              "a = r.invoke(cli, ['--help']); b = r.invoke(cli, ['metrics', '--help']); "
              "print(a.exit_code, b.exit_code, 'bafilter' in a.output, 'uniformity' in b.output, "
              "'numba' in sys.modules, 'h5py' in sys.modules)")

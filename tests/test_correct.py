@@ -13,7 +13,7 @@ from evtools.correct import CORRECT_DEFAULTS, CorrectionError, ThresholdCorrecto
 from evtools.events import EVENT_DTYPE, join, make_events
 from evtools.simulate import DvsSimulator
 from evtools.metrics.uniformity import detect_edges, edge_uniformity, edges_from_starts
-from formats.thresholds import ThresholdMap, read_thresholds, write_thresholds
+from evtools.formats.thresholds import ThresholdMap, read_thresholds, write_thresholds
 from tests.helpers import assert_clean_error, assert_same_events, cut, random_events, read_all, run
 from tests.naive.correct import STEP, correct_naive
 

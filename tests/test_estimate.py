@@ -17,8 +17,8 @@ from evtools.events import empty_events, make_events
 from evtools.metrics.thresholds import threshold_errors
 from evtools.simulate import DvsSimulator, scene_frames
 from evtools.events import StreamInfo
-from formats import create_events
-from formats.thresholds import read_thresholds
+from evtools.formats import create_events
+from evtools.formats.thresholds import read_thresholds
 from tests.helpers import assert_clean_error, cut, random_events, read_all, run
 from tests.naive.ideal_pixel import ideal_events, triangle_corners
 from tests.conftest import data_file

@@ -14,11 +14,11 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-import formats.hdf5
+import evtools.formats.hdf5
 from evtools.events import StreamInfo, make_events
-from formats import FormatError, ReadOptions, WriteOptions, create_events, open_events
-from formats.hdf5 import Hdf5Writer
-from formats.io import Source
+from evtools.formats import FormatError, ReadOptions, WriteOptions, create_events, open_events
+from evtools.formats.hdf5 import Hdf5Writer
+from evtools.formats.io import Source
 from tests.conftest import data_file
 from tests.helpers import read_all, write_bytes
 
@@ -91,7 +91,7 @@ def test_v2e_n_by_4_layout(tmp_path):
 @given(case=event_arrays())
 def test_round_trip_and_bytes_independent_of_chunking(compression, case, tmp_path_factory):
     events, info, cuts = case
-    with mock.patch.object(formats.hdf5, "WRITE_BLOCK_EVENTS", 16), mock.patch.object(formats.hdf5, "MS_BLOCK", 8):
+    with mock.patch.object(evtools.formats.hdf5, "WRITE_BLOCK_EVENTS", 16), mock.patch.object(evtools.formats.hdf5, "MS_BLOCK", 8):
         whole = write_bytes(Hdf5Writer, events, [], info, compression)
         chunked = write_bytes(Hdf5Writer, events, cuts, info, compression)
     assert whole == chunked
@@ -183,7 +183,7 @@ def test_sensor_size_option_when_missing(tmp_path):
     info, events = read_all(path, sensor_size=(640, 480))
     assert info.size == (640, 480) and list(events["t"]) == [100, 101, 102, 103, 104]
     source = Source(path)
-    reader = formats.hdf5.Hdf5Reader(source, ReadOptions(sensor_size=(10, 10), chunk_events=2))
+    reader = evtools.formats.hdf5.Hdf5Reader(source, ReadOptions(sensor_size=(10, 10), chunk_events=2))
     assert [len(chunk) for chunk in reader] == [2, 2, 1]
     reader.close()
     source.close()

@@ -159,7 +159,7 @@ def test_a_process_with_a_warm_store_does_not_import_numba(tmp_path):
     outputs, imported = [], []
     for run in range(2):  # the first run may compile and store; the second loads
         output = tmp_path / f"out{run}.csv"
-        probe = ("import sys; from cli.main import cli; "
+        probe = ("import sys; from evtools.cli.main import cli; "
                  f"cli(['-q', 'bafilter', {str(source)!r}, '--method', 'hotpixel,refractory,stcf', "
                  f"'--sensor-size', '8x8', '-o', {str(output)!r}], standalone_mode=False); "
                  "print('numba' in sys.modules)")

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from evtools.metrics.thresholds import ThresholdMetricsError, estimation_picture, threshold_errors
-from formats.thresholds import ThresholdMap, write_thresholds
+from evtools.formats.thresholds import ThresholdMap, write_thresholds
 from tests.helpers import assert_clean_error, run
 
 

@@ -9,7 +9,7 @@ import pytest
 
 from evtools.events import make_events
 from evtools.metrics.uniformity import UniformityError, detect_edges, edge_uniformity, edges_from_starts
-from formats import create_events
+from evtools.formats import create_events
 from evtools.events import StreamInfo
 from tests.helpers import run
 

@@ -7,8 +7,8 @@ from hypothesis import strategies as st
 
 from evtools._kernels.evt3 import MAX_EVENTS_PER_WORD, decode_evt3, new_evt3_state
 from evtools.events import make_events
-from formats import FormatError
-from formats.prophesee import header_size, parse_header
+from evtools.formats import FormatError
+from evtools.formats.prophesee import header_size, parse_header
 from tests.conftest import data_file
 from tests.helpers import assert_same_events, read_all
 from tests.naive import NaiveEvt3Decoder, evt3_decode_naive

@@ -23,7 +23,7 @@ from evtools.render import (
     thresholds_picture,
     upscale,
 )
-from formats import create_events, open_events
+from evtools.formats import create_events, open_events
 from tests.helpers import assert_clean_error, cut, random_events, run
 
 DARK = BACKGROUNDS["dark"]

@@ -12,10 +12,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-import formats.text
+import evtools.formats.text
 from evtools.events import StreamInfo, make_events
-from formats import FormatError, create_events, open_events
-from formats.text import CsvWriter, TxtWriter
+from evtools.formats import FormatError, create_events, open_events
+from evtools.formats.text import CsvWriter, TxtWriter
 from tests.conftest import data_file
 from tests.helpers import read_all, write_bytes
 
@@ -136,7 +136,7 @@ def test_stdin_without_size_asks_for_it(monkeypatch):
 @given(case=event_arrays())
 def test_round_trip_and_bytes_independent_of_chunking(writer_class, suffix, case, tmp_path_factory):
     events, info, cuts = case
-    with mock.patch.object(formats.text, "WRITE_ROWS", 5):
+    with mock.patch.object(evtools.formats.text, "WRITE_ROWS", 5):
         chunked = write_bytes(writer_class, events, cuts, info)
     assert chunked == write_bytes(writer_class, events, [], info)
     path = tmp_path_factory.mktemp("rt") / f"events.{suffix}"

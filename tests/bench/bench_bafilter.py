@@ -56,7 +56,7 @@ def chunks(total: int, width: int, height: int, size: int = 1 << 20):
 
 def child_make(path: str, events: str) -> dict:
     from evtools.events import StreamInfo
-    from formats import create_events
+    from evtools.formats import create_events
 
     with create_events(path, StreamInfo(346, 260)) as writer:
         for chunk in chunks(int(events), 346, 260):
@@ -90,8 +90,8 @@ def child_dv(path: str, out: str) -> dict:
 def child_inproc(path: str, out: str) -> dict:
     """``evtools bafilter PATH --method baf --preset dv -o OUT`` run in this process, timed after the imports."""
     import cli.bafilter  # noqa: F401  (what the command imports: the kernels, the formats)
-    import formats.aedat4  # noqa: F401
-    from cli.main import cli
+    import evtools.formats.aedat4  # noqa: F401
+    from evtools.cli.main import cli
 
     start = time.perf_counter()
     cli(["-q", "bafilter", path, "--method", "baf", "--preset", "dv", "-o", out], standalone_mode=False)
@@ -114,7 +114,7 @@ def child_kernel(method: str, width: str, height: str, events: str) -> dict:
 
 def child_generate(events: str) -> None:
     from evtools.events import StreamInfo
-    from formats import create_events
+    from evtools.formats import create_events
 
     with create_events("-", StreamInfo(346, 260)) as writer:
         for chunk in chunks(int(events), 346, 260):

@@ -51,7 +51,7 @@ def random_chunks(total: int, rng):
 
 def walk_chunks(total: int):
     from evtools.events import concatenate, join
-    from formats import open_events
+    from evtools.formats import open_events
 
     with open_events(str(WALK)) as stream:
         recording = concatenate(stream)

@@ -44,7 +44,7 @@ def synthetic_chunks(n_events: int, seed: int = 0):
 
 def child_write(path: str, fmt: str, compression: str | None, n_events: int) -> dict:
     from evtools.events import StreamInfo
-    from formats import create_events
+    from evtools.formats import create_events
 
     spent = 0.0
     with create_events(path, StreamInfo(WIDTH, HEIGHT), format=fmt, compression=compression) as writer:
@@ -58,7 +58,7 @@ def child_write(path: str, fmt: str, compression: str | None, n_events: int) -> 
 
 
 def child_read(path: str, sensor_size: str | None, check: str = "check") -> dict:
-    from formats import open_events
+    from evtools.formats import open_events
 
     size = tuple(int(v) for v in sensor_size.split("x")) if sensor_size else None
     start = time.perf_counter()

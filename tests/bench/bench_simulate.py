@@ -58,7 +58,7 @@ def make_video(path: Path, frames: int, size: tuple[int, int] = VIDEO_SIZE, fps:
 # ---- children: each prints one JSON line ----
 
 def _simulator(width: int, height: int, preset: str):
-    from cli.simulate import model_parameters
+    from evtools.cli.simulate import model_parameters
     from evtools.simulate import DvsSimulator
 
     return DvsSimulator(width, height, seed=SEED, **model_parameters(preset, {}))
@@ -85,7 +85,7 @@ def _run_timed(simulator, frames) -> dict:
 
 
 def child_video(path: str, preset: str) -> dict:
-    from cli.simulate import video_source
+    from evtools.cli.simulate import video_source
 
     source = video_source(path, None, None)
     result = _run_timed(_simulator(source.width, source.height, preset), source.frames)
@@ -93,7 +93,7 @@ def child_video(path: str, preset: str) -> dict:
 
 
 def child_scene(name: str, size: str, duration: str, preset: str) -> dict:
-    from cli.simulate import scene_source
+    from evtools.cli.simulate import scene_source
 
     source = scene_source(name, size, duration, {})
     result = _run_timed(_simulator(source.width, source.height, preset), source.frames)
