@@ -10,7 +10,7 @@ import numpy as np
 
 from evtools.cli.options import output_option, read_options
 from evtools.cli.progress import process_stream
-from evtools.bafilter import METHODS, PRESETS, BAFilter, BAFilterError, parse_methods
+from evtools.filters import METHODS, PRESETS, BAFilter, BAFilterError, parse_methods
 from evtools.errors import EvtoolsError
 from evtools.formats import create_events, open_events
 

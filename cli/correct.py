@@ -6,7 +6,7 @@ import click
 
 from evtools.cli.options import output_option, read_options
 from evtools.cli.progress import process_stream
-from evtools.correct import CORRECT_DEFAULTS, MAX_WINDOW_US, MODES, CorrectionError, ThresholdCorrector
+from evtools.correction import CORRECT_DEFAULTS, MAX_WINDOW_US, MODES, CorrectionError, ThresholdCorrector
 from evtools.formats import create_events, open_events
 from evtools.formats.thresholds import read_thresholds
 

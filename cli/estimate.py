@@ -8,7 +8,7 @@ import click
 
 from evtools.cli.options import Duration, read_options
 from evtools.cli.progress import with_progress
-from evtools.estimate import (
+from evtools.estimation import (
     DEFAULT_MAX_ERROR,
     DEFAULT_MAX_FIT,
     DEFAULT_MIN_EVENTS,

@@ -10,7 +10,7 @@ import numpy as np
 
 from evtools.cli.options import json_option, read_options, wants_json
 from evtools.cli.progress import with_progress
-from evtools.bafilter import METHODS, BAFilter, BAFilterError, parse_methods
+from evtools.filters import METHODS, BAFilter, BAFilterError, parse_methods
 from evtools.metrics.denoise import LABEL_NAMES, DenoiseMatcher, DenoiseMetricsError, EsrMeter, roc_auc
 from evtools.formats import open_events
 from evtools.formats.thresholds import read_labels

@@ -18,7 +18,7 @@ from evtools.cli.options import Duration, aedat2_layout_option, input_format_opt
 from evtools.cli.progress import with_progress
 from evtools.events import CHUNK_EVENTS, StreamInfo, join, parse_sensor_size
 from evtools.noise import NOISE_DEFAULTS, NoiseInjector
-from evtools.simulate import (
+from evtools.simulation import (
     DEFAULT_PARAMETERS,
     FLICKER_PROFILES,
     LABELS,

@@ -29,7 +29,7 @@ import numpy as np
 from evtools._kernels.pixel import LABEL_HOT, LABEL_LEAK, LABEL_SHOT, LABEL_SIGNAL
 from evtools.errors import InvalidEventsError
 from evtools.events import CHUNK_EVENTS, EVENT_DTYPE, as_chunk, check_sensor_size, empty_events, join
-from evtools.simulate import SimulationError, _check_fraction, _check_nonnegative
+from evtools.simulation import SimulationError, _check_fraction, _check_nonnegative
 
 __all__ = ["BLOCK_US", "NOISE_DEFAULTS", "NoiseInjector", "inject_noise"]
 

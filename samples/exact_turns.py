@@ -80,7 +80,7 @@ def timing_errors(mine, theirs, limit_us=50_000):
 
 
 def measure(modes):
-    from evtools.correct import correct_thresholds
+    from evtools.correction import correct_thresholds
 
     target = float(np.float32(0.2))
     rows = {mode: {"count": [], "timing": []} for mode in ["uncorrected", *modes]}

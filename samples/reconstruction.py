@@ -24,11 +24,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from evtools.correct import correct_thresholds  # noqa: E402
-from evtools.estimate import Stimulus, estimate_thresholds  # noqa: E402
+from evtools.correction import correct_thresholds  # noqa: E402
+from evtools.estimation import Stimulus, estimate_thresholds  # noqa: E402
 from evtools.events import join  # noqa: E402
 from evtools.metrics.reconstruction import HighPassReconstructor, reconstruction_errors  # noqa: E402
-from evtools.simulate import DvsSimulator, lin_log, scene_frames  # noqa: E402
+from evtools.simulation import DvsSimulator, lin_log, scene_frames  # noqa: E402
 
 SIZE = 20
 DURATION_US = 2_000_000

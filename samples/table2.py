@@ -7,8 +7,8 @@ and with 1% and 5% Gaussian estimation error, in every mode; mean and spread ove
 sensor (sigma 0, the same seed). Plus the default mode's sensitivity to hold and tau (5% error), and the flicker
 pipeline of the report: simulate (leak noise) -> bafilter (baf, 50 ms) -> estimate (stimulus) -> correct.
 
-Everything runs in this process through the library (evtools.simulate, evtools.bafilter, evtools.estimate,
-evtools.correct, evtools.metrics.uniformity). Run from samples/ (``make table2``); writes table2.md.
+Everything runs in this process through the library (evtools.simulation, evtools.filters, evtools.estimation,
+evtools.correction, evtools.metrics.uniformity). Run from samples/ (``make table2``); writes table2.md.
 """
 
 from __future__ import annotations
@@ -22,12 +22,12 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from evtools.bafilter import ba_filter  # noqa: E402
-from evtools.correct import correct_thresholds  # noqa: E402
-from evtools.estimate import Stimulus, estimate_thresholds  # noqa: E402
+from evtools.filters import ba_filter  # noqa: E402
+from evtools.correction import correct_thresholds  # noqa: E402
+from evtools.estimation import Stimulus, estimate_thresholds  # noqa: E402
 from evtools.events import join  # noqa: E402
 from evtools.metrics.uniformity import edge_uniformity, edges_from_starts  # noqa: E402
-from evtools.simulate import DvsSimulator, scene_frames  # noqa: E402
+from evtools.simulation import DvsSimulator, scene_frames  # noqa: E402
 
 SIZE = 10
 SEEDS = range(10)

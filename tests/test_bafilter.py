@@ -10,7 +10,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from evtools.bafilter import BAFilter, BAFilterError, ba_filter
+from evtools.filters import BAFilter, BAFilterError, ba_filter
 from evtools.events import StreamInfo, join, make_events
 from evtools.formats import create_events
 from tests.conftest import data_file
@@ -144,9 +144,9 @@ def test_chunking_does_not_change_the_output(cuts, chain, preset, seed):
 
 
 def test_learning_stretch_cap_is_chunk_invariant(monkeypatch):
-    import evtools.bafilter
+    import evtools.filters
 
-    monkeypatch.setattr(evtools.bafilter, "MAX_LEARN_EVENTS", 100)
+    monkeypatch.setattr(evtools.filters, "MAX_LEARN_EVENTS", 100)
     events = dense_events(1_000, 3)
     expected = ba_filter(events, W, H, "hotpixel", hot_min_events=3, hot_ratio=2.0)
     for cuts in ([100], [50, 100], [99], [101, 500]):

@@ -9,9 +9,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from evtools.correct import CORRECT_DEFAULTS, CorrectionError, ThresholdCorrector, correct_thresholds
+from evtools.correction import CORRECT_DEFAULTS, CorrectionError, ThresholdCorrector, correct_thresholds
 from evtools.events import EVENT_DTYPE, join, make_events
-from evtools.simulate import DvsSimulator
+from evtools.simulation import DvsSimulator
 from evtools.metrics.uniformity import detect_edges, edge_uniformity, edges_from_starts
 from evtools.formats.thresholds import ThresholdMap, read_thresholds, write_thresholds
 from tests.helpers import assert_clean_error, assert_same_events, cut, random_events, read_all, run
@@ -141,7 +141,7 @@ def test_long_chunks_pipelined_in_parts_give_the_same_output(part, mode):
     options = dict(target=0.2, mode=mode, max_gap_us=5000, hold_us=2000)
     whole = correct_thresholds(events, W, H, on, off, **options)
     with pytest.MonkeyPatch.context() as patch:
-        patch.setattr("evtools.correct.PART", part)
+        patch.setattr("evtools.correction.PART", part)
         corrector = ThresholdCorrector(W, H, on, off, **options)
         pipelined = run_chunked(corrector, cut(events, [1000, 1001]))
         assert corrector._pool is not None  # the parts went through the pool

@@ -16,7 +16,7 @@ import numpy as np
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from evtools.correct import correct_thresholds
+from evtools.correction import correct_thresholds
 from evtools.events import make_events
 from tests.naive.ideal_pixel import ideal_events, step_response_events, triangle_corners
 

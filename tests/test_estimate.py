@@ -12,10 +12,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from evtools.estimate import DEFAULT_MAX_FIT, EstimationError, Stimulus, ThresholdEstimator, estimate_thresholds
+from evtools.estimation import DEFAULT_MAX_FIT, EstimationError, Stimulus, ThresholdEstimator, estimate_thresholds
 from evtools.events import empty_events, make_events
 from evtools.metrics.thresholds import threshold_errors
-from evtools.simulate import DvsSimulator, scene_frames
+from evtools.simulation import DvsSimulator, scene_frames
 from evtools.events import StreamInfo
 from evtools.formats import create_events
 from evtools.formats.thresholds import read_thresholds
@@ -118,7 +118,7 @@ def test_stimulus_with_given_phases_matches_the_reference(gradient, stimulus):
 
 def test_flicker_table_gives_the_same_levels_as_the_formula(flicker, monkeypatch):
     """The one-period table (no log per event) and the per-event formula agree bit for bit, over many periods."""
-    import evtools.estimate as module
+    import evtools.estimation as module
 
     events, _ = flicker
     tabulated = estimate_thresholds(events, W, H, "stimulus", stimulus=FLICKER, phase="given")

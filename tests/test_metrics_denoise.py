@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from evtools.bafilter import ba_filter
+from evtools.filters import ba_filter
 from evtools.events import make_events
 from evtools.metrics.denoise import DenoiseMatcher, DenoiseMetricsError, EsrMeter, esr, roc_auc
 from tests.conftest import data_file

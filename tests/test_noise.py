@@ -15,7 +15,7 @@ import evtools.noise
 from evtools.errors import InvalidEventsError
 from evtools.events import EVENT_DTYPE, make_events
 from evtools.noise import BLOCK_US, NoiseInjector, inject_noise
-from evtools.simulate import SimulationError
+from evtools.simulation import SimulationError
 from tests.conftest import data_file
 from tests.helpers import assert_clean_error, assert_same_events, cut, EVTOOLS, read_all, run
 

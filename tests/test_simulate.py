@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 from evtools._kernels.pixel import _level_tables, time_order
 from evtools.events import EVENT_DTYPE
-from evtools.simulate import (
+from evtools.simulation import (
     DEAD_PIXEL_THRESHOLD,
     PRESETS,
     SCENES,

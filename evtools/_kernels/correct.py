@@ -31,7 +31,7 @@ With ``turns`` (on in the ``turns`` and ``highpass`` modes of the corrector) the
 
 Every re-sampled event lies after the start of the segment it belongs to: the pixel's previous event, or
 ``max(origin, t_j - max_gap_us)``; a waiting segment starts at most ``window_us`` before its event and waits at
-most ``window_us`` (the ordering argument of :class:`evtools.correct.ThresholdCorrector`).
+most ``window_us`` (the ordering argument of :class:`evtools.correction.ThresholdCorrector`).
 Pixels whose ``use`` flag is False pass through unchanged. ``tests/naive/correct.py`` holds the pure-Python
 reference.
 

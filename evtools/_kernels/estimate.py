@@ -1,6 +1,6 @@
 """Threshold-estimation kernels: per-pixel sums accumulated event by event, in O(pixels) memory.
 
-The accumulators, one per method of :mod:`evtools.estimate` (``tests/naive/estimate.py`` holds the pure-Python
+The accumulators, one per method of :mod:`evtools.estimation` (``tests/naive/estimate.py`` holds the pure-Python
 references):
 
 - :func:`offe_accumulate` (Wang et al. 2019, offE): each pixel's cumulative event count E and polarity sum P since

@@ -3,7 +3,7 @@
 The pixel model is v2e's (lin-log photoreceptor, intensity-dependent first-order low-pass, per-pixel thresholds,
 leak, intensity-dependent shot noise) with ESIM's timing: within one frame interval the comparator input is the
 straight line between the two frames' (filtered) log intensities, and every threshold crossing gets its own time on
-that line. All per-pixel state lives in arrays owned by :class:`evtools.simulate.DvsSimulator`; a pixel's state is
+that line. All per-pixel state lives in arrays owned by :class:`evtools.simulation.DvsSimulator`; a pixel's state is
 written back only after all of its events for the interval fit into the output arrays, so a call that runs out of
 space can be repeated from the pixel it stopped at. ``tests/naive`` holds the pure-Python reference.
 

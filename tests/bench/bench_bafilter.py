@@ -99,7 +99,7 @@ def child_inproc(path: str, out: str) -> dict:
 
 
 def child_kernel(method: str, width: str, height: str, events: str) -> dict:
-    from evtools.bafilter import BAFilter
+    from evtools.filters import BAFilter
     from evtools.events import join
 
     data = join(list(chunks(int(events), int(width), int(height))))

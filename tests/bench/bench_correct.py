@@ -84,7 +84,7 @@ def child(total: int, mode: str, source: str) -> dict:
         sys.path.insert(0, repo)
         for name in [m for m in sys.modules if m == "evtools" or m.startswith("evtools.")]:
             del sys.modules[name]
-    from evtools.correct import ThresholdCorrector
+    from evtools.correction import ThresholdCorrector
     from evtools.events import make_events
 
     rng = np.random.default_rng(0)

@@ -82,7 +82,7 @@ def chunks(method: str, events: int, scratch: str):
 
 
 def child(method: str, events: int, scratch: str) -> dict:
-    from evtools.estimate import Stimulus, ThresholdEstimator
+    from evtools.estimation import Stimulus, ThresholdEstimator
 
     stimulus = Stimulus.moving(50, 200, 50, 64) if method == "gradient" else Stimulus()
     if method == "fitted-gradient":

@@ -59,7 +59,7 @@ def make_video(path: Path, frames: int, size: tuple[int, int] = VIDEO_SIZE, fps:
 
 def _simulator(width: int, height: int, preset: str):
     from evtools.cli.simulate import model_parameters
-    from evtools.simulate import DvsSimulator
+    from evtools.simulation import DvsSimulator
 
     return DvsSimulator(width, height, seed=SEED, **model_parameters(preset, {}))
 

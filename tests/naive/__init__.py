@@ -108,7 +108,7 @@ def naive_lin_log(intensity: float) -> float:
 class NaiveDvsSensor:
     """The pixel model of ALGORITHMS.md section 1, one pixel and one event at a time.
 
-    Built from the per-pixel maps a :class:`evtools.simulate.DvsSimulator` drew (so both see the same sensor).
+    Built from the per-pixel maps a :class:`evtools.simulation.DvsSimulator` drew (so both see the same sensor).
     For each frame interval, each pixel (raster order) lists its candidate next events - the threshold crossing
     of the straight line between the two filtered log intensities minus the drifting reference (ESIM), the next
     shot-noise event, the next hot-pixel event - takes the earliest, applies it, and repeats until none falls in
@@ -228,7 +228,7 @@ class NaiveDvsSensor:
 def simulate_naive(simulator, frames) -> list[tuple[int, int, int, bool, int]]:
     """``(t_us, x, y, p, label)`` of every event of ``frames`` (``(t_us, frame)`` pairs) on ``simulator``'s sensor.
 
-    ``simulator`` is a fresh :class:`evtools.simulate.DvsSimulator`; only its drawn maps and keys are used.
+    ``simulator`` is a fresh :class:`evtools.simulation.DvsSimulator`; only its drawn maps and keys are used.
     """
     sim = simulator
     sensor = NaiveDvsSensor(

@@ -1,6 +1,6 @@
 """An ideal DVS pixel driven by an analytic log-intensity waveform: exact crossing times, no frames.
 
-Independent of ``evtools.simulate`` (which samples frames and interpolates): here the waveform is known in closed
+Independent of ``evtools.simulation`` (which samples frames and interpolates): here the waveform is known in closed
 form and every crossing time is solved for directly. A pixel starts with its reference at the signal's first
 value; it fires ON when the signal reaches reference + theta_on (the reference moves up by theta_on), OFF when it
 reaches reference - theta_off.
