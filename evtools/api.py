@@ -1,0 +1,409 @@
+"""The Python API: read and write event files, and run the command line's processors on arrays.
+
+Every function here is a thin door onto the objects the command line uses (no second implementation): files
+through :mod:`evtools.formats`, the processors through :mod:`evtools.filters`, :mod:`evtools.estimation`,
+:mod:`evtools.correction`, :mod:`evtools.simulation` and :mod:`evtools.noise`. Events are numpy structured arrays
+of :data:`evtools.EVENT_DTYPE` (``t`` int64 microseconds, ``x``, ``y`` int16, ``p`` bool ON; 16 bytes, the AEDAT
+4.0 event), in time order; :class:`evtools.StreamInfo` carries the sensor size.
+
+Heavy modules (h5py, OpenCV, numba) are imported inside the functions, so ``import evtools`` stays fast.
+
+Examples
+--------
+>>> import evtools
+>>> events, truth = evtools.simulate("flicker", width=16, height=12, duration_us=1_000_000, seed=1)
+>>> info = evtools.StreamInfo(16, 12)
+>>> kept = evtools.bafilter(events, info, method="baf", dt_us=100_000)
+>>> thresholds = evtools.estimate(kept, info, method="stimulus")
+>>> bool(abs(float(thresholds.on.mean()) / float(truth["on"].mean()) - 1) < 0.02)
+True
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+from typing import Any, Iterable, Iterator
+
+import numpy as np
+
+from evtools.errors import EvtoolsError
+from evtools.events import EVENT_DTYPE, StreamInfo, concatenate, empty_events, join, make_events
+
+__all__ = [
+    "bafilter", "correct", "estimate", "from_columns", "from_dv", "from_tonic", "inject_noise", "open", "read",
+    "simulate", "to_columns", "to_dv", "to_tonic", "write", "writer",
+]
+
+def read(path: str | os.PathLike, **options) -> tuple[np.ndarray, StreamInfo]:
+    """Read a whole event file into memory.
+
+    Parameters
+    ----------
+    path : str or path-like
+        An event file (AEDAT 2.0/3.1/4.0, HDF5, Prophesee RAW/DAT, CSV, text), recognised by its magic bytes then
+        its extension; ``"-"`` reads standard input.
+    **options
+        The command line's input options: ``format`` (``--input-format``), ``sensor_size`` ((width, height):
+        ``--sensor-size``), ``aedat2_layout``, ``chunk_events``, ``check`` (default True: raise at the first
+        event outside the sensor or earlier than the one before it).
+
+    Returns
+    -------
+    events : ndarray of EVENT_DTYPE
+    info : StreamInfo
+        Sensor size, format and what the file said about itself (``metadata``).
+
+    Examples
+    --------
+    >>> import evtools, tempfile, os
+    >>> events = evtools.from_columns([0, 5, 5], [1, 2, 3], [0, 0, 1], [True, False, True])
+    >>> path = os.path.join(tempfile.mkdtemp(), "three.aedat4")
+    >>> evtools.write(path, events, evtools.StreamInfo(4, 2))
+    >>> back, info = evtools.read(path)
+    >>> (info.width, info.height, back["t"].tolist(), back["x"].tolist())
+    (4, 2, [0, 5, 5], [1, 2, 3])
+    """
+    with open(path, **options) as stream:
+        return concatenate(stream), stream.info
+
+
+def open(path: str | os.PathLike | None = None, **options):  # noqa: A001 - the name users expect (evtools.open)
+    """Open an event file for streaming: a context manager whose ``info`` is known at once and which yields
+    chunks (arrays of EVENT_DTYPE, about a million events each) in time order.
+
+    Parameters are those of :func:`read`; ``None`` or ``"-"`` reads standard input.
+
+    Examples
+    --------
+    >>> import evtools, tempfile, os
+    >>> path = os.path.join(tempfile.mkdtemp(), "e.csv")
+    >>> evtools.write(path, evtools.from_columns([1, 2], [0, 1], [0, 0], [1, 0]), evtools.StreamInfo(2, 1))
+    >>> with evtools.open(path, sensor_size=(2, 1)) as stream:
+    ...     sum(len(chunk) for chunk in stream)
+    2
+    """
+    from evtools.formats import open_events
+
+    return open_events(path, **options)
+
+
+def write(path: str | os.PathLike, events: np.ndarray, info: StreamInfo, **options) -> None:
+    """Write ``events`` to ``path`` (atomically: the file appears complete or not at all).
+
+    Parameters
+    ----------
+    path : str or path-like
+        The output; its extension chooses the format unless ``format`` is given (``"-"``: standard output, AEDAT
+        4.0).
+    events : ndarray of EVENT_DTYPE
+    info : StreamInfo
+    **options
+        ``format`` (aedat4, aedat2, hdf5, csv, txt), ``compression`` (AEDAT 4.0: lz4, zstd, none; HDF5: the
+        filter), ``aedat2_layout`` - the command line's output options.
+    """
+    with writer(path, info, **options) as sink:
+        sink.write(events)
+
+
+@contextlib.contextmanager
+def writer(path: str | os.PathLike | None, info: StreamInfo, **options) -> Iterator[Any]:
+    """A streaming writer: ``with evtools.writer(path, info) as sink: sink.write(chunk)`` for each chunk, in time
+    order. Options as for :func:`write`. The file takes its name only when the block ends without an error.
+
+    Examples
+    --------
+    >>> import evtools, tempfile, os
+    >>> path = os.path.join(tempfile.mkdtemp(), "two.h5")
+    >>> with evtools.writer(path, evtools.StreamInfo(8, 8)) as sink:
+    ...     sink.write(evtools.from_columns([0], [1], [2], [1]))
+    ...     sink.write(evtools.from_columns([9], [3], [4], [0]))
+    >>> len(evtools.read(path)[0])
+    2
+    """
+    from evtools.formats import create_events
+
+    with create_events(path, info, **options) as sink:
+        yield sink
+
+
+def bafilter(events: np.ndarray, info: StreamInfo, method: str = "baf", **params) -> np.ndarray:
+    """Remove background-activity noise: the events the filter keeps (``evtools bafilter``).
+
+    Parameters
+    ----------
+    events : ndarray of EVENT_DTYPE
+    info : StreamInfo
+    method : str
+        One filter or a comma-separated chain: ``baf`` (Delbruck 2008), ``stcf`` (Guo & Delbruck 2022), ``dwf``,
+        ``ynoise``, ``knoise``, ``refractory``, ``hotpixel``, ... (README, section Bafilter).
+    **params
+        The filters' parameters by their command-line names (``dt_us``, ``k``, ``radius``, ``preset``, ...).
+
+    Examples
+    --------
+    >>> import evtools
+    >>> lone = evtools.from_columns([0, 1_000_000], [3, 9], [3, 9], [1, 1])   # two events far apart
+    >>> len(evtools.bafilter(lone, evtools.StreamInfo(16, 16), dt_us=10_000))
+    0
+    """
+    from evtools.filters import ba_filter
+
+    return ba_filter(events, info.width, info.height, method, **params)
+
+
+def estimate(events: np.ndarray, info: StreamInfo, method: str = "offe", **params):
+    """Every pixel's ON and OFF contrast thresholds (``evtools estimate``): a :class:`ThresholdEstimate` with
+    ``on``, ``off`` (height x width, log units), ``valid``, ``fit`` and the attributes.
+
+    Parameters
+    ----------
+    events : ndarray of EVENT_DTYPE
+    info : StreamInfo
+    method : {"offe", "stimulus", "natural"}
+        offE (Wang et al., ACRA 2019), a known calibration stimulus (absolute; Nozaki & Delbruck 2017), or an
+        ordinary moving scene (counts against the neighbours').
+    **params
+        :class:`evtools.estimation.ThresholdEstimator`'s parameters: ``stimulus`` (a
+        :class:`evtools.estimation.Stimulus`; default for ``method="stimulus"``: ``simulate``'s flicker),
+        ``phase``, ``nominal``, ``segment_us``, ``min_events``, ``max_fit``, ``radius_px``, ``interval_us`` and
+        ``forget_us`` (online: the result's ``series``).
+
+    Examples
+    --------
+    >>> import evtools
+    >>> events, truth = evtools.simulate("flicker", width=8, height=6, duration_us=2_000_000, seed=3)
+    >>> result = evtools.estimate(events, evtools.StreamInfo(8, 6), method="stimulus")
+    >>> bool(result.valid.all()), bool(abs(result.on / truth["on"] - 1).max() < 0.01)
+    (True, True)
+    """
+    from evtools.estimation import Stimulus, estimate_thresholds
+
+    if method == "stimulus":
+        params.setdefault("stimulus", Stimulus())
+    return estimate_thresholds(events, info.width, info.height, method, **params)
+
+
+DEFAULT_TARGET = 0.2
+"""``correct``'s target threshold when none is given: the command line's default (v2e's nominal 0.2)."""
+
+
+def correct(events: np.ndarray, info: StreamInfo, thresholds, **params) -> np.ndarray:
+    """Re-sample every pixel's events at one target threshold (``evtools correct``; the founding report's
+    section 4.2).
+
+    Parameters
+    ----------
+    events : ndarray of EVENT_DTYPE
+    info : StreamInfo
+    thresholds : ThresholdEstimate, ThresholdMap, str or path-like
+        An estimate (:func:`estimate`), a thresholds map, or a thresholds or truth file (HDF5); an online
+        estimate's series is used map by map.
+    **params
+        :class:`evtools.correction.ThresholdCorrector`'s parameters: ``target`` (a number or ``"median"``;
+        default 0.2, the command line's),
+        ``mode`` (exponential, highpass, turns, step, foh), ``hold_us``, ``max_gap_us``, ``tau_us``.
+
+    Examples
+    --------
+    >>> import evtools
+    >>> events, truth = evtools.simulate("flicker", width=4, height=3, duration_us=1_000_000, seed=2,
+    ...                                  sigma_thres=0.05, leak_rate_hz=0)
+    >>> corrected = evtools.correct(events, evtools.StreamInfo(4, 3), truth, target=0.2)
+    >>> counts = evtools.to_columns(corrected)[1].size
+    >>> bool(counts > 0)
+    True
+    """
+    from evtools.correction import correct_thresholds
+    from evtools.formats.thresholds import read_thresholds
+
+    params.setdefault("target", DEFAULT_TARGET)
+
+    series = None
+    if isinstance(thresholds, (str, os.PathLike)):
+        thresholds = read_thresholds(os.fspath(thresholds), series=True)
+    if isinstance(thresholds, dict):  # simulate()'s truth
+        on, off, valid = thresholds["on"], thresholds["off"], None
+    elif getattr(thresholds, "series", None) is not None:  # an online ThresholdEstimate
+        series = thresholds.series
+        on, off, valid, params["t_us"] = series.on, series.off, series.valid, series.t_us
+    else:
+        on, off, valid = thresholds.on, thresholds.off, thresholds.valid
+        if getattr(thresholds, "t_us", None) is not None:
+            params["t_us"] = thresholds.t_us
+    return correct_thresholds(events, info.width, info.height, on, off, valid, **params)
+
+
+def simulate(source: str | Iterable[tuple[int, np.ndarray]] = "flicker", *, width: int = 346, height: int = 260,
+             duration_us: int = 1_000_000, scene: dict | None = None, **parameters) -> tuple[np.ndarray, dict]:
+    """Simulate a DVS (``evtools simulate``): v2e's pixel model (Hu, Liu, Delbruck 2021) with ESIM's per-pixel
+    crossing times (Rebecq et al. 2018).
+
+    Parameters
+    ----------
+    source : str or iterable of (t_us, frame)
+        A built-in scene's name (flicker, gradient, bars, step, static, texture) or frames: times in
+        microseconds, increasing, and intensity images (height x width, 0-255).
+    width, height, duration_us : int
+        The scene's size and length (a built-in scene only).
+    scene : dict, optional
+        The scene's options (``period_s``, ``speed_px_s``, ``profile``, ``phase_spread``, ``image``, ...).
+    **parameters
+        :class:`evtools.simulation.DvsSimulator`'s: ``seed``, ``pos_thres``, ``sigma_thres``, ``cutoff_hz``,
+        ``leak_rate_hz``, ``shot_noise_rate_hz``, ``thres_drift_per_s``, ...
+
+    Returns
+    -------
+    events : ndarray of EVENT_DTYPE
+    truth : dict
+        ``label`` (uint8 per event: 0 signal, 1 leak, 2 shot, 3 hot pixel), ``on``, ``off`` (the thresholds,
+        height x width), ``parameters`` (every model parameter, the seed included).
+
+    Examples
+    --------
+    >>> import evtools
+    >>> events, truth = evtools.simulate("bars", width=32, height=24, duration_us=200_000, seed=0)
+    >>> truth["on"].shape, bool(len(events) > 100), truth["parameters"]["seed"]
+    ((24, 32), True, 0)
+    """
+    from evtools.simulation import DvsSimulator, scene_frames
+
+    if isinstance(source, str):
+        frames = scene_frames(source, width, height, duration_us, **(scene or {}))
+    elif scene:
+        raise EvtoolsError("scene options apply to a built-in scene, not to frames")
+    else:
+        frames = iter(source)
+    first = next(iter(frames), None)
+    if first is None:
+        raise EvtoolsError("no frames to simulate")
+    frame_height, frame_width = np.asarray(first[1]).shape[:2]
+    simulator = DvsSimulator(frame_width, frame_height, **parameters)
+    pieces = [simulator.process_labelled(first[0], first[1])]
+    for t_us, frame in frames:
+        pieces.append(simulator.process_labelled(t_us, frame))
+    pieces.append(simulator.flush_labelled())
+    events = join([p[0] for p in pieces]) if pieces else empty_events()
+    labels = np.concatenate([p[1] for p in pieces])
+    truth = {"label": labels, "on": simulator.on_thres, "off": simulator.off_thres,
+             "parameters": dict(simulator.parameters)}
+    return events, truth
+
+
+def inject_noise(events: np.ndarray, info: StreamInfo, **parameters) -> tuple[np.ndarray, np.ndarray]:
+    """Add labelled noise to a stream (``evtools simulate`` on an event stream): leak, shot noise, hot pixels.
+
+    Returns the events with the noise merged in by time, and the label of each (0 the input's own events,
+    1 leak, 2 shot, 3 hot pixel). Parameters: :class:`evtools.noise.NoiseInjector`'s (``leak_rate_hz``,
+    ``shot_noise_rate_hz``, ``hot_pixel_fraction``, ``seed``, ...).
+
+    Examples
+    --------
+    >>> import evtools
+    >>> clean = evtools.from_columns([0, 1_000_000], [0, 1], [0, 1], [1, 0])
+    >>> noisy, labels = evtools.inject_noise(clean, evtools.StreamInfo(32, 32), shot_noise_rate_hz=5, seed=1)
+    >>> int((labels == 0).sum()), bool(len(noisy) > 2)
+    (2, True)
+    """
+    from evtools.noise import inject_noise as inject
+
+    return inject(events, info.width, info.height, **parameters)
+
+
+# -- conversions ---------------------------------------------------------------------------------------------------
+
+
+def to_columns(events: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(t, x, y, p)``: int64 microseconds, int16, int16, bool (ON), each a contiguous copy.
+
+    Examples
+    --------
+    >>> import evtools
+    >>> t, x, y, p = evtools.to_columns(evtools.from_columns([3], [1], [2], [0]))
+    >>> t.tolist(), x.tolist(), y.tolist(), p.tolist()
+    ([3], [1], [2], [False])
+    """
+    return tuple(np.ascontiguousarray(events[name]) for name in ("t", "x", "y", "p"))
+
+
+def from_columns(t, x, y, p) -> np.ndarray:
+    """Events from four columns (``p``: ON where true or > 0), order kept as given."""
+    return make_events(t, x, y, np.asarray(p) > 0)
+
+
+TONIC_DTYPE = np.dtype([("x", "<i8"), ("y", "<i8"), ("t", "<i8"), ("p", "<i8")])
+"""tonic's default event layout (``tonic.io.make_structured_array``): x, y, t (us), p (1 ON, 0 OFF)."""
+
+
+def to_tonic(events: np.ndarray) -> np.ndarray:
+    """A structured array as tonic's transforms take it (fields x, y, t, p; :data:`TONIC_DTYPE`), same order.
+
+    Examples
+    --------
+    >>> import evtools
+    >>> events = evtools.from_columns([7, 7], [1, 2], [0, 0], [1, 0])
+    >>> back = evtools.from_tonic(evtools.to_tonic(events))
+    >>> bool((back == events).all())
+    True
+    """
+    out = np.empty(len(events), dtype=TONIC_DTYPE)
+    for name in ("x", "y", "t"):
+        out[name] = events[name]
+    out["p"] = events["p"]
+    return out
+
+
+def from_tonic(array: np.ndarray) -> np.ndarray:
+    """Events from a tonic structured array (fields x, y, t and p, any integer or bool types; p > 0 is ON).
+
+    tonic's times are microseconds for its event-camera datasets; the order of the array is kept (equal times
+    included) and must be by time."""
+    names = array.dtype.names or ()
+    missing = [name for name in ("x", "y", "t", "p") if name not in names]
+    if missing:
+        raise EvtoolsError(f"a tonic event array has fields x, y, t, p; this one lacks {', '.join(missing)}")
+    return from_columns(array["t"], array["x"], array["y"], array["p"])
+
+
+def to_dv(events: np.ndarray, info: StreamInfo):
+    """A dv-processing ``EventStore`` (needs ``dv-processing``): the events written as an AEDAT 4.0 file and read
+    back by dv-processing's own reader, so no Python loop runs per event; order kept, equal times included.
+
+    Examples
+    --------
+    >>> import evtools
+    >>> events = evtools.from_columns([5, 5, 9], [1, 2, 3], [0, 0, 1], [1, 0, 1])
+    >>> store = evtools.to_dv(events, evtools.StreamInfo(4, 2))   # doctest: +SKIP
+    >>> bool((evtools.from_dv(store) == events).all())             # doctest: +SKIP
+    True
+    """
+    import dv_processing as dv
+
+    store = dv.EventStore()
+    if not len(events):
+        return store
+    with tempfile.TemporaryDirectory(prefix="evtools-dv-") as folder:
+        path = os.path.join(folder, "events.aedat4")
+        write(path, events, info, compression="none")
+        recording = dv.io.MonoCameraRecording(path)
+        while True:
+            batch = recording.getNextEventBatch()
+            if batch is None:
+                break
+            store.add(batch)
+    return store
+
+
+def from_dv(store) -> np.ndarray:
+    """Events from a dv-processing ``EventStore`` (or anything with its ``numpy()``: fields timestamp, x, y,
+    polarity): one copy of the bytes, whose layout is EVENT_DTYPE's."""
+    array = store.numpy()
+    if not len(array):
+        return empty_events()
+    events = np.empty(len(array), dtype=EVENT_DTYPE)
+    events["t"] = array["timestamp"]
+    events["x"] = array["x"]
+    events["y"] = array["y"]
+    events["p"] = array["polarity"] != 0
+    return events
