@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 OUT := samples/out
 
-.PHONY: demo test bench clean
+.PHONY: demo test bench docs clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -57,6 +57,13 @@ bench: $(VENV)/.installed-test
 	$(BIN)/python -m tests.bench.bench_bafilter
 	$(BIN)/python -m tests.bench.bench_estimate
 	$(BIN)/python -m tests.bench.bench_correct
+
+# the API reference from the docstrings (pdoc, an optional extra) into docs/api/
+docs: $(VENV)/.installed
+	$(BIN)/python -m pip install --quiet -e '.[docs]'
+	$(BIN)/python -m pdoc evtools evtools.api evtools.events evtools.filters evtools.estimation evtools.correction \
+	  evtools.simulation evtools.noise evtools.metrics evtools.formats -o docs/api --docformat numpy
+	@echo "API reference: docs/api/index.html"
 
 clean:
 	rm -rf $(OUT) .pytest_cache .hypothesis

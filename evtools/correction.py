@@ -22,7 +22,7 @@ for bit and in its order.
 
 References
 ----------
-The founding report (``../shared/seed``), sections 4.2, 5.2, 5.3.
+The founding report (summarised in ``docs/algorithms.md`` section 5), sections 4.2, 5.2, 5.3.
 C. Scheerlinck, N. Barnes, R. Mahony, "Continuous-time Intensity Estimation Using Event Cameras", ACCV 2018.
 """
 

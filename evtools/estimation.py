@@ -2,7 +2,7 @@
 
 :class:`ThresholdEstimator` is the stream processor (``process(chunk)`` consumes events and returns an empty
 chunk; :meth:`ThresholdEstimator.result` gives the maps), :func:`estimate_thresholds` the one-shot convenience.
-Methods (``../shared/ALGORITHMS.md`` section 4):
+Methods (``docs/algorithms.md`` section 4):
 
 - ``offe``: Wang et al.'s event-only least squares, as their reference code ``EventOnlyCalib.m`` does it;
   relative thresholds scaled by a nominal value.

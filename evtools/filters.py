@@ -1,4 +1,4 @@
-"""Background-activity filters as stream processors (``../shared/ALGORITHMS.md`` section 2).
+"""Background-activity filters as stream processors (``docs/algorithms.md`` section 2).
 
 :class:`BAFilter` runs one or several stages in order (``"hotpixel,refractory,stcf"``); each stage sees only the
 events that the stages before it kept, so its time map never holds an event an earlier stage rejected. Within a

@@ -3,7 +3,7 @@
 The events of a recording pass through unchanged (label 0); leak events (label 1), shot noise (label 2) and hot
 pixel events (label 3) are added and merged in time order. :class:`NoiseInjector` is the stream processor
 (``process(chunk) -> (events, labels)``, in bounded memory), :func:`inject_noise` the one-shot convenience.
-``../shared/ALGORITHMS.md`` sections 1 and 3 describe the noise.
+``docs/algorithms.md`` sections 1 and 3 describe the noise.
 
 The noise does not depend on how the input is cut into chunks: the time axis is cut into fixed blocks
 (``block_us``, 10 ms, counted from t = 0 us), and the random draws of block ``k`` come from a Philox generator

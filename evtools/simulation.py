@@ -2,7 +2,7 @@
 
 The pixel model is v2e's (lin-log photoreceptor, intensity-dependent low-pass, threshold mismatch, leak, shot
 noise, hot and dead pixels) with ESIM's per-pixel timing (every crossing at its own interpolated time between two
-frames); ``../shared/ALGORITHMS.md`` section 1 states it. :class:`DvsSimulator` is the stream processor
+frames); ``docs/algorithms.md`` section 1 states it. :class:`DvsSimulator` is the stream processor
 (``process(t_us, frames)`` frame by frame, in bounded memory), :func:`simulate_frames` the one-shot convenience,
 and the ``*_scene`` functions are the built-in stimuli of the report, as frame generators.
 

@@ -1,4 +1,4 @@
-"""Numba kernels of the background-activity filters (``../shared/ALGORITHMS.md`` section 2) and of the
+"""Numba kernels of the background-activity filters (``docs/algorithms.md`` section 2) and of the
 subsequence matching that ``metrics denoise`` uses.
 
 The filter kernels read a chunk as its raw 16-byte records, viewed as ``words`` (n, 2) int64 (column 0 the time

@@ -1,4 +1,4 @@
-"""Measuring a denoiser (``../shared/ALGORITHMS.md`` section 3): labelled (DND21) and unlabelled (E-MLB ESR).
+"""Measuring a denoiser (``docs/algorithms.md`` section 3): labelled (DND21) and unlabelled (E-MLB ESR).
 
 References
 ----------

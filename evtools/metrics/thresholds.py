@@ -1,4 +1,4 @@
-"""How well estimated thresholds match the true ones (``../shared/ALGORITHMS.md`` section 6).
+"""How well estimated thresholds match the true ones (``docs/algorithms.md`` section 6).
 
 :func:`threshold_errors` computes, for ON and OFF separately over the pixels whose estimate is valid, the relative
 RMSE ``sqrt(mean(((est - true) / true)^2))`` (the report's Table 1 figure), the bias (mean relative error), the

@@ -10,7 +10,7 @@ Edges are found automatically (:func:`detect_edges`) or given as start times.
 
 References
 ----------
-The founding report, section 5.3 and Table 2; ``../shared/ALGORITHMS.md`` section 6.
+The founding report, section 5.3 and Table 2; ``docs/algorithms.md`` section 6.
 """
 
 from __future__ import annotations
