@@ -8,7 +8,7 @@ import os
 import click
 import numpy as np
 
-from evtools.cli.options import output_option, read_options
+from evtools.cli.batch import batch_options, plan, run
 from evtools.cli.progress import process_stream
 from evtools.filters import METHODS, PRESETS, BAFilter, BAFilterError, parse_methods
 from evtools.errors import EvtoolsError
@@ -65,9 +65,7 @@ positive = click.IntRange(min=1)
 
 
 @click.command()
-@read_options
-@click.argument("output_path", required=False, metavar="[OUT]", type=click.Path(dir_okay=False, allow_dash=True))
-@output_option
+@batch_options
 @click.option("-m", "--method", "methods", default="baf", callback=_methods, metavar="M[,M2...]", show_default=True,
               help=f"Filter(s), applied in order: {', '.join(METHODS)}.")
 @click.option("--preset", type=click.Choice(PRESETS), default="evtools", show_default=True,
@@ -92,25 +90,38 @@ positive = click.IntRange(min=1)
               help="hotpixel: drop the pixels of this CSV list (`x,y` lines) instead of learning.")
 @click.option("--save-hot-pixels", "save_hot_pixels", type=click.Path(dir_okay=False), default=None,
               help="hotpixel: write the hot pixels (learned or given) to this CSV file.")
-def bafilter(input, input_format, sensor_size, aedat2_layout, output_path, output, methods, preset, dt_us, k,
+def bafilter(inputs, input_format, sensor_size, aedat2_layout, output, jobs, scheduler, methods, preset, dt_us, k,
              radius, polarity, window, distance, learn_us, hot_ratio, hot_rate_hz, hot_min_events, hot_pixels_path,
              save_hot_pixels):
     """Remove background activity from IN (default stdin), writing OUT or -o OUT (default stdout).
+
+    Several inputs go to the folder -o FOLDER (the same names), --jobs at a time.
 
     \b
     evtools bafilter recording.aedat4 -o clean.aedat4 --method stcf --k 2
     evtools bafilter noisy.aedat4 --method hotpixel,refractory,stcf | evtools info -
     evtools bafilter rec.aedat4 --method baf --preset dv -o dv.aedat4   # dv-processing's exact output
+    evtools bafilter recordings/*.aedat4 -o clean/ --jobs 4           # one output per input, same names
 
     A stage sees only the events the stages before it kept; within a stage a rejected event still updates the
     time map. Prints `N in, K kept, R removed` on stderr (not with -q).
     """
-    if output_path is not None:
-        if output != "-":
-            raise click.UsageError("give the output either as OUT or as -o OUT, not both")
-        output = output_path
     if (hot_pixels_path or save_hot_pixels) and "hotpixel" not in methods:
         raise click.UsageError("--hot-pixels and --save-hot-pixels need --method hotpixel")
+    pairs = plan(inputs, output, ".aedat4")
+    if save_hot_pixels and len(pairs) > 1:
+        raise click.UsageError("--save-hot-pixels writes one file: give one input")
+    options = dict(input_format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout, methods=methods,
+                   preset=preset, dt_us=dt_us, k=k, radius=radius, polarity=polarity, window=window,
+                   distance=distance, learn_us=learn_us, hot_ratio=hot_ratio, hot_rate_hz=hot_rate_hz,
+                   hot_min_events=hot_min_events, hot_pixels_path=hot_pixels_path, save_hot_pixels=save_hot_pixels)
+    run(filter_one, pairs, options, jobs, scheduler)
+
+
+def filter_one(input, output, *, input_format, sensor_size, aedat2_layout, methods, preset, dt_us, k, radius,
+               polarity, window, distance, learn_us, hot_ratio, hot_rate_hz, hot_min_events, hot_pixels_path,
+               save_hot_pixels) -> tuple[int, int]:
+    """Filter one file (the command's whole work for one input): (events in, events kept)."""
     with open_events(input, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as stream:
         info = stream.info
         hot_map = read_hot_pixels(hot_pixels_path, info.width, info.height) if hot_pixels_path else None
@@ -126,3 +137,4 @@ def bafilter(input, input_format, sensor_size, aedat2_layout, output_path, outpu
     share = removed / ba.events_in if ba.events_in else 0.0
     log.info(f"bafilter {','.join(methods)}: {ba.events_in:,} in, {ba.events_out:,} kept, {removed:,} removed "
              f"({100 * share:.1f} %)")
+    return ba.events_in, ba.events_out

@@ -4,36 +4,43 @@ from __future__ import annotations
 
 import click
 
-from evtools.cli.options import output_option, read_options
+from evtools.cli.batch import batch_options, plan, run
 from evtools.cli.progress import with_progress
 from evtools.formats import create_events, open_events
-from evtools.formats.registry import FORMATS
+from evtools.formats.registry import FORMATS, by_name
 
 
 @click.command()
-@read_options
-@click.argument("output_path", required=False, metavar="[OUT]", type=click.Path(dir_okay=False, allow_dash=True))
-@output_option
+@batch_options
 @click.option(
     "--format", "output_format", default=None,
     type=click.Choice([f.name for f in FORMATS if f.writer], case_sensitive=False),
-    help="Output format; default: from OUT's extension, AEDAT 4.0 on stdout.",
+    help="Output format; default: from OUT's extension, AEDAT 4.0 on stdout and into a folder.",
 )
 @click.option(
     "--compression", default=None, metavar="C",
     help="aedat4: none (default), lz4, zstd; hdf5: none, gzip, lzf, zstd.",
 )
-def convert(input, input_format, sensor_size, aedat2_layout, output_path, output, output_format, compression):
+def convert(inputs, input_format, sensor_size, aedat2_layout, output, jobs, scheduler, output_format, compression):
     """Convert IN (default stdin) to OUT or -o OUT (default stdout), chunk by chunk in bounded memory.
+
+    Several inputs go to the folder -o FOLDER, each named after its input with --format's extension.
 
     \b
     evtools convert recording.aedat -o recording.h5
     evtools convert recording.aedat4 - | evtools convert - recording.csv
+    evtools convert dataset/*.aedat -o converted/ --format hdf5 --jobs 4
     """
-    if output_path is not None:
-        if output != "-":
-            raise click.UsageError("give the output either as OUT or as -o OUT, not both")
-        output = output_path
+    suffix = by_name(output_format or "aedat4").extensions[0]
+    pairs = plan(inputs, output, suffix)
+    options = dict(input_format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout,
+                   output_format=output_format, compression=compression)
+    run(convert_one, pairs, options, jobs, scheduler)
+
+
+def convert_one(input, output, *, input_format, sensor_size, aedat2_layout, output_format, compression):
+    """Convert one file: (events in, events out), the same number."""
+    events = 0
     with open_events(input, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as stream:
         with create_events(
             output, stream.info, format=output_format, compression=compression,
@@ -41,3 +48,5 @@ def convert(input, input_format, sensor_size, aedat2_layout, output_path, output
         ) as writer:
             for chunk in with_progress(stream, stream, f"converting {stream.name}"):
                 writer.write(chunk)
+                events += len(chunk)
+    return events, events

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from evtools.cli.options import output_option, read_options
+from evtools.cli.batch import batch_options, plan, run
 from evtools.cli.progress import process_stream
 from evtools.correction import CORRECT_DEFAULTS, MAX_WINDOW_US, MODES, CorrectionError, ThresholdCorrector
 from evtools.formats import create_events, open_events
@@ -24,8 +24,7 @@ def _target(ctx, param, value):
 
 
 @click.command()
-@read_options
-@output_option
+@batch_options
 @click.option("--thresholds", "thresholds_path", required=True, metavar="FILE.h5",
               type=click.Path(dir_okay=False),
               help="Per-pixel thresholds: from `evtools estimate` or the truth file of `evtools simulate`.")
@@ -48,9 +47,11 @@ def _target(ctx, param, value):
 @click.option("--start-us", type=int, default=None, metavar="T",
               help="exponential, turns, highpass: time the sensor started (every pixel at its reference); default: the first "
                    "event.")
-def correct(input, input_format, sensor_size, aedat2_layout, output, thresholds_path, target, mode, hold_us,
-            max_gap_us, tau_us, start_us):
+def correct(inputs, input_format, sensor_size, aedat2_layout, output, jobs, scheduler, thresholds_path, target, mode,
+            hold_us, max_gap_us, tau_us, start_us):
     """Re-sample every pixel of IN (default stdin) at one target threshold; write -o OUT (default stdout).
+
+    Several inputs (one camera's recordings) go to the folder -o FOLDER.
 
     Each pixel's events are read as samples of its log intensity at its own thresholds (--thresholds), the
     signal reconstructed between them and sampled again at --target: the founding report's section 4.2, online
@@ -61,6 +62,16 @@ def correct(input, input_format, sensor_size, aedat2_layout, output, thresholds_
     evtools simulate scene:step --truth t.h5 | evtools correct --thresholds t.h5 --mode foh | evtools info -
     evtools correct drifting.aedat4 --thresholds series.h5 --target 0.2 -o corrected.aedat4  # estimate --online
     """
+    pairs = plan(inputs, output, ".aedat4")
+    options = dict(input_format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout,
+                   thresholds_path=thresholds_path, target=target, mode=mode, hold_us=hold_us,
+                   max_gap_us=max_gap_us, tau_us=tau_us, start_us=start_us)
+    run(correct_one, pairs, options, jobs, scheduler)
+
+
+def correct_one(input, output, *, input_format, sensor_size, aedat2_layout, thresholds_path, target, mode, hold_us,
+                max_gap_us, tau_us, start_us) -> tuple[int, int]:
+    """Correct one file: (events in, events out)."""
     thresholds = read_thresholds(thresholds_path, series=True)
     with open_events(input, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as stream:
         thresholds.check_size(stream.info.width, stream.info.height, thresholds_path)
@@ -73,4 +84,4 @@ def correct(input, input_format, sensor_size, aedat2_layout, output, thresholds_
         except CorrectionError as error:
             raise CorrectionError(f"{thresholds_path}: {error}") from None
         with create_events(output, stream.info, inputs=(input, thresholds_path)) as writer:
-            process_stream(stream, corrector, writer, f"correcting {stream.name}")
+            return process_stream(stream, corrector, writer, f"correcting {stream.name}")

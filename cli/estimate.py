@@ -6,7 +6,8 @@ import math
 
 import click
 
-from evtools.cli.options import Duration, read_options
+from evtools.cli.batch import batch_options, plan, run
+from evtools.cli.options import Duration
 from evtools.cli.progress import with_progress
 from evtools.estimation import (
     DEFAULT_MAX_ERROR,
@@ -22,6 +23,7 @@ from evtools.estimation import (
     ThresholdEstimator,
 )
 from evtools.formats import open_events
+from evtools.formats.io import STDIO, same_file
 from evtools.formats.thresholds import ThresholdMap, write_thresholds
 
 DEFAULT_LEVELS = (50.0, 200.0)
@@ -63,11 +65,7 @@ def _stimulus(levels, period_us, profile, amplitude, speed, wavelength, rise) ->
 
 
 @click.command()
-@read_options
-@click.option(
-    "-o", "--output", default=None, metavar="THRESHOLDS.h5", type=click.Path(dir_okay=False),
-    help="Thresholds file to write (HDF5: on, off, valid maps and the parameters); required.",
-)
+@batch_options
 @click.option("--method", type=click.Choice(METHODS), default="offe", show_default=True,
               help="offe: Wang et al.'s events-only least squares (relative, scaled by --nominal); stimulus: the "
                    "known calibration stimulus (absolute, exact for an ideal pixel); natural: an ordinary moving "
@@ -115,11 +113,13 @@ def _stimulus(levels, period_us, profile, amplitude, speed, wavelength, rise) ->
                    "replaces --stimulus-period.")
 @click.option("--stimulus-wavelength", type=click.FloatRange(min=0, min_open=True), default=None, metavar="PX",
               help="stimulus: a moving gradient's rise-and-fall length (simulate's --wavelength).")
-def estimate(input, input_format, sensor_size, aedat2_layout, output, method, segment_us, nominal, radius, online,
+def estimate(inputs, input_format, sensor_size, aedat2_layout, output, jobs, scheduler, method, segment_us, nominal, radius, online,
              interval, forget, min_events,
              max_fit, stimulus_amplitude, stimulus_levels, stimulus_period, stimulus_profile, stimulus_rise,
              stimulus_phase, stimulus_speed, stimulus_wavelength):
     """Estimate every pixel's ON and OFF contrast thresholds from IN (default stdin), streaming, into -o FILE.
+
+    Several inputs go to the folder -o FOLDER, one NAME.h5 each, --jobs at a time.
 
     \b
     evtools estimate flicker.aedat4 -o thresholds.h5                       # offE, 10 ms segments
@@ -131,7 +131,8 @@ def estimate(input, input_format, sensor_size, aedat2_layout, output, method, se
     evtools estimate drifting.aedat4 -o series.h5 --method stimulus --online --interval 1s   # maps over time
     """
     if output is None or output == "-":
-        raise EstimationError("the thresholds file is HDF5 and cannot go to stdout: give -o THRESHOLDS.h5")
+        raise EstimationError("the thresholds file is HDF5 and cannot go to stdout: give -o THRESHOLDS.h5 (or -o "
+                              "FOLDER for several inputs)")
     if not online and (interval is not None or forget is not None):
         raise click.UsageError("--interval and --forget apply to --online estimation")
     if online and method == "offe":
@@ -142,13 +143,21 @@ def estimate(input, input_format, sensor_size, aedat2_layout, output, method, se
     if method == "stimulus":
         stimulus = _stimulus(stimulus_levels, stimulus_period, stimulus_profile, stimulus_amplitude, stimulus_speed,
                              stimulus_wavelength, stimulus_rise)
+    pairs = plan(inputs, output, ".h5", second_is_output=False)
+    options = dict(input_format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout,
+                   parameters=dict(method=method, nominal=nominal, segment_us=segment_us, stimulus=stimulus,
+                                   phase=stimulus_phase, min_events=min_events, max_fit=max_fit, radius_px=radius,
+                                   interval_us=interval_us, forget_us=forget))
+    run(estimate_one, pairs, options, jobs, scheduler)
+
+
+def estimate_one(input, output, *, input_format, sensor_size, aedat2_layout, parameters) -> tuple[int, int]:
+    """Estimate one file's thresholds into ``output``: (events in, 0)."""
+    if input != STDIO and same_file(output, input):
+        raise EstimationError(f"{output}: the thresholds file would overwrite the input; choose another -o")
     with open_events(input, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as stream:
         try:
-            estimator = ThresholdEstimator(
-                stream.info.width, stream.info.height, method, nominal=nominal, segment_us=segment_us,
-                stimulus=stimulus, phase=stimulus_phase, min_events=min_events, max_fit=max_fit, radius_px=radius,
-                interval_us=interval_us, forget_us=forget,
-            )
+            estimator = ThresholdEstimator(stream.info.width, stream.info.height, **parameters)
             for chunk in with_progress(stream, stream, f"estimating from {stream.name}"):
                 estimator.process(chunk)
             result = estimator.result()
@@ -162,3 +171,4 @@ def estimate(input, input_format, sensor_size, aedat2_layout, output, method, se
     else:
         thresholds = ThresholdMap(result.on, result.off, result.valid, attributes, result.fit, result.phase_us)
     write_thresholds(output, thresholds)
+    return result.attributes["events"], 0

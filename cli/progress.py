@@ -36,13 +36,17 @@ def _stderr_console():
     return Console(stderr=True)
 
 
-def process_stream(stream, processor, writer, label: str) -> None:
+def process_stream(stream, processor, writer, label: str) -> tuple[int, int]:
     """Feed every chunk of ``stream`` through ``processor`` (``process`` then ``flush``) into ``writer``, with
-    progress labelled ``label``; empty results are not written."""
+    progress labelled ``label``; empty results are not written. Returns (events in, events out)."""
+    events_in = events_out = 0
     for chunk in with_progress(stream, stream, label):
+        events_in += len(chunk)
         out = processor.process(chunk)
+        events_out += len(out)
         if len(out):
             writer.write(out)
     rest = processor.flush()
     if len(rest):
         writer.write(rest)
+    return events_in, events_out + len(rest)

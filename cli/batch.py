@@ -1,0 +1,239 @@
+"""Several inputs at once: every stream command takes ``IN...``; with more than one input, ``-o`` names a folder,
+each output keeps its input's name (with the output format's extension), and the files run ``--jobs`` at a time
+in a process pool, or on a Dask cluster with ``--scheduler`` (the ``cluster`` extra).
+
+A command supplies ``one(input, output, **options) -> (events_in, events_out)``, a module-level function (so a
+worker process or a Dask worker can import it), which does the whole work for one file and raises
+:class:`EvtoolsError` on bad input. One input runs in this process exactly as before; several run as a batch:
+a failing file is listed and the others complete, a summary table goes to stderr, and the exit code is 1 when
+any file failed.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
+from typing import Any, Callable
+
+import click
+
+from evtools.errors import EvtoolsError
+from evtools.formats.io import STDIO
+
+log = logging.getLogger("evtools")
+
+
+class BatchError(EvtoolsError):
+    """Some files of a batch failed (each listed on stderr)."""
+
+
+inputs_argument = click.argument("inputs", nargs=-1, metavar="[IN]...",
+                                 type=click.Path(dir_okay=False, allow_dash=True))
+jobs_option = click.option(
+    "--jobs", type=click.IntRange(min=1), default=None, metavar="N",
+    help="Several inputs: files processed at once (default: the number of cores).")
+scheduler_option = click.option(
+    "--scheduler", default=None, metavar="local|tcp://HOST:PORT",
+    help="Several inputs: run on Dask instead of a process pool - `local` starts a cluster of --jobs workers, "
+         "tcp://HOST:PORT joins a running dask.distributed scheduler (needs `pip install evtools[cluster]`).")
+
+
+batch_output_option = click.option(
+    "-o", "--output", default=None, metavar="OUT", type=click.Path(allow_dash=True),
+    help="Output file (`-` or absent: stdout), or with several inputs the folder that gets one output per input.")
+
+
+def batch_options(function):
+    """The options of a stream command that takes one or several inputs: ``IN...``, the input options, ``-o``,
+    ``--jobs`` and ``--scheduler`` (the function takes ``inputs, input_format, sensor_size, aedat2_layout, output,
+    jobs, scheduler``)."""
+    from evtools.cli.options import aedat2_layout_option, input_format_option, sensor_size_option
+
+    for option in (scheduler_option, jobs_option, batch_output_option, aedat2_layout_option, sensor_size_option,
+                   input_format_option, inputs_argument):
+        function = option(function)
+    return function
+
+
+def plan(inputs: tuple[str, ...], output: str | None, suffix: str,
+         second_is_output: bool = True) -> list[tuple[str, str]]:
+    """The (input, output) pairs the positional names and ``-o`` ask for.
+
+    No input: stdin. One input: ``-o`` or stdout. Two names and no ``-o``: the second is the output (as it always
+    was) unless it exists - then it may be a recording the user meant as an input, and the command refuses rather
+    than overwrite it. More: ``-o`` must name a folder (made if missing); outputs are named after their inputs
+    with ``suffix`` (the output format's extension), and two inputs may not give one output name. A command whose
+    output is not a stream (``estimate``) never takes a second name as its output (``second_is_output``).
+    """
+    inputs = tuple(inputs) or (STDIO,)
+    if output is None and len(inputs) == 2 and second_is_output:
+        first, second = inputs
+        if second != STDIO and os.path.exists(second):
+            raise click.UsageError(
+                f"{second} exists: to process both files give -o FOLDER; to write into it, name it with -o "
+                "(a second name is taken as the output only when it does not exist yet)")
+        return [(first, second)]
+    if len(inputs) == 1:
+        return [(inputs[0], output if output is not None else STDIO)]
+    if output is None and not second_is_output:
+        raise click.UsageError(f"{len(inputs)} inputs need -o FOLDER (each output is named after its input)")
+    if output is None or output == STDIO:
+        raise click.UsageError(f"{len(inputs)} inputs need -o FOLDER (each output is named after its input)")
+    if STDIO in inputs:
+        raise click.UsageError("stdin (-) can be the only input")
+    folder = Path(output)
+    if folder.exists() and not folder.is_dir():
+        raise click.UsageError(f"-o {output}: with several inputs -o names a folder, and this is a file")
+    pairs, seen = [], {}
+    for name in inputs:
+        target = folder / (Path(name).stem + suffix)
+        if target in seen:
+            raise click.UsageError(f"{seen[target]} and {name} would both be written to {target}")
+        seen[target] = name
+        pairs.append((name, str(target)))
+    folder.mkdir(parents=True, exist_ok=True)
+    return pairs
+
+
+def run(one: Callable[..., tuple[int, int]], pairs: list[tuple[str, str]], options: dict[str, Any],
+        jobs: int | None = None, scheduler: str | None = None) -> None:
+    """Run ``one`` on every pair: in this process for a single pair (errors propagate as they always did),
+    else as a batch (see the module docstring)."""
+    if len(pairs) == 1 and scheduler is None:
+        one(*pairs[0], **options)
+        return
+    jobs = jobs or os.cpu_count() or 1
+    started = time.perf_counter()
+    results: dict[str, tuple] = {}
+    with _Display([name for name, _ in pairs]) as display:
+        if scheduler is None:
+            with ProcessPoolExecutor(max_workers=min(jobs, len(pairs)), initializer=_quiet_worker) as pool:
+                futures = {pool.submit(run_one, one, i, o, options): i for i, o in pairs}
+                for future in as_completed(futures):
+                    results[futures[future]] = future.result()
+                    display.done(futures[future], results[futures[future]])
+        else:
+            for name, result in _run_on_dask(one, pairs, options, jobs, scheduler):
+                results[name] = result
+                display.done(name, result)
+    _summary([(name, results[name]) for name, _ in pairs], time.perf_counter() - started)
+    failed = [name for name, _ in pairs if results[name][0] == "error"]
+    if failed:
+        raise BatchError(f"{len(failed)} of {len(pairs)} files failed: {', '.join(failed)}")
+
+
+def run_one(one: Callable[..., tuple[int, int]], input: str, output: str, options: dict[str, Any]) -> tuple:
+    """``("ok", events in, events out, seconds)`` or ``("error", message, seconds)``: a worker never raises for a
+    bad file (the batch goes on)."""
+    start = time.perf_counter()
+    try:
+        events_in, events_out = one(input, output, **options)
+        return "ok", events_in, events_out, time.perf_counter() - start
+    except EvtoolsError as error:
+        return "error", str(error), time.perf_counter() - start
+    except click.ClickException as error:
+        return "error", error.format_message(), time.perf_counter() - start
+    except OSError as error:
+        where = f"{error.filename}: " if error.filename else ""
+        return "error", f"{where}{error.strerror or error}", time.perf_counter() - start
+    except MemoryError:
+        return "error", f"{input}: out of memory", time.perf_counter() - start
+
+
+def _quiet_worker() -> None:
+    """Workers report through the summary, not line by line: warnings and errors only."""
+    logger = logging.getLogger("evtools")
+    if not logger.handlers:
+        handler = logging.StreamHandler(sys.stderr)
+        handler.setFormatter(logging.Formatter("evtools: %(levelname)s: %(message)s"))
+        logger.addHandler(handler)
+    logger.setLevel(logging.WARNING)
+    logger.propagate = False
+
+
+def _run_on_dask(one, pairs, options, jobs, scheduler):
+    """Yield (input, result) as the files finish on a Dask cluster (``local``: a LocalCluster of ``jobs``
+    single-threaded worker processes; else the address of a running scheduler)."""
+    try:
+        from dask.distributed import Client, LocalCluster, as_completed as dask_completed
+    except ImportError:
+        raise EvtoolsError("--scheduler needs Dask: pip install 'evtools[cluster]'") from None
+    cluster = None
+    try:
+        if scheduler == "local":
+            cluster = LocalCluster(n_workers=jobs, threads_per_worker=1, processes=True, dashboard_address=None)
+            client = Client(cluster)
+        elif scheduler.startswith("tcp://"):
+            client = Client(scheduler, timeout="30s")
+        else:
+            raise click.UsageError(f"--scheduler {scheduler}: give local or tcp://HOST:PORT")
+    except OSError as error:
+        raise EvtoolsError(f"--scheduler {scheduler}: cannot connect ({error})") from None
+    try:
+        client.run(_quiet_worker)
+        futures = {client.submit(run_one, one, i, o, options, pure=False): i for i, o in pairs}
+        for future in dask_completed(futures):
+            yield futures[future], future.result()
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+class _Display:
+    """A progress line per file on stderr when it is a terminal (waiting, done, failed)."""
+
+    def __init__(self, names: list[str]) -> None:
+        self.names = names
+        self.progress = None
+
+    def __enter__(self) -> "_Display":
+        if sys.stderr.isatty():
+            from rich.console import Console
+            from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
+            self.progress = Progress(SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(),
+                                     console=Console(stderr=True), transient=True)
+            self.progress.start()
+            self.tasks = {name: self.progress.add_task(name, total=1) for name in self.names}
+        return self
+
+    def done(self, name: str, result: tuple) -> None:
+        if self.progress is not None:
+            mark = "done" if result[0] == "ok" else "FAILED"
+            self.progress.update(self.tasks[name], completed=1, description=f"{name}: {mark}")
+
+    def __exit__(self, *exc) -> None:
+        if self.progress is not None:
+            self.progress.stop()
+
+
+def _summary(rows: list[tuple[str, tuple]], seconds: float) -> None:
+    """The table of files, events in and out, time and failures, on stderr (errors listed under it)."""
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=f"{len(rows)} files in {seconds:.1f} s", title_justify="left")
+    for column, justify in (("file", "left"), ("events in", "right"), ("events out", "right"), ("s", "right"),
+                            ("", "left")):
+        table.add_column(column, justify=justify)
+    total_in = total_out = 0
+    for name, result in rows:
+        if result[0] == "ok":
+            total_in += result[1]
+            total_out += result[2]
+            table.add_row(name, f"{result[1]:,}", f"{result[2]:,}", f"{result[3]:.2f}", "ok")
+        else:
+            table.add_row(name, "", "", f"{result[2]:.2f}", "failed")
+    failed = sum(result[0] == "error" for _, result in rows)
+    table.add_row("all", f"{total_in:,}", f"{total_out:,}", f"{seconds:.2f}",
+                  f"{failed} failed" if failed else "ok", style="bold")
+    console = Console(stderr=True, width=None if sys.stderr.isatty() else 120)
+    console.print(table)
+    for name, result in rows:
+        if result[0] == "error":
+            console.print(f"evtools: error: {result[1]}", markup=False, highlight=False)

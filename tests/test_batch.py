@@ -1,0 +1,72 @@
+"""Batch runs (issue 14): several inputs into a folder, a process pool or a Dask cluster, a failing file listed
+while the others complete, and no input ever overwritten."""
+
+from __future__ import annotations
+
+import numpy as np
+
+import evtools
+from tests.helpers import assert_clean_error, run
+
+
+def _recordings(folder, count=20, corrupt=None):
+    folder.mkdir()
+    rng = np.random.default_rng(0)
+    for i in range(count):
+        n = int(rng.integers(500, 3000))
+        events = evtools.from_columns(np.sort(rng.integers(0, 2_000_000, n)), rng.integers(0, 64, n),
+                                      rng.integers(0, 48, n), rng.integers(0, 2, n))
+        evtools.write(folder / f"rec{i:02d}.aedat4", events, evtools.StreamInfo(64, 48))
+    if corrupt is not None:
+        (folder / corrupt).write_bytes(b"#!AER-DAT4.0\r\nthis is not a recording")
+    return sorted(folder.iterdir())
+
+
+def test_a_batch_gives_the_single_runs_outputs_and_lists_the_failure(tmp_path):
+    files = _recordings(tmp_path / "in", corrupt="rec99.aedat4")
+    result = run("bafilter", *files, "-o", tmp_path / "out", "--jobs", "2", "--method", "stcf", check=False)
+    stderr = result.stderr.decode()
+    assert result.returncode == 1 and "Traceback" not in stderr
+    assert "rec99.aedat4" in stderr and "1 of 21 files failed" in stderr and "events in" in stderr
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == [f.name for f in files if f.name != "rec99.aedat4"]
+    for file in files[:-1]:
+        single = tmp_path / "single.aedat4"
+        run("bafilter", file, "-o", single, "--method", "stcf")
+        assert (tmp_path / "out" / file.name).read_bytes() == single.read_bytes(), file.name
+        single.unlink()
+
+
+def test_a_second_name_that_exists_is_never_overwritten(tmp_path):
+    first, second = _recordings(tmp_path / "in", count=2)
+    before = second.read_bytes()
+    result = run("bafilter", first, second, check=False)
+    assert result.returncode == 2 and "exists" in result.stderr.decode()
+    assert second.read_bytes() == before
+    # a name that does not exist yet is the output, as it always was
+    run("bafilter", first, tmp_path / "new.aedat4")
+    assert (tmp_path / "new.aedat4").exists()
+    # three names need a folder
+    result = run("bafilter", first, second, tmp_path / "x.aedat4", check=False)
+    assert result.returncode == 2 and "-o FOLDER" in result.stderr.decode()
+
+
+def test_convert_and_estimate_batches_name_outputs_after_inputs(tmp_path):
+    files = _recordings(tmp_path / "in", count=3)
+    run("convert", *files, "-o", tmp_path / "h5", "--format", "hdf5", "--jobs", "2")
+    assert sorted(p.name for p in (tmp_path / "h5").iterdir()) == ["rec00.h5", "rec01.h5", "rec02.h5"]
+    for file in files:
+        assert np.array_equal(evtools.read(tmp_path / "h5" / (file.stem + ".h5"))[0], evtools.read(file)[0])
+    run("estimate", *files, "-o", tmp_path / "maps", "--min-events", "1", "--max-fit", "inf")
+    assert sorted(p.name for p in (tmp_path / "maps").iterdir()) == ["rec00.h5", "rec01.h5", "rec02.h5"]
+    before = files[0].read_bytes()
+    assert_clean_error(run("estimate", files[0], "-o", files[0], check=False), "overwrite the input")
+    assert files[0].read_bytes() == before
+
+
+def test_a_dask_cluster_gives_the_same_outputs(tmp_path):
+    """--scheduler local starts a LocalCluster of --jobs single-threaded workers (dask is a test dependency)."""
+    files = _recordings(tmp_path / "in", count=20)
+    run("bafilter", *files, "-o", tmp_path / "pool", "--jobs", "2")
+    run("bafilter", *files, "-o", tmp_path / "dask", "--jobs", "2", "--scheduler", "local")
+    for file in files:
+        assert (tmp_path / "dask" / file.name).read_bytes() == (tmp_path / "pool" / file.name).read_bytes()
