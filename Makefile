@@ -57,6 +57,7 @@ bench: $(VENV)/.installed-test
 	$(BIN)/python -m tests.bench.bench_bafilter
 	$(BIN)/python -m tests.bench.bench_estimate
 	$(BIN)/python -m tests.bench.bench_correct
+	$(BIN)/python -m tests.bench.bench_batch
 
 # the API reference from the docstrings (pdoc, an optional extra) into docs/api/
 docs: $(VENV)/.installed

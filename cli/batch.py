@@ -120,7 +120,13 @@ def run(one: Callable[..., tuple[int, int]], pairs: list[tuple[str, str]], optio
             for name, result in _run_on_dask(one, pairs, options, jobs, scheduler):
                 results[name] = result
                 display.done(name, result)
-    _summary([(name, results[name]) for name, _ in pairs], time.perf_counter() - started)
+    rows = [(name, results[name]) for name, _ in pairs]
+    if log.getEffectiveLevel() <= logging.INFO:  # not with -q: the table is information, the errors are not
+        _summary(rows, time.perf_counter() - started)
+    else:
+        for name, result in rows:
+            if result[0] == "error":
+                click.echo(f"evtools: error: {result[1]}", err=True)
     failed = [name for name, _ in pairs if results[name][0] == "error"]
     if failed:
         raise BatchError(f"{len(failed)} of {len(pairs)} files failed: {', '.join(failed)}")
