@@ -418,7 +418,8 @@ def from_dv(store) -> np.ndarray:
     Examples
     --------
     >>> import dv_processing as dv, evtools
-    >>> store = dv.EventStore(); store.push_back(10, 3, 4, True)
+    >>> store = dv.EventStore()
+    >>> _ = store.push_back(10, 3, 4, True)
     >>> evtools.from_dv(store)["t"].tolist()
     [10]
     """
