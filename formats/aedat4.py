@@ -33,7 +33,8 @@ COMPRESSION_XML = {0: "NONE", 1: "LZ4", 2: "LZ4_HIGH", 3: "ZSTD", 4: "ZSTD_HIGH"
 PACKET_HEAD_BYTES = 256
 """How much of an uncompressed packet is read to find its event vector before reading the events in place."""
 PAYLOAD_MASK = np.uint64((1 << 40) - 1)
-"""Keeps x, y and on of an event's second 8-byte word and zeroes its padding, so output bytes are reproducible."""
+"""Keeps x, y and on of an event's second 8-byte word and zeroes its padding: the writer's output bytes are
+reproducible, and the reader's chunks hold zero padding whatever the file had."""
 PACKET_EVENTS = 1 << 15
 """Events per packet the writer emits (512 KiB): large enough for speed, small enough for pipe latency."""
 
@@ -215,8 +216,11 @@ class Aedat4Reader:
                 target_bytes[:have] = np.frombuffer(start, np.uint8, have, events_at)
                 if stream.readinto(memoryview(target_bytes)[have:]) != 16 * count - have:
                     raise FormatError(f"{self.name}: truncated AEDAT 4.0 packet at byte {offset}")
-            else:
-                target[:] = events
+                target.view(np.uint64).reshape(-1, 2)[:, 1] &= PAYLOAD_MASK  # the file's padding: zeroed
+            else:  # raw bytes (a structured copy goes field by field: 15x slower), the padding zeroed
+                words = target.view(np.uint64).reshape(-1, 2)
+                words[:] = events.view(np.uint64).reshape(-1, 2)
+                words[:, 1] &= PAYLOAD_MASK
             filled += count
         if filled:
             yield chunk[:filled]

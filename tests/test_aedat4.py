@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from evtools.events import StreamInfo
+from evtools.events import StreamInfo, make_events
 from evtools.formats import FormatError, create_events
 from evtools.formats.aedat4 import Aedat4Writer
 from evtools.formats.registry import WriteOptions
@@ -140,3 +140,23 @@ def test_wrong_compression_name_is_an_error(tmp_path):
     with pytest.raises(FormatError, match="unknown AEDAT 4.0 compression 'brotli'"):
         _write(tmp_path / "a.aedat4", random_events(10), compression="brotli")
     assert not (tmp_path / "a.aedat4").exists()
+
+
+@pytest.mark.parametrize("compression", ["none", "lz4"])
+def test_padding_bytes_from_a_file_are_zeroed(tmp_path, monkeypatch, compression):
+    """Records are copied as raw bytes (not field by field); the 3 padding bytes of each event, whatever another
+    writer left in them, are zero in the chunks (uncompressed: read in place; LZ4: copied from the packet)."""
+    import evtools.formats.aedat4 as aedat4
+
+    events = make_events([1, 2, 3], [4, 5, 6], [7, 8, 9], [True, False, True])
+    events.view(np.uint64).reshape(-1, 2)[:, 1] |= np.uint64(0xABCDEF << 40)  # another writer's padding
+    path = tmp_path / "padded.aedat4"
+    with monkeypatch.context() as patch:  # a writer that keeps the padding
+        patch.setattr(aedat4, "PAYLOAD_MASK", np.uint64(2**64 - 1))
+        with create_events(str(path), StreamInfo(16, 16), compression=compression) as writer:
+            writer.write(events)
+    assert b"\xef\xcd\xab" in path.read_bytes() or compression == "lz4"
+    _, back = read_all(path)
+    words = back.view(np.uint64).reshape(-1, 2)
+    assert np.all(words[:, 1] >> np.uint64(40) == 0)
+    assert np.array_equal(back["x"], events["x"]) and np.array_equal(back["p"], events["p"])
