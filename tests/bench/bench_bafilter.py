@@ -89,7 +89,7 @@ def child_dv(path: str, out: str) -> dict:
 
 def child_inproc(path: str, out: str) -> dict:
     """``evtools bafilter PATH --method baf --preset dv -o OUT`` run in this process, timed after the imports."""
-    import cli.bafilter  # noqa: F401  (what the command imports: the kernels, the formats)
+    import evtools.cli.bafilter  # noqa: F401  (what the command imports: the kernels, the formats)
     import evtools.formats.aedat4  # noqa: F401
     from evtools.cli.main import cli
 

@@ -1,0 +1,178 @@
+"""Peers benchmark (issue 15): evtools beside dv-processing, aedat and faery, measured in one run.
+
+The files: the real DVXplorer recording (111,954 events) repeated in time to ``--events`` events (10 M and 50 M),
+stored as DV stores recordings: AEDAT 4.0, LZ4 and uncompressed, in ``/dev/shm`` when it has room. Every row is a
+whole process (interpreter start-up and imports included), the fastest of ``--repeat`` runs, with its peak RSS
+from ``wait4``:
+
+- read into numpy: ``evtools.read``; ``aedat.Decoder`` (packets concatenated); dv-processing's
+  ``MonoCameraRecording`` (batches' ``numpy()`` concatenated); faery's ``events_stream_from_file(...).to_array()``;
+- ``bafilter --preset dv`` file to file against dv-processing's read + ``BackgroundActivityNoiseFilter`` + write,
+  both writing uncompressed AEDAT 4.0 (evtools' default);
+- start-up: 1,000 events read.
+
+Ratios are peer time / evtools time (> 1: evtools is faster). Peers missing from the environment are installed
+into it with pip first (``aedat``, ``faery``; dv-processing comes with the test extra).
+
+Run: ``python -m tests.bench.bench_peers [--events 10000000,50000000] [--repeat 3]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from tests.bench.common import fastest, measure_child, measure_command, scratch_dir
+
+EVTOOLS = str(Path(sys.executable).with_name("evtools"))
+RECORDING = Path(__file__).resolve().parents[3] / "shared" / "data" / "dvxplorer_sample.aedat4"
+PEERS = {"aedat": "aedat", "faery": "faery", "dv_processing": "dv-processing"}
+
+
+def ensure_peers() -> list[str]:
+    """Install the missing peers into this environment; the names that are available."""
+    missing = [package for module, package in PEERS.items() if importlib.util.find_spec(module) is None]
+    if missing:
+        subprocess.run([sys.executable, "-m", "pip", "install", "--quiet", *missing], check=False)
+        importlib.invalidate_caches()
+    return [module for module in PEERS if importlib.util.find_spec(module) is not None]
+
+
+def make_file(path: Path, events: int, compression: str) -> None:
+    import evtools
+
+    recording, info = evtools.read(RECORDING)
+    recording["t"] -= recording["t"][0]
+    span_us = int(recording["t"][-1]) + 1
+    with evtools.writer(path, info, compression=compression) as sink:
+        done, k = 0, 0
+        while done < events:
+            part = recording[: events - done].copy()
+            part["t"] += k * span_us
+            sink.write(part)
+            done += len(part)
+            k += 1
+
+
+def child_read(tool: str, path: str) -> dict:
+    """Read the whole file into one numpy array with ``tool``."""
+    if tool == "evtools":
+        import evtools
+
+        n = len(evtools.read(path)[0])
+    elif tool == "aedat":
+        import aedat
+
+        parts = [packet["events"] for packet in aedat.Decoder(path) if "events" in packet]
+        n = len(np.concatenate(parts))
+    elif tool == "dv_processing":
+        import dv_processing as dv
+
+        recording = dv.io.MonoCameraRecording(path)
+        parts = []
+        while recording.isRunning():
+            batch = recording.getNextEventBatch()
+            if batch is not None:
+                parts.append(batch.numpy())
+        n = len(np.concatenate(parts))
+    elif tool == "faery":
+        import faery
+
+        n = len(faery.events_stream_from_file(path).to_array())
+    else:
+        raise SystemExit(f"unknown tool {tool}")
+    return {"events": n}
+
+
+def child_dv_filter(path: str, out: str, compression: str) -> dict:
+    """dv-processing: read, BackgroundActivityNoiseFilter (its defaults), write with ``compression``."""
+    import dv_processing as dv
+
+    recording = dv.io.MonoCameraRecording(path)
+    config = dv.io.MonoCameraWriter.Config("bench")
+    config.addEventStream(recording.getEventResolution())
+    config.compression = dv.CompressionType.LZ4 if compression == "lz4" else dv.CompressionType.NONE
+    writer = dv.io.MonoCameraWriter(out, config)
+    noise_filter = dv.noise.BackgroundActivityNoiseFilter(recording.getEventResolution())
+    n = 0
+    while recording.isRunning():
+        batch = recording.getNextEventBatch()
+        if batch is not None:
+            n += batch.size()
+            noise_filter.accept(batch)
+            writer.writeEvents(noise_filter.generateEvents())
+    del writer
+    return {"events": n}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--events", default="10000000,50000000")
+    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--child", nargs="+")
+    args = parser.parse_args()
+    if args.child:
+        kind, *rest = args.child
+        result = child_read(*rest) if kind == "read" else child_dv_filter(*rest)
+        print(json.dumps(result))
+        return
+    if not RECORDING.exists():
+        raise SystemExit(f"{RECORDING} is missing (the tests' real recordings)")
+    peers = ensure_peers()
+    sizes = [int(n) for n in args.events.split(",")]
+    folder = Path(tempfile.mkdtemp(prefix="bench_peers_", dir=scratch_dir(max(sizes) * 40)))
+    print(f"DVXplorer recording repeated; AEDAT 4.0 as DV writes it; whole processes, fastest of {args.repeat}; "
+          f"peers available: {', '.join(peers)}; ratio = peer time / evtools time")
+    print(f"{'task':42} {'tool':14} {'seconds':>8} {'Mev/s':>7} {'peak MiB':>9} {'ratio':>6}")
+    try:
+        tiny = folder / "tiny.aedat4"
+        make_file(tiny, 1000, "lz4")
+        for events in sizes:
+            for compression in ("lz4", "none"):
+                path = folder / f"in_{events}_{compression}.aedat4"
+                make_file(path, events, compression)
+                task = f"read into numpy, {events // 1_000_000}M {compression}"
+                ours = fastest(args.repeat, measure_child, "bench_peers", "read", "evtools", path, key="wall_seconds")
+                _row(task, "evtools", ours, events, None)
+                for peer in (p for p in ("dv_processing", "aedat", "faery") if p in peers):
+                    theirs = fastest(args.repeat, measure_child, "bench_peers", "read", peer, path,
+                                     key="wall_seconds")
+                    _row(task, peer, theirs, events, ours)
+                task = f"bafilter --preset dv file to file, {events // 1_000_000}M {compression}"
+                out = folder / "out.aedat4"
+                ours = fastest(args.repeat, measure_command, [
+                    EVTOOLS, "-q", "bafilter", path, "--method", "baf", "--preset", "dv", "-o", out])
+                ours["wall_seconds"] = ours["seconds"]
+                _row(task, "evtools", ours, events, None)
+                if "dv_processing" in peers:
+                    theirs = fastest(args.repeat, measure_child, "bench_peers", "filter", path, folder / "dv.aedat4",
+                                     "none", key="wall_seconds")  # evtools writes uncompressed: so does dv
+                    _row(task, "dv_processing", theirs, events, ours)
+                path.unlink()
+        task = "start-up: read 1,000 events"
+        ours = fastest(args.repeat, measure_child, "bench_peers", "read", "evtools", tiny, key="wall_seconds")
+        _row(task, "evtools", ours, 1000, None)
+        for peer in (p for p in ("dv_processing", "aedat", "faery") if p in peers):
+            _row(task, peer, fastest(args.repeat, measure_child, "bench_peers", "read", peer, tiny,
+                                     key="wall_seconds"), 1000, ours)
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+def _row(task: str, tool: str, result: dict, events: int, ours: dict | None) -> None:
+    seconds = result["wall_seconds"]
+    ratio = f"{seconds / ours['wall_seconds']:6.2f}" if ours else "     -"
+    print(f"{task:42} {tool:14} {seconds:8.2f} {events / seconds / 1e6:7.1f} {result['peak_mb'] * 1e6 / 2**20:9.0f} "
+          f"{ratio}", flush=True)
+
+
+if __name__ == "__main__":
+    main()
