@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shutil
 import subprocess
 import sys
 import zipfile
@@ -14,8 +15,16 @@ ROOT = Path(__file__).resolve().parent.parent
 
 @pytest.mark.slow
 def test_the_wheel_has_one_top_level_package(tmp_path):
+    # built from a copy of the sources, so that no earlier build/ folder (setuptools never empties it) can leak
+    # stale modules into the wheel, and the repository stays untouched
+    source = tmp_path / "source"
+    source.mkdir()
+    for name in ("pyproject.toml", "README.md"):
+        shutil.copy(ROOT / name, source / name)
+    for folder in ("evtools", "cli", "formats"):
+        shutil.copytree(ROOT / folder, source / folder, ignore=shutil.ignore_patterns("__pycache__", "*.nbi", "*.nbc"))
     build = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--quiet", "-w", str(tmp_path),
-                            str(ROOT)], capture_output=True, text=True, timeout=600)
+                            str(source)], capture_output=True, text=True, timeout=600)
     assert build.returncode == 0, build.stderr
     (wheel,) = tmp_path.glob("evtools-*.whl")
     names = zipfile.ZipFile(wheel).namelist()
@@ -23,5 +32,6 @@ def test_the_wheel_has_one_top_level_package(tmp_path):
     assert {t for t in top if not t.endswith(".dist-info")} == {"evtools"}, top
     assert "evtools/cli/main.py" in names and "evtools/formats/aedat4.py" in names
     assert "evtools/_kernels/correct.py" in names and "evtools/metrics/thresholds.py" in names
+    assert "evtools/estimation.py" in names and "evtools/estimate.py" not in names
     entry_points = next(n for n in names if n.endswith("entry_points.txt"))
     assert "evtools = evtools.cli.main:main" in zipfile.ZipFile(wheel).read(entry_points).decode()
