@@ -29,7 +29,10 @@ from typing import Any
 import numpy as np
 
 from evtools._kernels.estimate import (
+    OFFE_E,
+    OFFE_ROW,
     OFFE_SAMPLES,
+    OFFE_SUMS_AT,
     OFFE_STATE_SIZE,
     PROFILE_INTENSITY,
     PROFILE_LOG,
@@ -382,8 +385,7 @@ class ThresholdEstimator:
         self.t_last_us: int | None = None
         self._finished = False
         if method == "offe":
-            self._cumulative = _aligned_zeros(n, 2, np.int64)  # per pixel (E, P) so far
-            self._sums = np.zeros((5, n), dtype=np.int64)
+            self._pixels = _aligned_zeros(n, OFFE_ROW, np.int64)  # per pixel (E, P), samples included, the sums
             self._clock = np.zeros(OFFE_STATE_SIZE, dtype=np.int64)
             self._counts = _aligned_zeros(n, COUNT_SIZE, np.float64)  # the natural method's, for offE's fit
         elif method == "natural":
@@ -451,8 +453,8 @@ class ThresholdEstimator:
         self.t_last_us = int(t[-1])
         self.events += len(chunk)
         if self.method == "offe":
-            offe_accumulate(t, x, y, p, self.width, self.segment_us, self._cumulative, self._sums, self._clock)
-            count_accumulate(t, x, y, p, self.width, BLOCK_US, self._counts)  # for the fit (natural's counts)
+            offe_accumulate(t, x, y, p, self.width, self.segment_us, self._pixels, self._clock, BLOCK_US,
+                            self._counts)
         elif self.method == "natural":
             count_accumulate(t, x, y, p, self.width, BLOCK_US, self._counts)
         elif self.phase == "fit":
@@ -506,7 +508,7 @@ class ThresholdEstimator:
             raise EstimationError("the stream has no events: nothing to estimate thresholds from")
         fit = None
         if self.method == "offe":
-            on, off, valid, fit, extra = self._offe(self._cumulative[:, 0] >= self.min_events)
+            on, off, valid, fit, extra = self._offe(self._pixels[:, OFFE_E] >= self.min_events)
         elif self.method == "natural":
             on, off, valid, fit, extra = self._natural()
         else:
@@ -578,7 +580,7 @@ class ThresholdEstimator:
                 "--segment-us"
             )
         if not self._finished:
-            offe_finish(self._cumulative, self._sums, self._clock)
+            offe_finish(self._pixels, self._clock)
             self._finished = True
         k = float(self._clock[OFFE_SAMPLES])
         if k < 3:
@@ -586,7 +588,7 @@ class ThresholdEstimator:
                 f"only {int(k)} segments: offE fits a line through each pixel's samples and needs at least 3; give "
                 "a shorter --segment-us or a longer stream"
             )
-        m, r, fitted = offe_fit(self._sums, k)
+        m, r, fitted = offe_fit(self._pixels[:, OFFE_SUMS_AT:OFFE_SUMS_AT + 5].T, k)
         valid = enough & fitted & (r > 0)
         extra = {"segments": int(k)}
         if not valid.any():

@@ -5,7 +5,8 @@ references):
 
 - :func:`offe_accumulate` (Wang et al. 2019, offE): each pixel's cumulative event count E and polarity sum P since
   the start, sampled at every segment boundary; instead of storing the samples, the sums the least-squares fit
-  ``P = m E + d`` needs (K, sum E, sum P, sum E^2, sum EP, sum P^2) are accumulated in exact integers.
+  ``P = m E + d`` needs (K, sum E, sum P, sum E^2, sum EP, sum P^2) are accumulated in exact integers, lazily
+  (at the pixel's next event).
 - :func:`stimulus_accumulate`: the known stimulus ``L(t)`` at each event (from a one-period table for a flicker:
   no logarithm per event); a pixel's consecutive events differ by exactly one threshold in L, summed per polarity.
 - :func:`stimulus_fitted_accumulate`: the same with each pixel's phase fitted to its own first events
@@ -35,35 +36,55 @@ OFFE_STARTED = 3  # 1 once the first event is seen
 OFFE_PENDING = 4  # 1 when events arrived after the last sample
 OFFE_STATE_SIZE = 5
 
-# offE per-pixel sums (int64, shape (5, pixels))
-SUM_E, SUM_P, SUM_EE, SUM_EP, SUM_PP = range(5)
+# offE per-pixel row (int64, shape (pixels, 8), one 64-byte cache line): the cumulative count E and polarity sum
+# P, the number of samples the row's sums include, then the five fit sums
+OFFE_E, OFFE_P, OFFE_SEEN = 0, 1, 2
+OFFE_SUMS_AT = 3
+OFFE_ROW = 8
+SUM_E, SUM_P, SUM_EE, SUM_EP, SUM_PP = range(5)  # the sums, from OFFE_SUMS_AT on (and rows of offe_fit's input)
 
 PROFILE_INTENSITY = 0
 PROFILE_LOG = 1
 
 
-@kernel
-def _offe_sample(cumulative, sums, times):  # pragma: no cover - compiled
-    """Add ``times`` identical samples of every pixel's cumulative (E, P) to the fit sums."""
-    for i in range(cumulative.shape[0]):
-        e = cumulative[i, 0]
-        p = cumulative[i, 1]
-        sums[SUM_E, i] += times * e
-        sums[SUM_P, i] += times * p
-        sums[SUM_EE, i] += times * e * e
-        sums[SUM_EP, i] += times * e * p
-        sums[SUM_PP, i] += times * p * p
+@kernel(inline=True)
+def _count(t_us, i, on, block_us, counts):  # pragma: no cover - compiled
+    """One event of pixel i into its counts (see :func:`count_accumulate`)."""
+    half = 3 * ((t_us // block_us) % 2)
+    polarity = 1 if on else 2
+    counts[i, half + polarity - 1] += 1
+    last = counts[i, COUNT_LAST]
+    counts[i, half + 2] += 1 if last != 0 and last != polarity else 0
+    counts[i, COUNT_LAST] = polarity
+
+
+@kernel(inline=True)
+def _offe_catch_up(pixels, i, samples):  # pragma: no cover - compiled
+    """Add to pixel i's sums the samples taken since its last event: its (E, P) did not change through them."""
+    times = samples - pixels[i, OFFE_SEEN]
+    if times != 0:
+        e = pixels[i, OFFE_E]
+        p = pixels[i, OFFE_P]
+        pixels[i, OFFE_SUMS_AT + SUM_E] += times * e
+        pixels[i, OFFE_SUMS_AT + SUM_P] += times * p
+        pixels[i, OFFE_SUMS_AT + SUM_EE] += times * e * e
+        pixels[i, OFFE_SUMS_AT + SUM_EP] += times * e * p
+        pixels[i, OFFE_SUMS_AT + SUM_PP] += times * p * p
+        pixels[i, OFFE_SEEN] = samples
 
 
 @kernel
-def offe_accumulate(t, x, y, p, width, segment_us, cumulative, sums, state):  # pragma: no cover - compiled
+def offe_accumulate(t, x, y, p, width, segment_us, pixels, state, block_us, counts):  # pragma: no cover - compiled
     """Feed events to the offE sums.
 
-    Segments are ``[origin + k * segment_us, origin + (k + 1) * segment_us)`` from the first event's time. When
-    an event reaches a boundary, every pixel's cumulative count and polarity sum up to that boundary
-    (``cumulative[i] = (E, P)``, side by side so that an event touches one cache line) are sampled once per
-    boundary passed (a gap of several segments samples the same values several times, as the reference's
-    per-frame snapshots do), then the event is counted.
+    Segments are ``[origin + k * segment_us, origin + (k + 1) * segment_us)`` from the first event's time. At every
+    boundary the reference samples every pixel's cumulative count and polarity sum (E, P) (a gap of several
+    segments samples the same values several times, as its per-frame snapshots do). A pixel's (E, P) changes only
+    at its own events, so the samples are added lazily, exactly: at an event, the samples taken since the pixel's
+    previous one are added (times its unchanged E, P, ...), then the event is counted; :func:`offe_finish` adds the
+    rest. O(events + pixels) instead of O(boundaries x pixels): 26,000 boundaries of a 76,800-pixel sensor were 2
+    billion updates per 50M events. Each event also goes to the natural method's ``counts`` (:func:`_count`, blocks of
+    ``block_us``: offE's fit compares with that estimate), in the same pass.
     """
     for k in range(t.shape[0]):
         tk = t[k]
@@ -73,22 +94,25 @@ def offe_accumulate(t, x, y, p, width, segment_us, cumulative, sums, state):  # 
             state[OFFE_NEXT] = tk + segment_us
         if tk >= state[OFFE_NEXT]:
             passed = (tk - state[OFFE_NEXT]) // segment_us + 1
-            _offe_sample(cumulative, sums, passed)
             state[OFFE_SAMPLES] += passed
             state[OFFE_NEXT] += passed * segment_us
         i = np.int64(y[k]) * width + x[k]
-        cumulative[i, 0] += 1
-        cumulative[i, 1] += 1 if p[k] else -1
+        _offe_catch_up(pixels, i, state[OFFE_SAMPLES])
+        pixels[i, OFFE_E] += 1
+        pixels[i, OFFE_P] += 1 if p[k] else -1
         state[OFFE_PENDING] = 1
+        _count(tk, i, p[k], block_us, counts)
 
 
 @kernel
-def offe_finish(cumulative, sums, state):  # pragma: no cover - compiled
-    """Take the last (partial) segment's sample if events arrived after the last boundary."""
+def offe_finish(pixels, state):  # pragma: no cover - compiled
+    """Take the last (partial) segment's sample if events arrived after the last boundary, and bring every pixel's
+    sums up to the last sample."""
     if state[OFFE_PENDING] != 0:
-        _offe_sample(cumulative, sums, 1)
         state[OFFE_SAMPLES] += 1
         state[OFFE_PENDING] = 0
+    for i in range(pixels.shape[0]):
+        _offe_catch_up(pixels, i, state[OFFE_SAMPLES])
 
 
 @kernel(inline=True)
@@ -594,17 +618,6 @@ COUNT_SIZE = 8
 """natural: per pixel (ON events, OFF events, polarity reversals) in the even time blocks, the same in the odd ones,
 then the last event's polarity (0 none yet, 1 ON, 2 OFF), and a spare column: 64 bytes, one cache line."""
 COUNT_LAST = 6
-
-
-@kernel(inline=True)
-def _count(t_us, i, on, block_us, counts):  # pragma: no cover - compiled
-    """One event of pixel i into its counts (see :func:`count_accumulate`)."""
-    half = 3 * ((t_us // block_us) % 2)
-    polarity = 1 if on else 2
-    counts[i, half + polarity - 1] += 1
-    last = counts[i, COUNT_LAST]
-    counts[i, half + 2] += 1 if last != 0 and last != polarity else 0
-    counts[i, COUNT_LAST] = polarity
 
 
 @kernel
