@@ -170,7 +170,7 @@ def main() -> None:
 def _row(task: str, tool: str, result: dict, events: int, ours: dict | None) -> None:
     seconds = result["wall_seconds"]
     ratio = f"{seconds / ours['wall_seconds']:6.2f}" if ours else "     -"
-    print(f"{task:42} {tool:14} {seconds:8.2f} {events / seconds / 1e6:7.1f} {result['peak_mb'] * 1e6 / 2**20:9.0f} "
+    print(f"{task:42} {tool:14} {seconds:8.2f} {events / seconds / 1e6:7.1f} {result['peak_mb']:9.0f} "
           f"{ratio}", flush=True)
 
 
