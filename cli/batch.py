@@ -109,14 +109,17 @@ def run(one: Callable[..., tuple[int, int]], pairs: list[tuple[str, str]], optio
     jobs = jobs or os.cpu_count() or 1
     started = time.perf_counter()
     results: dict[str, tuple] = {}
-    with _Display([name for name, _ in pairs]) as display:
-        if scheduler is None:
-            with ProcessPoolExecutor(max_workers=min(jobs, len(pairs)), initializer=_quiet_worker) as pool:
-                futures = {pool.submit(run_one, one, i, o, options): i for i, o in pairs}
+    if scheduler is None:
+        # the workers are forked before the progress display starts its thread (a fork copies no threads but
+        # could copy a lock one of them holds)
+        with ProcessPoolExecutor(max_workers=min(jobs, len(pairs)), initializer=_quiet_worker) as pool:
+            futures = {pool.submit(run_one, one, i, o, options): i for i, o in pairs}
+            with _Display([name for name, _ in pairs]) as display:
                 for future in as_completed(futures):
                     results[futures[future]] = future.result()
                     display.done(futures[future], results[futures[future]])
-        else:
+    else:
+        with _Display([name for name, _ in pairs]) as display:
             for name, result in _run_on_dask(one, pairs, options, jobs, scheduler):
                 results[name] = result
                 display.done(name, result)
