@@ -59,11 +59,16 @@ def batch_options(function):
     return function
 
 
+def _names_folder(output: str | None) -> bool:
+    """Whether ``-o`` names a folder: an existing one, or a path ending with a separator."""
+    return output is not None and output != STDIO and (os.path.isdir(output) or output.endswith(os.sep))
+
+
 def plan(inputs: tuple[str, ...], output: str | None, suffix: str,
          second_is_output: bool = True) -> list[tuple[str, str]]:
     """The (input, output) pairs the positional names and ``-o`` ask for.
 
-    No input: stdin. One input: ``-o`` or stdout. Two names and no ``-o``: the second is the output (as it always
+    No input: stdin. One input: ``-o`` or stdout (``-o`` naming a folder: into it, as for several). Two names and no ``-o``: the second is the output (as it always
     was) unless it exists - then it may be a recording the user meant as an input, and the command refuses rather
     than overwrite it. More: ``-o`` must name a folder (made if missing); outputs are named after their inputs
     with ``suffix`` (the output format's extension), and two inputs may not give one output name. A command whose
@@ -77,8 +82,10 @@ def plan(inputs: tuple[str, ...], output: str | None, suffix: str,
                 f"{second} exists: to process both files give -o FOLDER; to write into it, name it with -o "
                 "(a second name is taken as the output only when it does not exist yet)")
         return [(first, second)]
-    if len(inputs) == 1:
+    if len(inputs) == 1 and not _names_folder(output):
         return [(inputs[0], output if output is not None else STDIO)]
+    if len(inputs) == 1 and inputs[0] == STDIO:
+        raise click.UsageError(f"-o {output} is a folder: name the output file of stdin")
     if output is None and not second_is_output:
         raise click.UsageError(f"{len(inputs)} inputs need -o FOLDER (each output is named after its input)")
     if output is None or output == STDIO:

@@ -70,3 +70,15 @@ def test_a_dask_cluster_gives_the_same_outputs(tmp_path):
     run("bafilter", *files, "-o", tmp_path / "dask", "--jobs", "2", "--scheduler", "local")
     for file in files:
         assert (tmp_path / "dask" / file.name).read_bytes() == (tmp_path / "pool" / file.name).read_bytes()
+
+
+def test_one_input_into_a_folder(tmp_path):
+    """-o naming a folder (existing, or ending with /) takes one input too, named after it."""
+    (first,) = _recordings(tmp_path / "in", count=1)
+    (tmp_path / "maps").mkdir()
+    run("estimate", first, "-o", tmp_path / "maps", "--min-events", "1", "--max-fit", "inf")
+    assert [p.name for p in (tmp_path / "maps").iterdir()] == ["rec00.h5"]
+    run("bafilter", first, "-o", f"{tmp_path / 'new'}/")
+    assert (tmp_path / "new" / "rec00.aedat4").read_bytes() == run("bafilter", first).stdout
+    result = run("bafilter", "-o", tmp_path / "maps", input=first.read_bytes(), check=False)
+    assert result.returncode == 2 and "folder" in result.stderr.decode()
