@@ -51,7 +51,10 @@ def random_chunks(total: int, rng):
 
 def walk_chunks(total: int):
     from evtools.events import concatenate, join
-    from evtools.formats import open_events
+    try:
+        from evtools.formats import open_events
+    except ImportError:  # a baseline checkout from before formats/ was installed as evtools.formats
+        from formats import open_events
 
     with open_events(str(WALK)) as stream:
         recording = concatenate(stream)
@@ -84,7 +87,10 @@ def child(total: int, mode: str, source: str) -> dict:
         sys.path.insert(0, repo)
         for name in [m for m in sys.modules if m == "evtools" or m.startswith("evtools.")]:
             del sys.modules[name]
-    from evtools.correction import ThresholdCorrector
+    try:
+        from evtools.correction import ThresholdCorrector
+    except ImportError:  # a baseline checkout from before the module was named correction
+        from evtools.correct import ThresholdCorrector
     from evtools.events import make_events
 
     rng = np.random.default_rng(0)
