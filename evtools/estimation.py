@@ -387,9 +387,9 @@ class ThresholdEstimator:
         if method == "offe":
             self._pixels = _aligned_zeros(n, OFFE_ROW, np.int64)  # per pixel (E, P), samples included, the sums
             self._clock = np.zeros(OFFE_STATE_SIZE, dtype=np.int64)
-            self._counts = _aligned_zeros(n, COUNT_SIZE, np.float64)  # the natural method's, for offE's fit
+            self._counts = _aligned_zeros(n, COUNT_SIZE, np.float32)  # the natural method's, for offE's fit
         elif method == "natural":
-            self._counts = _aligned_zeros(n, COUNT_SIZE, np.float64)
+            self._counts = _aligned_zeros(n, COUNT_SIZE, np.float32)
         else:
             self._state = _aligned_zeros(n, ST_SIZE, np.float64)
             self._seeds = np.zeros((n, 2, SEED_PAIRS), dtype=np.float64)

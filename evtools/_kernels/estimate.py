@@ -616,7 +616,8 @@ def stimulus_fitted_finish(period_us, rise, wave, state, seeds, ring, filled):  
 
 COUNT_SIZE = 8
 """natural: per pixel (ON events, OFF events, polarity reversals) in the even time blocks, the same in the odd ones,
-then the last event's polarity (0 none yet, 1 ON, 2 OFF), and a spare column: 64 bytes, one cache line."""
+then the last event's polarity (0 none yet, 1 ON, 2 OFF), and a spare column: float32 (whole counts exact up to
+16.7 million a pixel; online, the decayed sums), 32 bytes, two pixels to a cache line."""
 COUNT_LAST = 6
 
 
