@@ -68,9 +68,9 @@ def plan(inputs: tuple[str, ...], output: str | None, suffix: str,
          second_is_output: bool = True) -> list[tuple[str, str]]:
     """The (input, output) pairs the positional names and ``-o`` ask for.
 
-    No input: stdin. One input: ``-o`` or stdout (``-o`` naming a folder: into it, as for several). Two names and no ``-o``: the second is the output (as it always
-    was) unless it exists - then it may be a recording the user meant as an input, and the command refuses rather
-    than overwrite it. More: ``-o`` must name a folder (made if missing); outputs are named after their inputs
+    No input: stdin. One input: ``-o`` or stdout (``-o`` naming a folder: into it, as for several). Two names and
+    no ``-o``: the second is the output (as it always was) unless it exists - then it may be a recording the user
+    meant as an input, and the command refuses rather than overwrite it. More: ``-o`` must name a folder (made if missing); outputs are named after their inputs
     with ``suffix`` (the output format's extension), and two inputs may not give one output name. A command whose
     output is not a stream (``estimate``) never takes a second name as its output (``second_is_output``).
     """
@@ -86,8 +86,6 @@ def plan(inputs: tuple[str, ...], output: str | None, suffix: str,
         return [(inputs[0], output if output is not None else STDIO)]
     if len(inputs) == 1 and inputs[0] == STDIO:
         raise click.UsageError(f"-o {output} is a folder: name the output file of stdin")
-    if output is None and not second_is_output:
-        raise click.UsageError(f"{len(inputs)} inputs need -o FOLDER (each output is named after its input)")
     if output is None or output == STDIO:
         raise click.UsageError(f"{len(inputs)} inputs need -o FOLDER (each output is named after its input)")
     if STDIO in inputs:
