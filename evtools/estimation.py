@@ -613,6 +613,8 @@ class ThresholdEstimator:
         return on, off, fitting, fit, extra
 
     def _natural(self, max_fit: float | None = None):
+        """The natural method's maps from the counts so far (docs/algorithms.md section 4): (on, off, valid, fit,
+        extra), pixels flattened; ``max_fit`` defaults to the estimator's (offE's fit asks with natural's own)."""
         max_fit = self.max_fit if max_fit is None else max_fit
         counts = self._counts[:, :6].reshape(self.height, self.width, 2, 3).astype(np.float64)  # [y, x, half, k]
         whole = counts.sum(axis=2)
