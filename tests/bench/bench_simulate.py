@@ -93,9 +93,10 @@ def child_video(path: str, preset: str) -> dict:
 
 
 def child_scene(name: str, size: str, duration: str, preset: str) -> dict:
+    from evtools.cli.options import Duration
     from evtools.cli.simulate import scene_source
 
-    source = scene_source(name, size, duration, {})
+    source = scene_source(name, size, Duration().convert(duration, None, None), {})  # "1s" as the CLI reads it
     result = _run_timed(_simulator(source.width, source.height, preset), source.frames)
     return {**result, "pixels": source.width * source.height}
 
