@@ -197,7 +197,7 @@ class Aedat4Reader:
         compressed ones are decompressed by :data:`DECODE_THREADS` threads (the codecs release the GIL), up to
         :data:`DECODE_AHEAD` packets ahead, and placed in file order."""
         stream, skipped_packets = self.source.stream, 0
-        chunk, filled = np.empty(self.options.chunk_events, EVENT_DTYPE), 0
+        self._chunk, self._filled = np.empty(self.options.chunk_events, EVENT_DTYPE), 0
         pending: deque = deque()
         pool = ThreadPoolExecutor(DECODE_THREADS, thread_name_prefix="evtools-decode") if self.decompress else None
         try:
@@ -217,46 +217,31 @@ class Aedat4Reader:
                 if pool is not None:
                     pending.append(pool.submit(self._decode, self._read_packet(size, size, offset), offset))
                     if len(pending) > DECODE_AHEAD:
-                        events = pending.popleft().result()
-                        chunk, filled, full = self._make_room(chunk, filled, len(events))
-                        if full is not None:
-                            yield full
-                        _copy_records(chunk[filled: filled + len(events)], events)
-                        filled += len(events)
+                        yield from self._place(pending.popleft().result())
                     continue
                 # the flatbuffer's tables come first, the event vector last: parse the start, then read the events
                 start = self._read_packet(min(size, PACKET_HEAD_BYTES), size, offset)
                 events_at, count = _packet_layout(start, self.name, offset)
-                events = None
                 if events_at + 16 * count != size or events_at > len(start):
-                    events = _packet_events(start + self._read_packet(size - len(start), size, offset), self.name,
-                                            offset)
-                chunk, filled, full = self._make_room(chunk, filled, count)
-                if full is not None:
-                    yield full
-                target = chunk[filled: filled + count]
-                if events is None:  # straight from the file into the chunk
-                    target_bytes = target.view(np.uint8)
-                    have = len(start) - events_at
-                    target_bytes[:have] = np.frombuffer(start, np.uint8, have, events_at)
-                    if stream.readinto(memoryview(target_bytes)[have:]) != 16 * count - have:
-                        raise FormatError(f"{self.name}: truncated AEDAT 4.0 packet at byte {offset}")
-                    target.view(np.uint64).reshape(-1, 2)[:, 1] &= PAYLOAD_MASK  # the file's padding: zeroed
-                else:
-                    _copy_records(target, events)
-                filled += count
+                    yield from self._place(_packet_events(start + self._read_packet(size - len(start), size, offset),
+                                                          self.name, offset))
+                    continue
+                yield from self._make_room(count)
+                target = self._chunk[self._filled: self._filled + count]  # straight from the file into the chunk
+                target_bytes = target.view(np.uint8)
+                have = len(start) - events_at
+                target_bytes[:have] = np.frombuffer(start, np.uint8, have, events_at)
+                if stream.readinto(memoryview(target_bytes)[have:]) != 16 * count - have:
+                    raise FormatError(f"{self.name}: truncated AEDAT 4.0 packet at byte {offset}")
+                target.view(np.uint64).reshape(-1, 2)[:, 1] &= PAYLOAD_MASK  # the file's padding: zeroed
+                self._filled += count
             while pending:
-                events = pending.popleft().result()
-                chunk, filled, full = self._make_room(chunk, filled, len(events))
-                if full is not None:
-                    yield full
-                _copy_records(chunk[filled: filled + len(events)], events)
-                filled += len(events)
+                yield from self._place(pending.popleft().result())
         finally:
             if pool is not None:
                 pool.shutdown(wait=True, cancel_futures=True)
-        if filled:
-            yield chunk[:filled]
+        if self._filled:
+            yield self._chunk[:self._filled]
         self.info.metadata["skipped_packets"] = skipped_packets
 
     def _decode(self, body: bytes, offset: int) -> np.ndarray:
@@ -267,12 +252,18 @@ class Aedat4Reader:
             raise FormatError(f"{self.name}: cannot decompress packet at byte {offset} ({error})") from None
         return _packet_events(body, self.name, offset)
 
-    def _make_room(self, chunk: np.ndarray, filled: int, count: int):
-        """(chunk, filled, full chunk to yield or None): a new chunk when ``count`` more events do not fit."""
-        if filled + count <= len(chunk):
-            return chunk, filled, None
-        full = chunk[:filled] if filled else None
-        return np.empty(max(self.options.chunk_events, count), EVENT_DTYPE), 0, full
+    def _make_room(self, count: int) -> Iterator[np.ndarray]:
+        """Yield the chunk so far (and start a new one) when ``count`` more events do not fit in it."""
+        if self._filled + count > len(self._chunk):
+            if self._filled:
+                yield self._chunk[:self._filled]
+            self._chunk, self._filled = np.empty(max(self.options.chunk_events, count), EVENT_DTYPE), 0
+
+    def _place(self, events: np.ndarray) -> Iterator[np.ndarray]:
+        """Append one packet's events to the chunk (yielding the chunk first if they do not fit)."""
+        yield from self._make_room(len(events))
+        _copy_records(self._chunk[self._filled: self._filled + len(events)], events)
+        self._filled += len(events)
 
     def _read_packet(self, n: int, size: int, offset: int) -> bytes:
         data = self.source.stream.read(n)
