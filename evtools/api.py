@@ -22,6 +22,7 @@ True
 from __future__ import annotations
 
 import contextlib
+import itertools
 import os
 import tempfile
 from typing import Any, Iterable, Iterator
@@ -29,7 +30,7 @@ from typing import Any, Iterable, Iterator
 import numpy as np
 
 from evtools.errors import EvtoolsError
-from evtools.events import EVENT_DTYPE, StreamInfo, concatenate, empty_events, join, make_events
+from evtools.events import EVENT_DTYPE, StreamInfo, concatenate, empty_events, make_events
 
 __all__ = [
     "bafilter", "correct", "estimate", "from_columns", "from_dv", "from_tonic", "inject_noise", "open", "read",
@@ -267,7 +268,7 @@ def simulate(source: str | Iterable[tuple[int, np.ndarray]] = "flicker", *, widt
     >>> truth["on"].shape, bool(len(events) > 100), truth["parameters"]["seed"]
     ((24, 32), True, 0)
     """
-    from evtools.simulation import DvsSimulator, scene_frames
+    from evtools.simulation import DvsSimulator, run_simulator, scene_frames
 
     if isinstance(source, str):
         frames = scene_frames(source, width, height, duration_us, **(scene or {}))
@@ -280,12 +281,7 @@ def simulate(source: str | Iterable[tuple[int, np.ndarray]] = "flicker", *, widt
         raise EvtoolsError("no frames to simulate")
     frame_height, frame_width = np.asarray(first[1]).shape[:2]
     simulator = DvsSimulator(frame_width, frame_height, **parameters)
-    pieces = [simulator.process_labelled(first[0], first[1])]
-    for t_us, frame in frames:
-        pieces.append(simulator.process_labelled(t_us, frame))
-    pieces.append(simulator.flush_labelled())
-    events = join([p[0] for p in pieces]) if pieces else empty_events()
-    labels = np.concatenate([p[1] for p in pieces])
+    events, labels = run_simulator(simulator, itertools.chain([first], frames))
     truth = {"label": labels, "on": simulator.on_thres, "off": simulator.off_thres,
              "parameters": dict(simulator.parameters)}
     return events, truth

@@ -32,7 +32,7 @@ from evtools._kernels.pixel import (
     sort_events,
 )
 from evtools.errors import EvtoolsError
-from evtools.events import EVENT_DTYPE, check_sensor_size, empty_events
+from evtools.events import EVENT_DTYPE, check_sensor_size, empty_events, join
 
 __all__ = [
     "DEAD_PIXEL_THRESHOLD",
@@ -46,6 +46,7 @@ __all__ = [
     "lin_log",
     "scene_frames",
     "simulate_frames",
+    "run_simulator",
 ]
 
 LABELS = {LABEL_SIGNAL: "signal", LABEL_LEAK: "leak", LABEL_SHOT: "shot", LABEL_HOT: "hot"}
@@ -467,16 +468,14 @@ def simulate_frames(
     events : ndarray of EVENT_DTYPE
     labels : ndarray of uint8
     """
-    simulator = DvsSimulator(width, height, **parameters)
-    events, labels = [], []
-    for t_us, frame in frames:
-        chunk, chunk_labels = simulator.process_labelled(t_us, frame)
-        events.append(chunk)
-        labels.append(chunk_labels)
-    chunk, chunk_labels = simulator.flush_labelled()
-    events.append(chunk)
-    labels.append(chunk_labels)
-    return np.concatenate(events, dtype=EVENT_DTYPE), np.concatenate(labels)
+    return run_simulator(DvsSimulator(width, height, **parameters), frames)
+
+
+def run_simulator(simulator: "DvsSimulator", frames: Iterable[tuple[int, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    """``simulator.process_labelled`` on every (t_us, frame), then ``flush_labelled``: all events and their labels."""
+    pieces = [simulator.process_labelled(t_us, frame) for t_us, frame in frames]
+    pieces.append(simulator.flush_labelled())
+    return join([p[0] for p in pieces]), np.concatenate([p[1] for p in pieces])
 
 
 # -- built-in scenes -----------------------------------------------------------------------------------------
