@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import os
 import pickle
+import platform
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -144,7 +146,11 @@ def test_an_unresolvable_symbol_falls_back_to_numba(store):
     jit.kernel(scale_and_count)(values, 2.0, 3.0, np.zeros(5))
     [entry] = store.glob("*/*.pkl")
     record = pickle.loads(entry.read_bytes())
-    assert jit._load(record)  # loads as stored
+    assert jit._load(record)  # loads as stored, by llvmlite and as a shared library
+    library = entry.with_suffix(".so")
+    assert library.exists() == ("slots" in record)
+    if library.exists():
+        assert jit._load_library(record, library)
     record["undefined"].append("evtools_no_such_symbol")
     entry.write_bytes(pickle.dumps(record))
     count = jit.kernel(scale_and_count)
@@ -162,13 +168,14 @@ def test_a_process_with_a_warm_store_does_not_import_numba(tmp_path):
         probe = ("import sys; from evtools.cli.main import cli; "
                  f"cli(['-q', 'bafilter', {str(source)!r}, '--method', 'hotpixel,refractory,stcf', "
                  f"'--sensor-size', '8x8', '-o', {str(output)!r}], standalone_mode=False); "
-                 "print('numba' in sys.modules)")
+                 "print('numba' in sys.modules, 'llvmlite' in sys.modules)")
         result = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, cwd=ROOT,
                                 env=environment, timeout=300)
         assert result.returncode == 0, result.stderr
         imported.append(result.stdout.strip())
         outputs.append(output.read_text().splitlines())
-    assert imported[1] == "False"
+    linked = bool(shutil.which(os.environ.get("CC") or "cc")) and platform.machine() in jit._TRAMPOLINES
+    assert imported[1] == ("False False" if linked else "False True")  # a shared library needs no llvmlite
     assert outputs[0] == outputs[1] and 1 < len(outputs[1]) < 201
 
 
@@ -180,3 +187,29 @@ def test_kernel_modules_imported_after_numba_get_their_extensions_built():
                             env={**os.environ, "PYTHONPATH": str(ROOT)})
     assert result.returncode == 0, result.stderr
     assert result.stdout.split() == ["_Intrinsic", "True"]
+
+
+def allocate_or_raise(values):
+    """numba's runtime (an array allocated and freed) and its exception helpers, reached from a shared library
+    through the trampolines of jit._link."""
+    if values[0] < 0:
+        raise ValueError("a negative first value")
+    scratch = np.empty(3)
+    scratch[:] = values[0]
+    return scratch.sum()
+
+
+@pytest.mark.skipif(not shutil.which(os.environ.get("CC") or "cc") or platform.machine() not in jit._TRAMPOLINES,
+                    reason="no C compiler (or trampolines) for shared libraries here: llvmlite loads the objects")
+def test_a_shared_library_reaches_numbas_runtime_and_exceptions(tmp_path):
+    probe = ("import sys, numpy as np; from pathlib import Path; from evtools._kernels import jit; "
+             f"jit.cache_dir = lambda: Path({str(tmp_path)!r}); "
+             "from tests.test_jit import allocate_or_raise; k = jit.kernel(allocate_or_raise); "
+             "print(k(np.array([2.5])), k(np.array([-1.0])), type(jit._KEEP[-1]).__name__)")
+    runs = [subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, cwd=ROOT, timeout=300,
+                           env={**os.environ, "PYTHONPATH": str(ROOT)}) for _ in range(2)]
+    assert [run.returncode for run in runs] == [0, 0], runs[1].stderr
+    assert list(tmp_path.glob("*/*.so"))
+    first, second = (run.stdout.split() for run in runs)
+    assert first[:2] == second[:2] == ["7.5", "0.0"]  # (the C wrapper returns 0 after printing the exception)
+    assert second[2] == "CDLL" and "ValueError: a negative first value" in runs[1].stderr

@@ -3,8 +3,10 @@
 Importing numba (0.15-0.21 s) and the first call of a kernel from numba's cache (0.12 s, numba filling its typing and
 lowering registries) cost a process more than filtering 10M events takes. So a kernel here is compiled by numba
 once, as a C-callable wrapper (``numba.cfunc``) for the argument types it was called with, and its machine code
-is stored as an object file (:func:`cache_dir`); later processes load that object with llvmlite alone (numba's own
-code generator, 28-39 ms to import) and call it through ctypes, which releases the GIL as ``nogil`` did. numba is
+is stored as an object file (:func:`cache_dir`) and, where the system has a C compiler, linked into a shared library
+(:func:`_link`); later processes load that library with ctypes alone (or, without one, the object with llvmlite:
+numba's own code generator, 45 MiB and 50 ms more per process) and call it through ctypes, which releases the GIL
+as ``nogil`` did. numba is
 imported only when an object is missing or stale, or for a call the wrapper cannot express (see
 :func:`_describe`); either way the result is numba's, bit for bit (the wrapper calls the same compiled kernel).
 
@@ -201,8 +203,6 @@ def _environment() -> str:
     (one folder each), so machines sharing an installation do not evict each other's."""
     global _ENVIRONMENT
     if _ENVIRONMENT is None:
-        import llvmlite.binding as ll
-
         digest = hashlib.sha256()
         for package in ("numba", "llvmlite"):
             root = importlib.util.find_spec(package).submodule_search_locations[0]
@@ -210,10 +210,27 @@ def _environment() -> str:
                 status = os.stat(path)
                 digest.update(f"{path}:{status.st_size}:{status.st_mtime_ns}".encode())
         digest.update(sys.version.encode())
-        digest.update(ll.get_host_cpu_name().encode() + ll.get_host_cpu_features().flatten().encode())
+        digest.update(_host_cpu().encode())
         digest.update(repr(sorted((k, v) for k, v in os.environ.items() if k.startswith("NUMBA_"))).encode())
         _ENVIRONMENT = digest.hexdigest()[:16]
     return _ENVIRONMENT
+
+
+def _host_cpu() -> str:
+    """The host CPU's model and features: from ``/proc/cpuinfo`` where there is one (no llvmlite to import), else
+    as LLVM names them."""
+    try:
+        with open("/proc/cpuinfo") as file:
+            lines = file.read().split("\n\n")[0].splitlines()
+        keys = ("model name", "flags", "cpu family", "model", "stepping", "CPU implementer", "CPU part", "Features")
+        identity = [line for line in lines if line.split(":")[0].strip() in keys]
+        if identity:
+            return "\n".join(identity)
+    except OSError:
+        pass
+    import llvmlite.binding as ll
+
+    return ll.get_host_cpu_name() + ll.get_host_cpu_features().flatten()
 
 
 _SOURCES = None
@@ -236,7 +253,7 @@ def _sources(kernel: Kernel) -> str:
 
 def _store(record: dict, directory: Path, name: str, stale: str) -> None:
     """Write ``record`` as ``directory/name`` (atomically: under a temporary name, then renamed) and remove the
-    files matching ``stale`` (the same kernel and kinds from older sources). A store that cannot be written
+    files matching ``stale`` but for its own shared library (the same kernel and kinds from older sources). A store that cannot be written
     (read-only, full) only costs the next process a compile."""
     try:
         directory.mkdir(parents=True, exist_ok=True)
@@ -245,30 +262,27 @@ def _store(record: dict, directory: Path, name: str, stale: str) -> None:
             pickle.dump(record, file)
         os.replace(temporary, directory / name)
         for path in directory.glob(stale):
-            if path.name != name:
+            if path.stem != Path(name).stem:
                 path.unlink(missing_ok=True)
     except OSError:
         pass
 
 
 _ENGINE = None
-_KEEP = []  # compiled wrappers whose code is called without being stored
+_KEEP = []  # compiled wrappers and loaded libraries whose code is called
+_HELPERS = None
 
 
-def _engine():
-    """llvmlite's JIT (MCJIT) with the C helpers numba's code calls, taken from numba's extension modules without
-    importing numba itself (as numba registers them: ``numba_*`` helpers, ``NRT_*`` runtime, Python's None and
-    exceptions)."""
-    global _ENGINE
-    if _ENGINE is None:
-        import builtins
-
-        import llvmlite.binding as ll
+def _helpers() -> dict[str, int]:
+    """The addresses of the C helpers numba's code calls, taken from numba's extension modules without importing
+    numba itself, under the names numba's code calls them by (``numba_*`` helpers, ``NRT_*`` runtime)."""
+    global _HELPERS
+    if _HELPERS is None:
+        root = importlib.util.find_spec("numba").submodule_search_locations[0]
 
         def extension(name):
             if name in sys.modules:
                 return sys.modules[name]
-            root = importlib.util.find_spec("numba").submodule_search_locations[0]
             stem = os.path.join(root, *name.split(".")[1:])
             path = next(stem + suffix for suffix in importlib.machinery.EXTENSION_SUFFIXES
                         if os.path.exists(stem + suffix))
@@ -277,11 +291,25 @@ def _engine():
             spec.loader.exec_module(module)
             return module
 
+        helpers = {}
         for name in ("numba._helperlib", "numba._dynfunc"):
-            for helper, address in extension(name).c_helpers.items():
-                ll.add_symbol("numba_" + helper, address)
+            helpers.update(("numba_" + helper, address) for helper, address in extension(name).c_helpers.items())
         for helper, address in extension("numba.core.runtime._nrt_python").c_helpers.items():
-            ll.add_symbol(helper if helper.startswith("_") else "NRT_" + helper, address)
+            helpers[helper if helper.startswith("_") else "NRT_" + helper] = address
+        _HELPERS = helpers
+    return _HELPERS
+
+
+def _engine():
+    """llvmlite's JIT (MCJIT) with numba's C helpers (:func:`_helpers`), Python's None and exceptions."""
+    global _ENGINE
+    if _ENGINE is None:
+        import builtins
+
+        import llvmlite.binding as ll
+
+        for name, address in _helpers().items():
+            ll.add_symbol(name, address)
         ll.add_symbol("_Py_NoneStruct", id(None))
         for value in vars(builtins).values():
             if isinstance(value, type) and issubclass(value, BaseException):
@@ -294,7 +322,8 @@ def _engine():
 
 
 def _load(record: dict) -> int | None:
-    """The address of the stored wrapper, or None when one of its symbols cannot be resolved here."""
+    """The address of the stored wrapper loaded by llvmlite, or None when one of its symbols cannot be resolved
+    here."""
     import llvmlite.binding as ll
 
     engine = _engine()
@@ -303,6 +332,83 @@ def _load(record: dict) -> int | None:
     engine.add_object_file(ll.ObjectFileRef.from_data(record["object"]))
     engine.finalize_object()
     return engine.get_function_address(record["name"]) or None
+
+
+# ---- the stored machine code as a shared library (no llvmlite: 45 MiB and 50 ms less per process) ----
+
+_TRAMPOLINES = {  # a jump through slot i of the library's table (.Lslots), per machine
+    "x86_64": "    jmp *.Lslots+{offset}(%rip)\n",
+    "aarch64": "    adrp x16, .Lslots+{offset}\n    ldr x16, [x16, #:lo12:.Lslots+{offset}]\n    br x16\n",
+}
+
+
+def _link(record: dict, path: Path) -> bool:
+    """Link the record's object into the shared library ``path`` with the system's C compiler (``$CC``, else
+    ``cc``): numba's helpers, hidden inside its extension modules, are reached through trampolines that jump
+    through a table the loader fills (``evtools_slots``, in the order of ``record["slots"]``); the other undefined
+    symbols (Python's C API, libm) are the process's own. False, and nothing written, where that cannot be done
+    (no compiler, another machine, a symbol neither a helper nor the process's)."""
+    import platform
+    import shutil
+    import subprocess
+
+    compiler = shutil.which(os.environ.get("CC") or "cc") or shutil.which("gcc")
+    trampoline = _TRAMPOLINES.get(platform.machine())
+    if compiler is None or trampoline is None:
+        return False
+    process = ctypes.CDLL(None)
+    helpers = _helpers()
+    slots = [name for name in record["undefined"] if name in helpers]
+    if any(name not in helpers and not hasattr(process, name) for name in record["undefined"]):
+        return False
+    assembly = ["    .text"]
+    for i, name in enumerate(slots):
+        assembly += [f"    .globl {name}", f"    .hidden {name}", f"    .type {name}, %function", f"{name}:",
+                     trampoline.format(offset=8 * i)]
+    assembly += ["    .data", "    .p2align 3", "    .globl evtools_slots", "evtools_slots:", ".Lslots:",
+                 f"    .zero {8 * max(len(slots), 1)}", '    .section .note.GNU-stack,"",%progbits', ""]
+    with tempfile.TemporaryDirectory() as scratch:
+        (Path(scratch) / "kernel.o").write_bytes(record["object"])
+        (Path(scratch) / "slots.s").write_text("\n".join(assembly))
+        linked = Path(scratch) / "kernel.so"
+        try:
+            done = subprocess.run([compiler, "-shared", "-o", str(linked), "kernel.o", "slots.s", "-lm"],
+                                  cwd=scratch, capture_output=True, timeout=120)
+        except (OSError, subprocess.SubprocessError):
+            return False
+        if done.returncode != 0 or not linked.exists():
+            return False
+        record["slots"] = slots
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            handle, temporary = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+            os.close(handle)
+            shutil.copyfile(linked, temporary)
+            os.replace(temporary, path)
+        except OSError:
+            return False
+    return True
+
+
+def _load_library(record: dict, path: Path) -> int | None:
+    """The address of the stored wrapper in the shared library ``path`` (see :func:`_link`), its trampolines'
+    table filled; None when it cannot be loaded here."""
+    slots = record["slots"]
+    process = ctypes.CDLL(None)
+    if any(name not in slots and not hasattr(process, name) for name in record["undefined"]):
+        return None
+    try:
+        library = ctypes.CDLL(str(path))  # (bound now: a symbol missing here fails the load, not a later call)
+        if slots:
+            table = (ctypes.c_void_p * len(slots)).in_dll(library, "evtools_slots")
+            helpers = _helpers()
+            for i, name in enumerate(slots):
+                table[i] = helpers[name]
+        address = ctypes.cast(getattr(library, record["name"]), ctypes.c_void_p).value
+    except (OSError, AttributeError, KeyError, ValueError):
+        return None
+    _KEEP.append(library)
+    return address
 
 
 def _compile(kernel: Kernel, args: tuple, kinds: tuple) -> dict | None:
@@ -376,21 +482,28 @@ class _NativeCall:
                 record = pickle.loads((directory / name).read_bytes())
             except Exception:  # a damaged store entry is rebuilt
                 record = None
+        library = directory / (name[:-len(".pkl")] + ".so") if directory is not None else None
         if record is None:
             record = _compile(kernel, args, kinds)
             if record is None:
                 return False
             if directory is not None:
+                if not _link(record, library):
+                    library.unlink(missing_ok=True)
                 stored = {key: value for key, value in record.items() if key != "wrapper"}
-                _store(stored, directory, name, f"{kernel_name}.*.{kinds_digest}.pkl")
+                _store(stored, directory, name, f"{kernel_name}.*.{kinds_digest}.[ps][ko]*")
         if "wrapper" in record:  # compiled in this process: numba's JIT already holds it
             _KEEP.append(record["wrapper"])
             address = record["wrapper"].address
         else:
-            try:
-                address = _load(record)
-            except Exception:  # whatever keeps the stored code from loading here, numba can still run the kernel
-                address = None
+            address = None
+            if "slots" in record and library.exists():
+                address = _load_library(record, library)
+            if address is None:
+                try:
+                    address = _load(record)
+                except Exception:  # whatever keeps the stored code from loading here, numba can still run it
+                    address = None
             if address is None:
                 return False
         argtypes = []
