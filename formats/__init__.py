@@ -11,7 +11,8 @@ import numpy as np
 
 from evtools.events import CHUNK_EVENTS, StreamChecker, StreamInfo
 from evtools.formats.errors import FormatError
-from evtools.formats.io import STDIO, Source, WriteBehind, output_stream, read_ahead, same_file
+from evtools.formats.io import STDIO, Source, WriteBehind, is_live, output_stream, read_ahead, same_file
+from evtools.formats import registry
 from evtools.formats.registry import FORMATS, PIPE_FORMAT, ReadOptions, WriteOptions, by_name, detect, from_extension
 
 __all__ = ["FORMATS", "EventStream", "FormatError", "ReadOptions", "WriteOptions", "create_events", "open_events"]
@@ -60,12 +61,14 @@ def open_events(
     chunk_events: int = CHUNK_EVENTS,
     aedat2_layout: str | None = None,
     check: bool = True,
+    max_latency_s: float | None = None,
 ) -> EventStream:
     """Open an event file (or ``-``/None for stdin) for streaming.
 
     The format is recognised by its magic bytes, then by the file's extension; ``format`` overrides both.
     ``check`` (default) raises :class:`evtools.InvalidEventsError` at the first event outside the sensor or
-    earlier than the one before it.
+    earlier than the one before it. A live input (pipe, socket, FIFO) yields what has arrived at least every
+    ``max_latency_s`` seconds (default :data:`formats.registry.MAX_LATENCY_S`) and whenever nothing more waits.
     """
     source = Source(path)
     try:
@@ -79,7 +82,9 @@ def open_events(
                 raise FormatError(f"{source.name}: unknown format (no known magic bytes or extension); give --format")
         if fmt.reader is None:
             raise FormatError(f"{source.name}: {fmt.description} cannot be read")
-        options = ReadOptions(sensor_size=sensor_size, chunk_events=chunk_events, aedat2_layout=aedat2_layout)
+        latency = registry.MAX_LATENCY_S if max_latency_s is None else max_latency_s
+        options = ReadOptions(sensor_size=sensor_size, chunk_events=chunk_events, aedat2_layout=aedat2_layout,
+                              max_latency_s=latency)
         reader = fmt.reader_class()(source, options)
         return EventStream(source, reader, fmt.name, check)
     except BaseException:
@@ -96,13 +101,17 @@ def _named(target: str, function, *args):
 
 
 class _NamedWriter:
-    """A writer whose errors name the output file (writers see only a stream)."""
+    """A writer whose errors name the output file (writers see only a stream); on a live output (a pipe, a socket,
+    a FIFO) what each chunk brought is flushed at once (``flush()`` of the writer, else of the stream)."""
 
-    def __init__(self, target: str, writer) -> None:
+    def __init__(self, target: str, writer, stream, live: bool) -> None:
         self.target, self.writer = target, writer
+        self.flush = (getattr(writer, "flush", None) or stream.flush) if live else None
 
     def write(self, chunk: np.ndarray) -> None:
         _named(self.target, self.writer.write, chunk)
+        if self.flush is not None:
+            _named(self.target, self.flush)
 
     def close(self) -> None:
         _named(self.target, self.writer.close)
@@ -146,7 +155,11 @@ def create_events(
     writer_class = fmt.writer_class()
     target = "<stdout>" if path is None or os.fspath(path) == STDIO else os.fspath(path)
     with output_stream(path, binary_name=fmt.description, needs_seek=fmt.writer_needs_seek) as stream:
-        writer = WriteBehind(_NamedWriter(target, _named(target, writer_class, stream, info, options)))
+        try:
+            live = is_live(stream.fileno())
+        except (AttributeError, OSError, ValueError):  # an in-memory stream
+            live = False
+        writer = WriteBehind(_NamedWriter(target, _named(target, writer_class, stream, info, options), stream, live))
         try:
             yield writer
         except BaseException:

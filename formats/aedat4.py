@@ -17,6 +17,7 @@ from __future__ import annotations
 import os
 import struct
 import threading
+import time
 import xml.etree.ElementTree as ET
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
@@ -200,8 +201,20 @@ class Aedat4Reader:
         self._chunk, self._filled = np.empty(self.options.chunk_events, EVENT_DTYPE), 0
         pending: deque = deque()
         pool = ThreadPoolExecutor(DECODE_THREADS, thread_name_prefix="evtools-decode") if self.decompress else None
+        live, since = self.source.live, None
         try:
             while self.data_position < 0 or self.position < self.data_position:
+                if live:  # pass on what has arrived when nothing more waits, or when it has waited long enough
+                    if since is None and (self._filled or pending):
+                        since = time.monotonic()
+                    if since is not None and (not self.source.ready()
+                                              or time.monotonic() - since >= self.options.max_latency_s):
+                        while pending:
+                            yield from self._place(pending.popleft().result())
+                        if self._filled:
+                            yield self._chunk[:self._filled]
+                            self._chunk, self._filled = np.empty(self.options.chunk_events, EVENT_DTYPE), 0
+                        since = None
                 head = stream.read(8)
                 if not head:
                     break
@@ -370,6 +383,10 @@ class Aedat4Writer:
             self.stream.write(body)
         self.pending, self.held = [], 0
 
-    def close(self) -> None:
+    def flush(self) -> None:
+        """Write the events held as a (short) packet and flush the stream: a live output's reader gets them now."""
         self._flush()
         self.stream.flush()
+
+    def close(self) -> None:
+        self.flush()

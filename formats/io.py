@@ -5,7 +5,9 @@ from __future__ import annotations
 import contextlib
 import io
 import os
+import select
 import shutil
+import stat
 import sys
 import tempfile
 import threading
@@ -18,6 +20,11 @@ HEAD_BYTES = 4096
 """How many leading bytes format detection looks at."""
 
 STDIO = "-"
+
+def is_live(fd: int) -> bool:
+    """True when ``fd`` is not a regular file: a pipe, a socket, a FIFO, a terminal or a device (its bytes arrive
+    over time, so a reader passes on what has arrived and a writer flushes what it has)."""
+    return not stat.S_ISREG(os.fstat(fd).st_mode)
 
 
 class _PrefixedRaw(io.RawIOBase):
@@ -54,29 +61,52 @@ class Source:
         Reads the whole input from its first byte.
     seekable : bool
         True for regular files (readers may seek and re-read them).
+    live : bool
+        True for a pipe, a socket, a FIFO or a terminal: bytes arrive over time (see :meth:`ready`).
     """
 
     def __init__(self, path: str | os.PathLike | None) -> None:
         path = STDIO if path is None else os.fspath(path)
+        self.live = False
         if path == STDIO:
             self.name, self.path = "<stdin>", None
             raw = sys.stdin.buffer.raw if hasattr(sys.stdin.buffer, "raw") else sys.stdin.buffer
-            self.head = _read_up_to(raw, HEAD_BYTES)
-            self.stream = io.BufferedReader(_PrefixedRaw(self.head, raw), buffer_size=1 << 20)
-            self.seekable = False
-        else:
-            self.name, self.path = path, path
-            if os.path.isdir(path):
-                raise FormatError(f"{path}: is a directory, not an event file")
-            try:
-                self.stream = open(path, "rb", buffering=1 << 20)
-            except FileNotFoundError:
-                raise FormatError(f"{path}: no such file") from None
-            except OSError as error:
-                raise FormatError(f"{path}: cannot open ({error.strerror})") from None
-            self.head = self.stream.read(HEAD_BYTES)
-            self.stream.seek(0)
-            self.seekable = True
+            self._open_stream(raw)
+            return
+        self.name, self.path = path, path
+        if os.path.isdir(path):
+            raise FormatError(f"{path}: is a directory, not an event file")
+        try:
+            raw = open(path, "rb", buffering=0)
+        except FileNotFoundError:
+            raise FormatError(f"{path}: no such file") from None
+        except OSError as error:
+            raise FormatError(f"{path}: cannot open ({error.strerror})") from None
+        if is_live(raw.fileno()):  # a FIFO or a device: read as a stream, like stdin
+            self._open_stream(raw)
+            return
+        self.stream = io.BufferedReader(raw, buffer_size=1 << 20)
+        self.head = self.stream.read(HEAD_BYTES)
+        self.stream.seek(0)
+        self.seekable = True
+
+    def _open_stream(self, raw) -> None:
+        self._fd = raw.fileno() if _has_fileno(raw) else None
+        self.live = self._fd is not None and is_live(self._fd)
+        self.head = _read_up_to(raw, HEAD_BYTES)
+        self._raw = _PrefixedRaw(self.head, raw)
+        self.stream = io.BufferedReader(self._raw, buffer_size=1 << 20)
+        self.seekable = False
+
+    def ready(self) -> bool:
+        """True when a read would not wait for bytes to arrive (always, but for a live input with nothing waiting
+        in its pipe or socket: bytes already buffered are not counted, so a reader may pass on a little early)."""
+        if not self.live or self._raw._prefix.nbytes:
+            return True
+        try:
+            return bool(select.select([self._fd], [], [], 0)[0])
+        except (OSError, ValueError):
+            return True
 
     def spooled(self) -> BinaryIO:
         """A seekable stream of the whole input: the file itself, or stdin copied into a temporary file."""
@@ -117,23 +147,49 @@ def output_stream(path: str | os.PathLike | None, *, binary_name: str, needs_see
     """Open an output for binary writing: a file written atomically, or stdout for ``-``/None.
 
     A file is written to a temporary name beside the target and renamed only when the block ends without an
-    error, so an interrupted run never leaves a half-written file under the real name. A binary stream is
-    never written to a terminal. ``needs_seek`` formats (HDF5) cannot go to stdout.
+    error, so an interrupted run never leaves a half-written file under the real name; a symbolic link keeps
+    pointing where it did (its target is replaced). A FIFO, a socket or a device (``/dev/null``, a terminal) is
+    written directly, never renamed over. A binary stream is never written to a terminal. ``needs_seek`` formats
+    (HDF5) cannot go to stdout or to a FIFO.
     """
     path = STDIO if path is None else os.fspath(path)
     if path == STDIO:
-        if needs_seek:
-            raise FormatError(f"{binary_name} cannot be written to a pipe (it needs a seekable file): give -o FILE")
-        if sys.stdout.isatty():
-            raise FormatError(
-                f"refusing to write binary {binary_name} to a terminal: give -o FILE or pipe into another command"
-            )
+        _check_stream_target(sys.stdout.fileno() if _has_fileno(sys.stdout) else None, "a pipe", binary_name,
+                             needs_seek, sys.stdout.isatty())
         sys.stdout.flush()
         yield sys.stdout.buffer
         sys.stdout.buffer.flush()
         return
-    with atomic_path(path) as temporary, open(temporary, "w+b", buffering=1 << 20) as stream:
+    real = os.path.realpath(path)
+    if os.path.exists(real) and not os.path.isfile(real) and not os.path.isdir(real):
+        try:
+            stream = open(real, "wb", buffering=1 << 20)
+        except OSError as error:
+            raise FormatError(f"{path}: cannot open for writing ({error.strerror})") from None
+        with stream:
+            _check_stream_target(stream.fileno(), path, binary_name, needs_seek, stream.isatty())
+            yield stream
+        return
+    with atomic_path(real) as temporary, open(temporary, "w+b", buffering=1 << 20) as stream:
         yield stream
+
+
+def _has_fileno(stream) -> bool:
+    try:
+        stream.fileno()
+        return True
+    except (AttributeError, OSError, ValueError):
+        return False
+
+
+def _check_stream_target(fd: int | None, name: str, binary_name: str, needs_seek: bool, terminal: bool) -> None:
+    """Refuse binary on a terminal, and a format that seeks on anything that cannot."""
+    if terminal:
+        raise FormatError(
+            f"refusing to write binary {binary_name} to a terminal: give -o FILE or pipe into another command"
+        )
+    if needs_seek and (fd is None or is_live(fd)):
+        raise FormatError(f"{binary_name} cannot be written to {name} (it needs a seekable file): give -o FILE")
 
 
 @contextlib.contextmanager
