@@ -12,7 +12,6 @@ import numpy as np
 from evtools.events import CHUNK_EVENTS, StreamChecker, StreamInfo
 from evtools.formats.errors import FormatError
 from evtools.formats.io import STDIO, Source, WriteBehind, is_live, output_stream, read_ahead, same_file
-from evtools.formats import registry
 from evtools.formats.registry import FORMATS, PIPE_FORMAT, ReadOptions, WriteOptions, by_name, detect, from_extension
 
 __all__ = ["FORMATS", "EventStream", "FormatError", "ReadOptions", "WriteOptions", "create_events", "open_events"]
@@ -61,14 +60,13 @@ def open_events(
     chunk_events: int = CHUNK_EVENTS,
     aedat2_layout: str | None = None,
     check: bool = True,
-    max_latency_s: float | None = None,
 ) -> EventStream:
     """Open an event file (or ``-``/None for stdin) for streaming.
 
     The format is recognised by its magic bytes, then by the file's extension; ``format`` overrides both.
     ``check`` (default) raises :class:`evtools.InvalidEventsError` at the first event outside the sensor or
-    earlier than the one before it. A live input (pipe, socket, FIFO) yields what has arrived at least every
-    ``max_latency_s`` seconds (default :data:`formats.registry.MAX_LATENCY_S`) and whenever nothing more waits.
+    earlier than the one before it. A live input (pipe, socket, FIFO) of AEDAT 4.0 yields every packet as it
+    arrives.
     """
     source = Source(path)
     try:
@@ -82,9 +80,7 @@ def open_events(
                 raise FormatError(f"{source.name}: unknown format (no known magic bytes or extension); give --format")
         if fmt.reader is None:
             raise FormatError(f"{source.name}: {fmt.description} cannot be read")
-        latency = registry.MAX_LATENCY_S if max_latency_s is None else max_latency_s
-        options = ReadOptions(sensor_size=sensor_size, chunk_events=chunk_events, aedat2_layout=aedat2_layout,
-                              max_latency_s=latency)
+        options = ReadOptions(sensor_size=sensor_size, chunk_events=chunk_events, aedat2_layout=aedat2_layout)
         reader = fmt.reader_class()(source, options)
         return EventStream(source, reader, fmt.name, check)
     except BaseException:

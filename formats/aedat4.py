@@ -17,7 +17,6 @@ from __future__ import annotations
 import os
 import struct
 import threading
-import time
 import xml.etree.ElementTree as ET
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
@@ -201,20 +200,14 @@ class Aedat4Reader:
         self._chunk, self._filled = np.empty(self.options.chunk_events, EVENT_DTYPE), 0
         pending: deque = deque()
         pool = ThreadPoolExecutor(DECODE_THREADS, thread_name_prefix="evtools-decode") if self.decompress else None
-        live, since = self.source.live, None
+        live = self.source.live
         try:
             while self.data_position < 0 or self.position < self.data_position:
-                if live:  # pass on what has arrived when nothing more waits, or when it has waited long enough
-                    if since is None and (self._filled or pending):
-                        since = time.monotonic()
-                    if since is not None and (not self.source.ready()
-                                              or time.monotonic() - since >= self.options.max_latency_s):
-                        while pending:
-                            yield from self._place(pending.popleft().result())
-                        if self._filled:
-                            yield self._chunk[:self._filled]
-                            self._chunk, self._filled = np.empty(self.options.chunk_events, EVENT_DTYPE), 0
-                        since = None
+                if live and (self._filled or pending):  # a live input: every packet is passed on as it arrives
+                    while pending:
+                        yield from self._place(pending.popleft().result())
+                    yield self._chunk[:self._filled]
+                    self._chunk, self._filled = np.empty(self.options.chunk_events, EVENT_DTYPE), 0
                 head = stream.read(8)
                 if not head:
                     break

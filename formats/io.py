@@ -5,7 +5,6 @@ from __future__ import annotations
 import contextlib
 import io
 import os
-import select
 import shutil
 import stat
 import sys
@@ -62,7 +61,7 @@ class Source:
     seekable : bool
         True for regular files (readers may seek and re-read them).
     live : bool
-        True for a pipe, a socket, a FIFO or a terminal: bytes arrive over time (see :meth:`ready`).
+        True for a pipe, a socket, a FIFO or a terminal: bytes arrive over time (readers pass on what arrived).
     """
 
     def __init__(self, path: str | os.PathLike | None) -> None:
@@ -91,22 +90,10 @@ class Source:
         self.seekable = True
 
     def _open_stream(self, raw) -> None:
-        self._fd = raw.fileno() if _has_fileno(raw) else None
-        self.live = self._fd is not None and is_live(self._fd)
+        self.live = _has_fileno(raw) and is_live(raw.fileno())
         self.head = _read_up_to(raw, HEAD_BYTES)
-        self._raw = _PrefixedRaw(self.head, raw)
-        self.stream = io.BufferedReader(self._raw, buffer_size=1 << 20)
+        self.stream = io.BufferedReader(_PrefixedRaw(self.head, raw), buffer_size=1 << 20)
         self.seekable = False
-
-    def ready(self) -> bool:
-        """True when a read would not wait for bytes to arrive (always, but for a live input with nothing waiting
-        in its pipe or socket: bytes already buffered are not counted, so a reader may pass on a little early)."""
-        if not self.live or self._raw._prefix.nbytes:
-            return True
-        try:
-            return bool(select.select([self._fd], [], [], 0)[0])
-        except (OSError, ValueError):
-            return True
 
     def spooled(self) -> BinaryIO:
         """A seekable stream of the whole input: the file itself, or stdin copied into a temporary file."""

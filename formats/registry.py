@@ -20,11 +20,6 @@ from evtools.events import CHUNK_EVENTS
 HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
 
 
-MAX_LATENCY_S = 0.02
-"""How long a reader of a live input (a pipe, a socket, a FIFO, a terminal) holds events that have arrived before
-it passes them on (``evtools --max-latency`` sets it for a run)."""
-
-
 @dataclass(frozen=True)
 class ReadOptions:
     sensor_size: tuple[int, int] | None = None
@@ -32,9 +27,6 @@ class ReadOptions:
     chunk_events: int = CHUNK_EVENTS
     aedat2_layout: str | None = None
     """AEDAT 2.0 address layout when the header has no ``# AEChip:`` line: dvs128, davis240 or davis346."""
-    max_latency_s: float = MAX_LATENCY_S
-    """A live input's events are passed on at least this often (and whenever no more bytes wait); the default is
-    :data:`MAX_LATENCY_S` when opened by :func:`formats.open_events`."""
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,125 @@
+"""Live streams (issue 16): a pipe is passed on as it arrives, not when it ends; live outputs flush what each chunk
+brought; the events are the same as file to file. Outputs that are not regular files (a FIFO, /dev/null, a
+symbolic link) are written through, never replaced (issue 19)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import evtools
+from tests.helpers import assert_same_events
+
+ROOT = Path(__file__).resolve().parents[1]
+EVTOOLS = [str(Path(sys.executable).with_name("evtools")), "-q"]
+PARTS, PAUSE_S = 4, 0.6
+
+FEED = """
+import sys, time
+data = open(sys.argv[1], "rb").read()
+parts, pause = int(sys.argv[2]), float(sys.argv[3])
+step = len(data) // parts
+for i in range(parts):
+    sys.stdout.buffer.write(data[i * step: (i + 1) * step if i < parts - 1 else len(data)])
+    sys.stdout.buffer.flush()
+    print(time.monotonic(), file=sys.stderr, flush=True)
+    time.sleep(pause)
+"""
+
+SINK = """
+import sys, time
+from evtools.formats import open_events
+with open_events("-") as stream:
+    for chunk in stream:
+        print(time.monotonic(), len(chunk), flush=True)
+"""
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory) -> Path:
+    """An AEDAT 4.0 file of several packets (32,768 events each)."""
+    events, _ = evtools.simulate("bars", width=64, height=48, duration_us=1_500_000, seed=3)
+    assert len(events) > 4 * 32_768
+    path = tmp_path_factory.mktemp("live") / "bars.aedat4"
+    evtools.write(path, events, evtools.StreamInfo(64, 48))
+    return path
+
+
+def _environment():
+    return {**os.environ, "PYTHONPATH": str(ROOT)}
+
+
+def test_a_paced_pipe_leaves_the_pipeline_as_it_arrives(recording, tmp_path):
+    """Fed in four parts 0.6 s apart through convert | bafilter: events of each part come out before the next part
+    is fed (readers used to wait for a million events, i.e. for the end), and they are the file-to-file events."""
+    env = _environment()
+    feed = subprocess.Popen([sys.executable, "-c", FEED, str(recording), str(PARTS), str(PAUSE_S)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
+    convert = subprocess.Popen([*EVTOOLS, "convert", "-", "-o", "-"], stdin=feed.stdout, stdout=subprocess.PIPE,
+                               env=env, cwd=ROOT)
+    feed.stdout.close()
+    bafilter = subprocess.Popen([*EVTOOLS, "bafilter", "-", "-o", "-"], stdin=convert.stdout,
+                                stdout=subprocess.PIPE, env=env, cwd=ROOT)
+    convert.stdout.close()
+    sink = subprocess.run([sys.executable, "-c", SINK], stdin=bafilter.stdout, capture_output=True, text=True,
+                          env=env, cwd=ROOT, timeout=120)
+    bafilter.stdout.close()
+    for process in (feed, convert, bafilter):
+        assert process.wait(timeout=60) == 0
+    fed = [float(line) for line in feed.stderr.read().decode().split()]
+    arrivals = [(float(t), int(n)) for t, n in (line.split() for line in sink.stdout.splitlines())]
+    assert sink.returncode == 0, sink.stderr
+    assert len(fed) == PARTS
+    for k in range(PARTS - 1):  # something of part k arrived before part k + 1 was fed
+        assert any(fed[k] <= t < fed[k + 1] for t, _ in arrivals), (k, fed, arrivals)
+    expected = tmp_path / "expected.aedat4"
+    subprocess.run([*EVTOOLS, "bafilter", str(recording), "-o", str(expected)], check=True, env=env, cwd=ROOT)
+    assert sum(n for _, n in arrivals) == len(evtools.read(expected)[0])
+
+
+def test_a_live_pipe_gives_the_events_of_the_file(recording, tmp_path):
+    """The same events whether the input is a file or a paced pipe, for a processor that holds events (correct)."""
+    env = _environment()
+    thresholds = tmp_path / "t.h5"
+    subprocess.run([*EVTOOLS, "estimate", str(recording), "-o", str(thresholds)], check=True, env=env, cwd=ROOT)
+    expected = tmp_path / "file.aedat4"
+    subprocess.run([*EVTOOLS, "correct", str(recording), "--thresholds", str(thresholds), "-o", str(expected)],
+                   check=True, env=env, cwd=ROOT)
+    feed = subprocess.Popen([sys.executable, "-c", FEED, str(recording), "3", "0.2"], stdout=subprocess.PIPE,
+                            stderr=subprocess.DEVNULL, env=env)
+    live = tmp_path / "live.aedat4"
+    subprocess.run([*EVTOOLS, "correct", "-", "--thresholds", str(thresholds), "-o", str(live)], stdin=feed.stdout,
+                   check=True, env=env, cwd=ROOT, timeout=120)
+    feed.stdout.close()
+    assert feed.wait(timeout=60) == 0
+    assert_same_events(evtools.read(live)[0], evtools.read(expected)[0])
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this system")
+def test_outputs_that_are_not_regular_files_are_written_through(recording, tmp_path):
+    """A FIFO gets the stream (not replaced by a file), /dev/null stays a device, a symbolic link stays a link and
+    its target gets the output."""
+    env = _environment()
+    fifo = tmp_path / "out.fifo"
+    os.mkfifo(fifo)
+    reader = subprocess.Popen([sys.executable, "-c", f"import sys; sys.stdout.write(str(len(open({str(fifo)!r}, 'rb').read())))"],
+                              stdout=subprocess.PIPE, text=True)
+    subprocess.run([*EVTOOLS, "convert", str(recording), "-o", str(fifo), "--format", "aedat4"], check=True,
+                   env=env, cwd=ROOT, timeout=120)
+    assert int(reader.communicate(timeout=60)[0]) == recording.stat().st_size
+    assert fifo.is_fifo()
+    subprocess.run([*EVTOOLS, "convert", str(recording), "-o", "/dev/null", "--format", "aedat4"], check=True,
+                   env=env, cwd=ROOT)
+    assert Path("/dev/null").is_char_device()
+    target, link = tmp_path / "target.csv", tmp_path / "link.csv"
+    target.write_text("old")
+    link.symlink_to(target)
+    subprocess.run([*EVTOOLS, "convert", str(recording), "-o", str(link)], check=True, env=env, cwd=ROOT)
+    assert link.is_symlink() and os.readlink(link) == str(target)
+    assert len(evtools.read(target)[0]) == len(evtools.read(recording)[0])
