@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import os
+import sys
 
 import click
 import numpy as np
@@ -13,6 +14,7 @@ from evtools.cli.progress import process_stream
 from evtools.filters import METHODS, PRESETS, BAFilter, BAFilterError, parse_methods
 from evtools.errors import EvtoolsError
 from evtools.formats import create_events, open_events
+from evtools.formats.io import STDIO, atomic_path, same_file
 
 log = logging.getLogger("evtools")
 
@@ -45,13 +47,30 @@ def read_hot_pixels(path: str, width: int, height: int) -> np.ndarray:
 
 
 def write_hot_pixels(path: str, hot: np.ndarray) -> None:
-    """Write the hot pixels of ``hot`` as CSV (``x,y`` header, row-major order), atomically."""
+    """Write the hot pixels of ``hot`` as CSV (``x,y`` header, row-major order), atomically (``-``: stdout)."""
     ys, xs = np.nonzero(hot)
-    temporary = f"{path}.tmp{os.getpid()}"
-    with open(temporary, "w", encoding="utf-8") as file:
-        file.write("x,y\n")
-        file.writelines(f"{x},{y}\n" for x, y in zip(xs.tolist(), ys.tolist()))
-    os.replace(temporary, path)
+    text = "x,y\n" + "".join(f"{x},{y}\n" for x, y in zip(xs.tolist(), ys.tolist()))
+    if path == STDIO:
+        sys.stdout.write(text)
+        sys.stdout.flush()
+        return
+    try:
+        with atomic_path(path) as temporary, open(temporary, "w", encoding="utf-8") as file:
+            file.write(text)
+    except OSError as error:
+        raise HotPixelsError(f"{path}: cannot write the hot-pixel list ({error.strerror})") from None
+
+
+def _check_hot_pixels_target(path: str, input: str, output: str | None) -> None:
+    """The hot-pixel list may not replace the input, nor share a file or stdout with the events."""
+    if path == STDIO:
+        if output in (None, STDIO):
+            raise HotPixelsError("--save-hot-pixels - and the events cannot both go to stdout; give -o FILE")
+    elif input != STDIO and same_file(path, input):
+        raise HotPixelsError(f"{path}: the hot-pixel list would overwrite the input; choose another --save-hot-pixels")
+    elif output not in (None, STDIO) and (os.path.abspath(path) == os.path.abspath(output) or same_file(path, output)):
+        raise HotPixelsError(f"{path}: the hot-pixel list and the events would share a file; choose another "
+                             "--save-hot-pixels")
 
 
 def _methods(ctx, param, value):
@@ -122,6 +141,8 @@ def filter_one(input, output, *, input_format, sensor_size, aedat2_layout, metho
                polarity, window, distance, learn_us, hot_ratio, hot_rate_hz, hot_min_events, hot_pixels_path,
                save_hot_pixels) -> tuple[int, int]:
     """Filter one file (the command's whole work for one input): (events in, events kept)."""
+    if save_hot_pixels:
+        _check_hot_pixels_target(save_hot_pixels, input, output)
     with open_events(input, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as stream:
         info = stream.info
         hot_map = read_hot_pixels(hot_pixels_path, info.width, info.height) if hot_pixels_path else None
@@ -130,9 +151,9 @@ def filter_one(input, output, *, input_format, sensor_size, aedat2_layout, metho
                       hot_rate_hz=hot_rate_hz, hot_min_events=hot_min_events, hot_map=hot_map)
         with create_events(output, info, inputs=(input,)) as writer:
             process_stream(stream, ba, writer, f"filtering {stream.name}")
-    if save_hot_pixels:
-        write_hot_pixels(save_hot_pixels, ba.hot_map if ba.hot_map is not None else np.zeros((info.height,
-                                                                                              info.width), bool))
+            if save_hot_pixels:  # inside the output's block: when the list cannot be written, no output is left
+                hot = ba.hot_map if ba.hot_map is not None else np.zeros((info.height, info.width), bool)
+                write_hot_pixels(save_hot_pixels, hot)
     removed = ba.events_in - ba.events_out
     share = removed / ba.events_in if ba.events_in else 0.0
     log.info(f"bafilter {','.join(methods)}: {ba.events_in:,} in, {ba.events_out:,} kept, {removed:,} removed "

@@ -53,9 +53,9 @@ EVTOOLS = str(Path(sys.executable).with_name("evtools"))
 """The console script installed beside the interpreter running the tests."""
 
 
-def run(*args, input=None, check=True) -> subprocess.CompletedProcess:
-    """Run ``evtools ARGS`` as a real process; with ``check``, fail the test unless it exits 0."""
-    result = subprocess.run([EVTOOLS, *map(str, args)], input=input, capture_output=True, timeout=120)
+def run(*args, input=None, check=True, cwd=None) -> subprocess.CompletedProcess:
+    """Run ``evtools ARGS`` as a real process (in ``cwd``); with ``check``, fail the test unless it exits 0."""
+    result = subprocess.run([EVTOOLS, *map(str, args)], input=input, capture_output=True, timeout=120, cwd=cwd)
     if check and result.returncode != 0:
         raise AssertionError(f"evtools {args} failed ({result.returncode}): {result.stderr.decode()}")
     return result

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import subprocess
 from datetime import timedelta
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -279,3 +280,23 @@ def test_cli_bad_parameters(tmp_path):
     assert_clean_error(run("bafilter", path, "--method", "hotpixel", "--hot-pixels", wrong, "-o", out, check=False),
                        "hot.csv")
     assert not out.exists()
+
+
+def test_save_hot_pixels_never_replaces_the_input_goes_to_stdout_and_fails_whole(tmp_path):
+    """Issue 19: `--save-hot-pixels` naming the input used to turn the recording into an `x,y` list; `-` made a
+    file named `-`; an unwritable list left the complete main output behind."""
+    source = tmp_path / "in.csv"
+    run("convert", Path(__file__).resolve().parents[1] / "samples" / "flicker.aedat4", "-o", source)
+    original = source.read_bytes()
+    refused = run("-q", "bafilter", source, "--method", "hotpixel", "--save-hot-pixels", source, "-o",
+                  tmp_path / "out.csv", check=False)
+    assert refused.returncode == 1 and source.read_bytes() == original
+    assert refused.stderr.decode().count("\n") == 1 and "overwrite the input" in refused.stderr.decode()
+    assert not (tmp_path / "out.csv").exists()
+    listed = run("-q", "bafilter", source, "--method", "hotpixel", "--save-hot-pixels", "-", "-o",
+                 tmp_path / "out.csv", cwd=tmp_path)
+    assert listed.stdout.decode().startswith("x,y\n") and not (tmp_path / "-").exists()
+    failed = run("-q", "bafilter", source, "--method", "hotpixel", "--save-hot-pixels",
+                 tmp_path / "missing" / "hot.csv", "-o", tmp_path / "after.csv", check=False)
+    assert failed.returncode == 1 and not (tmp_path / "after.csv").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.csv", "out.csv"]  # no temporary left either
