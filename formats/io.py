@@ -20,6 +20,7 @@ HEAD_BYTES = 4096
 
 STDIO = "-"
 
+
 def is_live(fd: int) -> bool:
     """True when ``fd`` is not a regular file: a pipe, a socket, a FIFO, a terminal or a device (its bytes arrive
     over time, so a reader passes on what has arrived and a writer flushes what it has)."""
@@ -141,8 +142,7 @@ def output_stream(path: str | os.PathLike | None, *, binary_name: str, needs_see
     """
     path = STDIO if path is None else os.fspath(path)
     if path == STDIO:
-        _check_stream_target(sys.stdout.fileno() if _has_fileno(sys.stdout) else None, "a pipe", binary_name,
-                             needs_seek, sys.stdout.isatty())
+        _check_stream_target(None, "a pipe", binary_name, needs_seek, sys.stdout.isatty())
         sys.stdout.flush()
         yield sys.stdout.buffer
         sys.stdout.buffer.flush()
@@ -170,7 +170,7 @@ def _has_fileno(stream) -> bool:
 
 
 def _check_stream_target(fd: int | None, name: str, binary_name: str, needs_seek: bool, terminal: bool) -> None:
-    """Refuse binary on a terminal, and a format that seeks on anything that cannot."""
+    """Refuse binary on a terminal, and a format that seeks on stdout (``fd`` None) or on anything that cannot."""
     if terminal:
         raise FormatError(
             f"refusing to write binary {binary_name} to a terminal: give -o FILE or pipe into another command"
