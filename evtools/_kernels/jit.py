@@ -253,8 +253,8 @@ def _sources(kernel: Kernel) -> str:
 
 def _store(record: dict, directory: Path, name: str, stale: str) -> None:
     """Write ``record`` as ``directory/name`` (atomically: under a temporary name, then renamed) and remove the
-    files matching ``stale`` but for its own shared library (the same kernel and kinds from older sources). A store that cannot be written
-    (read-only, full) only costs the next process a compile."""
+    files matching ``stale`` but its own shared library (the same kernel and kinds from older sources). A store
+    that cannot be written (read-only, full) only costs the next process a compile."""
     try:
         directory.mkdir(parents=True, exist_ok=True)
         handle, temporary = tempfile.mkstemp(dir=directory, suffix=".tmp")
@@ -361,6 +361,8 @@ def _link(record: dict, path: Path) -> bool:
     slots = [name for name in record["undefined"] if name in helpers]
     if any(name not in helpers and not hasattr(process, name) for name in record["undefined"]):
         return False
+    if any(name in record.get("undefined_data", ()) for name in slots):  # a trampoline is code, not data
+        return False
     assembly = ["    .text"]
     for i, name in enumerate(slots):
         assembly += [f"    .globl {name}", f"    .hidden {name}", f"    .type {name}, %function", f"{name}:",
@@ -451,10 +453,11 @@ def _compile(kernel: Kernel, args: tuple, kinds: tuple) -> dict | None:
     wrapper = numba.cfunc(types.void(*signature))(namespace["wrapper"])
     library = wrapper._library
     module = library._final_module
+    undefined_data = sorted(g.name for g in module.global_variables if g.is_declaration)
     undefined = sorted({f.name for f in module.functions if f.is_declaration and not f.name.startswith("llvm.")}
-                       | {g.name for g in module.global_variables if g.is_declaration})
+                       | set(undefined_data))
     return {"name": wrapper.native_name, "object": library._codegen._tm.emit_object(module),
-            "undefined": undefined, "results": [str(item) for item in results],
+            "undefined": undefined, "undefined_data": undefined_data, "results": [str(item) for item in results],
             "tuple": isinstance(result, types.BaseTuple), "wrapper": wrapper}
 
 
