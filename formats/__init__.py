@@ -151,11 +151,8 @@ def create_events(
     writer_class = fmt.writer_class()
     target = "<stdout>" if path is None or os.fspath(path) == STDIO else os.fspath(path)
     with output_stream(path, binary_name=fmt.description, needs_seek=fmt.writer_needs_seek) as stream:
-        try:
-            live = is_live(stream.fileno())
-        except (AttributeError, OSError, ValueError):  # an in-memory stream
-            live = False
-        writer = WriteBehind(_NamedWriter(target, _named(target, writer_class, stream, info, options), stream, live))
+        writer = WriteBehind(_NamedWriter(target, _named(target, writer_class, stream, info, options), stream,
+                                          is_live(stream)))
         try:
             yield writer
         except BaseException:

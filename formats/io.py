@@ -21,10 +21,14 @@ HEAD_BYTES = 4096
 STDIO = "-"
 
 
-def is_live(fd: int) -> bool:
-    """True when ``fd`` is not a regular file: a pipe, a socket, a FIFO, a terminal or a device (its bytes arrive
-    over time, so a reader passes on what has arrived and a writer flushes what it has)."""
-    return not stat.S_ISREG(os.fstat(fd).st_mode)
+def is_live(stream) -> bool:
+    """True when the file object ``stream`` is not a regular file: a pipe, a socket, a FIFO, a terminal or a device
+    (its bytes arrive over time, so a reader passes on what has arrived and a writer flushes what it has); False
+    for an in-memory stream."""
+    try:
+        return not stat.S_ISREG(os.fstat(stream.fileno()).st_mode)
+    except (AttributeError, OSError, ValueError):
+        return False
 
 
 class _PrefixedRaw(io.RawIOBase):
@@ -82,7 +86,7 @@ class Source:
             raise FormatError(f"{path}: no such file") from None
         except OSError as error:
             raise FormatError(f"{path}: cannot open ({error.strerror})") from None
-        if is_live(raw.fileno()):  # a FIFO or a device: read as a stream, like stdin
+        if is_live(raw):  # a FIFO or a device: read as a stream, like stdin
             self._open_stream(raw)
             return
         self.stream = io.BufferedReader(raw, buffer_size=1 << 20)
@@ -91,7 +95,7 @@ class Source:
         self.seekable = True
 
     def _open_stream(self, raw) -> None:
-        self.live = _has_fileno(raw) and is_live(raw.fileno())
+        self.live = is_live(raw)
         self.head = _read_up_to(raw, HEAD_BYTES)
         self.stream = io.BufferedReader(_PrefixedRaw(self.head, raw), buffer_size=1 << 20)
         self.seekable = False
@@ -142,7 +146,7 @@ def output_stream(path: str | os.PathLike | None, *, binary_name: str, needs_see
     """
     path = STDIO if path is None else os.fspath(path)
     if path == STDIO:
-        _check_stream_target(None, "a pipe", binary_name, needs_seek, sys.stdout.isatty())
+        _check_stream_target(None, "a pipe", binary_name, needs_seek)
         sys.stdout.flush()
         yield sys.stdout.buffer
         sys.stdout.buffer.flush()
@@ -154,28 +158,20 @@ def output_stream(path: str | os.PathLike | None, *, binary_name: str, needs_see
         except OSError as error:
             raise FormatError(f"{path}: cannot open for writing ({error.strerror})") from None
         with stream:
-            _check_stream_target(stream.fileno(), path, binary_name, needs_seek, stream.isatty())
+            _check_stream_target(stream, path, binary_name, needs_seek)
             yield stream
         return
     with atomic_path(real) as temporary, open(temporary, "w+b", buffering=1 << 20) as stream:
         yield stream
 
 
-def _has_fileno(stream) -> bool:
-    try:
-        stream.fileno()
-        return True
-    except (AttributeError, OSError, ValueError):
-        return False
-
-
-def _check_stream_target(fd: int | None, name: str, binary_name: str, needs_seek: bool, terminal: bool) -> None:
-    """Refuse binary on a terminal, and a format that seeks on stdout (``fd`` None) or on anything that cannot."""
-    if terminal:
+def _check_stream_target(stream, name: str, binary_name: str, needs_seek: bool) -> None:
+    """Refuse binary on a terminal, and a format that seeks on stdout (``stream`` None) or on anything live."""
+    if (sys.stdout if stream is None else stream).isatty():
         raise FormatError(
             f"refusing to write binary {binary_name} to a terminal: give -o FILE or pipe into another command"
         )
-    if needs_seek and (fd is None or is_live(fd)):
+    if needs_seek and (stream is None or is_live(stream)):
         raise FormatError(f"{binary_name} cannot be written to {name} (it needs a seekable file): give -o FILE")
 
 
