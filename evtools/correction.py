@@ -10,7 +10,7 @@ created events in time order.
 Ordering. A re-sampled event lies between the start of its segment (the pixel's previous original event, never
 earlier than ``max_gap_us`` before the current event) and the current event, so the events created for one input
 event may precede events already created for others. The corrector keeps the created events in a reorder buffer
-and releases, sorted by time (ties in creation order, a stable sort), those no later event can precede: every
+and releases, sorted by time (ties in creation order, the even rows' before the odd rows', see :data:`LANES`), those no later event can precede: every
 future event is created at or after ``bound = max(earliest segment start of any pixel, t_now - latency_us)``.
 ``latency_us`` is one window, ``max_gap_us`` (``hold_us`` in all modes but ``foh`` when smaller), or three with
 turns: a segment that waits for the pixel's next event starts at most one window before its event and waits at
@@ -42,14 +42,25 @@ from evtools._kernels.correct import (
     PIXEL_DTYPE,
     TURN,
     correct_events,
+    merge_sorted,
     release_sorted,
     settle_waiting,
+    split_rows,
 )
 from evtools.errors import EvtoolsError
 from evtools.events import EVENT_DTYPE, check_sensor_size, empty_events, join
 
+LANES = 2
+"""The pixels are re-sampled in two lanes, the even and the odd sensor rows (any scene's events split about
+evenly), each with its own queue of waiting pixels and its own reorder buffer, so that the lanes of a long part
+run on two threads. The lanes' outputs are merged, the even rows' first on ties (each lane's ties in creation
+order): the output depends on neither the threads nor the chunks."""
+
 PART = 1 << 18
-"""Events per part of a long chunk (see :meth:`ThresholdCorrector.process`)."""
+"""Events per part of a long chunk: each part is split into the lanes, re-sampled, and released."""
+
+PARALLEL_EVENTS = 1 << 14
+"""Parts of at least this many events run their lanes on two threads (smaller ones are not worth a hand-over)."""
 
 __all__ = ["CORRECT_DEFAULTS", "MAX_WINDOW_US", "MODES", "CorrectionError", "ThresholdCorrector", "correct_thresholds"]
 
@@ -237,41 +248,21 @@ class ThresholdCorrector:
         # with turns a segment starts up to one window before its event and may wait up to two for the next one;
         # a tail starts at its event and waits up to two windows
         self.latency_us = 3 * self.window_us if self.turns else 2 * self.window_us if self.curves else self.window_us
-        self._queue_pixel = np.empty(1 << 16, dtype=np.int64)
-        self._queue_us = np.empty(1 << 16, dtype=np.int64)
-        self._head = self._tail = 0
-        self._due_us = -NO_EVENT_US  # when waiting pixels are next checked (see correct_events)
-        self._started = False
-        self._new = self._buffers(1 << 16)
-        self._spare = self._buffers(1 << 16)  # the created events of the part being released (see process)
+        self._lanes = [_Lane() for _ in range(LANES)]
+        self._due_us = -NO_EVENT_US  # when waiting pixels are next checked (see split_rows)
+        self._checks_us = np.empty(0, np.int64)
         self._pool = None
-        self._held = self._buffers(1 << 16)
-        self._keep = self._buffers(1 << 16)
-        self._n_held = 0
-        self._sorted = self._buffers(1 << 16)
-        self._counts = np.empty(1 << 18, dtype=np.int64)
+        self._started = False
         self.parameters: dict[str, Any] = {
             "target_on": self.target_on, "target_off": self.target_off, "mode": mode, "hold_us": self.hold_us,
             "max_gap_us": self.max_gap_us, "tau_us": self.tau_us, "turns": self.turns, "curves": self.curves,
             "start_us": self.start_us,
         }
 
-    @staticmethod
-    def _buffers(capacity: int) -> tuple[np.ndarray, np.ndarray]:
-        """Room for ``capacity`` created events: times (us) and second words (x, y, p as EVENT_DTYPE lays them)."""
-        return np.empty(capacity, np.int64), np.empty(capacity, np.int64)
-
-    @staticmethod
-    def _grown(buffers, capacity: int, keep: int) -> tuple[np.ndarray, ...]:
-        grown = tuple(np.empty(capacity, b.dtype) for b in buffers)
-        for old, new in zip(buffers, grown):
-            new[:keep] = old[:keep]
-        return grown
-
     @property
     def held(self) -> int:
-        """How many created events wait in the reorder buffer."""
-        return self._n_held
+        """How many created events wait in the reorder buffers."""
+        return sum(lane.n_held for lane in self._lanes)
 
     def _start(self, t_first: int) -> None:
         """The reconstruction of every pixel starts at level 0 at the stream's start (``turns``: anchored)."""
@@ -280,41 +271,11 @@ class ThresholdCorrector:
             origin = t_first if self.start_us is None else min(self.start_us, t_first)
             self._state["last_us"][self._use] = origin
 
-    def _resample(self, chunk: np.ndarray) -> int:
-        """Write every event that ``chunk`` creates into ``self._new``, in creation order; returns their number."""
-        words = np.ascontiguousarray(chunk).view(np.int64).reshape(-1, 2)
-        if len(self._new[0]) < 2 * len(chunk):
-            self._new = self._buffers(2 * len(chunk))
-        self._make_queue_room(len(chunk))
-        start, n = 0, 0
-        while True:
-            start, n, self._head, self._tail, self._due_us = correct_events(
-                words, start, self.width, self._state, self._status, self._use, self.target_on, self.target_off,
-                MODES[self.mode], self.turns, self.curves, self.hold_us, self.max_gap_us, self.tau_us, self.window_us,
-                self._queue_pixel, self._queue_us, self._head, self._tail, self._due_us, *self._new, n,
-            )
-            if start >= len(chunk):
-                return n
-            self._new = self._grown(self._new, 2 * len(self._new[0]), n)
-
-    def _make_queue_room(self, count: int) -> None:
-        """Room for ``count`` more waiting pixels (one per input event at most): when the end is reached, the live
-        part moves to the front (grown if need be), so each entry is copied O(1) times on average."""
-        if self._tail + count <= len(self._queue_us):
-            return
-        live = self._tail - self._head
-        size = max(len(self._queue_us), 2 * (live + count))
-        pixels, times = np.empty(size, np.int64), np.empty(size, np.int64)
-        pixels[:live] = self._queue_pixel[self._head:self._tail]
-        times[:live] = self._queue_us[self._head:self._tail]
-        self._queue_pixel, self._queue_us, self._head, self._tail = pixels, times, 0, live
-
     def process(self, chunk: np.ndarray) -> np.ndarray:
         """The corrected events that are final once ``chunk`` (time-sorted, after the previous ones) is seen.
 
-        A long chunk is taken in parts of :data:`PART` events, pipelined on two threads: while one part's created
-        events are sorted and merged (:meth:`_release`), the next part is re-sampled. The output is the same as
-        for the whole chunk at once (the corrector does not depend on where a stream is cut)."""
+        A chunk is taken in parts of at most :data:`PART` events; each part is split into the lanes (:data:`LANES`),
+        which are re-sampled and released side by side. The output is the same whatever the chunks and threads."""
         if len(chunk) == 0:
             return empty_events()
         if chunk.dtype != EVENT_DTYPE:
@@ -342,24 +303,51 @@ class ThresholdCorrector:
         return join(pieces)
 
     def _process(self, chunk: np.ndarray) -> np.ndarray:
-        if not len(chunk):
-            return empty_events()
-        if len(chunk) <= PART:
-            n = self._resample(chunk)
-            return self._release(self._new, n, self._bound(int(chunk["t"][-1])))
+        if not self._use.any():  # every pixel at the target: the input, bit for bit and in its order
+            return chunk.copy()
+        words = np.ascontiguousarray(chunk).view(np.int64).reshape(-1, 2)
+        out = empty_events(self.held + 2 * len(words))  # written part by part (pages untouched cost nothing)
+        filled = 0
+        for begin in range(0, len(words), PART):
+            part = words[begin:begin + PART]
+            even, odd = self._lanes[0].input_room(len(part)), self._lanes[1].input_room(len(part))
+            if len(self._checks_us) < len(part):
+                self._checks_us = np.empty(max(len(part), PART), np.int64)
+            n_even, n_odd, n_checks, self._due_us = split_rows(part, even, odd, self._due_us, self.window_us,
+                                                               self._checks_us)
+            checks_us = self._checks_us[:n_checks]
+            parallel = len(part) >= PARALLEL_EVENTS
+            counts = self._each_lane(lambda lane, lane_words: lane.resample(self, lane_words, checks_us),
+                                     [even[:n_even], odd[:n_odd]], parallel)
+            bound = self._bound(int(part[-1, 0]))
+            counts = self._each_lane(lambda lane, n: lane.release(n, bound), counts, parallel)
+            if filled + sum(counts) > len(out):
+                out = join([out[:filled], empty_events(max(len(out), sum(counts)))])
+            filled = self._merged(counts, out, filled)
+        return out[:filled]
+
+    def _each_lane(self, work, arguments: list, parallel: bool) -> list:
+        """``work(lane, argument)`` for every lane, the second lane on the pool's thread when ``parallel``."""
+        if not parallel:
+            return [work(lane, argument) for lane, argument in zip(self._lanes, arguments)]
         if self._pool is None:
             self._pool = ThreadPoolExecutor(1, thread_name_prefix="evtools-correct")
-        pieces, pending = [], None
-        for begin in range(0, len(chunk), PART):
-            part = chunk[begin:begin + PART]
-            n = self._resample(part)
-            bound = self._bound(int(part["t"][-1]))
-            if pending is not None:
-                pieces.append(pending.result())
-            new, self._new, self._spare = self._new, self._spare, self._new  # the next part writes the other pair
-            pending = self._pool.submit(self._release, new, n, bound)
-        pieces.append(pending.result())
-        return join(pieces)
+        second = self._pool.submit(work, self._lanes[1], arguments[1])
+        try:
+            first = work(self._lanes[0], arguments[0])
+        finally:
+            done = second.result()  # never leave the other lane running on the shared state
+        return [first, done]
+
+    def _merged(self, counts: list[int], out: np.ndarray, filled: int) -> int:
+        """The lanes' released events (each sorted by time) merged into ``out`` from ``filled`` on, the first
+        lane's first on ties; returns the new end."""
+        (first_t, first_w), (second_t, second_w) = self._lanes[0].out, self._lanes[1].out
+        n_first, n_second = counts
+        words = out.view(np.int64).reshape(-1, 2)[filled:filled + n_first + n_second]
+        merge_sorted(first_t[:n_first], first_w[:n_first], second_t[:n_second], second_w[:n_second], words[:, 0],
+                     words[:, 1])
+        return filled + n_first + n_second
 
     def __getstate__(self) -> dict:
         state = dict(self.__dict__)
@@ -379,42 +367,111 @@ class ThresholdCorrector:
                 earliest = min(earliest, int((self._state["last_us"][waiting] - self._state["pending_us"][waiting]).min()))
         return min(max(earliest, t_now - self.latency_us), t_now)
 
-    def _release(self, new: tuple[np.ndarray, np.ndarray], n: int, bound: int) -> np.ndarray:
-        """Merge the held and the ``n`` events created in ``new``; return those at or before ``bound``, hold the
-        rest. (Runs on the pool's thread while the next part is re-sampled: it touches only the release's own
-        buffers.)"""
-        h = self._n_held
-        if len(self._sorted[0]) < n:
-            self._sorted = self._buffers(2 * n)
-        if len(self._counts) < 4 * n:
-            self._counts = np.empty(4 * n, dtype=np.int64)
-        if len(self._keep[0]) < h + n:
-            self._keep = self._buffers(2 * (h + n))
-        out = np.empty(h + n, dtype=EVENT_DTYPE)
-        words = out.view(np.int64).reshape(-1, 2)
-        released, kept = release_sorted(*self._held, h, *new, n, bound, self._counts,
-                                        *self._sorted, words[:, 0], words[:, 1], *self._keep)
-        self._held, self._keep = self._keep, self._held
-        self._n_held = kept
-        return out[:released]
-
     def flush(self) -> np.ndarray:
         """The segments still waiting for a next event, re-sampled with what is known, and everything held (the
         stream ended)."""
+        counts = [lane.release(lane.settle_all(self), NO_EVENT_US) for lane in self._lanes]
+        out = empty_events(sum(counts))
+        self._merged(counts, out, 0)
+        return out
+
+
+def _buffers(capacity: int) -> tuple[np.ndarray, np.ndarray]:
+    """Room for ``capacity`` created events: times (us) and second words (x, y, p as EVENT_DTYPE lays them)."""
+    return np.empty(capacity, np.int64), np.empty(capacity, np.int64)
+
+
+def _grown(buffers, capacity: int, keep: int) -> tuple[np.ndarray, ...]:
+    grown = tuple(np.empty(capacity, b.dtype) for b in buffers)
+    for old, new in zip(buffers, grown):
+        new[:keep] = old[:keep]
+    return grown
+
+
+class _Lane:
+    """One lane's pixels (see :data:`LANES`): the queue of pixels that wait for their next event, the events the
+    latest part created (creation order), the reorder buffer (sorted) and the released events."""
+
+    def __init__(self):
+        self.queue_pixel = np.empty(1 << 16, dtype=np.int64)
+        self.queue_us = np.empty(1 << 16, dtype=np.int64)
+        self.head = self.tail = 0
+        self.new = _buffers(1 << 16)
+        self.held = _buffers(1 << 16)
+        self.keep = _buffers(1 << 16)
+        self.n_held = 0
+        self.sorted = _buffers(1 << 16)
+        self.counts = np.empty(1 << 18, dtype=np.int64)
+        self.out = _buffers(1 << 16)
+        self.input = np.empty((0, 2), np.int64)
+
+    def input_room(self, count: int) -> np.ndarray:
+        """Room for ``count`` input events ((count, 2) int64) of a part, reused from part to part."""
+        if len(self.input) < count:
+            self.input = np.empty((max(count, PART), 2), np.int64)
+        return self.input
+
+    def resample(self, corrector: ThresholdCorrector, words: np.ndarray, checks_us: np.ndarray) -> int:
+        """Write every event that the input ``words`` ((n, 2) int64, this lane's pixels) and the checks of waiting
+        pixels at ``checks_us`` (the part's, see :func:`split_rows`) create into ``self.new``, in creation order;
+        returns their number."""
+        if len(self.new[0]) < 2 * len(words):
+            self.new = _buffers(2 * len(words))
+        self._make_queue_room(len(words))
+        c = corrector
+        start, n, checked = 0, 0, 0
+        while True:
+            start, n, self.head, self.tail, checked = correct_events(
+                words, start, c.width, c._state, c._status, c._use, c.target_on, c.target_off, MODES[c.mode],
+                c.turns, c.curves, c.hold_us, c.max_gap_us, c.tau_us, c.window_us, self.queue_pixel, self.queue_us,
+                self.head, self.tail, checks_us, checked, *self.new, n,
+            )
+            if start >= len(words) and checked >= len(checks_us):
+                return n
+            self.new = _grown(self.new, 2 * len(self.new[0]), n)
+
+    def settle_all(self, corrector: ThresholdCorrector) -> int:
+        """Re-sample every waiting pixel with what is known (the stream ended) into ``self.new``; returns the
+        number of events created."""
+        c = corrector
         n = 0
-        while self._head < self._tail:
-            n, self._head = settle_waiting(self.width, self._state, self._status, self.target_on, self.target_off,
-                                           self.window_us, self._queue_pixel, self._queue_us, self._head, self._tail, NO_EVENT_US,
-                                           *self._new, n)
-            if self._head < self._tail:
-                self._new = self._grown(self._new, 2 * len(self._new[0]), n)
-        if n == 0:
-            h, self._n_held = self._n_held, 0
-            out = empty_events(h)
-            words = out.view(np.int64).reshape(-1, 2)
-            words[:, 0], words[:, 1] = self._held[0][:h], self._held[1][:h]
-            return out
-        return self._release(self._new, n, NO_EVENT_US)
+        while self.head < self.tail:
+            n, self.head = settle_waiting(c.width, c._state, c._status, c.target_on, c.target_off, c.window_us,
+                                          self.queue_pixel, self.queue_us, self.head, self.tail, NO_EVENT_US,
+                                          *self.new, n)
+            if self.head < self.tail:
+                self.new = _grown(self.new, 2 * len(self.new[0]), n)
+        return n
+
+    def _make_queue_room(self, count: int) -> None:
+        """Room for ``count`` more waiting pixels (one per input event at most): when the end is reached, the live
+        part moves to the front (grown if need be), so each entry is copied O(1) times on average."""
+        if self.tail + count <= len(self.queue_us):
+            return
+        live = self.tail - self.head
+        size = max(len(self.queue_us), 2 * (live + count))
+        pixels, times = np.empty(size, np.int64), np.empty(size, np.int64)
+        pixels[:live] = self.queue_pixel[self.head:self.tail]
+        times[:live] = self.queue_us[self.head:self.tail]
+        self.queue_pixel, self.queue_us, self.head, self.tail = pixels, times, 0, live
+
+    def release(self, n: int, bound: int) -> int:
+        """Merge the held and the ``n`` events in ``self.new``: those at or before ``bound`` into ``self.out``
+        (returns their number), the rest held."""
+        h = self.n_held
+        if len(self.sorted[0]) < n:
+            self.sorted = _buffers(2 * n)
+        if len(self.counts) < 4 * n:
+            self.counts = np.empty(4 * n, dtype=np.int64)
+        if len(self.keep[0]) < h + n:
+            self.keep = _buffers(2 * (h + n))
+        if len(self.out[0]) < h + n:
+            self.out = _buffers(2 * (h + n))
+        released, kept = release_sorted(*self.held, h, *self.new, n, bound, self.counts, *self.sorted, *self.out,
+                                        *self.keep)
+        self.held, self.keep = self.keep, self.held
+        self.n_held = kept
+        return released
 
 
 def _carried(values: np.ndarray, usable: np.ndarray) -> np.ndarray:

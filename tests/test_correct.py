@@ -134,18 +134,69 @@ def test_a_series_of_maps_does_not_depend_on_chunking(cuts, mode, seed):
 
 @settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(part=st.integers(1, 700), mode=st.sampled_from(MODES + ("exponential",)))
-def test_long_chunks_pipelined_in_parts_give_the_same_output(part, mode):
-    # process() releases one part on a second thread while it re-samples the next (PART events each)
+def test_parts_and_threads_give_the_same_output(part, mode):
+    # process() takes a chunk in parts of PART events, whose two lanes (even and odd rows) run on two threads
+    # when a part has PARALLEL_EVENTS events or more
     events = random_events(3000, W, H, seed=6)
     on, off = thresholds(6)
     options = dict(target=0.2, mode=mode, max_gap_us=5000, hold_us=2000)
-    whole = correct_thresholds(events, W, H, on, off, **options)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr("evtools.correction.PARALLEL_EVENTS", 1 << 40)
+        whole = correct_thresholds(events, W, H, on, off, **options)
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr("evtools.correction.PART", part)
+        patch.setattr("evtools.correction.PARALLEL_EVENTS", 1)
         corrector = ThresholdCorrector(W, H, on, off, **options)
-        pipelined = run_chunked(corrector, cut(events, [1000, 1001]))
-        assert corrector._pool is not None  # the parts went through the pool
-    assert_same_events(pipelined, whole)
+        threaded = run_chunked(corrector, cut(events, [1000, 1001]))
+        assert corrector._pool is not None  # the lanes went through the pool
+    assert_same_events(threaded, whole)
+
+
+@pytest.mark.parametrize("mode, naive", [("foh", dict(mode="foh")), ("step", dict(mode=STEP)),
+                                          ("highpass", dict(mode="highpass", turns=True)),
+                                          ("exponential", dict(mode=STEP, turns=True, curves=True))])
+def test_a_lane_without_events_still_settles_its_waiting_pixels(mode, naive):
+    # odd rows fire first, then only even rows for many windows: the odd lane's waiting pixels are settled by the
+    # whole stream's checks (its own events alone would leave them waiting past the release bound: unsorted output)
+    early = random_events(400, W, H, seed=8)
+    early["y"] |= 1
+    late = random_events(3000, W, H, seed=9)
+    late["y"] &= ~1
+    late["t"] += int(early["t"][-1]) + 1
+    assert int(late["t"][-1] - late["t"][0]) > 10 * 300  # many windows
+    events = join([early, late])
+    on, off = thresholds(8)
+    out = run_chunked(ThresholdCorrector(W, H, on, off, target=0.2, mode=mode, max_gap_us=300, hold_us=200),
+                      cut(events, range(0, len(events), 500)))
+    assert np.all(np.diff(out["t"]) >= 0)
+    expected = correct_naive(as_tuples(events), on.astype(float).tolist(), off.astype(float).tolist(),
+                             float(np.float32(0.2)), float(np.float32(0.2)), hold_us=200, max_gap_us=300,
+                             tau_us=CORRECT_DEFAULTS["tau_us"], **naive)
+    assert as_tuples(out) == expected
+
+
+def test_split_rows_and_merge_sorted_against_numpy():
+    from evtools._kernels.correct import merge_sorted, split_rows
+
+    rng = np.random.default_rng(4)
+    events = random_events(5000, W, H, seed=4)  # (split_rows and merge_sorted: the kernels of the two lanes)
+    words = events.view(np.int64).reshape(-1, 2)
+    even, odd, checks = np.empty_like(words), np.empty_like(words), np.empty(len(words), np.int64)
+    n_even, n_odd, n_checks, due_us = split_rows(words, even, odd, 5, 40, checks)
+    is_odd = events["y"] % 2 == 1
+    assert np.array_equal(even[:n_even], words[~is_odd]) and np.array_equal(odd[:n_odd], words[is_odd])
+    expected, due = [], 5
+    for t in events["t"].tolist():
+        if t >= due:
+            expected.append(t)
+            due = t + 40
+    assert checks[:n_checks].tolist() == expected and due_us == due
+    a_t, b_t = np.sort(rng.integers(0, 50, 300)), np.sort(rng.integers(0, 50, 200))
+    a_w, b_w = rng.integers(0, 1 << 40, 300), rng.integers(0, 1 << 40, 200)
+    out_t, out_w = np.empty(500, np.int64), np.empty(500, np.int64)
+    assert merge_sorted(a_t, a_w, b_t, b_w, out_t, out_w) == 500
+    order = np.lexsort((np.r_[np.zeros(300), np.ones(200)], np.r_[a_t, b_t]))  # by time, a first on ties
+    assert np.array_equal(out_t, np.r_[a_t, b_t][order]) and np.array_equal(out_w, np.r_[a_w, b_w][order])
 
 
 @pytest.mark.parametrize("mode, latency_us", [("foh", 500), ("highpass", 1500), ("exponential", 1500)])
@@ -158,7 +209,8 @@ def test_output_is_sorted_and_held_events_are_bounded(mode, latency_us):
     for chunk in cut(events, range(0, 20000, 997)):
         released.append(corrector.process(chunk))
         if len(chunk):  # nothing held is older than the latency bound before the newest input
-            assert corrector.held == 0 or corrector._held[0][0] >= chunk["t"][-1] - latency_us
+            oldest_us = min((lane.held[0][0] for lane in corrector._lanes if lane.n_held), default=None)
+            assert corrector.held == 0 or oldest_us >= chunk["t"][-1] - latency_us
     out = join(released + [corrector.flush()])
     assert out.dtype == EVENT_DTYPE and np.all(np.diff(out["t"]) >= 0)
 

@@ -350,12 +350,12 @@ def curve_run(state, status, pixel, xy, on, t_b, window_us, target_on, target_of
 
 @kernel
 def correct_events(words, start, width, state, status, use, target_on, target_off, mode, turns, curves, hold_us,
-                   max_gap_us, tau_us, window_us, queue_pixel, queue_us, head, tail, due_us, out_t, out_w,
+                   max_gap_us, tau_us, window_us, queue_pixel, queue_us, head, tail, checks_us, checked, out_t, out_w,
                    n):  # pragma: no cover - compiled
     """Process the events ``words[start:]`` ((n, 2) int64: time, then x, y, p as EVENT_DTYPE lays them out) while
     their worst case fits in the output arrays.
 
-    Returns (next input, count, queue head, queue tail, next due time).
+    Returns (next input, count, queue head, queue tail, checks done).
 
     ``state`` (:data:`PIXEL_DTYPE`) and ``status`` (int8, see :data:`SETTLED`) are per pixel (index ``y * width +
     x``) and updated in place; ``use`` says which pixels are re-sampled. Events are written from index ``n`` on, in
@@ -364,24 +364,31 @@ def correct_events(words, start, width, state, status, use, target_on, target_of
     With ``turns``, a pixel's segment that ends at a reversal (or at its first event) waits for the pixel's next
     event; that event gives the slope after the turn if it comes within ``window_us`` (else the slope is unknown,
     as after a rest). ``queue_pixel[head:tail]`` / ``queue_us`` list the waiting pixels in the order they started to
-    wait (so by time). At the first event at or after ``due_us`` (then ``due_us`` moves one window on) every pixel
-    that has waited more than ``window_us`` is settled with its next slope unknown: what it would get from its own
-    next event, so only the order of creation changes, and that only with the events' times, never with where the
-    stream was cut. Checking a window at a time (not at every event) keeps the loop fast; a segment then waits at
-    most two windows. The caller makes room for one queue entry per input event.
+    wait (so by time). At the checks ``checks_us[checked:]`` (times of the whole stream's events, at least a window
+    apart: :func:`split_rows`), before the first event at or after a check's time (or at the end of ``words``),
+    every pixel that has waited more than ``window_us`` by then is settled with its next slope unknown: what it
+    would get from its own next event, so only the order of creation changes, and that only with the events'
+    times, never with where the stream was cut or how its pixels were split into lanes. Checking a window at a
+    time (not at every event) keeps the loop fast; a segment then waits at most two windows. The caller makes room
+    for one queue entry per input event.
     """
     capacity = out_t.shape[0]
     min_target = min(target_on, target_off)
     end = words.shape[0]
     i = start
-    while i < end:
-        t_b = words[i, 0]
-        if t_b >= due_us:  # settle the pixels that waited too long
+    checks = checks_us.shape[0]
+    while i < end or checked < checks:
+        t_b = words[i, 0] if i < end else NO_EVENT_US
+        if checked < checks and checks_us[checked] <= t_b:  # settle the pixels that waited too long
+            while checked + 1 < checks and checks_us[checked + 1] <= t_b:
+                checked += 1
+            before_us = checks_us[checked] - window_us
             n, head = settle_waiting(width, state, status, target_on, target_off, window_us, queue_pixel,
-                                     queue_us, head, tail, t_b - window_us, out_t, out_w, n)
-            if head < tail and queue_us[head] < t_b - window_us:
-                return i, n, head, tail, due_us
-            due_us = t_b + window_us
+                                     queue_us, head, tail, before_us, out_t, out_w, n)
+            if head < tail and queue_us[head] < before_us:
+                return i, n, head, tail, checked
+            checked += 1
+            continue
         if i + AHEAD < end:  # the state of a pixel a few events ahead: its cache miss overlaps this work
             ahead = words[i + AHEAD, 1]
             prefetch(state, ((ahead >> 16) & 0xFFFF) * width + (ahead & 0xFFFF))
@@ -391,7 +398,7 @@ def correct_events(words, start, width, state, status, use, target_on, target_of
         pixel = ((word >> 16) & 0xFFFF) * width + (word & 0xFFFF)
         if not use[pixel]:
             if n >= capacity:
-                return i, n, head, tail, due_us
+                return i, n, head, tail, checked
             out_t[n] = t_b
             out_w[n] = xy | ON_BIT if on else xy
             n += 1
@@ -401,7 +408,7 @@ def correct_events(words, start, width, state, status, use, target_on, target_of
         theta_on = float(row.on)
         theta_off = float(row.off)
         if n + _room(row.level, theta_on, theta_off, min_target) > capacity:
-            return i, n, head, tail, due_us
+            return i, n, head, tail, checked
         d = theta_on if on else -theta_off
         sign = 1 if on else -1
         t_a = row.last_us
@@ -444,7 +451,7 @@ def correct_events(words, start, width, state, status, use, target_on, target_of
         row.level = a
         row.last_us = t_b
         i += 1
-    return i, n, head, tail, due_us
+    return i, n, head, tail, checked
 
 
 @kernel(inline=True)
@@ -540,3 +547,36 @@ def release_sorted(held_t, held_w, h, new_t, new_w, n, bound, counts, sorted_t, 
     released = _merge(held_t, held_w, 0, held_end, sorted_t, sorted_w, 0, new_end, out_t, out_w, 0)
     kept = _merge(held_t, held_w, held_end, h, sorted_t, sorted_w, new_end, n, keep_t, keep_w, 0)
     return released, kept
+
+
+@kernel
+def merge_sorted(a_t, a_w, b_t, b_w, out_t, out_w):  # pragma: no cover - compiled
+    """Merge the time-sorted runs ``a`` and ``b`` into ``out``, ``a`` first on ties; returns the count."""
+    return _merge(a_t, a_w, 0, a_t.shape[0], b_t, b_w, 0, b_t.shape[0], out_t, out_w, 0)
+
+
+@kernel
+def split_rows(words, even, odd, due_us, window_us, checks_us):  # pragma: no cover - compiled
+    """Copy the events ``words`` ((n, 2) int64) of even sensor rows to ``even``, of odd rows to ``odd``, in order
+    (both hold n rows: each event is written to both, the count of its own advances), and list in ``checks_us`` the
+    times at which waiting pixels are checked (:func:`correct_events`): the first event at or after ``due_us``,
+    then the first one a window after it, and so on. Returns the two counts, the number of checks and the next
+    ``due_us``."""
+    n_even = 0
+    n_odd = 0
+    checks = 0
+    for i in range(words.shape[0]):
+        t = words[i, 0]
+        word = words[i, 1]
+        is_odd = (word >> 16) & 1  # the lowest bit of y
+        even[n_even, 0] = t
+        even[n_even, 1] = word
+        odd[n_odd, 0] = t
+        odd[n_odd, 1] = word
+        n_even += 1 - is_odd
+        n_odd += is_odd
+        if t >= due_us:
+            checks_us[checks] = t
+            checks += 1
+            due_us = t + window_us
+    return n_even, n_odd, checks, due_us

@@ -22,8 +22,9 @@ window: an event of its own within the window drops that tail, otherwise (or at 
 crossings are made and the level returns to the pixel's own reference level.
 
 Every segment of the polyline is re-sampled: an event wherever it crosses the corrected reference plus or minus
-the target threshold, at the crossing time on the segment. The whole output is then sorted by time, ties in
-creation order.
+the target threshold, at the crossing time on the segment. The output is then sorted by time, ties between pixels
+of even and of odd sensor rows with the even rows' first (the kernel's two lanes), other ties in creation order;
+when every pixel's thresholds equal the target, the output is the input itself.
 """
 
 from __future__ import annotations
@@ -129,9 +130,12 @@ def correct_naive(events, on, off, target_on, target_off, mode=FOH, hold_us=100_
     ``on[y][x]``, ``off[y][x]`` are the pixel thresholds (floats); ``passthrough(x, y)`` says which pixels are left
     alone (default: those whose thresholds equal the target).
     """
+    events = [(int(t), int(x), int(y), bool(p)) for t, x, y, p in events]
     if passthrough is None:
         def passthrough(x, y):
             return on[y][x] == target_on and off[y][x] == target_off
+    if all(passthrough(x, y) for y in range(len(on)) for x in range(len(on[0]))):
+        return events
 
     window = max_gap_us if mode == FOH else min(max_gap_us, hold_us)
     due = None  # when the waiting pixels are next checked
@@ -238,5 +242,5 @@ def correct_naive(events, on, off, target_on, target_off, mode=FOH, hold_us=100_
         last[pixel] = t
     for pixel in sorted(waiting, key=lambda q: last[q]):
         settle(pixel, 0.0)
-    order = sorted(range(len(created)), key=lambda i: (created[i][0], i))
+    order = sorted(range(len(created)), key=lambda i: (created[i][0], created[i][2] % 2, i))
     return [created[i] for i in order]
