@@ -34,14 +34,13 @@ from typing import Any
 import numpy as np
 
 from evtools._kernels.correct import (
-    FIRST,
     MODE_FOH,
     MODE_HIGHPASS,
     MODE_STEP,
     NO_EVENT_US,
     PIXEL_DTYPE,
-    TURN,
     correct_events,
+    earliest_start,
     merge_sorted,
     release_sorted,
     settle_waiting,
@@ -243,6 +242,7 @@ class ThresholdCorrector:
         # pixels already at the target need no work (and their events stay bit for bit what they were)
         at_target = (on == np.float32(self.target_on)) & (off == np.float32(self.target_off))
         self._use = ~at_target.reshape(-1) if self._series is None else np.ones(n, dtype=bool)
+        self._any_use = bool(self._use.any())
         self.usable = usable
         self.window_us = self.max_gap_us if mode == "foh" else min(self.max_gap_us, self.hold_us)
         # with turns a segment starts up to one window before its event and may wait up to two for the next one;
@@ -303,7 +303,7 @@ class ThresholdCorrector:
         return join(pieces)
 
     def _process(self, chunk: np.ndarray) -> np.ndarray:
-        if not self._use.any():  # every pixel at the target: the input, bit for bit and in its order
+        if not self._any_use:  # every pixel at the target: the input, bit for bit and in its order
             return chunk.copy()
         words = np.ascontiguousarray(chunk).view(np.int64).reshape(-1, 2)
         out = empty_events(self.held + 2 * len(words))  # written part by part (pages untouched cost nothing)
@@ -359,12 +359,7 @@ class ThresholdCorrector:
         is created at or after the earliest segment start any pixel may still use (its latest event, or the start
         of the segment that waits for its next event; a tail starts at the latest event), and at most
         ``latency_us`` before ``t_now``."""
-        earliest = t_now
-        if self._use.any():
-            waiting = (np.abs(self._status) == TURN) | (np.abs(self._status) == FIRST)
-            earliest = int(self._state["last_us"].min())
-            if waiting.any():
-                earliest = min(earliest, int((self._state["last_us"][waiting] - self._state["pending_us"][waiting]).min()))
+        earliest = earliest_start(self._state, self._status) if self._any_use else t_now
         return min(max(earliest, t_now - self.latency_us), t_now)
 
     def flush(self) -> np.ndarray:

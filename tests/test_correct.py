@@ -199,6 +199,22 @@ def test_split_rows_and_merge_sorted_against_numpy():
     assert np.array_equal(out_t, np.r_[a_t, b_t][order]) and np.array_equal(out_w, np.r_[a_w, b_w][order])
 
 
+@pytest.mark.parametrize("mode", MODES + ("exponential",))
+def test_earliest_start_against_numpy(mode):
+    from evtools._kernels.correct import FIRST, TURN, earliest_start
+
+    on, off = thresholds(7)
+    corrector = ThresholdCorrector(W, H, on, off, target=0.2, mode=mode, max_gap_us=500, hold_us=300)
+    for chunk in cut(random_events(3000, W, H, seed=7), range(250, 3000, 250)):
+        corrector.process(chunk)
+        state, status = corrector._state, corrector._status
+        waiting = np.isin(np.abs(status), [TURN, FIRST])
+        starts = state["last_us"] - np.where(waiting, state["pending_us"], 0)
+        assert earliest_start(state, status) == starts.min()
+        if mode != "foh":
+            assert earliest_start(state, status) < int(chunk["t"][-1])
+
+
 @pytest.mark.parametrize("mode, latency_us", [("foh", 500), ("highpass", 1500), ("exponential", 1500)])
 def test_output_is_sorted_and_held_events_are_bounded(mode, latency_us):
     events = random_events(20000, W, H, seed=3)

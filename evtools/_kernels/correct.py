@@ -580,3 +580,18 @@ def split_rows(words, even, odd, due_us, window_us, checks_us):  # pragma: no co
             checks += 1
             due_us = t + window_us
     return n_even, n_odd, checks, due_us
+
+
+@kernel
+def earliest_start(state, status):  # pragma: no cover - compiled
+    """The earliest time any pixel's next created event can lie at: its latest event, or the start of the segment
+    that waits for its next event (a turn's or a first ramp's, ``pending_us`` before it; a tail starts at the
+    event). NO_EVENT_US when no pixel has fired."""
+    earliest = NO_EVENT_US
+    for pixel in range(status.shape[0]):
+        start = state[pixel].last_us
+        kind = abs(status[pixel])
+        if kind == TURN or kind == FIRST:
+            start -= state[pixel].pending_us
+        earliest = min(earliest, start)
+    return earliest
