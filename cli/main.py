@@ -6,16 +6,16 @@ import gc
 import importlib
 import logging
 import os
+import signal
 import sys
 
 import click
 
-from evtools import __version__
+from evtools import __version__, interrupt
 from evtools.errors import EvtoolsError
 
 EXIT_ERROR = 1
 EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE, what `cat` returns when `| head` closes the pipe
-EXIT_INTERRUPTED = 130
 
 
 class _StderrFormatter(logging.Formatter):
@@ -88,7 +88,7 @@ class EvtoolsGroup(LazyGroup):
 
     def invoke(self, ctx: click.Context):
         try:
-            return super().invoke(ctx)
+            result = super().invoke(ctx)
         except EvtoolsError as error:
             click.echo(f"evtools: error: {error}", err=True)
             ctx.exit(EXIT_ERROR)
@@ -98,7 +98,7 @@ class EvtoolsGroup(LazyGroup):
             ctx.exit(EXIT_BROKEN_PIPE)
         except KeyboardInterrupt:
             click.echo("evtools: interrupted", err=True)
-            ctx.exit(EXIT_INTERRUPTED)
+            ctx.exit(interrupt.exit_code())
         except MemoryError:
             click.echo("evtools: error: out of memory", err=True)
             ctx.exit(EXIT_ERROR)
@@ -108,6 +108,11 @@ class EvtoolsGroup(LazyGroup):
             else:
                 click.echo(f"evtools: error: {error.strerror or error}", err=True)
             ctx.exit(EXIT_ERROR)
+        if interrupt.received() is not None:  # a stream ended early: its outputs are complete up to there
+            click.echo(f"evtools: stopped by {signal.Signals(interrupt.received()).name}; the outputs hold every "
+                       "event processed until then", err=True)
+            ctx.exit(interrupt.exit_code())
+        return result
 
 
 @click.group(cls=EvtoolsGroup, lazy_commands=COMMANDS, context_settings={"help_option_names": ["-h", "--help"]})
@@ -130,6 +135,7 @@ def cli(quiet: bool) -> None:
 
 
 def main() -> None:
+    interrupt.install()  # Ctrl-C / SIGTERM end the input stream: outputs complete, exit 130 / 143
     try:
         cli(prog_name="evtools")
     finally:

@@ -14,6 +14,7 @@ from typing import Any, Iterator
 import click
 import numpy as np
 
+from evtools import interrupt
 from evtools.cli.options import Duration, aedat2_layout_option, input_format_option, sensor_size_option
 from evtools.cli.progress import with_progress
 from evtools.events import CHUNK_EVENTS, StreamInfo, join, parse_sensor_size
@@ -564,10 +565,13 @@ class _LogFrames:
 
 def _run(simulator: DvsSimulator, frames: FrameSource, writer, labels_dataset, log_frames=None) -> None:
     sink = _LabelledSink(writer, labels_dataset)
-    for t_us, frame in _progress(frames):
-        if log_frames is not None:
-            log_frames.add(int(t_us), frame)
-        sink.add(*simulator.process_labelled(t_us, frame))
+    with interrupt.consuming():  # Ctrl-C / SIGTERM: stop after the frame at hand, outputs complete
+        for t_us, frame in _progress(frames):
+            if log_frames is not None:
+                log_frames.add(int(t_us), frame)
+            sink.add(*simulator.process_labelled(t_us, frame))
+            if interrupt.received() is not None:
+                break
     sink.add(*simulator.flush_labelled())
     sink.write()
 

@@ -13,6 +13,7 @@ import threading
 from queue import Full, Queue
 from typing import BinaryIO, Iterable, Iterator
 
+from evtools import interrupt
 from evtools.formats.errors import FormatError
 
 HEAD_BYTES = 4096
@@ -236,7 +237,8 @@ def read_ahead(items: Iterable, depth: int = 2) -> Iterator:
 
     Reading and decoding then overlap the consumer's work on a second core (file reads, decompression and the
     numba kernels release the GIL). An exception of the producer is raised in the consumer at its place in the
-    sequence; when the consumer stops early, the producer stops at its next item.
+    sequence; when the consumer stops early, the producer stops at its next item. A stop requested on the command
+    line (:mod:`evtools.interrupt`: Ctrl-C, SIGTERM) ends the sequence, at once when the consumer waits.
     """
     queue: Queue = Queue(maxsize=depth)
     stop = threading.Event()
@@ -262,14 +264,19 @@ def read_ahead(items: Iterable, depth: int = 2) -> Iterator:
     thread = threading.Thread(target=produce, name="evtools-read-ahead", daemon=True)
     thread.start()
     try:
-        while True:
-            item, error = queue.get()
-            if error is not None:
-                raise error
-            if item is _DONE:
-                thread.join()
-                return
-            yield item
+        with interrupt.consuming():
+            while interrupt.received() is None:  # a stop (Ctrl-C) ends the stream like its end
+                try:
+                    with interrupt.waiting_for_input():
+                        item, error = queue.get()
+                except interrupt.StopReading:
+                    return
+                if error is not None:
+                    raise error
+                if item is _DONE:
+                    thread.join()
+                    return
+                yield item
     finally:
         stop.set()
 

@@ -123,3 +123,94 @@ def test_outputs_that_are_not_regular_files_are_written_through(recording, tmp_p
     subprocess.run([*EVTOOLS, "convert", str(recording), "-o", str(link)], check=True, env=env, cwd=ROOT)
     assert link.is_symlink() and os.readlink(link) == str(target)
     assert len(evtools.read(target)[0]) == len(evtools.read(recording)[0])
+
+
+HOLD = """
+import sys, time
+data = open(sys.argv[1], "rb").read()
+sys.stdout.buffer.write(data[: len(data) // 2])
+sys.stdout.buffer.flush()
+time.sleep(float(sys.argv[2]))  # the pipe stays open: the reader waits for more
+"""
+
+
+def _prefix_of(events, whole):
+    assert 0 < len(events) <= len(whole)
+    assert_same_events(events, whole[: len(events)])
+
+
+@pytest.mark.parametrize("signal_number, code", [(2, 130), (15, 143)])
+def test_a_stop_signal_ends_a_waiting_stage_with_its_output_complete(recording, tmp_path, signal_number, code):
+    """Ctrl-C (SIGINT) or SIGTERM while bafilter waits on a live pipe that stays open: it stops waiting, writes
+    every event it processed into a complete, readable file and exits 130 / 143 with one line, no traceback."""
+    env = _environment()
+    expected = tmp_path / "expected.aedat4"
+    subprocess.run([*EVTOOLS, "bafilter", str(recording), "-o", str(expected)], check=True, env=env, cwd=ROOT)
+    whole = evtools.read(expected)[0]
+    feed = subprocess.Popen([sys.executable, "-c", HOLD, str(recording), "60"], stdout=subprocess.PIPE, env=env)
+    out = tmp_path / "out.aedat4"
+    stage = subprocess.Popen([*EVTOOLS, "bafilter", "-", "-o", str(out)], stdin=feed.stdout,
+                             stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT)
+    feed.stdout.close()
+    try:
+        time.sleep(3.0)  # the first half is read and filtered; the stage now waits for more
+        assert stage.poll() is None
+        stage.send_signal(signal_number)
+        assert stage.wait(timeout=20) == code
+    finally:
+        feed.kill()
+        stage.kill()
+    stderr = stage.stderr.read()
+    assert "Traceback" not in stderr and len(stderr.strip().splitlines()) == 1, stderr
+    assert "stopped by" in stderr
+    _prefix_of(evtools.read(out)[0], whole)
+    assert not list(tmp_path.glob(".*tmp*")) and not list(tmp_path.glob("*.tmp*"))
+
+
+def test_ctrl_c_on_a_live_pipeline_leaves_its_file_complete(recording, tmp_path):
+    """Ctrl-C reaches every stage of `feed | convert | bafilter -o FILE` (one process group, as a terminal sends
+    it): the last stage's file is complete and readable, and every evtools stage exits 130."""
+    env = _environment()
+    expected = tmp_path / "expected.aedat4"
+    subprocess.run([*EVTOOLS, "bafilter", str(recording), "-o", str(expected)], check=True, env=env, cwd=ROOT)
+    out = tmp_path / "out.aedat4"
+    feed = subprocess.Popen([sys.executable, "-c", HOLD, str(recording), "60"], stdout=subprocess.PIPE, env=env,
+                            process_group=0)
+    group = dict(process_group=feed.pid, env=env, cwd=ROOT, stderr=subprocess.PIPE, text=True)
+    convert = subprocess.Popen([*EVTOOLS, "convert", "-", "-o", "-"], stdin=feed.stdout, stdout=subprocess.PIPE,
+                               **group)
+    feed.stdout.close()
+    bafilter = subprocess.Popen([*EVTOOLS, "bafilter", "-", "-o", str(out)], stdin=convert.stdout, **group)
+    convert.stdout.close()
+    try:
+        time.sleep(4.0)
+        assert bafilter.poll() is None
+        os.killpg(feed.pid, 2)
+        assert bafilter.wait(timeout=20) == 130
+        assert convert.wait(timeout=20) in (130, 141)  # 141: bafilter had gone when it flushed
+    finally:
+        for process in (feed, convert, bafilter):
+            process.kill()
+    for process in (convert, bafilter):
+        assert "Traceback" not in process.stderr.read()
+    _prefix_of(evtools.read(out)[0], evtools.read(expected)[0])
+
+
+def test_a_stop_before_any_stream_aborts_without_output(tmp_path):
+    """Ctrl-C while a command still waits for its input's first bytes: nothing was processed, so nothing is
+    written (no file under the output's name, no temporary left), exit 130."""
+    env = _environment()
+    feed = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"], stdout=subprocess.PIPE, env=env)
+    out = tmp_path / "out.aedat4"
+    stage = subprocess.Popen([*EVTOOLS, "bafilter", "-", "-o", str(out)], stdin=feed.stdout, stderr=subprocess.PIPE,
+                             text=True, env=env, cwd=ROOT)
+    feed.stdout.close()
+    try:
+        time.sleep(2.0)
+        stage.send_signal(2)
+        assert stage.wait(timeout=20) == 130
+    finally:
+        feed.kill()
+        stage.kill()
+    assert "Traceback" not in stage.stderr.read()
+    assert list(tmp_path.iterdir()) == []

@@ -1,0 +1,86 @@
+"""Clean stop on SIGINT (Ctrl-C) and SIGTERM for the command line: finish what was read, then exit 130 / 143.
+
+The first signal while a command consumes an event stream asks the stream to end: the reader stops at its next
+chunk (at once when it is waiting for input, e.g. on a live pipe), so the processors flush what they hold and the
+writers close their outputs as complete, readable files holding every event that was processed; the command then
+exits with ``128 + signal``. A signal before any stream is consumed, or a second one, aborts at once
+(``KeyboardInterrupt``: outputs are not committed, as for any failed run).
+
+Only the command line installs the handlers (:func:`install`); the library never sees them.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import threading
+
+_received: int | None = None  # the first stop signal, once one came
+_streams = 0  # how many streams are being consumed (a stop then ends them rather than aborting)
+_waiting = False  # the main thread waits for input: a stop ends the wait
+
+
+class StopReading(BaseException):
+    """Raised in the main thread, inside :func:`waiting_for_input`, when a stop is requested (a BaseException, so
+    that no ``except Exception`` swallows it)."""
+
+
+def _handle(signum, frame) -> None:
+    global _received
+    if _received is None and _streams:
+        _received = signum
+        if _waiting:
+            raise StopReading
+        return
+    if _received is None:
+        _received = signum
+    raise KeyboardInterrupt
+
+
+def install() -> None:
+    """Handle SIGINT and SIGTERM as described above (from the main thread)."""
+    global _received
+    _received = None
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, _handle)
+        signal.signal(signal.SIGTERM, _handle)
+
+
+def received() -> int | None:
+    """The signal that asked to stop (``signal.SIGINT``, ``signal.SIGTERM``) or None."""
+    return _received
+
+
+def exit_code() -> int:
+    """``128 + signal`` of the stop (130 for SIGINT, 143 for SIGTERM)."""
+    return 128 + (_received or signal.SIGINT)
+
+
+@contextlib.contextmanager
+def consuming():
+    """While a stream is consumed, a first stop signal ends it instead of aborting."""
+    global _streams
+    _streams += 1
+    try:
+        yield
+    finally:
+        _streams -= 1
+
+
+@contextlib.contextmanager
+def waiting_for_input():
+    """Wrap a blocking wait of the main thread for input: raises :class:`StopReading` when a stop was or is
+    requested (in another thread, only the flag is read)."""
+    global _waiting
+    if threading.current_thread() is not threading.main_thread():
+        if _received is not None:
+            raise StopReading
+        yield
+        return
+    _waiting = True
+    try:
+        if _received is not None:
+            raise StopReading
+        yield
+    finally:
+        _waiting = False
