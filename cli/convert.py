@@ -7,6 +7,7 @@ import click
 from evtools.cli.batch import batch_options, plan, run
 from evtools.cli.progress import with_progress
 from evtools.formats import create_events, open_events
+from evtools.formats.io import paced
 from evtools.formats.registry import FORMATS, by_name
 
 
@@ -21,7 +22,13 @@ from evtools.formats.registry import FORMATS, by_name
     "--compression", default=None, metavar="C",
     help="aedat4: none (default), lz4, zstd; hdf5: none, gzip, lzf, zstd.",
 )
-def convert(inputs, input_format, sensor_size, aedat2_layout, output, jobs, scheduler, output_format, compression):
+@click.option("--realtime", is_flag=True,
+              help="Replay at the recorded speed: events leave when their time has come (5 ms slices), so a "
+                   "recording stands in for a camera.")
+@click.option("--speed", type=click.FloatRange(min=0, min_open=True), default=None, metavar="X",
+              help="With --realtime: X times the recorded speed (2: twice as fast).")
+def convert(inputs, input_format, sensor_size, aedat2_layout, output, jobs, scheduler, output_format, compression,
+            realtime, speed):
     """Convert IN (default stdin) to OUT or -o OUT (default stdout), chunk by chunk in bounded memory.
 
     Several inputs go to the folder -o FOLDER, each named after its input with --format's extension.
@@ -30,23 +37,28 @@ def convert(inputs, input_format, sensor_size, aedat2_layout, output, jobs, sche
     evtools convert recording.aedat -o recording.h5
     evtools convert recording.aedat4 - | evtools convert - recording.csv
     evtools convert dataset/*.aedat -o converted/ --format hdf5 --jobs 4
+    evtools convert recording.aedat4 - --realtime | evtools bafilter - -o -
     """
+    if speed is not None and not realtime:
+        raise click.UsageError("--speed needs --realtime")
     suffix = by_name(output_format or "aedat4").extensions[0]
     pairs = plan(inputs, output, suffix)
     options = dict(input_format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout,
-                   output_format=output_format, compression=compression)
+                   output_format=output_format, compression=compression, speed=speed or 1.0 if realtime else None)
     run(convert_one, pairs, options, jobs, scheduler)
 
 
-def convert_one(input, output, *, input_format, sensor_size, aedat2_layout, output_format, compression):
-    """Convert one file: (events in, events out), the same number."""
+def convert_one(input, output, *, input_format, sensor_size, aedat2_layout, output_format, compression, speed=None):
+    """Convert one file: (events in, events out), the same number; ``speed``: replayed at that many times the
+    recorded speed."""
     events = 0
     with open_events(input, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as stream:
         with create_events(
             output, stream.info, format=output_format, compression=compression,
             aedat2_layout=aedat2_layout, inputs=(input,),
         ) as writer:
-            for chunk in with_progress(stream, stream, f"converting {stream.name}"):
+            chunks = stream if speed is None else paced(stream, speed)
+            for chunk in with_progress(chunks, stream, f"converting {stream.name}"):
                 writer.write(chunk)
                 events += len(chunk)
     return events, events

@@ -10,8 +10,11 @@ import stat
 import sys
 import tempfile
 import threading
+import time
 from queue import Full, Queue
 from typing import BinaryIO, Iterable, Iterator
+
+import numpy as np
 
 from evtools import interrupt
 from evtools.formats.errors import FormatError
@@ -319,3 +322,36 @@ class WriteBehind:
             self.thread.join()
         self._raise()
         self.writer.close()
+
+
+PACE_SLICE_US = 5_000
+""":func:`paced` releases events in slices of at most this much stream time (5 ms)."""
+
+
+def paced(chunks: Iterable, speed: float = 1.0, clock=time.monotonic, sleep=time.sleep) -> Iterator:
+    """The chunks of a stream, cut into slices of at most :data:`PACE_SLICE_US` of stream time, each released when
+    the wall clock has advanced ``(last event time - first event time) / speed`` since the first: a recording
+    replayed at its recorded speed (``speed`` 2: twice as fast) stands in for a camera. Late slices (a slow
+    consumer) are released at once; the pace then catches up rather than shifting."""
+    start_wall = start_us = None
+    for chunk in chunks:
+        if not len(chunk):
+            continue
+        t = chunk["t"]
+        if start_us is None:
+            start_us, start_wall = int(t[0]), clock()
+        edges = np.arange(int(t[0]) - (int(t[0]) - start_us) % PACE_SLICE_US + PACE_SLICE_US, int(t[-1]) + 1,
+                          PACE_SLICE_US)
+        cuts = [0, *np.searchsorted(t, edges, side="left").tolist(), len(chunk)]
+        for begin, end in zip(cuts, cuts[1:]):
+            if end > begin:
+                wait = start_wall + (int(t[end - 1]) - start_us) / 1e6 / speed - clock()
+                if wait > 0:
+                    try:
+                        with interrupt.waiting_for_input():  # Ctrl-C ends a long wait (a gap in the recording)
+                            sleep(wait)
+                    except interrupt.StopReading:
+                        return
+                if interrupt.received() is not None:
+                    return
+                yield chunk[begin:end]

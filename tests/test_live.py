@@ -12,9 +12,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import evtools
-from tests.helpers import assert_same_events
+from evtools.events import join
+from tests.helpers import assert_same_events, cut
 
 ROOT = Path(__file__).resolve().parents[1]
 EVTOOLS = [str(Path(sys.executable).with_name("evtools")), "-q"]
@@ -214,3 +217,55 @@ def test_a_stop_before_any_stream_aborts_without_output(tmp_path):
         stage.kill()
     assert "Traceback" not in stage.stderr.read()
     assert list(tmp_path.iterdir()) == []
+
+
+@settings(max_examples=30, deadline=None)
+@given(times=st.lists(st.integers(0, 60_000), min_size=1, max_size=300), cuts=st.lists(st.integers(0, 300)),
+       speed=st.sampled_from([0.5, 1.0, 3.0]))
+def test_paced_releases_every_event_once_its_time_has_come(times, cuts, speed):
+    """formats.io.paced on a fake clock: the same events in the same order, in slices of at most 5 ms of stream
+    time, each released no earlier than its last event's time (from the first event, divided by the speed) and
+    without waiting longer than that."""
+    from evtools.events import make_events
+    from evtools.formats.io import PACE_SLICE_US, paced
+
+    t = np.sort(np.array(times, np.int64)) + 1_000_000
+    events = make_events(t, np.zeros_like(t), np.zeros_like(t), np.ones_like(t))
+    now, slept = [100.0], [False]
+
+    def sleep(seconds):
+        assert seconds > 0
+        now[0] += seconds
+        slept[0] = True
+
+    released = []
+    for piece in paced(cut(events, cuts), speed, clock=lambda: now[0], sleep=sleep):
+        assert len(piece) and int(piece["t"][-1]) - int(piece["t"][0]) < PACE_SLICE_US
+        due = 100.0 + (int(piece["t"][-1]) - int(t[0])) / 1e6 / speed
+        assert now[0] >= due - 1e-9  # not before its time
+        if slept[0]:
+            assert now[0] == pytest.approx(due)  # and no later than needed
+        slept[0] = False
+        now[0] += 1e-4  # the consumer's work
+        released.append(piece)
+    assert_same_events(join(released), events)
+
+
+def test_convert_realtime_takes_the_recordings_time(recording, tmp_path):
+    """`convert --realtime --speed 3` of a 1.5 s recording takes about 0.5 s more than without, and --speed
+    alone is a usage error."""
+    env = _environment()
+    span_s = 1.5
+    started = time.monotonic()
+    subprocess.run([*EVTOOLS, "convert", str(recording), "-o", str(tmp_path / "fast.aedat4")], check=True, env=env,
+                   cwd=ROOT)
+    plain = time.monotonic() - started
+    started = time.monotonic()
+    subprocess.run([*EVTOOLS, "convert", str(recording), "-o", str(tmp_path / "paced.aedat4"), "--realtime",
+                    "--speed", "3"], check=True, env=env, cwd=ROOT)
+    paced_s = time.monotonic() - started
+    assert paced_s - plain > 0.8 * span_s / 3, (plain, paced_s)
+    assert_same_events(evtools.read(tmp_path / "paced.aedat4")[0], evtools.read(recording)[0])
+    usage = subprocess.run([*EVTOOLS, "convert", str(recording), "-o", str(tmp_path / "x.aedat4"), "--speed", "2"],
+                           capture_output=True, text=True, env=env, cwd=ROOT)
+    assert usage.returncode == 2 and "--speed needs --realtime" in usage.stderr
