@@ -11,7 +11,16 @@ import numpy as np
 
 from evtools.events import CHUNK_EVENTS, StreamChecker, StreamInfo
 from evtools.formats.errors import FormatError
-from evtools.formats.io import STDIO, Source, WriteBehind, is_live, output_stream, read_ahead, same_file
+from evtools.formats.io import (
+    STDIO,
+    TCP_PREFIX,
+    Source,
+    WriteBehind,
+    is_live,
+    output_stream,
+    read_ahead,
+    same_file,
+)
 from evtools.formats.registry import FORMATS, PIPE_FORMAT, ReadOptions, WriteOptions, by_name, detect, from_extension
 
 __all__ = ["FORMATS", "EventStream", "FormatError", "ReadOptions", "WriteOptions", "create_events", "open_events"]
@@ -29,17 +38,29 @@ class EventStream:
         self.info: StreamInfo = reader.info
         self.info.format = format_name
         self.checker = StreamChecker(self.info, self.name) if check else None
+        self.cut: FormatError | None = None  # a network stream's error, raised on closing (see _chunks)
+        self.closed = False
 
     def __iter__(self) -> Iterator[np.ndarray]:
         return read_ahead(self._chunks())
 
     def _chunks(self) -> Iterator[np.ndarray]:
-        for chunk in self.reader:
-            if len(chunk) == 0:
-                continue
-            yield self.checker.check(chunk) if self.checker else chunk
+        try:
+            for chunk in self.reader:
+                if len(chunk) == 0:
+                    continue
+                yield self.checker.check(chunk) if self.checker else chunk
+        except FormatError as error:
+            if not self.source.network:
+                raise
+            if self.closed:  # our own close ended the connection (a stop): not the server's fault
+                return
+            # a network stream cut or garbled: what arrived whole is processed and written, and the error is
+            # raised when the stream is closed (after the outputs, opened inside its block, are complete)
+            self.cut = error
 
     def close(self) -> None:
+        self.closed = True
         close = getattr(self.reader, "close", None)
         if close:
             close()
@@ -48,8 +69,10 @@ class EventStream:
     def __enter__(self) -> "EventStream":
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, kind, *exc) -> None:
         self.close()
+        if kind is None and self.cut is not None:
+            raise self.cut
 
 
 def open_events(
@@ -115,7 +138,11 @@ class _NamedWriter:
 
 def output_format(path: str | os.PathLike | None, format: str | None):
     """The format to write: ``format`` if given, else by extension, else AEDAT 4.0 for stdout."""
-    if format:
+    if path is not None and os.fspath(path).startswith(TCP_PREFIX):
+        if format and by_name(format).name != PIPE_FORMAT:
+            raise FormatError(f"{path}: a network output carries AEDAT 4.0, not {by_name(format).description}")
+        fmt = by_name(PIPE_FORMAT)
+    elif format:
         fmt = by_name(format)
     elif path is None or os.fspath(path) == STDIO:
         fmt = by_name(PIPE_FORMAT)
@@ -151,8 +178,8 @@ def create_events(
     writer_class = fmt.writer_class()
     target = "<stdout>" if path is None or os.fspath(path) == STDIO else os.fspath(path)
     with output_stream(path, binary_name=fmt.description, needs_seek=fmt.writer_needs_seek) as stream:
-        writer = WriteBehind(_NamedWriter(target, _named(target, writer_class, stream, info, options), stream,
-                                          is_live(stream)))
+        live = getattr(stream, "network", False) or is_live(stream)
+        writer = WriteBehind(_NamedWriter(target, _named(target, writer_class, stream, info, options), stream, live))
         try:
             yield writer
         except BaseException:

@@ -159,13 +159,14 @@ class Aedat4Reader:
     def __init__(self, source: Source, options: ReadOptions) -> None:
         self.source, self.options, self.name = source, options, source.name
         stream = source.stream
-        magic = stream.read(len(MAGIC))
-        if magic != MAGIC:
+        # a network stream (dv-processing's NetworkWriter, DV's outputs) starts at the header's length: no magic
+        magic = b"" if source.head[8:12] == b"IOHE" else stream.read(len(MAGIC))
+        if magic not in (MAGIC, b""):
             raise FormatError(f"{self.name}: not an AEDAT 4.0 file (magic {magic[:14]!r})")
         header_size = self._read_exact(4, "header length")
         (length,) = struct.unpack("<I", header_size)
         code, self.data_position, description = _parse_ioheader(self._read_exact(length, "header"), self.name)
-        self.position = len(MAGIC) + 4 + length
+        self.position = len(magic) + 4 + length
         self.decompress = _decompressor(code, self.name)
         streams = _parse_streams(description, self.name)
         event_ids = sorted(i for i, s in streams.items() if s["type"] == "EVTS")
@@ -347,7 +348,8 @@ class Aedat4Writer:
 
             self.compress = zstandard.ZstdCompressor(level=10 if self.code == 4 else 3).compress
         header = _ioheader(self.code, _description(info, self.code))
-        stream.write(MAGIC + struct.pack("<I", len(header)) + header)
+        first_line = b"" if getattr(stream, "network", False) else MAGIC  # a network stream has none
+        stream.write(first_line + struct.pack("<I", len(header)) + header)
         self.pending: list[np.ndarray] = []
         self.held = 0
 

@@ -20,6 +20,9 @@ from evtools import interrupt
 from evtools.formats.errors import FormatError
 
 HEAD_BYTES = 4096
+LIVE_HEAD_BYTES = 256
+"""What a live input must send before its format is sniffed (every format's signature fits, and AEDAT 4.0's header
+is longer: its XML alone exceeds it)."""
 """How many leading bytes format detection looks at."""
 
 STDIO = "-"
@@ -71,15 +74,22 @@ class Source:
         True for regular files (readers may seek and re-read them).
     live : bool
         True for a pipe, a socket, a FIFO or a terminal: bytes arrive over time (readers pass on what arrived).
+    network : bool
+        True for ``tcp://HOST:PORT`` (a live network stream).
     """
 
     def __init__(self, path: str | os.PathLike | None) -> None:
         path = STDIO if path is None else os.fspath(path)
-        self.live = False
+        self.live = self.network = False
         if path == STDIO:
             self.name, self.path = "<stdin>", None
             raw = sys.stdin.buffer.raw if hasattr(sys.stdin.buffer, "raw") else sys.stdin.buffer
             self._open_stream(raw)
+            return
+        if path.startswith(TCP_PREFIX):  # a live network stream (AEDAT 4.0 from DV or dv-processing)
+            self.name, self.path, self.network = path, None, True
+            self.connection = _connect(path)
+            self._open_stream(self.connection.makefile("rb", buffering=0))
             return
         self.name, self.path = path, path
         if os.path.isdir(path):
@@ -100,7 +110,8 @@ class Source:
 
     def _open_stream(self, raw) -> None:
         self.live = is_live(raw)
-        self.head = _read_up_to(raw, HEAD_BYTES)
+        # a live source may send its header and then nothing until it has events: take what came, enough to sniff
+        self.head = _read_up_to(raw, HEAD_BYTES, LIVE_HEAD_BYTES if self.live else HEAD_BYTES)
         self.stream = io.BufferedReader(_PrefixedRaw(self.head, raw), buffer_size=1 << 20)
         self.seekable = False
 
@@ -115,13 +126,140 @@ class Source:
         return spool
 
     def close(self) -> None:
-        if self.path is not None or self.seekable:
+        if self.network:  # wakes a reading thread blocked in recv (it holds the stream's lock) before closing
+            import socket
+
+            try:
+                self.connection.shutdown(socket.SHUT_RDWR)
+            except OSError:  # the server is gone already
+                pass
+        if self.path is not None or self.seekable or self.network:
             self.stream.close()
 
 
-def _read_up_to(raw, n: int) -> bytes:
+TCP_PREFIX = "tcp://"
+"""Inputs and outputs named ``tcp://HOST:PORT`` are network streams (AEDAT 4.0 without its first line)."""
+
+
+def tcp_address(name: str) -> tuple[str, int]:
+    """``(host, port)`` of ``tcp://HOST:PORT`` (``tcp://:PORT``: host empty, every interface)."""
+    host, colon, port = name[len(TCP_PREFIX):].rpartition(":")
+    if not colon or not port.isdigit() or not 0 < int(port) < 65536:
+        raise FormatError(f"{name}: not a network address; write tcp://HOST:PORT (port 1-65535)")
+    return host.strip("[]"), int(port)
+
+
+def _connect(name: str):
+    """A socket connected to the server at ``tcp://HOST:PORT``; one-line errors name the address."""
+    import socket
+
+    host, port = tcp_address(name)
+    try:
+        connection = socket.create_connection((host or "localhost", port), timeout=10)
+    except socket.gaierror as error:
+        raise FormatError(f"{name}: unknown host ({error.strerror})") from None
+    except TimeoutError:
+        raise FormatError(f"{name}: no answer within 10 s") from None
+    except OSError as error:
+        raise FormatError(f"{name}: cannot connect ({error.strerror or error})") from None
+    connection.settimeout(None)
+    return connection
+
+
+class TcpServer:
+    """A binary output that serves ``tcp://HOST:PORT`` (``tcp://:PORT``: every interface) the way dv-processing's
+    ``NetworkWriter`` does: every client that connects gets the stream's header (the first write) at once and then
+    what is written from the next ``flush()`` on, whole packets only; a client that goes away (or stalls for
+    :data:`SEND_TIMEOUT_S`) is dropped and the server goes on. ``network`` tells the AEDAT 4.0 writer to leave out
+    the file's first line, as network streams do."""
+
+    network = True
+    SEND_TIMEOUT_S = 5.0
+
+    def __init__(self, name: str) -> None:
+        import socket
+
+        self.name = name
+        host, port = tcp_address(name)
+        try:
+            self.listener = socket.create_server((host, port), reuse_port=False)
+        except OSError as error:
+            raise FormatError(f"{name}: cannot listen ({error.strerror or error})") from None
+        self.header: bytes | None = None
+        self.pending = bytearray()
+        self.clients: list = []
+        self.arrived: list = []  # accepted, not yet sent the header (they join at the next flush)
+        self.lock = threading.Lock()
+        threading.Thread(target=self._accept, name="evtools-tcp-accept", daemon=True).start()
+
+    def _accept(self) -> None:
+        while True:
+            try:
+                client, _ = self.listener.accept()
+            except OSError:  # the listener was closed
+                return
+            client.settimeout(self.SEND_TIMEOUT_S)
+            with self.lock:  # the header now (clients wait for it), packets from the next flush on
+                if self.header is None:
+                    self.arrived.append(client)
+                elif self._send(client, self.header):
+                    self.clients.append(client)
+
+    def write(self, data) -> int:
+        data = memoryview(data).cast("B")  # bytes or an array's buffer
+        if self.header is None:
+            self.header = bytes(data)
+        else:
+            self.pending += data
+        return len(data)
+
+    def flush(self) -> None:
+        data, self.pending = bytes(self.pending), bytearray()
+        with self.lock:
+            arrived, self.arrived = self.arrived, []
+            self.clients += [client for client in arrived if self._send(client, self.header or b"")]
+            if data:
+                self.clients = [client for client in self.clients if self._send(client, data)]
+
+    @staticmethod
+    def _send(client, data: bytes) -> bool:
+        try:
+            client.sendall(data)
+            return True
+        except OSError:  # gone or stalled: drop it
+            client.close()
+            return False
+
+    def isatty(self) -> bool:
+        return False
+
+    def close(self) -> None:
+        self.flush()
+        self.listener.close()
+        with self.lock:
+            for client in self.clients + self.arrived:
+                self._hang_up(client)
+            self.clients, self.arrived = [], []
+
+    def _hang_up(self, client) -> None:
+        """Ends a client's stream so that it gets every byte sent: our end first, then its end (a close with
+        unread bytes from the client would reset the connection and could drop the last packets in flight)."""
+        import socket
+
+        try:
+            client.shutdown(socket.SHUT_WR)
+            client.settimeout(self.SEND_TIMEOUT_S)
+            while client.recv(1 << 16):
+                pass
+        except OSError:
+            pass
+        client.close()
+
+
+def _read_up_to(raw, n: int, enough: int) -> bytes:
+    """Up to ``n`` bytes of ``raw``, reading until at least ``enough`` came or the input ended."""
     parts, got = [], 0
-    while got < n:
+    while got < enough:
         part = raw.read(n - got)
         if not part:
             break
@@ -149,6 +287,13 @@ def output_stream(path: str | os.PathLike | None, *, binary_name: str, needs_see
     (HDF5) cannot go to stdout or to a FIFO.
     """
     path = STDIO if path is None else os.fspath(path)
+    if path.startswith(TCP_PREFIX):
+        server = TcpServer(path)
+        try:
+            yield server
+        finally:
+            server.close()
+        return
     if path == STDIO:
         _check_stream_target(None, "a pipe", binary_name, needs_seek)
         sys.stdout.flush()

@@ -86,7 +86,7 @@ def _is_text(head: bytes, delimiter: bytes) -> bool:
 
 
 FORMATS: tuple[Format, ...] = (
-    Format("aedat4", "AEDAT 4.0 (DV, dv-processing)", (".aedat4",), lambda h: h.startswith(b"#!AER-DAT4.0"),
+    Format("aedat4", "AEDAT 4.0 (DV, dv-processing)", (".aedat4",), lambda h: h.startswith(b"#!AER-DAT4.0") or h[8:12] == b"IOHE",
            "evtools.formats.aedat4:Aedat4Reader", "evtools.formats.aedat4:Aedat4Writer"),
     Format("aedat2", "AEDAT 2.0 (jAER)", (".aedat", ".dat"), lambda h: h.startswith(b"#!AER-DAT2"),
            "evtools.formats.aedat2:Aedat2Reader", "evtools.formats.aedat2:Aedat2Writer"),

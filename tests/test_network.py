@@ -1,0 +1,242 @@
+"""Live network streams (issue 16): ``tcp://HOST:PORT`` as input (a DV / dv-processing server) and as output (a
+server for DV's GUI and dv-processing's NetworkReader), checked against dv-processing itself on loopback; bad
+servers give one-line errors naming the address."""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import struct
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import evtools
+from tests.helpers import assert_same_events
+
+dv = pytest.importorskip("dv_processing", reason="dv-processing (the test extra) is the reference peer")
+
+ROOT = Path(__file__).resolve().parents[1]
+EVTOOLS = [str(Path(sys.executable).with_name("evtools")), "-q"]
+WIDTH, HEIGHT = 64, 48
+
+
+def _environment():
+    return {**os.environ, "PYTHONPATH": str(ROOT)}
+
+
+def _free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def _wait_for_server(port: int, process, timeout_s: float = 60.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        assert process.poll() is None, process.stderr.read() if process.stderr else process.returncode
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=1).close()
+            return
+        except OSError:
+            time.sleep(0.05)
+    raise AssertionError(f"nothing listens on {port}")
+
+
+def _read_all(reader, pieces: list) -> None:
+    """Appends every event batch a dv-processing NetworkReader gets, as EVENT_DTYPE, until its server closes."""
+    while True:
+        running = reader.isRunning()  # read before the batch: once stopped, what it still holds is drained
+        batch = reader.getNextEventBatch()
+        if batch is not None and len(batch):
+            a = batch.numpy()
+            pieces.append(evtools.make_events(a["timestamp"], a["x"], a["y"], a["polarity"]))
+        elif not running:
+            return
+        else:
+            time.sleep(0.001)
+
+
+def _joined(pieces: list) -> np.ndarray:
+    return np.concatenate(list(pieces)).astype(evtools.EVENT_DTYPE) if pieces else evtools.make_events([], [], [], [])
+
+
+def _batches(seed: int, count: int = 5, size: int = 2000):
+    rng = np.random.default_rng(seed)
+    t0 = 1_000_000
+    for _ in range(count):
+        t = t0 + np.sort(rng.integers(0, 10_000, size))
+        t0 = int(t[-1]) + 1
+        yield evtools.make_events(t, rng.integers(0, WIDTH, size), rng.integers(0, HEIGHT, size),
+                                  rng.integers(0, 2, size))
+
+
+def _store(events) -> "dv.EventStore":
+    store = dv.EventStore()
+    for t, x, y, p in zip(events["t"].tolist(), events["x"].tolist(), events["y"].tolist(), events["p"].tolist()):
+        store.push_back(t, x, y, p)
+    return store
+
+
+def test_a_dv_server_through_evtools_to_a_dv_client():
+    """dv-processing NetworkWriter -> `evtools convert tcp://... -o tcp://...` -> dv-processing NetworkReader: the
+    client gets every event the server wrote, in order, with the sensor size; Ctrl-C ends the live stage cleanly.
+    (A NetworkWriter's destructor waits for its clients to leave, holding the GIL: so the stage stops first.)"""
+    source_port, sink_port = _free_port(), _free_port()
+    writer = dv.io.NetworkWriter("127.0.0.1", source_port, dv.io.Stream.EventStream(0, "events", "test", (WIDTH, HEIGHT)))
+    stage = subprocess.Popen([*EVTOOLS, "convert", f"tcp://127.0.0.1:{source_port}", "-o", f"tcp://127.0.0.1:{sink_port}"],
+                             stderr=subprocess.PIPE, text=True, env=_environment(), cwd=ROOT)
+    try:
+        _wait_for_server(sink_port, stage)
+        reader = dv.io.NetworkReader("127.0.0.1", sink_port)
+        assert reader.getEventResolution() == (WIDTH, HEIGHT)
+        pieces: list = []
+        thread = threading.Thread(target=_read_all, args=(reader, pieces), daemon=True)
+        thread.start()
+        deadline = time.monotonic() + 30
+        while writer.getClientCount() < 1 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        sent = list(_batches(1))
+        for batch in sent:
+            writer.writeEvents(_store(batch))
+            time.sleep(0.05)
+        total = sum(len(batch) for batch in sent)
+        while sum(len(piece) for piece in pieces) < total and time.monotonic() < deadline:
+            time.sleep(0.05)
+        stage.send_signal(signal.SIGINT)
+        assert stage.wait(timeout=30) == 130, stage.stderr.read()
+        thread.join(timeout=30)
+        assert not thread.is_alive(), "the client did not see the server close"
+    finally:
+        stage.kill()
+        stage.wait()
+    del writer
+    assert_same_events(_joined(pieces), np.concatenate(sent).astype(evtools.EVENT_DTYPE))
+
+
+def _received_bytes(connection: socket.socket, into: bytearray) -> None:
+    while data := connection.recv(1 << 16):
+        into += data
+
+
+def _read_by_dv(path: Path) -> np.ndarray:
+    """Every event of an AEDAT 4.0 file, read by dv-processing."""
+    recording, batches = dv.io.MonoCameraRecording(str(path)), []
+    while recording.isRunning():
+        batch = recording.getNextEventBatch()
+        if batch is not None and len(batch):
+            a = batch.numpy()
+            batches.append(evtools.make_events(a["timestamp"], a["x"], a["y"], a["polarity"]))
+    return np.concatenate(batches).astype(evtools.EVENT_DTYPE)
+
+
+def test_a_late_client_gets_the_header_and_then_live_events(tmp_path):
+    """A replay served on tcp://: clients that connect a while after the start get the header (sensor size), then
+    a contiguous part of the recording from a packet on, up to its end; a client that leaves early does not stop
+    the server. (dv-processing's NetworkReader may drop the packets still queued when its server closes, so the
+    end of the stream is checked on the bytes a plain socket received, read back by dv-processing.)"""
+    events, _ = evtools.simulate("bars", width=WIDTH, height=HEIGHT, duration_us=3_000_000, seed=2)
+    recording = tmp_path / "bars.aedat4"
+    evtools.write(recording, events, evtools.StreamInfo(WIDTH, HEIGHT))
+    port = _free_port()
+    stage = subprocess.Popen([*EVTOOLS, "convert", str(recording), "-o", f"tcp://127.0.0.1:{port}", "--realtime"],
+                             stderr=subprocess.PIPE, text=True, env=_environment(), cwd=ROOT)
+    try:
+        _wait_for_server(port, stage)
+        quitter = socket.create_connection(("127.0.0.1", port))  # takes the header, then goes away
+        assert quitter.recv(64)
+        quitter.close()
+        time.sleep(1.0)
+        plain, stream = socket.create_connection(("127.0.0.1", port)), bytearray()
+        thread = threading.Thread(target=_received_bytes, args=(plain, stream), daemon=True)
+        thread.start()
+        reader = dv.io.NetworkReader("127.0.0.1", port)
+        assert reader.getEventResolution() == (WIDTH, HEIGHT)
+        pieces: list = []
+        _read_all(reader, pieces)
+        assert stage.wait(timeout=30) == 0, stage.stderr.read()
+        thread.join(timeout=30)
+    finally:
+        stage.kill()
+        stage.wait()
+    by_reader = _joined(pieces)
+    assert len(by_reader) > 0
+    first, last = np.searchsorted(events["t"], by_reader["t"][0], side="left"), np.searchsorted(events["t"], by_reader["t"][0], side="right")
+    starts = [start for start in range(first, last) if np.array_equal(events[start:start + len(by_reader)], by_reader)]
+    assert starts and starts[0] > 0, "the late client's events are not a contiguous part of the recording"
+    (tmp_path / "received.aedat4").write_bytes(b"#!AER-DAT4.0\r\n" + bytes(stream))
+    tail = _read_by_dv(tmp_path / "received.aedat4")
+    assert 0 < len(tail) < len(events)
+    assert_same_events(tail, events[len(events) - len(tail):])
+
+
+def _serve_once(payload: bytes) -> int:
+    """A one-shot server on loopback that sends ``payload`` to its first client and closes; returns its port."""
+    listener = socket.create_server(("127.0.0.1", 0))
+    port = listener.getsockname()[1]
+
+    def serve():
+        client, _ = listener.accept()
+        client.sendall(payload)
+        client.close()
+        listener.close()
+
+    threading.Thread(target=serve, daemon=True).start()
+    return port
+
+
+def _network_form(path: Path) -> tuple[bytes, list[bytes]]:
+    """The header (length + IOHE buffer) and the packets of an AEDAT 4.0 file, as a network stream sends them."""
+    data = path.read_bytes()[len(b"#!AER-DAT4.0\r\n"):]
+    (length,) = struct.unpack("<I", data[:4])
+    header, rest, packets = data[:4 + length], data[4 + length:], []
+    while rest:
+        size = struct.unpack("<iI", rest[:8])[1]
+        packets.append(rest[:8 + size])
+        rest = rest[8 + size:]
+    return header, packets
+
+
+def test_bad_servers_give_one_line_errors_naming_the_address(tmp_path):
+    events, _ = evtools.simulate("bars", width=WIDTH, height=HEIGHT, duration_us=500_000, seed=4)
+    recording = tmp_path / "bars.aedat4"
+    evtools.write(recording, events, evtools.StreamInfo(WIDTH, HEIGHT))
+    header, packets = _network_form(recording)
+    assert len(packets) >= 2
+    env = _environment()
+
+    def run(*args):
+        result = subprocess.run([*EVTOOLS, *args], capture_output=True, text=True, env=env, cwd=ROOT, timeout=60)
+        assert "Traceback" not in result.stderr and len(result.stderr.strip().splitlines()) == 1, result.stderr
+        return result
+
+    refused = run("info", f"tcp://127.0.0.1:{_free_port()}")
+    assert refused.returncode == 1 and "cannot connect" in refused.stderr and "tcp://127.0.0.1:" in refused.stderr
+    unknown = run("info", "tcp://no-such-host.invalid:7777")
+    assert unknown.returncode == 1 and "tcp://no-such-host.invalid:7777: unknown host" in unknown.stderr
+    malformed = run("info", "tcp://127.0.0.1")
+    assert malformed.returncode == 1 and "tcp://HOST:PORT" in malformed.stderr
+    garbage_port = _serve_once(os.urandom(5000))
+    garbage = run("info", f"tcp://127.0.0.1:{garbage_port}")
+    assert garbage.returncode == 1 and f"tcp://127.0.0.1:{garbage_port}" in garbage.stderr
+    # closed in the middle of the second packet: exit 1, and the output holds the first packet's events
+    cut_port = _serve_once(header + packets[0] + packets[1][: len(packets[1]) // 2])
+    out = tmp_path / "out.aedat4"
+    cut = run("convert", f"tcp://127.0.0.1:{cut_port}", "-o", str(out))
+    assert cut.returncode == 1 and "truncated" in cut.stderr and f"tcp://127.0.0.1:{cut_port}" in cut.stderr
+    first_packet = struct.unpack("<I", packets[0][8 + 28:8 + 32])[0]  # the EVTS vector's length
+    assert_same_events(evtools.read(out)[0], events[:first_packet])
+    # a whole stream that ends at a packet boundary is a normal end
+    whole_port = _serve_once(header + b"".join(packets))
+    whole = subprocess.run([*EVTOOLS, "convert", f"tcp://127.0.0.1:{whole_port}", "-o", str(tmp_path / "whole.aedat4")],
+                           capture_output=True, text=True, env=env, cwd=ROOT, timeout=60)
+    assert whole.returncode == 0, whole.stderr
+    assert_same_events(evtools.read(tmp_path / "whole.aedat4")[0], events)
+    busy = run("convert", str(recording), "-o", f"tcp://127.0.0.1:{whole_port}", "--format", "csv")
+    assert busy.returncode == 1 and "carries AEDAT 4.0" in busy.stderr
