@@ -59,6 +59,7 @@ bench: $(VENV)/.installed-test
 	$(BIN)/python -m tests.bench.bench_correct
 	$(BIN)/python -m tests.bench.bench_batch
 	$(BIN)/python -m tests.bench.bench_peers
+	$(BIN)/python -m tests.bench.bench_latency
 
 # the API reference from the docstrings (pdoc, an optional extra) into docs/api/
 docs: $(VENV)/.installed

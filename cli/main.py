@@ -83,6 +83,15 @@ COMMANDS = {
 }
 
 
+def _max_latency(ctx, param, value):
+    if value is not None:
+        from evtools.cli.options import Duration
+        from evtools.formats import io
+
+        io.LIVE_MAX_LATENCY_S = Duration(minimum_us=0).convert(value, param, ctx) / 1e6
+    return value
+
+
 class EvtoolsGroup(LazyGroup):
     """Runs a subcommand; an :class:`EvtoolsError` becomes one line on stderr and exit code 1, never a traceback."""
 
@@ -118,7 +127,11 @@ class EvtoolsGroup(LazyGroup):
 @click.group(cls=EvtoolsGroup, lazy_commands=COMMANDS, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="evtools")
 @click.option("-q", "--quiet", is_flag=True, help="Print errors only, no warnings.")
-def cli(quiet: bool) -> None:
+@click.option("--max-latency", metavar="TIME", default=None, callback=_max_latency,
+              help="How long a live input's (pipe, socket, tcp://) first waiting events may be held while more "
+                   "keep arriving (they then go on together); nothing waits when no more has arrived. "
+                   "[default: 20ms]")
+def cli(quiet: bool, max_latency) -> None:
     """Event-camera (DVS) noise toolkit: read, convert, simulate, filter, estimate and correct event streams.
 
     Every command reads a path or `-` (stdin) and writes `-o PATH` or stdout; pipes carry AEDAT 4.0.

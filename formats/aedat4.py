@@ -17,6 +17,7 @@ from __future__ import annotations
 import os
 import struct
 import threading
+import time
 import xml.etree.ElementTree as ET
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
@@ -26,6 +27,7 @@ from xml.sax.saxutils import escape
 import numpy as np
 
 from evtools.events import EVENT_DTYPE, StreamInfo, join
+from evtools.formats import io as formats_io
 from evtools.formats.errors import FormatError
 from evtools.formats.io import Source
 from evtools.formats.registry import ReadOptions, WriteOptions
@@ -201,10 +203,13 @@ class Aedat4Reader:
         self._chunk, self._filled = np.empty(self.options.chunk_events, EVENT_DTYPE), 0
         pending: deque = deque()
         pool = ThreadPoolExecutor(DECODE_THREADS, thread_name_prefix="evtools-decode") if self.decompress else None
-        live = self.source.live
+        live, first_arrival_s = self.source.live, 0.0
         try:
             while self.data_position < 0 or self.position < self.data_position:
-                if live and (self._filled or pending):  # a live input: every packet is passed on as it arrives
+                # a live input: what has arrived is passed on, unless the next packet has arrived whole and the
+                # chunk is younger than LIVE_MAX_LATENCY_S (packets that arrived together go on together)
+                if live and (self._filled or pending) and not (
+                        time.monotonic() - first_arrival_s < formats_io.LIVE_MAX_LATENCY_S and self._packet_waits()):
                     while pending:
                         yield from self._place(pending.popleft().result())
                     yield self._chunk[:self._filled]
@@ -212,6 +217,8 @@ class Aedat4Reader:
                 head = stream.read(8)
                 if not head:
                     break
+                if live and not (self._filled or pending):
+                    first_arrival_s = time.monotonic()
                 if len(head) != 8:
                     raise FormatError(f"{self.name}: truncated AEDAT 4.0 packet header at byte {self.position}")
                 stream_id, size = struct.unpack("<iI", head)
@@ -250,6 +257,15 @@ class Aedat4Reader:
         if self._filled:
             yield self._chunk[:self._filled]
         self.info.metadata["skipped_packets"] = skipped_packets
+
+    def _packet_waits(self) -> bool:
+        """True when the next packet of a live input has arrived whole (reading it would not wait)."""
+        if self.source.arrived(self.position) < 8:
+            return False
+        head = self.source.stream.peek(8)  # from the buffer, or one read of bytes that are there
+        if len(head) < 8:
+            return False
+        return self.source.arrived(self.position) >= 8 + struct.unpack_from("<iI", head)[1]
 
     def _decode(self, body: bytes, offset: int) -> np.ndarray:
         """One compressed event packet's events (in a decoding thread)."""

@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import array
 import contextlib
+import fcntl
 import io
 import os
 import shutil
 import stat
 import sys
 import tempfile
+import termios
 import threading
 import time
 from queue import Full, Queue
@@ -20,6 +23,10 @@ from evtools import interrupt
 from evtools.formats.errors import FormatError
 
 HEAD_BYTES = 4096
+LIVE_MAX_LATENCY_S = 0.02
+"""A live input's events wait at most this long in a reader (``evtools --max-latency``): packets that arrived
+together are passed on as one chunk (a stage that fell behind catches up), but a chunk's first packet is never held
+longer than this for more."""
 LIVE_HEAD_BYTES = 256
 """What a live input must send before its format is sniffed (every format's signature fits, and AEDAT 4.0's header
 is longer: its XML alone exceeds it)."""
@@ -44,6 +51,7 @@ class _PrefixedRaw(io.RawIOBase):
     def __init__(self, prefix: bytes, raw: BinaryIO) -> None:
         self._prefix = memoryview(prefix)
         self._raw = raw
+        self.delivered = 0  # bytes passed on so far (to the buffered stream over this one)
 
     def readable(self) -> bool:
         return True
@@ -53,8 +61,11 @@ class _PrefixedRaw(io.RawIOBase):
             n = min(len(buffer), self._prefix.nbytes)
             buffer[:n] = self._prefix[:n]
             self._prefix = self._prefix[n:]
+            self.delivered += n
             return n
-        return self._raw.readinto(buffer)
+        n = self._raw.readinto(buffer)
+        self.delivered += n or 0
+        return n
 
 
 class Source:
@@ -81,6 +92,7 @@ class Source:
     def __init__(self, path: str | os.PathLike | None) -> None:
         path = STDIO if path is None else os.fspath(path)
         self.live = self.network = False
+        self._fileno = None
         if path == STDIO:
             self.name, self.path = "<stdin>", None
             raw = sys.stdin.buffer.raw if hasattr(sys.stdin.buffer, "raw") else sys.stdin.buffer
@@ -110,10 +122,24 @@ class Source:
 
     def _open_stream(self, raw) -> None:
         self.live = is_live(raw)
+        self._fileno = raw.fileno() if self.live else None
         # a live source may send its header and then nothing until it has events: take what came, enough to sniff
         self.head = _read_up_to(raw, HEAD_BYTES, LIVE_HEAD_BYTES if self.live else HEAD_BYTES)
-        self.stream = io.BufferedReader(_PrefixedRaw(self.head, raw), buffer_size=1 << 20)
+        self._prefixed = _PrefixedRaw(self.head, raw)
+        self.stream = io.BufferedReader(self._prefixed, buffer_size=1 << 20)
         self.seekable = False
+
+    def arrived(self, consumed: int) -> int:
+        """How many bytes of a live input from which ``consumed`` bytes were read have arrived and wait, in the
+        stream's buffer and in the pipe or socket (reading that many would not wait); 0 for other inputs."""
+        if self._fileno is None:
+            return 0
+        waiting = array.array("i", [0])
+        try:
+            fcntl.ioctl(self._fileno, termios.FIONREAD, waiting)
+        except (OSError, ValueError):  # closed meanwhile (a stop), or a device that cannot tell
+            waiting[0] = 0
+        return self._prefixed.delivered - consumed + waiting[0]
 
     def spooled(self) -> BinaryIO:
         """A seekable stream of the whole input: the file itself, or stdin copied into a temporary file."""
@@ -133,6 +159,8 @@ class Source:
                 self.connection.shutdown(socket.SHUT_RDWR)
             except OSError:  # the server is gone already
                 pass
+        elif self.live:  # a FIFO or a device: a reading thread may wait in it, and closing would wait for that
+            return
         if self.path is not None or self.seekable or self.network:
             self.stream.close()
 

@@ -86,6 +86,50 @@ def test_a_paced_pipe_leaves_the_pipeline_as_it_arrives(recording, tmp_path):
     assert sum(n for _, n in arrivals) == len(evtools.read(expected)[0])
 
 
+def _packets_of(events: np.ndarray, sizes: list[int]) -> bytes:
+    """An AEDAT 4.0 stream (file form) whose event packets hold ``sizes`` events each."""
+    from evtools.formats.aedat4 import Aedat4Writer
+    from evtools.formats.registry import WriteOptions
+
+    import io as std_io
+
+    buffer = std_io.BytesIO()
+    writer = Aedat4Writer(buffer, evtools.StreamInfo(64, 48), WriteOptions())
+    for begin, size in zip(np.cumsum([0, *sizes[:-1]]), sizes):
+        writer.write(events[begin:begin + size])
+        writer.flush()
+    return buffer.getvalue()
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this system")
+@pytest.mark.parametrize("max_latency_s", [0.0, 5.0])
+def test_packets_that_arrived_together_go_on_together(recording, tmp_path, monkeypatch, max_latency_s):
+    """Ten packets written into a FIFO at once, the writer then waiting: with the default bound they come out as
+    one chunk, before the input ends (a stage that fell behind catches up in one step); with a bound of 0 each
+    packet is its own chunk."""
+    from evtools.formats import io as formats_io
+    from evtools.formats import open_events
+
+    monkeypatch.setattr(formats_io, "LIVE_MAX_LATENCY_S", max_latency_s)
+    events = evtools.read(recording)[0][:1000]
+    data = _packets_of(events, [100] * 10)
+    fifo = tmp_path / "in.fifo"
+    os.mkfifo(fifo)
+    writer_fd = os.open(fifo, os.O_RDWR)  # holds the FIFO open: the input does not end
+    try:
+        os.write(writer_fd, data)
+        with open_events(str(fifo)) as stream:
+            chunks = iter(stream)
+            first = next(chunks)
+            if max_latency_s:
+                assert len(first) == 1000
+            else:
+                assert len(first) == 100
+                assert [len(next(chunks)) for _ in range(9)] == [100] * 9
+    finally:
+        os.close(writer_fd)
+
+
 def test_a_live_pipe_gives_the_events_of_the_file(recording, tmp_path):
     """The same events whether the input is a file or a paced pipe, for a processor that holds events (correct)."""
     env = _environment()

@@ -146,6 +146,9 @@ _SCALAR_CTYPES = {"?": ctypes.c_bool, "b1": ctypes.c_bool, "i1": ctypes.c_int8, 
                   "i8": ctypes.c_int64, "u8": ctypes.c_uint64, "f4": ctypes.c_float, "f8": ctypes.c_double}
 
 
+_RECORD_CODES: dict = {}
+
+
 def _describe(value):
     """What the C wrapper must know of one argument, or None when it cannot pass it (numba's dispatcher then
     runs the call): arrays of numbers or of records that are C-contiguous, or 1-D with a positive stride that is a
@@ -154,7 +157,9 @@ def _describe(value):
     if isinstance(value, np.ndarray):
         dtype = value.dtype
         if dtype.names is not None:  # a structured array (a pixel state table): its layout is part of the key
-            code = repr(dtype) if not dtype.hasobject else None
+            code = _RECORD_CODES.get(dtype)
+            if code is None:  # repr of a record type takes 20 us: made once per type (its hash is cached)
+                code = _RECORD_CODES[dtype] = repr(dtype) if not dtype.hasobject else None
         else:
             code = dtype.str[1:] if dtype.str[1:] in _SCALAR_CTYPES and dtype.byteorder in "=|<" else None
         if code is None or value.ndim == 0:
