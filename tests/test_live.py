@@ -243,6 +243,33 @@ def test_ctrl_c_on_a_live_pipeline_leaves_its_file_complete(recording, tmp_path)
     _prefix_of(evtools.read(out)[0], evtools.read(expected)[0])
 
 
+@pytest.mark.parametrize("signal_number, code", [(2, 130), (15, 143)])
+def test_a_stop_halfway_through_a_file_to_file_run_leaves_a_whole_file(recording, tmp_path, signal_number, code):
+    """A file-to-file run stopped halfway (a replay at recorded speed, so that halfway is a known time): the output
+    is a complete AEDAT 4.0 file, read back by evtools and by dv-processing, with the recording's first events."""
+    out = tmp_path / "out.aedat4"
+    stage = subprocess.Popen([*EVTOOLS, "convert", str(recording), "-o", str(out), "--realtime", "--speed", "0.5"],
+                             stderr=subprocess.PIPE, text=True, env=_environment(), cwd=ROOT)
+    try:
+        time.sleep(1.5)  # imports, then about a third of the 1.5 s recording played at half speed
+        assert stage.poll() is None
+        stage.send_signal(signal_number)
+        assert stage.wait(timeout=20) == code
+    finally:
+        stage.kill()
+    assert "Traceback" not in stage.stderr.read()
+    whole = evtools.read(recording)[0]
+    kept = evtools.read(out)[0]
+    _prefix_of(kept, whole)
+    assert len(kept) < len(whole)
+    dv = pytest.importorskip("dv_processing", reason="dv-processing (the test extra) reads the file back")
+    reader, count = dv.io.MonoCameraRecording(str(out)), 0
+    while reader.isRunning():
+        batch = reader.getNextEventBatch()
+        count += len(batch) if batch is not None else 0
+    assert count == len(kept)
+
+
 def test_a_stop_before_any_stream_aborts_without_output(tmp_path):
     """Ctrl-C while a command still waits for its input's first bytes: nothing was processed, so nothing is
     written (no file under the output's name, no temporary left), exit 130."""
