@@ -149,8 +149,10 @@ class TextReader:
         else:
             carry, self.pending = self.pending, b""
         line_no = self.line_no
+        # a live input (pipe, socket): the lines that have arrived, not a full block
+        read = self.stream.read1 if self.source.live else self.stream.read
         while True:
-            data = self.stream.read(self.block_bytes)
+            data = read(self.block_bytes)
             if not data:
                 if carry.strip():
                     yield (carry if carry.endswith(b"\n") else carry + b"\n"), line_no

@@ -130,6 +130,24 @@ def test_packets_that_arrived_together_go_on_together(recording, tmp_path, monke
         os.close(writer_fd)
 
 
+def test_a_csv_pipe_is_passed_on_as_its_lines_arrive(recording, tmp_path):
+    """CSV on a pipe, fed in two parts 0.6 s apart: the first part's events are read before the second is fed,
+    and all of them are those of the file."""
+    env = _environment()
+    text = tmp_path / "bars.csv"
+    subprocess.run([*EVTOOLS, "convert", str(recording), "-o", str(text)], check=True, env=env, cwd=ROOT)
+    feed = subprocess.Popen([sys.executable, "-c", FEED, str(text), "2", str(PAUSE_S)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, env=env)
+    sink = subprocess.run([sys.executable, "-c", SINK], stdin=feed.stdout, capture_output=True, text=True, env=env,
+                          cwd=ROOT, timeout=120)
+    feed.stdout.close()
+    assert feed.wait(timeout=60) == 0 and sink.returncode == 0, sink.stderr
+    fed = [float(line) for line in feed.stderr.read().decode().split()]
+    arrivals = [(float(t), int(n)) for t, n in (line.split() for line in sink.stdout.splitlines())]
+    assert any(fed[0] <= t < fed[1] for t, _ in arrivals), (fed, arrivals)
+    assert sum(n for _, n in arrivals) == len(evtools.read(recording)[0])
+
+
 def test_a_live_pipe_gives_the_events_of_the_file(recording, tmp_path):
     """The same events whether the input is a file or a paced pipe, for a processor that holds events (correct)."""
     env = _environment()
