@@ -703,17 +703,23 @@ def _relative_to_neighbours(inverse: np.ndarray, usable: np.ndarray, radius_px: 
     Neighbours see nearly the same log-intensity history as edges pass over them, so they share the excursion D
     of ``theta = D u``, and the mean threshold over the window sets D. The window leaves the pixel out, so its
     own counts do not pull its reference."""
-    import cv2
-
-    window = np.ones((2 * radius_px + 1, 2 * radius_px + 1), dtype=np.float64)
-    window[radius_px, radius_px] = 0.0
-    neighbours = cv2.filter2D(usable.astype(np.float64), -1, window, borderType=cv2.BORDER_CONSTANT)
+    neighbours = _around(usable.astype(np.float64), radius_px)
     total = np.where(usable, inverse.sum(axis=-1), 0.0)
     with np.errstate(divide="ignore", invalid="ignore"):
-        mean = cv2.filter2D(total, -1, window, borderType=cv2.BORDER_CONSTANT) / neighbours
+        mean = _around(total, radius_px) / neighbours
         relative = 2.0 * inverse / mean[..., None]
     relative[~usable] = np.nan
     return relative, np.round(neighbours)
+
+
+def _around(values: np.ndarray, radius_px: int) -> np.ndarray:
+    """The sum of ``values`` (2-D) over the square window of ``radius_px`` around each pixel, the pixel itself
+    left out and nothing counted outside the sensor: a box sum, row by row then column by column."""
+    height, width = values.shape
+    padded = np.zeros((height + 2 * radius_px, width + 2 * radius_px))
+    padded[radius_px:radius_px + height, radius_px:radius_px + width] = values
+    rows = sum(padded[:, dx:dx + width] for dx in range(2 * radius_px + 1))
+    return sum(rows[dy:dy + height] for dy in range(2 * radius_px + 1)) - values
 
 
 def _aligned_zeros(rows: int, columns: int, dtype) -> np.ndarray:

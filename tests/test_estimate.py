@@ -800,3 +800,20 @@ def test_online_usage_and_series_errors(tmp_path):
     result = run("correct", stream, "--thresholds", tmp_path / "bad.h5", "-o", tmp_path / "c.aedat4", check=False)
     assert_clean_error(result, "bad.h5", "out of order")
     assert not (tmp_path / "c.aedat4").exists()
+
+
+@settings(max_examples=40, deadline=None)
+@given(height=st.integers(1, 12), width=st.integers(1, 12), radius_px=st.integers(1, 4), seed=st.integers(0, 2**16))
+def test_neighbour_sums_equal_a_loop_over_the_window(height, width, radius_px, seed):
+    """The box sum around each pixel (itself left out, nothing outside the sensor) against a plain double loop."""
+    from evtools.estimation import _around
+
+    values = np.random.default_rng(seed).random((height, width))
+    expected = np.zeros_like(values)
+    for y in range(height):
+        for x in range(width):
+            for v in range(max(0, y - radius_px), min(height, y + radius_px + 1)):
+                for u in range(max(0, x - radius_px), min(width, x + radius_px + 1)):
+                    if (v, u) != (y, x):
+                        expected[y, x] += values[v, u]
+    np.testing.assert_allclose(_around(values, radius_px), expected, rtol=1e-12, atol=1e-12)
