@@ -37,12 +37,14 @@ from typing import Any
 import numpy as np
 
 from evtools._kernels import bafilter as kernels
+from evtools._kernels import mlpf as mlpf_kernels
 from evtools.errors import EvtoolsError
 from evtools.events import EVENT_DTYPE, as_chunk, check_sensor_size, empty_events, join
+from evtools.mlpf import MlpfError, Weights, load_weights
 
 __all__ = ["METHODS", "PRESETS", "BAFilter", "BAFilterError", "ba_filter", "learn_hot_pixels"]
 
-METHODS = ("baf", "stcf", "dwf", "orderN", "refractory", "hotpixel")
+METHODS = ("baf", "stcf", "dwf", "orderN", "refractory", "hotpixel", "mlpf")
 PRESETS = ("evtools", "dv", "jaer")
 
 DEFAULTS: dict[str, dict[str, Any]] = {
@@ -53,6 +55,7 @@ DEFAULTS: dict[str, dict[str, Any]] = {
         "orderN": {"dt_us": 10_000},
         "refractory": {"dt_us": 100},
         "hotpixel": {"learn_us": 1_000_000, "hot_ratio": 5.0, "hot_min_events": 20, "hot_rate_hz": 10_000.0},
+        "mlpf": {"threshold": 0.5, "weights": None},
     },
     "dv": {"baf": {"dt_us": 2_000}},
     "jaer": {
@@ -67,7 +70,7 @@ DEFAULTS: dict[str, dict[str, Any]] = {
 """Default parameters per preset and method."""
 
 PARAMETERS = ("dt_us", "k", "radius", "polarity", "window", "distance", "learn_us", "hot_ratio", "hot_min_events",
-              "hot_rate_hz")
+              "hot_rate_hz", "threshold", "weights")
 MAX_LEARN_EVENTS = 1 << 22
 """The learning stretch of ``hotpixel`` ends after this many events at most (4,194,304: 64 MiB held)."""
 
@@ -153,6 +156,12 @@ class _Stage:
             self.row_x = np.full(height, -1, dtype=np.int64)
             self.col_t = np.full(width, kernels.NEVER, dtype=np.int64)
             self.col_y = np.full(width, -1, dtype=np.int64)
+        if method == "mlpf":
+            weights = params["weights"]
+            self.mlpf = weights
+            self.time_map = mlpf_kernels.padded_maps(width, height, weights.radius)
+            self.logit = math.log(params["threshold"] / (1.0 - params["threshold"]))
+            self.hidden = np.empty(len(weights.b1))
         if method == "hotpixel":
             self.hot_map = params.get("hot_map")
             self.learning = self.hot_map is None
@@ -184,6 +193,10 @@ class _Stage:
                                 self.jaer, out)
         elif self.method == "refractory":
             n = kernels.refractory(words, self.time_map, q["dt_us"], self.jaer, out)
+        elif self.method == "mlpf":
+            w = self.mlpf
+            n = mlpf_kernels.mlpf(words, self.time_map, w.radius, w.tau_us, w.w1, w.b1, w.w2, w.b2, self.logit,
+                                  self.hidden, out)
         else:
             n = kernels.hot_pixels(words, self.hot_map, out)
         return out[:n].reshape(-1).view(EVENT_DTYPE)
@@ -292,13 +305,16 @@ class BAFilter:
         self.parameters = []
         for method in parse_methods(methods):
             if method not in DEFAULTS[preset]:
-                raise BAFilterError(f"--preset {preset} is dv-processing's BackgroundActivityNoiseFilter: it has "
-                                    f"method baf only, not {method}")
+                if preset == "dv":
+                    raise BAFilterError(f"--preset dv is dv-processing's BackgroundActivityNoiseFilter: it has "
+                                        f"method baf only, not {method}")
+                raise BAFilterError(f"--preset {preset} has no method {method}; use --preset evtools")
             q = self._check({**DEFAULTS[preset][method], **{n: v for n, v in given.items()
                                                              if n in DEFAULTS[preset][method] or n == "hot_map"}},
                             method)
             self.stages.append(_Stage(method, self.width, self.height, preset, q))
-            self.parameters.append({"method": method, **{n: v for n, v in q.items() if n != "hot_map"}})
+            self.parameters.append({"method": method, **{n: v.info.get("file", "given") if n == "weights" else v
+                                                         for n, v in q.items() if n != "hot_map"}})
         self.events_in = self.events_out = 0
         self._flushed = False
 
@@ -321,6 +337,17 @@ class BAFilter:
             q["hot_ratio"] = _float_param("hot_ratio", q["hot_ratio"], 1.0)
             q["hot_min_events"] = _int_param("hot_min_events", q["hot_min_events"], 1)
             q["hot_rate_hz"] = _float_param("hot_rate_hz", q["hot_rate_hz"], 0.0)
+        if "threshold" in q:
+            threshold = q["threshold"]
+            if not isinstance(threshold, (int, float)) or not 0.0 < threshold < 1.0:
+                raise BAFilterError(f"threshold must be a probability strictly between 0 and 1, got {threshold!r}")
+            q["threshold"] = float(threshold)
+        if "weights" in q:
+            try:
+                q["weights"] = (q["weights"].check("weights") if isinstance(q["weights"], Weights)
+                                else load_weights(q["weights"]))
+            except MlpfError as error:
+                raise BAFilterError(str(error)) from None
         if q.get("hot_map") is not None:
             hot = np.asarray(q["hot_map"], dtype=bool)
             if hot.shape != (self.height, self.width):

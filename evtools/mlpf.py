@@ -1,0 +1,201 @@
+"""MLPF, a learned background-activity filter (Guo & Delbruck, TPAMI 2023), and its training on labelled streams.
+
+Each event is described by a time-surface patch around it (the ON and the OFF map, ``patch x patch`` pixels,
+each value ``max(0, 1 - age / tau)``) and its polarity (see ``evtools/_kernels/mlpf.py``); a perceptron with one
+hidden layer of ReLU units gives the probability that the event is signal, and the filter keeps the events above
+a threshold. :func:`train` fits the perceptron with numpy alone (mini-batch Adam on the cross-entropy, early
+stopping on a held-out part) to streams whose events are labelled, as ``evtools simulate`` labels injected noise.
+
+References
+----------
+S. Guo, T. Delbruck, "Low Cost and Latency Event Camera Background Activity Denoising", IEEE TPAMI 45(1), 2023.
+D. P. Kingma, J. Ba, "Adam: A Method for Stochastic Optimization", ICLR 2015.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from evtools._kernels import mlpf as kernels
+from evtools.errors import EvtoolsError
+
+DEFAULT_WEIGHTS = Path(__file__).parent / "data" / "mlpf.npz"
+"""The weights shipped with evtools (trained as the README says)."""
+
+
+class MlpfError(EvtoolsError, ValueError):
+    """A weights file that does not describe an MLPF, or training data that cannot train one."""
+
+
+@dataclass
+class Weights:
+    """A trained MLPF: ``w1`` (inputs, hidden), ``b1`` (hidden), ``w2`` (hidden), ``b2``; the patch side (odd) and
+    the time constant ``tau_us`` its features were made with; ``info``: how it was trained (free-form strings)."""
+
+    w1: np.ndarray
+    b1: np.ndarray
+    w2: np.ndarray
+    b2: float
+    patch: int
+    tau_us: int
+    info: dict = field(default_factory=dict)
+
+    @property
+    def radius(self) -> int:
+        return self.patch // 2
+
+    def check(self, name: str) -> "Weights":
+        inputs = 2 * self.patch * self.patch + 1
+        if self.patch < 1 or self.patch % 2 == 0:
+            raise MlpfError(f"{name}: patch {self.patch} is not an odd number of pixels")
+        if self.tau_us < 1:
+            raise MlpfError(f"{name}: tau_us {self.tau_us} is not positive")
+        hidden = len(self.b1)
+        if self.w1.shape != (inputs, hidden) or self.w2.shape != (hidden,):
+            raise MlpfError(f"{name}: weights of shapes w1 {self.w1.shape}, b1 {self.b1.shape}, w2 {self.w2.shape} "
+                            f"do not fit a {self.patch}x{self.patch} patch ({inputs} inputs, w1 ({inputs}, hidden))")
+        if not all(np.isfinite(a).all() for a in (self.w1, self.b1, self.w2)) or not math.isfinite(self.b2):
+            raise MlpfError(f"{name}: the weights hold NaN or infinite values")
+        return self
+
+    def save(self, path: str | os.PathLike) -> None:
+        with open(path, "wb") as sink:
+            np.savez(sink, w1=self.w1, b1=self.b1, w2=self.w2, b2=np.float64(self.b2), patch=np.int64(self.patch),
+                     tau_us=np.int64(self.tau_us), info=np.array(repr(sorted(self.info.items()))))
+
+
+def load_weights(path: str | os.PathLike | None = None) -> Weights:
+    """The weights in ``path`` (an ``.npz`` written by :meth:`Weights.save`), or the shipped ones; checked."""
+    path = DEFAULT_WEIGHTS if path is None else Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            weights = Weights(np.asarray(data["w1"], np.float64), np.asarray(data["b1"], np.float64).reshape(-1),
+                              np.asarray(data["w2"], np.float64).reshape(-1), float(data["b2"]), int(data["patch"]),
+                              int(data["tau_us"]), {"file": str(path)})
+            if "info" in data:
+                weights.info["trained"] = str(data["info"])
+    except FileNotFoundError:
+        raise MlpfError(f"{path}: no such weights file") from None
+    except KeyError as error:
+        raise MlpfError(f"{path}: not MLPF weights (no {error.args[0]!r} array)") from None
+    except (OSError, ValueError, EOFError) as error:
+        raise MlpfError(f"{path}: not an MLPF weights file ({error})") from None
+    return weights.check(str(path))
+
+
+class FeatureMaker:
+    """The features of a stream's events, chunk by chunk (the ON and OFF maps carried over)."""
+
+    def __init__(self, width: int, height: int, patch: int, tau_us: int) -> None:
+        self.radius, self.tau_us = patch // 2, int(tau_us)
+        self.inputs = 2 * patch * patch + 1
+        self.maps = kernels.padded_maps(width, height, self.radius)
+
+    def features(self, chunk: np.ndarray, take: np.ndarray) -> np.ndarray:
+        """(number taken, inputs) float32: the features of the events of ``chunk`` where ``take``."""
+        words = np.ascontiguousarray(chunk).view(np.int64).reshape(-1, 2)
+        rows = np.empty((int(take.sum()), self.inputs), np.float32)
+        kernels.mlpf_features(words, self.maps, self.radius, self.tau_us, np.ascontiguousarray(take, np.bool_), rows)
+        return rows
+
+
+def forward(weights: Weights, features: np.ndarray) -> np.ndarray:
+    """The perceptron's logits for rows of features (numpy; the filter's kernel computes the same)."""
+    hidden = np.maximum(features @ weights.w1 + weights.b1, 0.0)
+    return hidden @ weights.w2 + weights.b2
+
+
+@dataclass
+class TrainingReport:
+    epochs: int
+    train_loss: float
+    validation_loss: float
+    validation_auc: float
+    train_events: int
+    validation_events: int
+    signal_fraction: float
+
+
+def train(features: np.ndarray, labels: np.ndarray, validation: np.ndarray, *, patch: int, tau_us: int,
+          hidden: int = 20, seed: int = 0, epochs: int = 60, batch: int = 512, learning_rate: float = 2e-3,
+          patience: int = 5) -> tuple[Weights, TrainingReport]:
+    """Fit the perceptron to ``features`` (n, inputs) and ``labels`` (1 signal, 0 noise): mini-batch Adam on the
+    mean cross-entropy, stopping when the loss on the rows where ``validation`` is true has not improved for
+    ``patience`` epochs (the best weights are kept). The same inputs and seed give the same weights, byte for
+    byte."""
+    features = np.asarray(features, np.float64)
+    labels = np.asarray(labels, np.float64)
+    train_x, train_y = features[~validation], labels[~validation]
+    check_x, check_y = features[validation], labels[validation]
+    if len(train_y) < 2 or len(check_y) < 1:
+        raise MlpfError(f"too few labelled events to train ({len(train_y)}) and check ({len(check_y)})")
+    prior = float(np.clip(train_y.mean(), 1e-3, 1 - 1e-3))
+    if train_y.min() == train_y.max():
+        raise MlpfError("the labels are all signal or all noise: nothing to learn")
+    rng = np.random.default_rng(seed)
+    inputs = features.shape[1]
+    params = [rng.normal(0.0, math.sqrt(2.0 / inputs), (inputs, hidden)), np.zeros(hidden),
+              rng.normal(0.0, math.sqrt(1.0 / hidden), hidden), np.array(math.log(prior / (1 - prior)))]
+    moments = [np.zeros_like(p) for p in params]
+    squares = [np.zeros_like(p) for p in params]
+    beta1, beta2, epsilon, step = 0.9, 0.999, 1e-8, 0
+
+    def loss_of(p, x, y) -> float:
+        z = np.maximum(x @ p[0] + p[1], 0.0) @ p[2] + p[3]
+        return float(np.mean(np.logaddexp(0.0, z) - y * z))  # the cross-entropy of sigmoid(z), stably
+
+    best, best_loss, waited, epoch, train_loss = [p.copy() for p in params], loss_of(params, check_x, check_y), 0, 0, 0.0
+    for epoch in range(1, epochs + 1):
+        order = rng.permutation(len(train_y))
+        for begin in range(0, len(order), batch):
+            rows = order[begin:begin + batch]
+            x, y = train_x[rows], train_y[rows]
+            pre = x @ params[0] + params[1]
+            h = np.maximum(pre, 0.0)
+            z = h @ params[2] + params[3]
+            dz = (1.0 / (1.0 + np.exp(-z)) - y) / len(y)
+            dh = np.outer(dz, params[2]) * (pre > 0)
+            grads = [x.T @ dh, dh.sum(axis=0), h.T @ dz, np.array(dz.sum())]
+            step += 1
+            for p, g, m, v in zip(params, grads, moments, squares):
+                m *= beta1
+                m += (1 - beta1) * g
+                v *= beta2
+                v += (1 - beta2) * g * g
+                p -= learning_rate * (m / (1 - beta1 ** step)) / (np.sqrt(v / (1 - beta2 ** step)) + epsilon)
+        loss = loss_of(params, check_x, check_y)
+        if loss < best_loss - 1e-6:
+            best, best_loss, waited = [p.copy() for p in params], loss, 0
+        else:
+            waited += 1
+            if waited >= patience:
+                break
+    weights = Weights(best[0], best[1], best[2], float(best[3]), patch, tau_us)
+    train_loss = loss_of(best, train_x, train_y)
+    report = TrainingReport(epoch, train_loss, best_loss, auc(forward(weights, check_x), check_y), len(train_y),
+                            len(check_y), float(labels.mean()))
+    return weights, report
+
+
+def auc(scores: np.ndarray, labels: np.ndarray) -> float:
+    """Area under the ROC curve of ``scores`` for ``labels`` (1 positive): the probability that a positive
+    scores above a negative, ties counting half (Mann-Whitney)."""
+    labels = np.asarray(labels).astype(bool)
+    positives, negatives = int(labels.sum()), int((~labels).sum())
+    if not positives or not negatives:
+        return float("nan")
+    order = np.argsort(scores, kind="stable")
+    ranks = np.empty(len(scores))
+    sorted_scores = np.asarray(scores)[order]
+    # average ranks of ties
+    edges = np.flatnonzero(np.diff(sorted_scores)) + 1
+    starts = np.concatenate(([0], edges))
+    ends = np.concatenate((edges, [len(scores)]))
+    for start, end in zip(starts, ends):
+        ranks[order[start:end]] = (start + end + 1) / 2.0
+    return float((ranks[labels].sum() - positives * (positives + 1) / 2.0) / (positives * negatives))

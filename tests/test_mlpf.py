@@ -1,0 +1,148 @@
+"""MLPF (issue 17): the kernel against the slow reference on random streams and random weights, chunk invariance,
+training reproducible from its seed, and clean errors on bad weights, thresholds and truth files."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from evtools.events import join, make_events
+from evtools.filters import BAFilter, BAFilterError
+from evtools.mlpf import FeatureMaker, MlpfError, Weights, auc, load_weights, train
+from tests.helpers import cut
+from tests.naive.bafilter import naive_mlpf, naive_mlpf_features
+
+
+def _stream(seed: int, n: int, width: int, height: int, mean_gap_us: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    t = np.cumsum(rng.integers(0, 2 * mean_gap_us + 1, n))
+    return make_events(t, rng.integers(0, width, n), rng.integers(0, height, n), rng.integers(0, 2, n))
+
+
+def _weights(seed: int, patch: int, hidden: int, tau_us: int) -> Weights:
+    rng = np.random.default_rng(seed)
+    inputs = 2 * patch * patch + 1
+    return Weights(rng.normal(0, 1, (inputs, hidden)), rng.normal(0, 0.5, hidden), rng.normal(0, 1, hidden),
+                   float(rng.normal()), patch, tau_us)
+
+
+def _tuples(events):
+    return list(zip(events["t"].tolist(), events["x"].tolist(), events["y"].tolist(), events["p"].tolist()))
+
+
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2**16), patch=st.sampled_from([1, 3, 5, 7]), hidden=st.integers(1, 24),
+       tau_us=st.integers(100, 50_000), width=st.integers(1, 12), height=st.integers(1, 12),
+       threshold=st.floats(0.05, 0.95), gap_us=st.integers(0, 3000))
+def test_kernel_equals_the_slow_reference(seed, patch, hidden, tau_us, width, height, threshold, gap_us):
+    events = _stream(seed, 300, width, height, gap_us)
+    weights = _weights(seed + 1, patch, hidden, tau_us)
+    kept, probabilities = naive_mlpf(_tuples(events), weights.w1.tolist(), weights.b1.tolist(), weights.w2.tolist(),
+                                     weights.b2, patch, tau_us, threshold)
+    clear = np.abs(np.array(probabilities) - threshold) > 1e-9  # sums in another order may differ in the last bit
+    out = BAFilter(width, height, "mlpf", threshold=threshold, weights=weights).process(events)
+    chosen = np.isin(np.arange(len(events)), _indices(events, out))
+    assert (chosen[clear] == np.array(kept)[clear]).all()
+    assert len(out) == chosen.sum()
+
+
+def _indices(events, out):
+    """Positions in ``events`` of the events of ``out`` (a subsequence)."""
+    positions, j = [], 0
+    for i in range(len(events)):
+        if j < len(out) and events[i].tobytes() == out[j].tobytes():
+            positions.append(i)
+            j += 1
+    assert j == len(out), "the output is not a subsequence of the input"
+    return positions
+
+
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 2**16), patch=st.sampled_from([1, 3, 7]), tau_us=st.integers(100, 20_000),
+       gap_us=st.integers(0, 1000))
+def test_features_equal_the_slow_reference(seed, patch, tau_us, gap_us):
+    events = _stream(seed, 200, 9, 7, gap_us)
+    take = np.random.default_rng(seed).random(len(events)) < 0.5
+    rows = FeatureMaker(9, 7, patch, tau_us).features(events, take)
+    expected = np.array(naive_mlpf_features(_tuples(events), patch, tau_us), np.float32)[take]
+    np.testing.assert_allclose(rows, expected, rtol=1e-6, atol=1e-6)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**16), cuts=st.lists(st.integers(0, 400), max_size=6))
+def test_chunking_does_not_change_the_output(seed, cuts):
+    events = _stream(seed, 400, 16, 12, 200)
+    weights = _weights(seed, 5, 8, 5_000)
+    whole = BAFilter(16, 12, "mlpf", weights=weights, threshold=0.4).process(events)
+    mlpf = BAFilter(16, 12, "mlpf", weights=weights, threshold=0.4)
+    parts = join([mlpf.process(part) for part in cut(events, cuts)] + [mlpf.flush()])
+    assert parts.tobytes() == whole.tobytes()
+
+
+def _labelled(seed: int, n: int = 6000):
+    """Signal: events along a moving bar (neighbours fire together); noise: uniform random events."""
+    rng = np.random.default_rng(seed)
+    t_signal = np.sort(rng.integers(0, 1_000_000, n // 2))
+    x_signal = (t_signal // 20_000) % 32
+    y_signal = rng.integers(0, 24, n // 2)
+    t_noise = np.sort(rng.integers(0, 1_000_000, n // 2))
+    t = np.concatenate([t_signal, t_noise])
+    order = np.argsort(t, kind="stable")
+    x = np.concatenate([x_signal, rng.integers(0, 32, n // 2)])[order]
+    y = np.concatenate([y_signal, rng.integers(0, 24, n // 2)])[order]
+    labels = np.concatenate([np.ones(n // 2), np.zeros(n // 2)])[order]
+    events = make_events(t[order], x, y, rng.integers(0, 2, n))
+    return events, labels
+
+
+def test_training_is_reproducible_and_learns_a_tiny_problem():
+    events, labels = _labelled(3)
+    features = FeatureMaker(32, 24, 5, 20_000).features(events, np.ones(len(events), bool))
+    validation = np.arange(len(events)) >= 0.8 * len(events)
+    first, report = train(features, labels, validation, patch=5, tau_us=20_000, hidden=8, seed=11, epochs=15)
+    second, _ = train(features, labels, validation, patch=5, tau_us=20_000, hidden=8, seed=11, epochs=15)
+    for a, b in zip((first.w1, first.b1, first.w2), (second.w1, second.b1, second.w2)):
+        assert a.tobytes() == b.tobytes()
+    assert first.b2 == second.b2
+    assert report.validation_auc > 0.85, report
+    other, _ = train(features, labels, validation, patch=5, tau_us=20_000, hidden=8, seed=12, epochs=15)
+    assert other.w1.tobytes() != first.w1.tobytes()
+
+
+@settings(max_examples=30, deadline=None)
+@given(scores=st.lists(st.integers(0, 5), min_size=2, max_size=30), labels=st.lists(st.booleans(), min_size=2,
+                                                                                     max_size=30))
+def test_auc_is_the_pairwise_probability(scores, labels):
+    n = min(len(scores), len(labels))
+    scores, labels = np.array(scores[:n], float), np.array(labels[:n])
+    positives, negatives = scores[labels], scores[~labels]
+    if not len(positives) or not len(negatives):
+        return
+    expected = np.mean([(p > q) + 0.5 * (p == q) for p in positives for q in negatives])
+    assert auc(scores, labels) == pytest.approx(expected)
+
+
+def test_bad_weights_and_thresholds(tmp_path):
+    weights = _weights(0, 5, 6, 1000)
+    for threshold in (0.0, 1.0, -0.1, 1.5):
+        with pytest.raises(BAFilterError, match="threshold"):
+            BAFilter(8, 8, "mlpf", weights=weights, threshold=threshold)
+    weights.save(tmp_path / "w.npz")
+    assert load_weights(tmp_path / "w.npz").w1.tobytes() == weights.w1.tobytes()
+    wrong = Weights(weights.w1[:-1], weights.b1, weights.w2, weights.b2, 5, 1000)
+    with pytest.raises(MlpfError, match="do not fit a 5x5 patch"):
+        wrong.check("w")
+    wrong.save(tmp_path / "wrong.npz")
+    with pytest.raises(BAFilterError, match="wrong.npz"):
+        BAFilter(8, 8, "mlpf", weights=str(tmp_path / "wrong.npz"))
+    other_patch = Weights(weights.w1, weights.b1, weights.w2, weights.b2, 7, 1000)
+    with pytest.raises(MlpfError, match="7x7"):
+        other_patch.check("w")
+    (tmp_path / "junk.npz").write_bytes(b"not a zip")
+    with pytest.raises(BAFilterError, match="junk.npz"):
+        BAFilter(8, 8, "mlpf", weights=str(tmp_path / "junk.npz"))
+    np.savez(tmp_path / "other.npz", a=np.zeros(3))
+    with pytest.raises(BAFilterError, match="not MLPF weights"):
+        BAFilter(8, 8, "mlpf", weights=str(tmp_path / "other.npz"))
