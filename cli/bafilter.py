@@ -96,6 +96,9 @@ positive = click.IntRange(min=1)
 @click.option("--k", type=positive, default=None, help="stcf: correlated neighbours needed [2]; dwf: events [1].")
 @click.option("--radius", type=click.IntRange(1, 10), default=None, help="stcf neighbourhood radius [1].")
 @click.option("--polarity/--no-polarity", default=None, help="stcf: count same-polarity neighbours only [on].")
+@click.option("--polarity-maps", is_flag=True, default=None,
+              help="stcf: a time map per polarity: a neighbour's last event of the event's polarity counts even if "
+                   "one of the other polarity came after it.")
 @click.option("--window", type=positive, default=None, help="dwf: length of each FIFO window [36; jaer 256].")
 @click.option("--distance", type=positive, default=None, help="dwf: L1 distance, support when < this [9; jaer 5].")
 @click.option("--learn-us", type=positive, default=None, help="hotpixel: learning stretch, us [1000000].")
@@ -109,9 +112,13 @@ positive = click.IntRange(min=1)
               help="hotpixel: drop the pixels of this CSV list (`x,y` lines) instead of learning.")
 @click.option("--save-hot-pixels", "save_hot_pixels", type=click.Path(dir_okay=False), default=None,
               help="hotpixel: write the hot pixels (learned or given) to this CSV file.")
+@click.option("--threshold", type=click.FloatRange(0.0, 1.0, min_open=True, max_open=True), default=None,
+              help="mlpf: keep an event when its probability of being signal is above this [0.5].")
+@click.option("--weights", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="mlpf: weights from `evtools metrics train-denoiser` [the ones shipped with evtools].")
 def bafilter(inputs, input_format, sensor_size, aedat2_layout, output, jobs, scheduler, methods, preset, dt_us, k,
              radius, polarity, window, distance, learn_us, hot_ratio, hot_rate_hz, hot_min_events, hot_pixels_path,
-             save_hot_pixels):
+             save_hot_pixels, threshold, weights, polarity_maps):
     """Remove background activity from IN (default stdin), writing OUT or -o OUT (default stdout).
 
     Several inputs go to the folder -o FOLDER (the same names), --jobs at a time.
@@ -127,19 +134,22 @@ def bafilter(inputs, input_format, sensor_size, aedat2_layout, output, jobs, sch
     """
     if (hot_pixels_path or save_hot_pixels) and "hotpixel" not in methods:
         raise click.UsageError("--hot-pixels and --save-hot-pixels need --method hotpixel")
+    if (threshold is not None or weights) and "mlpf" not in methods:
+        raise click.UsageError("--threshold and --weights need --method mlpf")
     pairs = plan(inputs, output, ".aedat4")
     if save_hot_pixels and len(pairs) > 1:
         raise click.UsageError("--save-hot-pixels writes one file: give one input")
     options = dict(input_format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout, methods=methods,
                    preset=preset, dt_us=dt_us, k=k, radius=radius, polarity=polarity, window=window,
                    distance=distance, learn_us=learn_us, hot_ratio=hot_ratio, hot_rate_hz=hot_rate_hz,
-                   hot_min_events=hot_min_events, hot_pixels_path=hot_pixels_path, save_hot_pixels=save_hot_pixels)
+                   hot_min_events=hot_min_events, hot_pixels_path=hot_pixels_path, save_hot_pixels=save_hot_pixels,
+                   threshold=threshold, weights=weights, polarity_maps=polarity_maps)
     run(filter_one, pairs, options, jobs, scheduler)
 
 
 def filter_one(input, output, *, input_format, sensor_size, aedat2_layout, methods, preset, dt_us, k, radius,
                polarity, window, distance, learn_us, hot_ratio, hot_rate_hz, hot_min_events, hot_pixels_path,
-               save_hot_pixels) -> tuple[int, int]:
+               save_hot_pixels, threshold=None, weights=None, polarity_maps=None) -> tuple[int, int]:
     """Filter one file (the command's whole work for one input): (events in, events kept)."""
     if save_hot_pixels:
         _check_hot_pixels_target(save_hot_pixels, input, output)
@@ -148,7 +158,8 @@ def filter_one(input, output, *, input_format, sensor_size, aedat2_layout, metho
         hot_map = read_hot_pixels(hot_pixels_path, info.width, info.height) if hot_pixels_path else None
         ba = BAFilter(info.width, info.height, methods, preset=preset, dt_us=dt_us, k=k, radius=radius,
                       polarity=polarity, window=window, distance=distance, learn_us=learn_us, hot_ratio=hot_ratio,
-                      hot_rate_hz=hot_rate_hz, hot_min_events=hot_min_events, hot_map=hot_map)
+                      hot_rate_hz=hot_rate_hz, hot_min_events=hot_min_events, hot_map=hot_map, threshold=threshold,
+                      weights=weights, polarity_maps=polarity_maps)
         with create_events(output, info, inputs=(input,)) as writer:
             process_stream(stream, ba, writer, f"filtering {stream.name}")
             if save_hot_pixels:  # inside the output's block: when the list cannot be written, no output is left

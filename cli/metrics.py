@@ -22,6 +22,9 @@ from evtools.cli.main import LazyGroup
     "reconstruction": ("evtools.cli.metrics_reconstruction:reconstruction",
                        "RMSE and SSIM of the log intensity reconstructed from EVENTS against the true frames of "
                        "TRUTH.h5."),
+    "train-denoiser": ("evtools.cli.metrics_train:train_denoiser",
+                       "Train the MLPF filter (`bafilter --method mlpf --weights FILE`) on NOISY streams labelled by "
+                       "their --truth."),
     "uniformity": ("evtools.cli.metrics_uniformity:uniformity",
                    "Per stimulus edge of IN: std across pixels of the first and last event times, count CV, errors "
                    "vs IDEAL."),

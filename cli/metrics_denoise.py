@@ -101,7 +101,8 @@ def denoise(filtered, truth, noisy, as_json):
            f"F1 {_fmt(score.f1)}", ["label", "kept", "total"], rows)
 
 
-SWEEPABLE = ("dt-us", "k", "radius", "window", "distance", "learn-us", "hot-ratio", "hot-rate-hz", "hot-min-events")
+SWEEPABLE = ("dt-us", "k", "radius", "window", "distance", "learn-us", "hot-ratio", "hot-rate-hz", "hot-min-events",
+             "threshold")
 
 
 def _sweep(ctx, param, value):
@@ -117,7 +118,7 @@ def _sweep(ctx, param, value):
         raise click.BadParameter(f"values of {name} must be numbers, got {values!r}") from None
     if not numbers:
         raise click.BadParameter("no value to sweep")
-    if name not in ("hot-ratio", "hot-rate-hz"):
+    if name not in ("hot-ratio", "hot-rate-hz", "threshold"):
         numbers = [int(v) if v == int(v) else v for v in numbers]
     return name.replace("-", "_"), numbers
 
@@ -181,9 +182,12 @@ def draw_roc(path: str, curves: list[tuple[str, list[tuple[float, float]], float
 @click.option("--sweep", required=True, callback=_sweep, metavar="PARAM=v1,v2,...",
               help=f"Parameter and its values, one ROC point each ({', '.join(SWEEPABLE)}).")
 @click.option("--preset", type=click.Choice(["evtools", "dv", "jaer"]), default="evtools", show_default=True)
+@click.option("--weights", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="mlpf: weights from `evtools metrics train-denoiser` [the ones shipped with evtools].")
+@click.option("--polarity-maps", is_flag=True, help="stcf: a time map per polarity (see bafilter).")
 @click.option("--plot", type=click.Path(dir_okay=False), default=None, help="Draw the ROC curves into this PNG.")
 @json_option
-def roc(noisy, truth, methods, sweep, preset, plot, as_json):
+def roc(noisy, truth, methods, sweep, preset, weights, polarity_maps, plot, as_json):
     """DND21 ROC of each --method over --sweep on NOISY: (FPR, TPR) per value, (0,0) and (1,1), trapezoid AUC.
 
     \b
@@ -200,7 +204,9 @@ def roc(noisy, truth, methods, sweep, preset, plot, as_json):
     for chain in methods:
         points, rows = [], []
         for value in values:
-            score = _score_filter(noisy, labels, chain, preset, {name: value})
+            params = {name: value, **({"weights": weights} if weights and "mlpf" in parse_methods(chain) else {}),
+                      **({"polarity_maps": True} if polarity_maps and "stcf" in parse_methods(chain) else {})}
+            score = _score_filter(noisy, labels, chain, preset, params)
             rows.append({"value": value, **score.as_dict()})
             points.append((score.fpr, score.tpr))
         curve, area = roc_auc(points)

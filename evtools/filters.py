@@ -50,7 +50,7 @@ PRESETS = ("evtools", "dv", "jaer")
 DEFAULTS: dict[str, dict[str, Any]] = {
     "evtools": {
         "baf": {"dt_us": 10_000},
-        "stcf": {"dt_us": 10_000, "k": 2, "radius": 1, "polarity": True},
+        "stcf": {"dt_us": 10_000, "k": 2, "radius": 1, "polarity": True, "polarity_maps": False},
         "dwf": {"window": 36, "distance": 9, "k": 1},
         "orderN": {"dt_us": 10_000},
         "refractory": {"dt_us": 100},
@@ -70,7 +70,7 @@ DEFAULTS: dict[str, dict[str, Any]] = {
 """Default parameters per preset and method."""
 
 PARAMETERS = ("dt_us", "k", "radius", "polarity", "window", "distance", "learn_us", "hot_ratio", "hot_min_events",
-              "hot_rate_hz", "threshold", "weights")
+              "hot_rate_hz", "threshold", "weights", "polarity_maps")
 MAX_LEARN_EVENTS = 1 << 22
 """The learning stretch of ``hotpixel`` ends after this many events at most (4,194,304: 64 MiB held)."""
 
@@ -138,7 +138,9 @@ class _Stage:
         start = 0 if preset == "dv" else kernels.NEVER
         if method == "baf":
             self.time_map = kernels.padded_map(width, height, 1, start)
-        if method == "stcf":
+        if method == "stcf" and params.get("polarity_maps"):
+            self.time_map = np.stack([kernels.padded_map(width, height, params["radius"], start)] * 2)
+        elif method == "stcf":
             self.time_map = kernels.padded_map(width, height, params["radius"], start) * 2  # 2 t + p
         if method == "refractory":
             self.time_map = np.full((height, width), start, dtype=np.int64)
@@ -183,6 +185,8 @@ class _Stage:
         q = self.params
         if self.method == "baf":
             n = kernels.baf(words, self.time_map, q["dt_us"], self.jaer, out)
+        elif self.method == "stcf" and q.get("polarity_maps"):
+            n = kernels.stcf_polarity_maps(words, self.time_map, q["dt_us"], q["radius"], q["k"], out)
         elif self.method == "stcf":
             n = kernels.stcf(words, self.time_map, q["dt_us"], q["radius"], q["k"],
                              q["polarity"], self.jaer, self.jaer, out)
@@ -274,6 +278,12 @@ class BAFilter:
         stcf neighbourhood radius r (window (2r+1)^2).
     polarity : bool, optional
         stcf counts only neighbours of the event's polarity.
+    polarity_maps : bool, optional
+        stcf keeps a time map per polarity, so a neighbour's last event of the event's polarity counts even when
+        one of the other polarity came after it (evtools preset; implies ``polarity``).
+    threshold, weights : optional
+        mlpf: the probability above which an event is kept (0 < threshold < 1, default 0.5) and the perceptron
+        (a :class:`evtools.mlpf.Weights`, a path to an ``.npz``, or None: the weights shipped with evtools).
     window : int, optional
         dwf length of each of the two FIFO windows.
     distance : int, optional
@@ -301,6 +311,8 @@ class BAFilter:
         if unknown:
             raise BAFilterError(f"unknown parameter(s) {', '.join(sorted(unknown))}")
         given = {name: value for name, value in params.items() if value is not None}
+        if given.get("polarity_maps") and preset != "evtools":
+            raise BAFilterError(f"stcf polarity maps are evtools' own: use --preset evtools, not {preset}")
         self.stages = []
         self.parameters = []
         for method in parse_methods(methods):
@@ -328,6 +340,11 @@ class BAFilter:
             q["k"] = _int_param("k", q["k"], 1, high)
         if "polarity" in q:
             q["polarity"] = bool(q["polarity"])
+        if q.get("polarity_maps"):
+            q["polarity_maps"] = True
+            if not q["polarity"]:
+                raise BAFilterError("polarity maps count neighbours of the event's polarity: they cannot go with "
+                                    "polarity off")
         if "window" in q:
             q["window"] = _int_param("window", q["window"], 1, 1 << 16)
         if "distance" in q:

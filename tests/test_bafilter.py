@@ -17,7 +17,7 @@ from evtools.formats import create_events
 from tests.conftest import data_file
 from tests.helpers import EVTOOLS, assert_clean_error, assert_same_events, cut, read_all, run
 from tests.naive.bafilter import (naive_baf, naive_dwf, naive_hot_pixels, naive_order_n, naive_refractory,
-                                  naive_stcf)
+                                  naive_stcf, naive_stcf_polarity_maps)
 
 W, H = 12, 9
 
@@ -84,6 +84,19 @@ def test_stcf_equals_reference(preset, k, radius, polarity):
         assert 0 < sum(expected) < len(events)
 
 
+@pytest.mark.parametrize("k,radius", [(1, 1), (2, 1), (3, 2), (5, 3)])
+def test_stcf_polarity_maps_equals_reference(k, radius):
+    for seed in range(2):
+        events = dense_events(1_500, seed + 30)
+        expected = naive_stcf_polarity_maps(tuples(events), 300 * k, k, radius)
+        got = kept_mask(events, "stcf", "evtools", dt_us=300 * k, k=k, radius=radius, polarity_maps=True)
+        np.testing.assert_array_equal(got, expected)
+        assert 0 < sum(expected) < len(events)
+    # it differs from the single map exactly where another polarity came between
+    single = kept_mask(events, "stcf", "evtools", dt_us=300 * k, k=k, radius=radius)
+    assert (single <= got).all()
+
+
 @pytest.mark.parametrize("preset", ["evtools", "jaer"])
 @pytest.mark.parametrize("window,distance,k", [(1, 2, 1), (8, 3, 1), (20, 4, 3)])
 def test_dwf_equals_reference(preset, window, distance, k):
@@ -142,6 +155,15 @@ def test_chunking_does_not_change_the_output(cuts, chain, preset, seed):
     got = join([ba.process(part) for part in cut(events, cuts)] + [ba.flush()])
     assert_same_events(got, expected)
     assert ba.events_in == len(events) and ba.events_out == len(expected)
+
+
+@settings(max_examples=30, deadline=None)
+@given(cuts=st.lists(st.integers(0, 2_000), max_size=10), seed=st.integers(0, 3), radius=st.integers(1, 3))
+def test_stcf_polarity_maps_chunking_does_not_change_the_output(cuts, seed, radius):
+    events = dense_events(2_000, seed, span_us=100)
+    expected = ba_filter(events, W, H, "stcf", dt_us=300, radius=radius, polarity_maps=True)
+    ba = BAFilter(W, H, "stcf", dt_us=300, radius=radius, polarity_maps=True)
+    assert_same_events(join([ba.process(part) for part in cut(events, cuts)] + [ba.flush()]), expected)
 
 
 def test_learning_stretch_cap_is_chunk_invariant(monkeypatch):

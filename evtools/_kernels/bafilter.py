@@ -129,6 +129,30 @@ def stcf(words, time_map, dt_us, radius, k, use_polarity, first_rejected, jaer_w
 
 
 @kernel
+def stcf_polarity_maps(words, maps, dt_us, radius, k, out):
+    """STCF with a time map per polarity (``maps``: (2, height + 2 r, width + 2 r), ON then OFF, padded by
+    ``radius``): keep an event when at least ``k`` pixels of its window (itself excluded) had an event of its
+    polarity less than ``dt_us`` before it, whatever the other polarity did since."""
+    width = maps.shape[2]
+    cells = maps.shape[1] * width
+    flat = maps.ravel()
+    n = 0
+    for i in range(words.shape[0]):
+        ti = words[i, 0]
+        x, y, pi = unpack(words[i, 1])
+        c = (0 if pi else cells) + (y + radius) * width + x + radius
+        count = 0
+        for dy in range(-radius, radius + 1):
+            row = c + dy * width
+            for dx in range(-radius, radius + 1):
+                count += ti - flat[row + dx] < dt_us
+        count -= ti - flat[c] < dt_us
+        flat[c] = ti
+        n = _keep(words, i, out, n, count >= k)
+    return n
+
+
+@kernel
 def dwf(words, kept_xy, rejected_xy, counters, distance, k, out):
     """DWF (Guo & Delbruck 2022): keep an event when at least ``k`` of the stored events lie at L1 distance
     ``< distance``; push it into the FIFO of kept events or of rejected ones.

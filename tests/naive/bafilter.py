@@ -157,3 +157,17 @@ def naive_mlpf(events, w1, b1, w2, b2, patch, tau_us, threshold):
         probabilities.append(probability)
         kept.append(probability > threshold)
     return kept, probabilities
+
+
+def naive_stcf_polarity_maps(events, dt_us, k, radius):
+    """STCF counting, in the window around the event (itself excluded), the pixels whose last event of the event's
+    own polarity is less than dt_us old, whatever the other polarity did since."""
+    last = ({}, {})  # OFF, ON: (x, y) -> time of the pixel's last event of that polarity
+    kept = []
+    for t, x, y, p in events:
+        same = last[1 if p else 0]
+        count = sum(1 for nx in range(x - radius, x + radius + 1) for ny in range(y - radius, y + radius + 1)
+                    if (nx, ny) != (x, y) and (nx, ny) in same and t - same[(nx, ny)] < dt_us)
+        kept.append(count >= k)
+        same[(x, y)] = t
+    return kept
