@@ -1,9 +1,10 @@
 """DND21 ROC of every bafilter method on two real recordings with injected noise (run from samples/: `make roc`).
 
-5 Hz/pixel shot noise and 0.2 Hz/pixel leak are injected into ../../shared/data/dvs128_walk.aedat and
-dvxplorer_sample.aedat4 (fixed seeds); each method is swept over its main parameter with `evtools metrics roc`.
-Writes out/ (noisy streams, truth, per-recording plots and JSON), roc.md (the AUC table) and roc.png (the plot of
-the first recording), and prints the table.
+Shot noise of 5 Hz and of 1 Hz per pixel, each with 0.2 Hz/pixel leak, is injected into
+../../shared/data/dvs128_walk.aedat and dvxplorer_sample.aedat4 (fixed seeds, other than the ones MLPF was trained
+with: see mlpf.py); each method is swept over its main parameter with `evtools metrics roc` (mlpf: its probability
+threshold, with the weights shipped in evtools/data). Writes out/ (noisy streams, truth, per-stream plots and
+JSON), roc.md (the AUC table) and roc.png (the plot of the first recording at 5 Hz), and prints the table.
 """
 
 from __future__ import annotations
@@ -18,15 +19,18 @@ from pathlib import Path
 EVTOOLS = os.environ.get("EVTOOLS", "../.venv/bin/evtools")
 DATA = Path("../../shared/data")
 OUT = Path("out")
-RECORDINGS = [("dvs128_walk.aedat", 1), ("dvxplorer_sample.aedat4", 2)]
+STREAMS = [("dvs128_walk.aedat", 5, 1), ("dvxplorer_sample.aedat4", 5, 2),  # (recording, shot Hz, seed)
+           ("dvs128_walk.aedat", 1, 3), ("dvxplorer_sample.aedat4", 1, 4)]
 DT = "dt-us=300,1000,3000,10000,30000,100000,300000"
-SWEEPS = [
-    ("baf", DT),
-    ("stcf", DT),  # k = 2, polarity on (the defaults)
-    ("orderN", DT),
-    ("dwf", "distance=1,2,3,4,6,9,14,20"),
-    ("refractory", "dt-us=1000,10000,100000,1000000,3000000"),
-    ("hotpixel", "hot-ratio=1,1.5,2,3,5,10"),
+SWEEPS = [  # (label, method, sweep, extra options)
+    ("baf", "baf", DT, []),
+    ("stcf", "stcf", DT, []),  # k = 2, polarity on (the defaults)
+    ("stcf --polarity-maps", "stcf", DT, ["--polarity-maps"]),
+    ("orderN", "orderN", DT, []),
+    ("dwf", "dwf", "distance=1,2,3,4,6,9,14,20", []),
+    ("refractory", "refractory", "dt-us=1000,10000,100000,1000000,3000000", []),
+    ("hotpixel", "hotpixel", "hot-ratio=1,1.5,2,3,5,10", []),
+    ("mlpf", "mlpf", "threshold=0.003,0.01,0.03,0.1,0.2,0.3,0.5,0.7,0.8,0.9,0.97,0.99,0.997", []),
 ]
 
 
@@ -45,36 +49,38 @@ def best_operating_point(points):
 
 def main() -> None:
     OUT.mkdir(exist_ok=True)
-    table = {}
-    for name, seed in RECORDINGS:
-        stem = name.split(".")[0]
-        noisy, truth = OUT / f"{stem}.noisy.aedat4", OUT / f"{stem}.truth.h5"
-        evtools("simulate", DATA / name, "--shot-noise-rate-hz", 5, "--leak-rate-hz", 0.2, "--seed", seed,
+    table, names = {}, []
+    for recording, rate, seed in STREAMS:
+        stem = f"{recording.split('.')[0]} {rate} Hz"
+        names.append(stem)
+        base = f"{recording.split('.')[0]}.{rate}hz"
+        noisy, truth = OUT / f"{base}.noisy.aedat4", OUT / f"{base}.truth.h5"
+        evtools("simulate", DATA / recording, "--shot-noise-rate-hz", rate, "--leak-rate-hz", 0.2, "--seed", seed,
                 "--truth", truth, "-o", noisy)
-        # one plot per recording with every method: each method gets its own sweep, so one roc call per method,
-        # and the curves are drawn together afterwards from the JSON
+        # one plot per stream with every method: each method gets its own sweep, so one roc call per method, and
+        # the curves are drawn together afterwards from the JSON
         curves = []
-        for method, sweep in SWEEPS:
-            result = json.loads(evtools("metrics", "roc", noisy, "--truth", truth, "--method", method,
+        for label, method, sweep, extra in SWEEPS:
+            result = json.loads(evtools("metrics", "roc", noisy, "--truth", truth, "--method", method, *extra,
                                         "--sweep", sweep, "--json"))
             entry = result["methods"][0]
-            (OUT / f"{stem}.{method}.json").write_text(json.dumps(entry, indent=1))
-            table.setdefault(method, {})[stem] = (entry["auc"], best_operating_point(entry["points"]))
-            curves.append((method, entry))
-        draw(curves, OUT / f"{stem}.roc.png", f"{stem} + 5 Hz shot + 0.2 Hz leak")
-    shutil.copy(OUT / f"{RECORDINGS[0][0].split('.')[0]}.roc.png", "roc.png")
-    stems = [name.split(".")[0] for name, _ in RECORDINGS]
-    lines = ["| method | swept | " + " | ".join(f"AUC {s} | TPR at FPR <= 0.1 ({s})" for s in stems) + " |",
-             "|---|---|" + "---|---|" * len(stems)]
-    for method, sweep in SWEEPS:
-        cells = []
-        for s in stems:
-            auc, best = table[method][s]
-            cells += [f"{auc:.3f}", "-" if best is None else f"{best['tpr']:.3f} ({best['value']})"]
-        lines.append(f"| {method} | {sweep.split('=')[0]} | " + " | ".join(cells) + " |")
-    best = {s: max(SWEEPS, key=lambda m: table[m[0]][s][0])[0] for s in stems}
+            (OUT / f"{base}.{label.replace(' --', '.')}.json").write_text(json.dumps(entry, indent=1))
+            table.setdefault(label, {})[stem] = (entry["auc"], best_operating_point(entry["points"]))
+            curves.append((label, entry))
+        draw(curves, OUT / f"{base}.roc.png", f"{recording.split('.')[0]} + {rate} Hz shot + 0.2 Hz leak")
+    shutil.copy(OUT / f"{STREAMS[0][0].split('.')[0]}.{STREAMS[0][1]}hz.roc.png", "roc.png")
+    lines = ["| method | swept | " + " | ".join(f"AUC {s}" for s in names) + " | "
+             + " | ".join(f"TPR at FPR <= 0.1 ({s})" for s in names[:2]) + " |",
+             "|---|---|" + "---|" * (len(names) + 2)]
+    for label, _, sweep, _ in SWEEPS:
+        cells = [f"{table[label][s][0]:.3f}" for s in names]
+        for s in names[:2]:
+            best = table[label][s][1]
+            cells.append("-" if best is None else f"{best['tpr']:.3f} ({best['value']})")
+        lines.append(f"| {label} | {sweep.split('=')[0]} | " + " | ".join(cells) + " |")
+    best = {s: max(SWEEPS, key=lambda m: table[m[0]][s][0])[0] for s in names}
     lines.append("")
-    lines.append("Best AUC: " + ", ".join(f"{s}: {best[s]} ({table[best[s]][s][0]:.3f})" for s in stems) + ".")
+    lines.append("Best AUC: " + ", ".join(f"{s}: {best[s]} ({table[best[s]][s][0]:.3f})" for s in names) + ".")
     text = "\n".join(lines) + "\n"
     Path("roc.md").write_text(text)
     print(text)
