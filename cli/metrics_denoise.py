@@ -123,6 +123,16 @@ def _sweep(ctx, param, value):
     return name.replace("-", "_"), numbers
 
 
+def _settings(ctx, param, values):
+    settings = {}
+    for value in values:
+        name, numbers = _sweep(ctx, param, value)
+        if len(numbers) != 1:
+            raise click.BadParameter(f"give one value: {value!r}")
+        settings[name] = numbers[0]
+    return settings
+
+
 def _score_filter(noisy: str, labels: np.ndarray, methods: str, preset: str, params: dict):
     matcher = DenoiseMatcher()
     with open_events(noisy) as stream:
@@ -185,9 +195,11 @@ def draw_roc(path: str, curves: list[tuple[str, list[tuple[float, float]], float
 @click.option("--weights", type=click.Path(exists=True, dir_okay=False), default=None,
               help="mlpf: weights from `evtools metrics train-denoiser` [the ones shipped with evtools].")
 @click.option("--polarity-maps", is_flag=True, help="stcf: a time map per polarity (see bafilter).")
+@click.option("--set", "settings", multiple=True, callback=_settings, metavar="PARAM=VALUE",
+              help="Hold another parameter at a value for every point (repeat: --set radius=2 --set k=3).")
 @click.option("--plot", type=click.Path(dir_okay=False), default=None, help="Draw the ROC curves into this PNG.")
 @json_option
-def roc(noisy, truth, methods, sweep, preset, weights, polarity_maps, plot, as_json):
+def roc(noisy, truth, methods, sweep, preset, weights, polarity_maps, settings, plot, as_json):
     """DND21 ROC of each --method over --sweep on NOISY: (FPR, TPR) per value, (0,0) and (1,1), trapezoid AUC.
 
     \b
@@ -204,13 +216,13 @@ def roc(noisy, truth, methods, sweep, preset, weights, polarity_maps, plot, as_j
     for chain in methods:
         points, rows = [], []
         for value in values:
-            params = {name: value, **({"weights": weights} if weights and "mlpf" in parse_methods(chain) else {}),
+            params = {**settings, name: value, **({"weights": weights} if weights and "mlpf" in parse_methods(chain) else {}),
                       **({"polarity_maps": True} if polarity_maps and "stcf" in parse_methods(chain) else {})}
             score = _score_filter(noisy, labels, chain, preset, params)
             rows.append({"value": value, **score.as_dict()})
             points.append((score.fpr, score.tpr))
         curve, area = roc_auc(points)
-        results.append({"method": chain, "parameter": name, "points": rows, "auc": area})
+        results.append({"method": chain, "parameter": name, "held": settings, "points": rows, "auc": area})
         curves.append((chain, curve, area))
     if plot:
         draw_roc(plot, curves, f"ROC, sweep {name}")

@@ -84,6 +84,33 @@ def main() -> None:
     text = "\n".join(lines) + "\n"
     Path("roc.md").write_text(text)
     print(text)
+    stcf_grid()
+
+
+def stcf_grid() -> None:
+    """STCF's AUC (its correlation window swept) over radius x k, both polarity modes, on the 5 Hz streams:
+    stcf_grid.md."""
+    streams = [(recording, rate) for recording, rate, _ in STREAMS if rate == 5]
+    lines = ["| radius | k | " + " | ".join(f"AUC {r.split('.')[0]}, one map / polarity maps" for r, _ in streams)
+             + " |", "|---|---|" + "---|" * len(streams)]
+    for radius in (1, 2, 3):
+        for k in (1, 2, 3, 4, 6):
+            if k > (2 * radius + 1) ** 2 - 1:
+                continue
+            cells = []
+            for recording, rate in streams:
+                base = OUT / f"{recording.split('.')[0]}.{rate}hz"
+                aucs = []
+                for extra in ([], ["--polarity-maps"]):
+                    result = json.loads(evtools("metrics", "roc", f"{base}.noisy.aedat4", "--truth", f"{base}.truth.h5",
+                                                "--method", "stcf", "--sweep", DT, "--set", f"radius={radius}",
+                                                "--set", f"k={k}", "--json", *extra))
+                    aucs.append(result["methods"][0]["auc"])
+                cells.append(f"{aucs[0]:.3f} / {aucs[1]:.3f}")
+            lines.append(f"| {radius} | {k} | " + " | ".join(cells) + " |")
+    text = "\n".join(lines) + "\n"
+    Path("stcf_grid.md").write_text(text)
+    print(text)
 
 
 def draw(curves, path, title) -> None:
