@@ -16,26 +16,27 @@ from evtools.mlpf import FeatureMaker, MlpfError, train
 
 
 def _features(noisy: str, truth: str, patch: int, tau_us: int, fraction: float, held_out: float, rng):
-    """The sampled events' features, whether each is signal, and whether it is in the held-out end."""
+    """The sampled events' features (float16: they lie in [0, 1]), whether each is signal, and whether it is in
+    the held-out end of the stream."""
     labels = read_labels(truth)
-    rows, signal, check = [], [], []
-    seen = 0
+    take = rng.random(len(labels)) < fraction  # drawn up front: the rows are known before the stream is read
+    rows = np.empty((int(take.sum()), 2 * patch * patch + 1), np.float16)
+    seen = filled = 0
     with open_events(noisy) as stream:
         maker = FeatureMaker(stream.info.width, stream.info.height, patch, tau_us)
         for chunk in stream:
             if seen + len(chunk) > len(labels):
                 raise MlpfError(f"{truth}: {len(labels):,} labels but {noisy} has more events (give the truth file "
                                 "written with that stream)")
-            take = rng.random(len(chunk)) < fraction
-            rows.append(maker.features(chunk, take))
-            index = np.arange(seen, seen + len(chunk))[take]
-            signal.append(labels[index] == 0)
-            check.append(index >= (1.0 - held_out) * len(labels))
+            part = maker.features(chunk, take[seen:seen + len(chunk)])
+            rows[filled:filled + len(part)] = part
+            filled += len(part)
             seen += len(chunk)
     if seen != len(labels):
         raise MlpfError(f"{truth}: {len(labels):,} labels but {noisy} has {seen:,} events (give the truth file "
                         "written with that stream)")
-    return np.concatenate(rows), np.concatenate(signal), np.concatenate(check)
+    index = np.flatnonzero(take)
+    return rows, labels[index] == 0, index >= (1.0 - held_out) * len(labels)
 
 
 @click.command("train-denoiser")

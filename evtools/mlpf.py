@@ -124,19 +124,18 @@ class TrainingReport:
 def train(features: np.ndarray, labels: np.ndarray, validation: np.ndarray, *, patch: int, tau_us: int,
           hidden: int = 20, seed: int = 0, epochs: int = 60, batch: int = 512, learning_rate: float = 2e-3,
           patience: int = 5) -> tuple[Weights, TrainingReport]:
-    """Fit the perceptron to ``features`` (n, inputs) and ``labels`` (1 signal, 0 noise): mini-batch Adam on the
-    mean cross-entropy, stopping when the loss on the rows where ``validation`` is true has not improved for
-    ``patience`` epochs (the best weights are kept). The same inputs and seed give the same weights, byte for
-    byte."""
-    features = np.asarray(features, np.float64)
+    """Fit the perceptron to ``features`` (n, inputs; any float type, kept as given: float16 halves the memory)
+    and ``labels`` (1 signal, 0 noise): mini-batch Adam on the mean cross-entropy, stopping when the loss on the
+    rows where ``validation`` is true has not improved for ``patience`` epochs (the best weights are kept). The
+    same inputs and seed give the same weights, byte for byte."""
     labels = np.asarray(labels, np.float64)
-    train_x, train_y = features[~validation], labels[~validation]
-    check_x, check_y = features[validation], labels[validation]
-    if len(train_y) < 2 or len(check_y) < 1:
-        raise MlpfError(f"too few labelled events to train ({len(train_y)}) and check ({len(check_y)})")
-    prior = float(np.clip(train_y.mean(), 1e-3, 1 - 1e-3))
+    train_rows, check_rows = np.flatnonzero(~validation), np.flatnonzero(validation)
+    if len(train_rows) < 2 or len(check_rows) < 1:
+        raise MlpfError(f"too few labelled events to train ({len(train_rows)}) and check ({len(check_rows)})")
+    train_y = labels[train_rows]
     if train_y.min() == train_y.max():
         raise MlpfError("the labels are all signal or all noise: nothing to learn")
+    prior = float(np.clip(train_y.mean(), 1e-3, 1 - 1e-3))
     rng = np.random.default_rng(seed)
     inputs = features.shape[1]
     params = [rng.normal(0.0, math.sqrt(2.0 / inputs), (inputs, hidden)), np.zeros(hidden),
@@ -145,16 +144,20 @@ def train(features: np.ndarray, labels: np.ndarray, validation: np.ndarray, *, p
     squares = [np.zeros_like(p) for p in params]
     beta1, beta2, epsilon, step = 0.9, 0.999, 1e-8, 0
 
-    def loss_of(p, x, y) -> float:
-        z = np.maximum(x @ p[0] + p[1], 0.0) @ p[2] + p[3]
-        return float(np.mean(np.logaddexp(0.0, z) - y * z))  # the cross-entropy of sigmoid(z), stably
+    def logits(p, rows) -> np.ndarray:  # in blocks: a (rows, hidden) float64 array at a time
+        return np.concatenate([np.maximum(np.asarray(features[part], np.float64) @ p[0] + p[1], 0.0) @ p[2] + p[3]
+                               for part in np.array_split(rows, max(1, len(rows) // 65536))])
 
-    best, best_loss, waited, epoch, train_loss = [p.copy() for p in params], loss_of(params, check_x, check_y), 0, 0, 0.0
+    def loss_of(p, rows) -> float:
+        z = logits(p, rows)
+        return float(np.mean(np.logaddexp(0.0, z) - labels[rows] * z))  # the cross-entropy of sigmoid(z), stably
+
+    best, best_loss, waited, epoch = [p.copy() for p in params], loss_of(params, check_rows), 0, 0
     for epoch in range(1, epochs + 1):
-        order = rng.permutation(len(train_y))
+        order = train_rows[rng.permutation(len(train_rows))]
         for begin in range(0, len(order), batch):
             rows = order[begin:begin + batch]
-            x, y = train_x[rows], train_y[rows]
+            x, y = np.asarray(features[rows], np.float64), labels[rows]
             pre = x @ params[0] + params[1]
             h = np.maximum(pre, 0.0)
             z = h @ params[2] + params[3]
@@ -168,7 +171,7 @@ def train(features: np.ndarray, labels: np.ndarray, validation: np.ndarray, *, p
                 v *= beta2
                 v += (1 - beta2) * g * g
                 p -= learning_rate * (m / (1 - beta1 ** step)) / (np.sqrt(v / (1 - beta2 ** step)) + epsilon)
-        loss = loss_of(params, check_x, check_y)
+        loss = loss_of(params, check_rows)
         if loss < best_loss - 1e-6:
             best, best_loss, waited = [p.copy() for p in params], loss, 0
         else:
@@ -176,9 +179,9 @@ def train(features: np.ndarray, labels: np.ndarray, validation: np.ndarray, *, p
             if waited >= patience:
                 break
     weights = Weights(best[0], best[1], best[2], float(best[3]), patch, tau_us)
-    train_loss = loss_of(best, train_x, train_y)
-    report = TrainingReport(epoch, train_loss, best_loss, auc(forward(weights, check_x), check_y), len(train_y),
-                            len(check_y), float(labels.mean()))
+    report = TrainingReport(epoch, loss_of(best, train_rows), best_loss, auc(logits(best, check_rows),
+                                                                             labels[check_rows]),
+                            len(train_rows), len(check_rows), float(labels.mean()))
     return weights, report
 
 

@@ -16,8 +16,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from evtools._kernels.bafilter import NEVER, _keep, unpack
+from evtools._kernels.bafilter import AHEAD, NEVER, _keep, unpack
 from evtools._kernels.jit import kernel
+from evtools._kernels.prefetch import prefetch
 
 
 def padded_maps(width: int, height: int, radius: int) -> np.ndarray:
@@ -35,8 +36,17 @@ def mlpf(words, maps, radius, tau_us, w1, b1, w2, b2, logit_threshold, hidden, o
     flat = maps.ravel()
     map_cells = maps.shape[1] * width
     units = b1.shape[0]
+    inverse_tau = 1.0 / tau_us
     n = 0
-    for i in range(words.shape[0]):
+    end = words.shape[0]
+    for i in range(end):
+        if i + AHEAD < end:  # the patch rows of a later event: cache misses on large sensors
+            ahead = words[i + AHEAD, 1]
+            corner = ((ahead >> 16) & 0xFFFF) * width + (ahead & 0xFFFF)
+            for c in range(2):
+                for dy in range(size):
+                    prefetch(flat, c * map_cells + corner + dy * width)
+                    prefetch(flat, c * map_cells + corner + dy * width + size - 1)
         t = words[i, 0]
         x, y, p = unpack(words[i, 1])
         for j in range(units):
@@ -50,7 +60,7 @@ def mlpf(words, maps, radius, tau_us, w1, b1, w2, b2, logit_threshold, hidden, o
                 for dx in range(size):
                     age = t - flat[row + dx]
                     if age < tau_us:
-                        f = 1.0 - age / tau_us
+                        f = 1.0 - age * inverse_tau
                         k = c * plane + dy * size + dx
                         for j in range(units):
                             hidden[j] += f * w1[k, j]
