@@ -16,9 +16,13 @@ from tests.naive.bafilter import naive_mlpf, naive_mlpf_features
 
 
 def _stream(seed: int, n: int, width: int, height: int, mean_gap_us: int) -> np.ndarray:
+    """Random events, no two alike (so that a kept event is found in the input without ambiguity)."""
     rng = np.random.default_rng(seed)
     t = np.cumsum(rng.integers(0, 2 * mean_gap_us + 1, n))
-    return make_events(t, rng.integers(0, width, n), rng.integers(0, height, n), rng.integers(0, 2, n))
+    events = make_events(t, rng.integers(0, width, n), rng.integers(0, height, n), rng.integers(0, 2, n))
+    _, first = np.unique(np.stack([events["t"], events["x"], events["y"], events["p"]], 1),
+                         axis=0, return_index=True)
+    return events[np.sort(first)]
 
 
 def _weights(seed: int, patch: int, hidden: int, tau_us: int) -> Weights:
