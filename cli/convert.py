@@ -5,10 +5,12 @@ from __future__ import annotations
 import click
 
 from evtools.cli.batch import batch_options, plan, run
+from evtools.cli.options import slicing_options
 from evtools.cli.progress import with_progress
 from evtools.formats import create_events, open_events
 from evtools.formats.io import paced
 from evtools.formats.registry import FORMATS, by_name
+from evtools.transform import Transform
 
 
 @click.command()
@@ -27,8 +29,9 @@ from evtools.formats.registry import FORMATS, by_name
                    "recording stands in for a camera.")
 @click.option("--speed", type=click.FloatRange(min=0, min_open=True), default=None, metavar="X",
               help="With --realtime: X times the recorded speed (2: twice as fast).")
+@slicing_options
 def convert(inputs, input_format, sensor_size, aedat2_layout, output, jobs, scheduler, output_format, compression,
-            realtime, speed):
+            realtime, speed, start, end, polarity, crop, flip_x, flip_y, transpose):
     """Convert IN (default stdin) to OUT or -o OUT (default stdout), chunk by chunk in bounded memory.
 
     Several inputs go to the folder -o FOLDER, each named after its input with --format's extension.
@@ -38,27 +41,38 @@ def convert(inputs, input_format, sensor_size, aedat2_layout, output, jobs, sche
     evtools convert recording.aedat4 - | evtools convert - recording.csv
     evtools convert dataset/*.aedat -o converted/ --format hdf5 --jobs 4
     evtools convert recording.aedat4 - --realtime | evtools bafilter - -o -
+    evtools convert recording.aedat4 -o part.aedat4 --start 2s --end 3.5s --crop 100,50,128,128 --flip-y
     """
     if speed is not None and not realtime:
         raise click.UsageError("--speed needs --realtime")
     suffix = by_name(output_format or "aedat4").extensions[0]
     pairs = plan(inputs, output, suffix)
     options = dict(input_format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout,
-                   output_format=output_format, compression=compression, speed=speed or 1.0 if realtime else None)
+                   output_format=output_format, compression=compression, speed=speed or 1.0 if realtime else None,
+                   slicing=dict(start=start, end=end, polarity=polarity, crop=crop, flip_x=flip_x, flip_y=flip_y,
+                                transpose=transpose))
     run(convert_one, pairs, options, jobs, scheduler)
 
 
-def convert_one(input, output, *, input_format, sensor_size, aedat2_layout, output_format, compression, speed=None):
-    """Convert one file: (events in, events out), the same number; ``speed``: replayed at that many times the
-    recorded speed."""
-    events = 0
+def convert_one(input, output, *, input_format, sensor_size, aedat2_layout, output_format, compression, speed=None,
+                slicing=None):
+    """Convert one file: (events in, events out); ``speed``: replayed at that many times the recorded speed;
+    ``slicing``: :class:`evtools.transform.Transform`'s options (time slice, polarity, crop, flips, transpose)."""
+    events_in = events_out = 0
     with open_events(input, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as stream:
+        transform = Transform(stream.info, **slicing) if slicing and any(slicing.values()) else None
         with create_events(
-            output, stream.info, format=output_format, compression=compression,
+            output, transform.info if transform else stream.info, format=output_format, compression=compression,
             aedat2_layout=aedat2_layout, inputs=(input,),
         ) as writer:
             chunks = stream if speed is None else paced(stream, speed)
             for chunk in with_progress(chunks, stream, f"converting {stream.name}"):
-                writer.write(chunk)
-                events += len(chunk)
-    return events, events
+                events_in += len(chunk)
+                if transform:
+                    chunk = transform.process(chunk)
+                if len(chunk):
+                    writer.write(chunk)
+                events_out += len(chunk)
+                if transform and transform.done:  # past --end: the rest of the input is not read
+                    break
+    return events_in, events_out

@@ -53,6 +53,50 @@ class Duration(click.ParamType):
         return int(value_us)
 
 
+class TimeBound(click.ParamType):
+    """A time from the stream's first event (``2s``, ``500ms``), or an absolute one after ``@`` (``@136.6s``)."""
+
+    name = "time"
+
+    def convert(self, value, param, ctx):
+        from evtools.transform import Time
+
+        if isinstance(value, Time):
+            return value
+        text = str(value).strip()
+        absolute = text.startswith("@")
+        return Time(Duration(minimum_us=0).convert(text[1:] if absolute else text, param, ctx), absolute)
+
+
+def _rectangle(ctx, param, value):
+    if value is None:
+        return None
+    parts = value.split(",")
+    if len(parts) != 4 or not all(part.strip().isdigit() for part in parts):
+        raise click.BadParameter(f"{value!r}: give X,Y,W,H (whole pixels, e.g. 10,20,64,48)")
+    return tuple(int(part) for part in parts)
+
+
+def slicing_options(function):
+    """--start, --end, --polarity, --crop, --flip-x, --flip-y, --transpose (see evtools.transform)."""
+    options = [
+        click.option("--start", type=TimeBound(), default=None, metavar="TIME",
+                     help="Keep events from this time on: from the stream's first event (2s, 500ms), or absolute "
+                          "after @ (@136.6s)."),
+        click.option("--end", type=TimeBound(), default=None, metavar="TIME",
+                     help="Keep events before this time (as --start)."),
+        click.option("--polarity", type=click.Choice(["on", "off"]), default=None, help="Keep one polarity."),
+        click.option("--crop", callback=_rectangle, default=None, metavar="X,Y,W,H",
+                     help="Keep the events inside this rectangle, moved to its origin: the sensor becomes W x H."),
+        click.option("--flip-x", is_flag=True, help="Mirror left-right (x -> W - 1 - x), after --crop."),
+        click.option("--flip-y", is_flag=True, help="Mirror top-bottom (y -> H - 1 - y), after --crop."),
+        click.option("--transpose", is_flag=True, help="Swap x and y, last: the sensor becomes H x W."),
+    ]
+    for option in reversed(options):
+        function = option(function)
+    return function
+
+
 input_argument = click.argument("input", default="-", metavar="[IN]", type=click.Path(dir_okay=False, allow_dash=True))
 output_option = click.option(
     "-o", "--output", default="-", metavar="OUT", type=click.Path(dir_okay=False, allow_dash=True),

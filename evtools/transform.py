@@ -1,0 +1,105 @@
+"""Time slicing and geometry of an event stream (``evtools convert --start --end --crop --flip-x --flip-y
+--transpose --polarity``), as a stream processor.
+
+The steps, in this order: keep the events in ``[start, end)`` (times relative to the stream's first event unless
+absolute), keep one polarity, keep the events inside the crop rectangle ``(x, y, w, h)`` and move them to its
+origin (the sensor becomes ``w x h``), mirror x (``x -> W - 1 - x``) and/or y within the sensor so far, then swap
+x and y (the sensor becomes ``H x W``). Each step is per event, so the output does not depend on the chunks.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from evtools.errors import EvtoolsError
+from evtools.events import StreamInfo, empty_events
+
+
+class TransformError(EvtoolsError, ValueError):
+    """A slice or a rectangle that does not fit the stream."""
+
+
+@dataclass(frozen=True)
+class Time:
+    """A time bound: microseconds from the stream's first event, or an absolute time (``absolute``)."""
+
+    us: int
+    absolute: bool = False
+
+
+class Transform:
+    """Slices and re-maps a ``width x height`` stream; :attr:`info` is the output's stream description.
+
+    Parameters
+    ----------
+    start, end : Time, optional
+        Keep ``start <= t < end``.
+    polarity : {"on", "off"}, optional
+    crop : (x, y, w, h), optional
+        A rectangle inside the sensor.
+    flip_x, flip_y, transpose : bool
+    """
+
+    def __init__(self, info: StreamInfo, *, start: Time | None = None, end: Time | None = None,
+                 polarity: str | None = None, crop: tuple[int, int, int, int] | None = None, flip_x: bool = False,
+                 flip_y: bool = False, transpose: bool = False) -> None:
+        width, height = info.width, info.height
+        if crop is not None:
+            x, y, w, h = (int(v) for v in crop)
+            if w < 1 or h < 1 or x < 0 or y < 0 or x + w > width or y + h > height:
+                raise TransformError(f"crop {x},{y},{w},{h} is not inside the {width}x{height} sensor (X,Y,W,H: "
+                                     f"0 <= X, X + W <= {width}, 0 <= Y, Y + H <= {height})")
+            crop, width, height = (x, y, w, h), w, h
+        if polarity not in (None, "on", "off"):
+            raise TransformError(f"polarity must be on or off, not {polarity!r}")
+        if start is not None and end is not None and start.absolute == end.absolute and end.us <= start.us:
+            raise TransformError(f"the end ({end.us} us) is not after the start ({start.us} us)")
+        self.start, self.end, self.polarity, self.crop = start, end, polarity, crop
+        self.flip_x, self.flip_y, self.transpose = flip_x, flip_y, transpose
+        self.flipped_size = (width, height)  # the sensor the flips act in
+        out_width, out_height = (height, width) if transpose else (width, height)
+        self.info = replace(info, width=out_width, height=out_height, metadata=dict(info.metadata))
+        self.first_us: int | None = None
+        self.done = False  # the end has passed: no later event can be kept
+
+    def _bounds(self) -> tuple[float, float]:
+        def resolve(bound: Time | None, default: float) -> float:
+            if bound is None:
+                return default
+            return bound.us if bound.absolute else self.first_us + bound.us
+
+        return resolve(self.start, -np.inf), resolve(self.end, np.inf)
+
+    def process(self, chunk: np.ndarray) -> np.ndarray:
+        if not len(chunk) or self.done:
+            return chunk[:0]
+        if self.first_us is None:
+            self.first_us = int(chunk["t"][0])
+        start, end = self._bounds()
+        t = chunk["t"]
+        if t[-1] >= end:
+            self.done = True
+        chunk = chunk[int(np.searchsorted(t, start, "left")):int(np.searchsorted(t, end, "left"))]
+        if self.polarity is not None:
+            chunk = chunk[chunk["p"] == (self.polarity == "on")]
+        if self.crop is not None:
+            x0, y0, w, h = self.crop
+            x, y = chunk["x"], chunk["y"]
+            chunk = chunk[(x >= x0) & (x < x0 + w) & (y >= y0) & (y < y0 + h)]
+            chunk["x"] -= x0
+            chunk["y"] -= y0
+        elif self.flip_x or self.flip_y or self.transpose:
+            chunk = chunk.copy()  # never change the caller's events
+        width, height = self.flipped_size
+        if self.flip_x:
+            chunk["x"] = width - 1 - chunk["x"]
+        if self.flip_y:
+            chunk["y"] = height - 1 - chunk["y"]
+        if self.transpose:
+            chunk["x"], chunk["y"] = chunk["y"].copy(), chunk["x"].copy()
+        return chunk
+
+    def flush(self) -> np.ndarray:
+        return empty_events()

@@ -1,0 +1,104 @@
+"""convert's time slicing and geometry (issue 18 item 3): against a slow reference on random streams and random
+options, chunk invariance, round trips, crop + flip = flip + the mirrored crop, and the CLI on a hand-made stream."""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from evtools.events import StreamInfo, join, make_events
+from evtools.transform import Time, Transform, TransformError
+from tests.helpers import assert_clean_error, cut, read_all, run
+from tests.naive.transform import naive_transform
+
+
+def _random(seed, n, width, height):
+    rng = np.random.default_rng(seed)
+    return make_events(np.cumsum(rng.integers(0, 50, n)) + 1000, rng.integers(0, width, n),
+                       rng.integers(0, height, n), rng.integers(0, 2, n))
+
+
+def _tuples(events):
+    return list(zip(events["t"].tolist(), events["x"].tolist(), events["y"].tolist(), events["p"].tolist()))
+
+
+@st.composite
+def cases(draw):
+    width, height = draw(st.integers(1, 20)), draw(st.integers(1, 20))
+    crop = None
+    if draw(st.booleans()):
+        x, y = draw(st.integers(0, width - 1)), draw(st.integers(0, height - 1))
+        crop = (x, y, draw(st.integers(1, width - x)), draw(st.integers(1, height - y)))
+    start = draw(st.one_of(st.none(), st.integers(0, 3000)))
+    end = draw(st.one_of(st.none(), st.integers((start or 0) + 1, 6000)))
+    return dict(width=width, height=height, crop=crop, start_us=start, end_us=end,
+                polarity=draw(st.sampled_from([None, "on", "off"])), flip_x=draw(st.booleans()),
+                flip_y=draw(st.booleans()), transpose=draw(st.booleans()), seed=draw(st.integers(0, 2**16)),
+                cuts=draw(st.lists(st.integers(0, 300), max_size=5)))
+
+
+@settings(max_examples=150, deadline=None)
+@given(case=cases())
+def test_transform_equals_the_reference_whatever_the_chunks(case):
+    width, height, seed, cuts = case.pop("width"), case.pop("height"), case.pop("seed"), case.pop("cuts")
+    events = _random(seed, 300, width, height)
+    expected, size = naive_transform(_tuples(events), width, height, **case)
+    start, end = case.pop("start_us"), case.pop("end_us")
+    transform = Transform(StreamInfo(width, height), start=None if start is None else Time(start),
+                          end=None if end is None else Time(end), **case)
+    got = join([transform.process(part) for part in cut(events, cuts)] + [transform.flush()])
+    assert _tuples(got) == expected
+    assert (transform.info.width, transform.info.height) == size
+    assert _tuples(events) == _tuples(_random(seed, 300, width, height))  # the input was not changed
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**16), width=st.integers(2, 16), height=st.integers(2, 16), data=st.data())
+def test_round_trips_and_crop_then_flip_is_flip_then_the_mirrored_crop(seed, width, height, data):
+    events = _random(seed, 200, width, height)
+    info = StreamInfo(width, height)
+    for options in ({"flip_x": True}, {"flip_y": True}, {"transpose": True}):
+        once = Transform(info, **options)
+        twice = Transform(once.info, **options).process(once.process(events))
+        assert np.array_equal(twice, events)
+    x = data.draw(st.integers(0, width - 1))
+    y = data.draw(st.integers(0, height - 1))
+    w, h = data.draw(st.integers(1, width - x)), data.draw(st.integers(1, height - y))
+    crop_then_flip = Transform(info, crop=(x, y, w, h), flip_x=True, flip_y=True).process(events)
+    flipped = Transform(info, flip_x=True, flip_y=True).process(events)
+    mirrored = (width - x - w, height - y - h, w, h)
+    assert np.array_equal(crop_then_flip, Transform(info, crop=mirrored).process(flipped))
+
+
+def test_bad_rectangles_and_slices():
+    import pytest
+
+    info = StreamInfo(10, 8)
+    for crop in ((0, 0, 11, 8), (5, 0, 6, 8), (0, 0, 0, 3), (-1, 0, 2, 2)):
+        with pytest.raises(TransformError, match="not inside the 10x8 sensor"):
+            Transform(info, crop=crop)
+    with pytest.raises(TransformError, match="not after the start"):
+        Transform(info, start=Time(500), end=Time(500))
+
+
+def test_cli_slices_crops_and_flips_a_hand_made_stream(tmp_path):
+    source = tmp_path / "in.csv"
+    source.write_text("t,x,y,p\n1000,0,0,1\n1500,3,1,0\n2000,9,7,1\n2600,4,2,1\n3000,5,5,0\n")
+    out = tmp_path / "out.csv"
+    run("convert", source, "--sensor-size", "10x8", "-o", out, "--start", "500us", "--end", "@3ms", "--crop",
+        "2,1,4,4", "--flip-x")
+    info, got = read_all(out)
+    assert (info.width, info.height) == (4, 4)
+    # kept: 1500 (3,1) -> (1,0) -> flip x (2,0); 2600 (4,2) -> (2,1) -> (1,1); 2000 is outside, 3000 at the end
+    assert _tuples(got) == [(1500, 2, 0, False), (2600, 1, 1, True)]
+    on = tmp_path / "on.csv"
+    run("convert", source, "--sensor-size", "10x8", "-o", on, "--polarity", "on", "--transpose")
+    info, got = read_all(on)
+    assert (info.width, info.height) == (8, 10)
+    assert _tuples(got) == [(1000, 0, 0, True), (2000, 7, 9, True), (2600, 2, 4, True)]
+    bad = run("convert", source, "--sensor-size", "10x8", "-o", tmp_path / "x.csv", "--crop", "8,0,4,4", check=False)
+    assert_clean_error(bad, "not inside the 10x8 sensor")
+    usage = run("convert", source, "-o", tmp_path / "x.csv", "--crop", "1,2,3", check=False)
+    assert usage.returncode == 2 and b"X,Y,W,H" in usage.stderr
+    assert not (tmp_path / "x.csv").exists()
