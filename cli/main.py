@@ -23,6 +23,21 @@ class _StderrFormatter(logging.Formatter):
         return f"evtools: {record.levelname.lower()}: {record.getMessage()}"
 
 
+def _set_verbosity(ctx, param, value) -> None:
+    """-q: errors only; -v: also the details (debug); neither: errors, warnings and the counts (info)."""
+    if value:
+        logging.getLogger("evtools").setLevel(logging.ERROR if param.name == "quiet" else logging.DEBUG)
+
+
+VERBOSITY_OPTIONS = (
+    lambda: click.Option(["-q", "--quiet"], is_flag=True, expose_value=False, callback=_set_verbosity,
+                         help="Print errors only: no warnings, no counts."),
+    lambda: click.Option(["-v", "--verbose"], is_flag=True, expose_value=False, callback=_set_verbosity,
+                         help="Print details too (debug messages)."),
+)
+"""Accepted before the subcommand (the group's) and after it (added to every subcommand)."""
+
+
 class LazyGroup(click.Group):
     """A group whose subcommands are imported only when used, so a command loads only what it needs (numba, h5py
     and OpenCV take most of a second to import). ``lazy_commands`` maps a name to ``("module:function", summary)``;
@@ -38,7 +53,10 @@ class LazyGroup(click.Group):
     def get_command(self, ctx: click.Context, name: str):
         if name in self.lazy_commands and name not in self.commands:
             module, function = self.lazy_commands[name][0].split(":")
-            self.add_command(getattr(importlib.import_module(module), function), name)
+            command = getattr(importlib.import_module(module), function)
+            if not isinstance(command, click.Group):  # -q / -v after the subcommand too
+                command.params += [option() for option in VERBOSITY_OPTIONS]
+            self.add_command(command, name)
         return super().get_command(ctx, name)
 
     def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
@@ -126,12 +144,13 @@ class EvtoolsGroup(LazyGroup):
 
 @click.group(cls=EvtoolsGroup, lazy_commands=COMMANDS, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="evtools")
-@click.option("-q", "--quiet", is_flag=True, help="Print errors only, no warnings.")
+@click.option("-q", "--quiet", is_flag=True, help="Print errors only: no warnings, no counts.")
+@click.option("-v", "--verbose", is_flag=True, help="Print details too (debug messages).")
 @click.option("--max-latency", metavar="TIME", default=None, callback=_max_latency,
               help="How long a live input's (pipe, socket, tcp://) first waiting events may be held while more "
                    "keep arriving (they then go on together); nothing waits when no more has arrived. "
                    "[default: 20ms]")
-def cli(quiet: bool, max_latency) -> None:
+def cli(quiet: bool, verbose: bool, max_latency) -> None:
     """Event-camera (DVS) noise toolkit: read, convert, simulate, filter, estimate and correct event streams.
 
     Every command reads a path or `-` (stdin) and writes `-o PATH` or stdout; pipes carry AEDAT 4.0.
@@ -141,7 +160,7 @@ def cli(quiet: bool, max_latency) -> None:
         handler = logging.StreamHandler(sys.stderr)
         handler.setFormatter(_StderrFormatter())
         logger.addHandler(handler)
-    logger.setLevel(logging.ERROR if quiet else logging.INFO)
+    logger.setLevel(logging.ERROR if quiet else logging.DEBUG if verbose else logging.INFO)
     logger.propagate = False
 
 

@@ -218,3 +218,22 @@ def test_group_help_lists_the_commands_own_summaries_without_importing_them():
              "'numba' in sys.modules, 'h5py' in sys.modules)")
     result = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True)
     assert result.stdout.split() == ["0", "0", "True", "True", "False", "False"]
+
+
+def test_quiet_and_verbose_before_or_after_the_subcommand(tmp_path):
+    """-q / -v are accepted after every subcommand (metrics' too), not only before it; -q after bafilter silences
+    its counts line, as before it."""
+    from evtools.cli.main import COMMANDS
+    from evtools.cli.metrics import metrics
+
+    names = [[name] for name in COMMANDS if name != "metrics"] + [["metrics", name] for name in metrics.lazy_commands]
+    for name in names:
+        text = run(*name, "--help").stdout.decode()
+        assert "-q, --quiet" in text and "-v, --verbose" in text, name
+    source = Path(__file__).resolve().parents[1] / "samples" / "step.aedat4"
+    loud = run("bafilter", source, "-o", tmp_path / "a.aedat4")
+    assert b"kept" in loud.stderr
+    for args in (["-q", "bafilter", source, "-o", tmp_path / "b.aedat4"],
+                 ["bafilter", source, "-o", tmp_path / "c.aedat4", "-q"]):
+        assert run(*args).stderr == b""
+    assert b"kept" in run("bafilter", source, "-v", "-o", tmp_path / "d.aedat4").stderr
