@@ -290,6 +290,15 @@ _SCENE_OPTIONS = {  # keyword of the scene functions -> command-line option
 }
 
 
+def _merged(name: str, value, alias: str, alias_value):
+    """An option given under its name or its older alias (not both, unless equal)."""
+    if alias_value is None:
+        return value
+    if value is not None and value != alias_value:
+        raise click.UsageError(f"{alias} is another name for {name}: give one of them")
+    return alias_value
+
+
 def model_parameters(preset: str | None, given: dict[str, Any]) -> dict[str, Any]:
     """v2e's defaults, then the preset's values, then every option the user gave."""
     parameters = dict(DEFAULT_PARAMETERS)
@@ -356,14 +365,15 @@ def _float_option(name: str, help: str):
               help="Frame sources: also store the true log intensity (`log_frames`, `log_frame_t_us`) in --truth "
                    "at this rate, for `metrics reconstruction` [default: 100; 0: none].")
 @input_format_option
-@sensor_size_option
+@click.option("--sensor-size", "sensor_size", metavar="WxH", default=None, hidden=True,
+              help="The same as --size (kept for older scripts).")
 @aedat2_layout_option
 @click.option("--size", metavar="WxH", default=None,
-              help=f"Sensor size of a scene (default {DEFAULT_SCENE_SIZE}); for a video or images: resize to it.")
+              help=f"Sensor size of a scene (default {DEFAULT_SCENE_SIZE}); for a video or images: resize to it; "
+                   "for an event stream that does not store it: its size.")
 @click.option("--duration", type=Duration(), metavar="TIME", default=None,
               help="Scene length with its unit: 2s, 500ms, 1.5min (default 1s).")
-@click.option("--fps", type=float, default=None,
-              help="Frame rate of an image folder without timestamps, or to override a video's.")
+@click.option("--fps", type=float, default=None, hidden=True, help="The same as --frame-rate (kept for older scripts).")
 @click.option("--timestamps", type=click.Path(dir_okay=False), default=None,
               help=f"Image folder: file of frame times, one per line in seconds (default: {TIMESTAMPS_FILE} "
                    "in the folder).")
@@ -391,7 +401,9 @@ def _float_option(name: str, help: str):
 @_float_option("--dead-pixel-fraction", "Fraction of dead pixels (default 0).")
 @click.option("--seed", type=int, default=None,
               help="Seed of every random draw (default: a fresh one, recorded in --truth and the output's source).")
-@click.option("--frame-rate", type=float, default=None, help="Scene frame rate, Hz (default 1000).")
+@click.option("--frame-rate", type=float, default=None,
+              help="Frame rate, Hz: of a scene (default 1000), of an image folder without timestamps, or to "
+                   "override a video's.")
 @click.option("--period", type=Duration(), default=None, metavar="TIME",
               help="flicker, step: period with its unit (default 500ms, 1s).")
 @click.option("--profile", type=click.Choice(FLICKER_PROFILES), default=None,
@@ -425,17 +437,19 @@ def simulate(source, output, output_format, truth, truth_frame_rate, input_forma
     evtools simulate video.mp4 --preset noisy --seed 1 | evtools info -
     evtools simulate recording.aedat4 --shot-noise-rate-hz 5 --leak-rate-hz 0.2 --truth t.h5 -o noisy.aedat4
     """
+    size = _merged("--size", size, "--sensor-size", sensor_size)
+    fps = options["frame_rate"] = _merged("--frame-rate", options["frame_rate"], "--fps", fps)
     given = {name: value for name, value in options.items() if value is not None}
     if is_event_stream(source, input_format):
-        frame_only = [name for name, value in (("--size", size), ("--duration", duration), ("--fps", fps),
+        sensor_size, size = (parse_sensor_size(size) if size else None), None
+        frame_only = [name for name, value in (("--size", size), ("--duration", duration),
                                                ("--timestamps", timestamps),
                                                ("--truth-frame-rate", truth_frame_rate)) if value is not None]
         frame_only += ["--" + name.replace("_", "-") for name in given if name not in NOISE_DEFAULTS]
         if frame_only:
-            hint = " (the sensor size of a stream that does not store it is --sensor-size)" if size else ""
             raise SimulationError(
                 f"{', '.join(frame_only)}: not for an event stream, which gets only noise (leak, shot, hot "
-                f"pixels){hint}"
+                f"pixels)"
             )
         parameters = {key: value for key, value in model_parameters(preset, {}).items() if key in NOISE_DEFAULTS}
         parameters["leak_spread_decades"] = NOISE_DEFAULTS["leak_spread_decades"]
@@ -443,8 +457,7 @@ def simulate(source, output, output_format, truth, truth_frame_rate, input_forma
         stream_options = {"format": input_format, "sensor_size": sensor_size, "aedat2_layout": aedat2_layout}
         _inject(source, output, output_format, truth, preset, seed, parameters, stream_options)
         return
-    for name, value in (("--input-format", input_format), ("--sensor-size", sensor_size),
-                        ("--aedat2-layout", aedat2_layout)):
+    for name, value in (("--input-format", input_format), ("--aedat2-layout", aedat2_layout)):
         if value is not None:
             raise SimulationError(f"{name} applies to event-stream sources only")
     scene_options = {}
@@ -452,6 +465,8 @@ def simulate(source, output, output_format, truth, truth_frame_rate, input_forma
         value = options.pop(name)
         if value is not None:
             scene_options[keyword] = value * 1e-6 if name == "period" else value
+    if not source.startswith("scene:"):
+        scene_options.pop("frame_rate_hz", None)  # a video's or an image folder's rate: passed as fps
 
     drift_percent = options.pop("thres_drift")
     if drift_percent is not None:

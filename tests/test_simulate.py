@@ -572,3 +572,23 @@ def test_flicker_profile_errors(tmp_path):
         list(scene_frames("flicker", 2, 2, 1000, profile="log", min_level=0))
     assert_clean_error(run("simulate", "scene:step", "--profile", "log", "-o", tmp_path / "x.aedat4", check=False),
                        "scene step has no option --profile")
+
+
+def test_older_option_names_are_aliases(tmp_path):
+    """--sensor-size and --fps are other names of --size and --frame-rate (one option each in --help): the same
+    output, a usage error when both disagree, and --size gives an event stream's size when it does not store it."""
+    run("simulate", "scene:bars", "--size", "16x16", "--duration", "100ms", "--frame-rate", 500, "--seed", 1,
+        "-o", tmp_path / "a.aedat4")
+    run("simulate", "scene:bars", "--sensor-size", "16x16", "--duration", "100ms", "--fps", 500, "--seed", 1,
+        "-o", tmp_path / "b.aedat4")
+    assert (tmp_path / "a.aedat4").read_bytes() == (tmp_path / "b.aedat4").read_bytes()
+    both = run("simulate", "scene:bars", "--size", "16x16", "--sensor-size", "8x8", "-o", tmp_path / "c.aedat4",
+               check=False)
+    assert both.returncode == 2 and b"another name for --size" in both.stderr
+    text = run("simulate", "--help").stdout.decode()
+    assert "--sensor-size" not in text and "--fps" not in text
+    (tmp_path / "s.csv").write_text("t,x,y,p\n10,1,1,1\n20,2,2,0\n")
+    run("simulate", tmp_path / "s.csv", "--size", "8x6", "--shot-noise-rate-hz", 1, "--seed", 2, "-o",
+        tmp_path / "n.aedat4")
+    info, _ = read_all(tmp_path / "n.aedat4")
+    assert (info.width, info.height) == (8, 6)
