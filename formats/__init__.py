@@ -100,7 +100,8 @@ def open_events(
         else:
             fmt = detect(source.head, source.path)
             if fmt is None:
-                raise FormatError(f"{source.name}: unknown format (no known magic bytes or extension); give --format")
+                raise FormatError(f"{source.name}: unknown format (no known magic bytes or extension); give "
+                                  "--input-format")
         if fmt.reader is None:
             raise FormatError(f"{source.name}: {fmt.description} cannot be read")
         options = ReadOptions(sensor_size=sensor_size, chunk_events=chunk_events, aedat2_layout=aedat2_layout)
@@ -137,7 +138,8 @@ class _NamedWriter:
 
 
 def output_format(path: str | os.PathLike | None, format: str | None):
-    """The format to write: ``format`` if given, else by extension, else AEDAT 4.0 for stdout."""
+    """The format to write: ``format`` if given, else by extension, else AEDAT 4.0 for stdout and for a path
+    without an extension that is not a regular file (``/dev/null``, a FIFO: streams, like stdout)."""
     if path is not None and os.fspath(path).startswith(TCP_PREFIX):
         if format and by_name(format).name != PIPE_FORMAT:
             raise FormatError(f"{path}: a network output carries AEDAT 4.0, not {by_name(format).description}")
@@ -148,6 +150,8 @@ def output_format(path: str | os.PathLike | None, format: str | None):
         fmt = by_name(PIPE_FORMAT)
     else:
         fmt = from_extension(os.fspath(path))
+        if fmt is None and os.path.exists(path) and not os.path.isfile(path) and not os.path.isdir(path):
+            fmt = by_name(PIPE_FORMAT)
         if fmt is None:
             raise FormatError(f"{path}: cannot tell the output format from the extension; give --format")
     if fmt.writer is None:

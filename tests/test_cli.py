@@ -237,3 +237,14 @@ def test_quiet_and_verbose_before_or_after_the_subcommand(tmp_path):
                  ["bafilter", source, "-o", tmp_path / "c.aedat4", "-q"]):
         assert run(*args).stderr == b""
     assert b"kept" in run("bafilter", source, "-v", "-o", tmp_path / "d.aedat4").stderr
+
+
+def test_devices_take_the_pipe_format_and_hints_name_the_real_option(tmp_path):
+    """`-o /dev/null` needs no --format (a device is a stream, like stdout: AEDAT 4.0); an unknown input's hint
+    names --input-format, the option that exists."""
+    source = Path(__file__).resolve().parents[1] / "samples" / "step.aedat4"
+    assert run("simulate", "scene:bars", "--size", "16x16", "--duration", "50ms", "-o", "/dev/null").returncode == 0
+    assert run("bafilter", source, "-o", "/dev/null").returncode == 0
+    (tmp_path / "x.xyz").write_text("garbage\n")
+    unknown = run("info", tmp_path / "x.xyz", check=False)
+    assert unknown.returncode == 1 and b"--input-format" in unknown.stderr
