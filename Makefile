@@ -1,5 +1,8 @@
 # evtools: `make demo` and `make test` do all the set-up on a fresh machine (Python >= 3.10, 3.11 preferred).
 PYTHON ?= $(shell command -v python3.11 || command -v python3)
+# a pipeline fails when any of its stages fails, not only the last (a cut upstream is an error downstream too)
+SHELL := /bin/bash
+.SHELLFLAGS := -o pipefail -c
 VENV := .venv
 BIN := $(VENV)/bin
 OUT := samples/out

@@ -116,8 +116,8 @@ positive = click.IntRange(min=1)
               help="mlpf: keep an event when its probability of being signal is above this [0.5].")
 @click.option("--weights", type=click.Path(exists=True, dir_okay=False), default=None,
               help="mlpf: weights from `evtools metrics train-denoiser` [the ones shipped with evtools].")
-def bafilter(inputs, input_format, sensor_size, aedat2_layout, output, jobs, scheduler, methods, preset, dt_us, k,
-             radius, polarity, window, distance, learn_us, hot_ratio, hot_rate_hz, hot_min_events, hot_pixels_path,
+def bafilter(inputs, input_format, sensor_size, aedat2_layout, output, jobs, scheduler, as_json, methods, preset,
+             dt_us, k, radius, polarity, window, distance, learn_us, hot_ratio, hot_rate_hz, hot_min_events, hot_pixels_path,
              save_hot_pixels, threshold, weights, polarity_maps):
     """Remove background activity from IN (default stdin), writing OUT or -o OUT (default stdout).
 
@@ -144,7 +144,7 @@ def bafilter(inputs, input_format, sensor_size, aedat2_layout, output, jobs, sch
                    distance=distance, learn_us=learn_us, hot_ratio=hot_ratio, hot_rate_hz=hot_rate_hz,
                    hot_min_events=hot_min_events, hot_pixels_path=hot_pixels_path, save_hot_pixels=save_hot_pixels,
                    threshold=threshold, weights=weights, polarity_maps=polarity_maps)
-    run(filter_one, pairs, options, jobs, scheduler)
+    run(filter_one, pairs, options, jobs, scheduler, as_json)
 
 
 def filter_one(input, output, *, input_format, sensor_size, aedat2_layout, methods, preset, dt_us, k, radius,

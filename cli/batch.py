@@ -11,6 +11,7 @@ any file failed.
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import sys
@@ -49,12 +50,15 @@ batch_output_option = click.option(
 
 def batch_options(function):
     """The options of a stream command that takes one or several inputs: ``IN...``, the input options, ``-o``,
-    ``--jobs`` and ``--scheduler`` (the function takes ``inputs, input_format, sensor_size, aedat2_layout, output,
-    jobs, scheduler``)."""
+    ``--jobs``, ``--scheduler`` and ``--json`` (the function takes ``inputs, input_format, sensor_size, aedat2_layout,
+    output, jobs, scheduler, as_json``)."""
     from evtools.cli.options import aedat2_layout_option, input_format_option, sensor_size_option
 
-    for option in (scheduler_option, jobs_option, batch_output_option, aedat2_layout_option, sensor_size_option,
-                   input_format_option, inputs_argument):
+    json_counts = click.option("--json", "as_json", is_flag=True,
+                               help="Print the counts as JSON (on stdout when the events go to files, else on "
+                                    "stderr) instead of the line or table on stderr.")
+    for option in (json_counts, scheduler_option, jobs_option, batch_output_option, aedat2_layout_option,
+                   sensor_size_option, input_format_option, inputs_argument):
         function = option(function)
     return function
 
@@ -105,11 +109,17 @@ def plan(inputs: tuple[str, ...], output: str | None, suffix: str,
 
 
 def run(one: Callable[..., tuple[int, int]], pairs: list[tuple[str, str]], options: dict[str, Any],
-        jobs: int | None = None, scheduler: str | None = None) -> None:
+        jobs: int | None = None, scheduler: str | None = None, as_json: bool = False) -> None:
     """Run ``one`` on every pair: in this process for a single pair (errors propagate as they always did),
-    else as a batch (see the module docstring)."""
+    else as a batch (see the module docstring). ``as_json``: the counts as JSON (see :func:`_echo_json`)."""
     if len(pairs) == 1 and scheduler is None:
-        one(*pairs[0], **options)
+        started = time.perf_counter()
+        if as_json:
+            logging.getLogger("evtools").setLevel(logging.WARNING)  # the JSON replaces the text line
+        events_in, events_out = one(*pairs[0], **options)
+        if as_json:
+            _echo_json({"input": pairs[0][0], "output": pairs[0][1], "events_in": events_in,
+                        "events_out": events_out, "seconds": round(time.perf_counter() - started, 6)}, pairs)
         return
     jobs = jobs or os.cpu_count() or 1
     started = time.perf_counter()
@@ -129,7 +139,14 @@ def run(one: Callable[..., tuple[int, int]], pairs: list[tuple[str, str]], optio
                 results[name] = result
                 display.done(name, result)
     rows = [(name, results[name]) for name, _ in pairs]
-    if log.getEffectiveLevel() <= logging.INFO:  # not with -q: the table is information, the errors are not
+    if as_json:
+        files = [{"input": name, "output": output, "events_in": result[1], "events_out": result[2],
+                  "seconds": round(result[3], 6)} if result[0] == "ok" else
+                 {"input": name, "output": output, "error": result[1]} for (name, output), (_, result) in
+                 zip(pairs, rows)]
+        _echo_json({"files": files, "failed": sum("error" in f for f in files),
+                    "seconds": round(time.perf_counter() - started, 6)}, pairs)
+    elif log.getEffectiveLevel() <= logging.INFO:  # not with -q: the table is information, the errors are not
         _summary(rows, time.perf_counter() - started)
     else:
         for name, result in rows:
@@ -138,6 +155,13 @@ def run(one: Callable[..., tuple[int, int]], pairs: list[tuple[str, str]], optio
     failed = [name for name, _ in pairs if results[name][0] == "error"]
     if failed:
         raise BatchError(f"{len(failed)} of {len(pairs)} files failed: {', '.join(failed)}")
+
+
+def _echo_json(summary: dict, pairs: list[tuple[str, str]]) -> None:
+    """One JSON object with the command's name first: on stdout unless the events went there, else on stderr."""
+    name = click.get_current_context().command.name
+    to_stderr = any(output in (None, STDIO) for _, output in pairs)
+    click.echo(json.dumps({"command": name, **summary}), err=to_stderr)
 
 
 def run_one(one: Callable[..., tuple[int, int]], input: str, output: str, options: dict[str, Any]) -> tuple:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import logging
+
 import click
 
 from evtools.cli.batch import batch_options, plan, run
@@ -11,6 +13,8 @@ from evtools.formats import create_events, open_events
 from evtools.formats.io import paced
 from evtools.formats.registry import FORMATS, by_name
 from evtools.transform import Transform
+
+log = logging.getLogger("evtools")
 
 
 @click.command()
@@ -30,8 +34,8 @@ from evtools.transform import Transform
 @click.option("--speed", type=click.FloatRange(min=0, min_open=True), default=None, metavar="X",
               help="With --realtime: X times the recorded speed (2: twice as fast).")
 @slicing_options
-def convert(inputs, input_format, sensor_size, aedat2_layout, output, jobs, scheduler, output_format, compression,
-            realtime, speed, start, end, polarity, crop, flip_x, flip_y, transpose):
+def convert(inputs, input_format, sensor_size, aedat2_layout, output, jobs, scheduler, as_json, output_format,
+            compression, realtime, speed, start, end, polarity, crop, flip_x, flip_y, transpose):
     """Convert IN (default stdin) to OUT or -o OUT (default stdout), chunk by chunk in bounded memory.
 
     Several inputs go to the folder -o FOLDER, each named after its input with --format's extension.
@@ -51,7 +55,7 @@ def convert(inputs, input_format, sensor_size, aedat2_layout, output, jobs, sche
                    output_format=output_format, compression=compression, speed=speed or 1.0 if realtime else None,
                    slicing=dict(start=start, end=end, polarity=polarity, crop=crop, flip_x=flip_x, flip_y=flip_y,
                                 transpose=transpose))
-    run(convert_one, pairs, options, jobs, scheduler)
+    run(convert_one, pairs, options, jobs, scheduler, as_json)
 
 
 def convert_one(input, output, *, input_format, sensor_size, aedat2_layout, output_format, compression, speed=None,
@@ -75,4 +79,5 @@ def convert_one(input, output, *, input_format, sensor_size, aedat2_layout, outp
                 events_out += len(chunk)
                 if transform and transform.done:  # past --end: the rest of the input is not read
                     break
+    log.info(f"convert: {events_in:,} events in, {events_out:,} out")
     return events_in, events_out

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import logging
+
 import click
 
 from evtools.cli.batch import batch_options, plan, run
@@ -9,6 +11,8 @@ from evtools.cli.progress import process_stream
 from evtools.correction import CORRECT_DEFAULTS, MAX_WINDOW_US, MODES, CorrectionError, ThresholdCorrector
 from evtools.formats import create_events, open_events
 from evtools.formats.thresholds import read_thresholds
+
+log = logging.getLogger("evtools")
 
 
 def _target(ctx, param, value):
@@ -47,8 +51,8 @@ def _target(ctx, param, value):
 @click.option("--start-us", type=int, default=None, metavar="T",
               help="exponential, turns, highpass: time the sensor started (every pixel at its reference); default: the first "
                    "event.")
-def correct(inputs, input_format, sensor_size, aedat2_layout, output, jobs, scheduler, thresholds_path, target, mode,
-            hold_us, max_gap_us, tau_us, start_us):
+def correct(inputs, input_format, sensor_size, aedat2_layout, output, jobs, scheduler, as_json, thresholds_path,
+            target, mode, hold_us, max_gap_us, tau_us, start_us):
     """Re-sample every pixel of IN (default stdin) at one target threshold; write -o OUT (default stdout).
 
     Several inputs (one camera's recordings) go to the folder -o FOLDER.
@@ -66,7 +70,7 @@ def correct(inputs, input_format, sensor_size, aedat2_layout, output, jobs, sche
     options = dict(input_format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout,
                    thresholds_path=thresholds_path, target=target, mode=mode, hold_us=hold_us,
                    max_gap_us=max_gap_us, tau_us=tau_us, start_us=start_us)
-    run(correct_one, pairs, options, jobs, scheduler)
+    run(correct_one, pairs, options, jobs, scheduler, as_json)
 
 
 def correct_one(input, output, *, input_format, sensor_size, aedat2_layout, thresholds_path, target, mode, hold_us,
@@ -84,4 +88,7 @@ def correct_one(input, output, *, input_format, sensor_size, aedat2_layout, thre
         except CorrectionError as error:
             raise CorrectionError(f"{thresholds_path}: {error}") from None
         with create_events(output, stream.info, inputs=(input, thresholds_path)) as writer:
-            return process_stream(stream, corrector, writer, f"correcting {stream.name}")
+            events_in, events_out = process_stream(stream, corrector, writer, f"correcting {stream.name}")
+    log.info(f"correct {mode}: {events_in:,} events in, {events_out:,} out (target {corrector.target_on:.4g} ON, "
+             f"{corrector.target_off:.4g} OFF)")
+    return events_in, events_out

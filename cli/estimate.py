@@ -113,7 +113,8 @@ def _stimulus(levels, period_us, profile, amplitude, speed, wavelength, rise) ->
                    "replaces --stimulus-period.")
 @click.option("--stimulus-wavelength", type=click.FloatRange(min=0, min_open=True), default=None, metavar="PX",
               help="stimulus: a moving gradient's rise-and-fall length (simulate's --wavelength).")
-def estimate(inputs, input_format, sensor_size, aedat2_layout, output, jobs, scheduler, method, segment_us, nominal, radius, online,
+def estimate(inputs, input_format, sensor_size, aedat2_layout, output, jobs, scheduler, as_json,
+             method, segment_us, nominal, radius, online,
              interval, forget, min_events,
              max_fit, stimulus_amplitude, stimulus_levels, stimulus_period, stimulus_profile, stimulus_rise,
              stimulus_phase, stimulus_speed, stimulus_wavelength):
@@ -148,7 +149,7 @@ def estimate(inputs, input_format, sensor_size, aedat2_layout, output, jobs, sch
                    parameters=dict(method=method, nominal=nominal, segment_us=segment_us, stimulus=stimulus,
                                    phase=stimulus_phase, min_events=min_events, max_fit=max_fit, radius_px=radius,
                                    interval_us=interval_us, forget_us=forget))
-    run(estimate_one, pairs, options, jobs, scheduler)
+    run(estimate_one, pairs, options, jobs, scheduler, as_json)
 
 
 def estimate_one(input, output, *, input_format, sensor_size, aedat2_layout, parameters) -> tuple[int, int]:

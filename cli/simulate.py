@@ -4,6 +4,8 @@ labelled noise added to an event stream."""
 from __future__ import annotations
 
 import inspect
+import json
+import logging
 import math
 import os
 import re
@@ -15,7 +17,7 @@ import click
 import numpy as np
 
 from evtools import interrupt
-from evtools.cli.options import Duration, aedat2_layout_option, input_format_option, sensor_size_option
+from evtools.cli.options import Duration, aedat2_layout_option, input_format_option
 from evtools.cli.progress import with_progress
 from evtools.events import CHUNK_EVENTS, StreamInfo, join, parse_sensor_size
 from evtools.noise import NOISE_DEFAULTS, NoiseInjector
@@ -32,6 +34,8 @@ from evtools.simulation import (
 from evtools.formats import create_events, open_events
 from evtools.formats.io import STDIO, HEAD_BYTES, output_stream, same_file
 from evtools.formats.registry import FORMATS, detect
+
+log = logging.getLogger("evtools")
 
 DEFAULT_SCENE_SIZE = "346x260"
 """A DAVIS346, the sensor v2e and the report emulate."""
@@ -421,8 +425,10 @@ def _float_option(name: str, help: str):
 @click.option("--min-level", type=float, default=None, help="Scene's darkest intensity, 0-255 (default 50).")
 @click.option("--max-level", type=float, default=None, help="Scene's brightest intensity, 0-255 (default 200).")
 @click.option("--level", type=float, default=None, help="static: intensity, 0-255 (default 128).")
+@click.option("--json", "as_json", is_flag=True,
+              help="Print the counts as JSON (on stdout when the events go to a file, else on stderr).")
 def simulate(source, output, output_format, truth, truth_frame_rate, input_format, sensor_size, aedat2_layout, size,
-             duration, fps, timestamps, preset, seed, **options):
+             duration, fps, timestamps, preset, seed, as_json, **options):
     """Simulate a DVS looking at SOURCE: a video file, a folder of images, or scene:NAME; or add labelled noise
     to SOURCE when it is an event stream (any readable format, `-` for stdin).
 
@@ -455,7 +461,7 @@ def simulate(source, output, output_format, truth, truth_frame_rate, input_forma
         parameters["leak_spread_decades"] = NOISE_DEFAULTS["leak_spread_decades"]
         parameters.update({key: value for key, value in given.items()})
         stream_options = {"format": input_format, "sensor_size": sensor_size, "aedat2_layout": aedat2_layout}
-        _inject(source, output, output_format, truth, preset, seed, parameters, stream_options)
+        _inject(source, output, output_format, truth, preset, seed, parameters, stream_options, as_json)
         return
     for name, value in (("--input-format", input_format), ("--aedat2-layout", aedat2_layout)):
         if value is not None:
@@ -480,16 +486,19 @@ def simulate(source, output, output_format, truth, truth_frame_rate, input_forma
     description = f"evtools simulate {frames.name} seed={simulator.seed}"
     info = StreamInfo(frames.width, frames.height, metadata={"source": description})
     inputs = (source,) if not source.startswith("scene:") else ()
+    counts = np.zeros(len(LABELS), np.int64)
     with create_events(output, info, format=output_format, inputs=inputs) as writer:
         if truth is None:
-            _run(simulator, frames, writer, None)
+            _run(simulator, frames, writer, None, counts)
         else:
             import h5py
 
             with output_stream(truth, binary_name="HDF5", needs_seek=True) as stream, h5py.File(stream, "w") as h5:
                 _start_truth(h5, simulator, frames, preset)
                 rate_hz = TRUTH_FRAME_RATE_HZ if truth_frame_rate is None else truth_frame_rate
-                _run(simulator, frames, writer, h5["label"], _LogFrames(h5, frames, rate_hz) if rate_hz else None)
+                _run(simulator, frames, writer, h5["label"], counts,
+                     _LogFrames(h5, frames, rate_hz) if rate_hz else None)
+    _report(source, output, counts, as_json)
 
 
 def _start_truth(h5, simulator: DvsSimulator, frames: FrameSource, preset: str | None) -> None:
@@ -524,12 +533,13 @@ class _LabelledSink:
     """Buffers events and their labels to about a million, then writes the events and appends the labels to the
     truth file's ``label`` dataset (None: no truth file), so both stay in output order."""
 
-    def __init__(self, writer, labels_dataset) -> None:
-        self.writer, self.labels_dataset = writer, labels_dataset
+    def __init__(self, writer, labels_dataset, counts: np.ndarray) -> None:
+        self.writer, self.labels_dataset, self.counts = writer, labels_dataset, counts
         self.pending, self.pending_labels, self.held = [], [], 0
 
     def add(self, events: np.ndarray, labels: np.ndarray) -> None:
         if len(events):
+            self.counts += np.bincount(labels, minlength=len(self.counts))[:len(self.counts)]
             self.pending.append(events)
             self.pending_labels.append(labels)
             self.held += len(events)
@@ -578,8 +588,8 @@ class _LogFrames:
         self.times[n] = t_us
 
 
-def _run(simulator: DvsSimulator, frames: FrameSource, writer, labels_dataset, log_frames=None) -> None:
-    sink = _LabelledSink(writer, labels_dataset)
+def _run(simulator: DvsSimulator, frames: FrameSource, writer, labels_dataset, counts, log_frames=None) -> None:
+    sink = _LabelledSink(writer, labels_dataset, counts)
     with interrupt.consuming():  # Ctrl-C / SIGTERM: stop after the frame at hand, outputs complete
         for t_us, frame in _progress(frames):
             if log_frames is not None:
@@ -603,7 +613,26 @@ def _check_truth_path(truth: str | None, output: str | None, source: str) -> Non
         raise SimulationError(f"{truth}: --truth would overwrite the input; choose another file")
 
 
-def _inject(source, output, output_format, truth, preset, seed, parameters, stream_options) -> None:
+def _inject(source, output, output_format, truth, preset, seed, parameters, stream_options, as_json) -> None:
+    counts = np.zeros(len(LABELS), np.int64)
+    _inject_into(source, output, output_format, truth, preset, seed, parameters, stream_options, counts)
+    _report(source, output, counts, as_json)
+
+
+def _report(source: str, output: str | None, counts: np.ndarray, as_json: bool) -> None:
+    """The one-line summary on stderr (not with -q); with --json, the same as JSON (on stdout when the events go
+    to a file, else on stderr)."""
+    per_label = {name: int(counts[code]) for code, name in LABELS.items()}
+    summary = {"command": "simulate", "source": source, "output": output or STDIO, "events": int(counts.sum()),
+               **per_label}
+    if as_json:
+        click.echo(json.dumps(summary), err=output in (None, STDIO))
+        return
+    log.info(f"simulate: {summary['events']:,} events ("
+             + ", ".join(f"{count:,} {name}" for name, count in per_label.items()) + ")")
+
+
+def _inject_into(source, output, output_format, truth, preset, seed, parameters, stream_options, counts) -> None:
     """``evtools simulate EVENTS``: the stream's events unchanged plus labelled noise, chunk by chunk."""
     _check_truth_path(truth, output, source)
     with open_events(source, **stream_options) as stream:
@@ -612,7 +641,7 @@ def _inject(source, output, output_format, truth, preset, seed, parameters, stre
         info = StreamInfo(width, height, metadata={"source": f"evtools simulate {stream.name} seed={injector.seed}"})
         with create_events(output, info, format=output_format, inputs=(source,)) as writer:
             if truth is None:
-                _run_injector(injector, stream, writer, None)
+                _run_injector(injector, stream, writer, None, counts)
                 return
             import h5py
 
@@ -634,15 +663,15 @@ def _inject(source, output, output_format, truth, preset, seed, parameters, stre
                 }
                 for key, value in attributes.items():
                     h5.attrs[key] = _attribute(value)
-                first, last = _run_injector(injector, stream, writer, h5["label"])
+                first, last = _run_injector(injector, stream, writer, h5["label"], counts)
                 if first is not None:  # the noise spans the input's events, these two times included
                     h5.attrs["t_first_us"], h5.attrs["t_last_us"] = first, last
 
 
-def _run_injector(injector: NoiseInjector, stream, writer, labels_dataset) -> tuple[int, int]:
+def _run_injector(injector: NoiseInjector, stream, writer, labels_dataset, counts) -> tuple[int, int]:
     """Feed the stream through the injector into the writer (and the labels into the truth file); returns the
     times of the first and last input events."""
-    sink = _LabelledSink(writer, labels_dataset)
+    sink = _LabelledSink(writer, labels_dataset, counts)
     first = last = None
 
     for chunk in with_progress(stream, stream, f"adding noise to {stream.name}"):

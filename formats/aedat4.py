@@ -14,6 +14,7 @@ fixed number of events so that the bytes written never depend on the input's chu
 
 from __future__ import annotations
 
+import logging
 import os
 import struct
 import threading
@@ -91,6 +92,13 @@ def _parse_ioheader(data: bytes, name: str) -> tuple[int, int, str]:
     return compression, data_position, description
 
 
+END_MARK_KEY = "evtoolsEndMark"
+"""An evtools writer says (this attribute, true, in the event stream's info node) that it ends its stream with an
+empty event packet, its end mark: DV, dv-processing and ``aedat`` read the packet as no events and the attribute
+as nothing. A stream that says so and ends without the mark was cut (its writer killed, a pipe broken at a packet
+boundary): on a pipe or socket an error, on a file a warning."""
+
+
 def _parse_streams(description: str, name: str) -> dict[int, dict]:
     """Stream id -> {type, size, source, ...} from the IOHeader's XML description."""
     try:
@@ -111,6 +119,7 @@ def _parse_streams(description: str, name: str) -> dict[int, dict]:
             "width": info_attrs.get("sizeX"),
             "height": info_attrs.get("sizeY"),
             "source": info_attrs.get("source", ""),
+            "end_mark": info_attrs.get(END_MARK_KEY, "").strip().lower() == "true",
         }
     return streams
 
@@ -176,6 +185,8 @@ class Aedat4Reader:
             raise FormatError(f"{self.name}: AEDAT 4.0 file has no event stream")
         self.stream_id = event_ids[0]
         events = streams[self.stream_id]
+        self.expects_end_mark = events["end_mark"]
+        self._last_count: int | None = None  # events in the last event packet read (0: the end mark)
         try:
             from_file = (int(events["width"]), int(events["height"])) if events["width"] else None
         except ValueError:
@@ -241,6 +252,7 @@ class Aedat4Reader:
                                                           self.name, offset))
                     continue
                 yield from self._make_room(count)
+                self._last_count = count
                 target = self._chunk[self._filled: self._filled + count]  # straight from the file into the chunk
                 target_bytes = target.view(np.uint8)
                 have = len(start) - events_at
@@ -257,6 +269,17 @@ class Aedat4Reader:
         if self._filled:
             yield self._chunk[:self._filled]
         self.info.metadata["skipped_packets"] = skipped_packets
+        if self.expects_end_mark and self._last_count != 0:
+            self._cut()
+
+    def _cut(self) -> None:
+        """A stream whose writer promised an end mark ended without it: an error on a pipe or socket (the writer
+        was stopped), a warning on a file."""
+        message = (f"{self.name}: the stream ends without the end mark its writer (evtools) puts after the last "
+                   "packet: it was cut (the writer killed or the copy broken off), events may be missing")
+        if self.source.live:
+            raise FormatError(message)
+        logging.getLogger("evtools").warning(message)
 
     def _packet_waits(self) -> bool:
         """True when the next packet of a live input has arrived whole (reading it would not wait)."""
@@ -285,6 +308,7 @@ class Aedat4Reader:
     def _place(self, events: np.ndarray) -> Iterator[np.ndarray]:
         """Append one packet's events to the chunk (yielding the chunk first if they do not fit)."""
         yield from self._make_room(len(events))
+        self._last_count = len(events)
         _copy_records(self._chunk[self._filled: self._filled + len(events)], events)
         self._filled += len(events)
 
@@ -333,6 +357,7 @@ def _description(info: StreamInfo, compression: int) -> str:
         f'                <attr key="sizeX" type="int">{info.width}</attr>\n'
         f'                <attr key="sizeY" type="int">{info.height}</attr>\n'
         f'                <attr key="source" type="string">{source}</attr>\n'
+        f'                <attr key="{END_MARK_KEY}" type="bool">true</attr>\n'
         '            </node>\n'
         '        </node>\n'
         '    </node>\n'
@@ -400,4 +425,9 @@ class Aedat4Writer:
         self.stream.flush()
 
     def close(self) -> None:
-        self.flush()
+        """Write what is held, then the end mark (an empty event packet, see :data:`END_MARK_KEY`)."""
+        self._flush()
+        prefix = _packet_prefix(0)
+        body = prefix if self.compress is None else self.compress(prefix)
+        self.stream.write(struct.pack("<iI", 0, len(body)) + body)
+        self.stream.flush()

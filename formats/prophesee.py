@@ -227,3 +227,86 @@ class ProphesseeRawReader:
         for events in self._events(self.info.metadata):
             if len(events):
                 yield events
+
+
+DAT_RECORD = np.dtype([("t", "<u4"), ("w", "<u4")])
+"""A Prophesee DAT record: time (us, 32 bits, wrapping) and x (bits 0-13), y (14-27), polarity (28-31)."""
+
+
+class PropheseeDatReader:
+    """Read a Prophesee DAT file (Metavision's older recording format): ``%`` header lines (``% Version 2``,
+    ``% Width W``, ``% Height H``, ``% Date ...``), one byte of event type and one of event size (8), then 8-byte
+    records (:data:`DAT_RECORD`). The 32-bit times are unwrapped (a fall of more than half the range is a wrap).
+    Only the version-2 layout is read; another version is refused, not guessed."""
+
+    def __init__(self, source: Source, options: ReadOptions) -> None:
+        self.source, self.name = source, source.name
+        self.chunk_events = max(1, int(options.chunk_events))
+        stream = source.stream
+        lines: list[str] = []
+        first = stream.read(1)
+        while first == b"%":
+            lines.append(("%" + stream.readline().decode("latin-1")).rstrip("\r\n"))
+            first = stream.read(1)
+        header = parse_header(lines)
+        kind_and_size = first  # the byte after the header: the event type
+        if not lines:
+            raise FormatError(f"{self.name}: not a Prophesee DAT file (no '%' header lines)")
+        version = header.get("version", "").strip()
+        if version not in ("2", "2.0"):
+            raise FormatError(f"{self.name}: Prophesee DAT version {version or '(not stated)'}; evtools reads version 2")
+        size = stream.read(1)
+        if len(kind_and_size) != 1 or len(size) != 1:
+            raise FormatError(f"{self.name}: truncated Prophesee DAT header (no event type and size bytes)")
+        if size[0] != DAT_RECORD.itemsize:
+            raise FormatError(f"{self.name}: Prophesee DAT events of {size[0]} bytes; evtools reads 8-byte events")
+        self.event_type = kind_and_size[0]
+        stated = None
+        if header.get("width", "").isdigit() and header.get("height", "").isdigit():
+            stated = int(header["width"]), int(header["height"])
+        width, height = resolve_sensor_size(source, stated, options.sensor_size, scan=self._scan)
+        self.info = StreamInfo(width, height, "prophesee_dat", metadata={"header": header,
+                                                                         "event_type": self.event_type})
+
+    def _records(self) -> Iterator[np.ndarray]:
+        stream = self.source.stream
+        pending = b""
+        while True:
+            data = stream.read(self.chunk_events * DAT_RECORD.itemsize - len(pending))
+            buffer = pending + data if pending else data
+            whole = len(buffer) // DAT_RECORD.itemsize * DAT_RECORD.itemsize
+            if whole:
+                yield np.frombuffer(buffer, DAT_RECORD, whole // DAT_RECORD.itemsize)
+            pending = buffer[whole:]
+            if not data:
+                break
+        if pending:
+            raise FormatError(f"{self.name}: truncated Prophesee DAT event at the end ({len(pending)} of 8 bytes)")
+
+    def _events(self) -> Iterator[np.ndarray]:
+        last, loops = -1, 0
+        for records in self._records():
+            t = records["t"].astype(np.int64)
+            previous = np.concatenate(([t[0] if last < 0 else last], t[:-1]))
+            wraps = loops + np.cumsum(previous - t > (1 << 31))
+            last, loops = int(t[-1]), int(wraps[-1])
+            out = np.empty(len(records), dtype=EVENT_DTYPE)
+            w = records["w"]
+            out["t"] = t + (wraps << 32)
+            out["x"] = w & 0x3FFF
+            out["y"] = (w >> 14) & 0x3FFF
+            out["p"] = (w >> 28) != 0
+            yield out
+
+    def _scan(self) -> tuple[int, int]:
+        stream = self.source.stream
+        position = stream.tell()
+        width = height = 0
+        for events in self._events():
+            width = max(width, int(events["x"].max()) + 1)
+            height = max(height, int(events["y"].max()) + 1)
+        stream.seek(position)
+        return width, height
+
+    def __iter__(self) -> Iterator[np.ndarray]:
+        yield from self._events()

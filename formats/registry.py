@@ -68,6 +68,12 @@ def _is_prophesee(head: bytes) -> bool:
     return head.startswith(b"% ") and (b"evt" in head[:2048].lower())
 
 
+def _is_prophesee_dat(head: bytes) -> bool:
+    """Prophesee DAT: '%' header lines with a version or size line and no EVT line (that is a RAW file)."""
+    return head.startswith(b"% ") and not _is_prophesee(head) and any(
+        key in head[:2048] for key in (b"% Version", b"% Height", b"% Width", b"% Date"))
+
+
 def _is_text(head: bytes, delimiter: bytes) -> bool:
     """Printable ASCII whose first lines (``#`` comments aside) are comma-separated (csv) or numbers and spaces (txt)."""
     try:
@@ -88,6 +94,8 @@ def _is_text(head: bytes, delimiter: bytes) -> bool:
 FORMATS: tuple[Format, ...] = (
     Format("aedat4", "AEDAT 4.0 (DV, dv-processing)", (".aedat4",), lambda h: h.startswith(b"#!AER-DAT4.0") or h[8:12] == b"IOHE",
            "evtools.formats.aedat4:Aedat4Reader", "evtools.formats.aedat4:Aedat4Writer"),
+    Format("prophesee_dat", "Prophesee DAT (Metavision, version 2)", (), _is_prophesee_dat,
+           "evtools.formats.prophesee:PropheseeDatReader", None),
     Format("aedat2", "AEDAT 2.0 (jAER)", (".aedat", ".dat"), lambda h: h.startswith(b"#!AER-DAT2"),
            "evtools.formats.aedat2:Aedat2Reader", "evtools.formats.aedat2:Aedat2Writer"),
     Format("aedat3", "AEDAT 3.1 (cAER, libcaer)", (".aedat3",), lambda h: h.startswith(b"#!AER-DAT3"),

@@ -28,8 +28,9 @@ class _NetworkBuffer(io.BytesIO):
     network = True  # the AEDAT 4.0 writer leaves out the file's first line: a stream as a camera serves it
 
 
-def paced_packets(events: np.ndarray, info, packet_us: int) -> tuple[bytes, list[bytes], np.ndarray]:
-    """The stream's header, its packets (one per ``packet_us`` of event time) and each packet's last event time."""
+def paced_packets(events: np.ndarray, info, packet_us: int) -> tuple[bytes, list[bytes], np.ndarray, bytes]:
+    """The stream's header, its packets (one per ``packet_us`` of event time), each packet's last event time, and
+    the writer's end mark (sent after the last packet)."""
     buffer = _NetworkBuffer()
     writer = Aedat4Writer(buffer, info, WriteOptions())
     header = buffer.getvalue()
@@ -43,7 +44,9 @@ def paced_packets(events: np.ndarray, info, packet_us: int) -> tuple[bytes, list
             packets.append(buffer.getvalue()[before:])
             last_t_us.append(int(events["t"][end - 1]))
             start = end
-    return header, packets, np.array(last_t_us)
+    before = buffer.tell()
+    writer.close()
+    return header, packets, np.array(last_t_us), buffer.getvalue()[before:]
 
 
 def _read_fifo(path: str, arrivals: list) -> None:
@@ -53,7 +56,7 @@ def _read_fifo(path: str, arrivals: list) -> None:
 
 
 def pipeline_latency_ms(stages: list[list[str]], header: bytes, packets: list[bytes], last_t_us: np.ndarray,
-                        folder: Path, env=None) -> np.ndarray:
+                        end_mark: bytes, folder: Path, env=None) -> np.ndarray:
     """Runs ``evtools STAGE[0] - | evtools STAGE[1] - | ... -o FIFO.csv`` fed at the events' own pace; the
     latency of every output event in ms (raises if a stage fails)."""
     fifo = str(folder / "latency-out.csv")
@@ -83,6 +86,7 @@ def pipeline_latency_ms(stages: list[list[str]], header: bytes, packets: list[by
         source.write(packet)
         source.flush()
         sent_s[index] = time.monotonic()
+    source.write(end_mark)  # the stream ends whole (a stream cut short is an error downstream)
     source.close()
     for process in processes:
         errors = process.stderr.read()

@@ -1,6 +1,7 @@
 """AEDAT 4.0: evtools' reader against `aedat` and dv-processing, its writer read back by both, chunk invariance."""
 
 import io
+import struct
 
 import numpy as np
 import pytest
@@ -181,3 +182,49 @@ def test_many_compressed_packets_in_order_and_a_corrupt_one_named(tmp_path, comp
 
     with pytest.raises(EvtoolsError, match="many.aedat4: (cannot decompress packet at byte|truncated|time goes)"):
         read_all(path)
+
+
+@pytest.mark.parametrize("compression", ["none", "lz4"])
+def test_a_stream_cut_at_a_packet_boundary_is_not_passed_as_whole(tmp_path, compression):
+    """evtools ends every AEDAT 4.0 stream with an end mark (an empty event packet, announced in the header):
+    dv-processing reads such a file as before; without the mark, a pipe is an error (exit 1, one line, no output)
+    and a file a warning (its events are read); a stream of another writer is not checked."""
+    import subprocess
+
+    from tests.helpers import EVTOOLS
+
+    events = random_events(5000, 64, 48, seed=3)
+    whole = tmp_path / "whole.aedat4"
+    with create_events(whole, StreamInfo(64, 48), compression=compression) as writer:
+        writer.write(events[:2500])
+        writer.write(events[2500:])
+    data = whole.read_bytes()
+    assert b'key="evtoolsEndMark"' in data[:2000]
+    position = len(b"#!AER-DAT4.0\r\n") + 4 + struct.unpack_from("<I", data, len(b"#!AER-DAT4.0\r\n"))[0]
+    packets = []
+    while position < len(data):
+        packets.append(position)
+        position += 8 + struct.unpack_from("<iI", data, position)[1]
+    assert position == len(data) and len(packets) >= 2
+    cut = tmp_path / "cut.aedat4"
+    cut.write_bytes(data[:packets[-1]])  # the end mark removed: a cut at a packet boundary
+    assert len(_read_by_dv(whole)) == 5000
+    piped = subprocess.run([EVTOOLS, "convert", "-", "-o", tmp_path / "out.aedat4"], input=cut.read_bytes(),
+                           capture_output=True)
+    assert piped.returncode == 1 and piped.stderr.count(b"\n") == 1 and b"without the end mark" in piped.stderr
+    assert not (tmp_path / "out.aedat4").exists()
+    from_file = subprocess.run([EVTOOLS, "info", cut], capture_output=True)
+    assert from_file.returncode == 0 and b"warning" in from_file.stderr and b"without the end mark" in from_file.stderr
+    assert_same_events(read_all(cut)[1], events)
+    intact = subprocess.run([EVTOOLS, "info", whole], capture_output=True)
+    assert intact.returncode == 0 and intact.stderr == b""
+
+
+def _read_by_dv(path):
+    dv = pytest.importorskip("dv_processing", reason="dv-processing (the test extra) reads the file back")
+    recording, batches = dv.io.MonoCameraRecording(str(path)), []
+    while recording.isRunning():
+        batch = recording.getNextEventBatch()
+        if batch is not None:
+            batches.append(batch.numpy())
+    return np.concatenate(batches)

@@ -248,3 +248,38 @@ def test_devices_take_the_pipe_format_and_hints_name_the_real_option(tmp_path):
     (tmp_path / "x.xyz").write_text("garbage\n")
     unknown = run("info", tmp_path / "x.xyz", check=False)
     assert unknown.returncode == 1 and b"--input-format" in unknown.stderr
+
+
+def test_json_counts_of_the_stream_commands(tmp_path):
+    """--json on bafilter, convert, correct and simulate: the counts as one JSON object, on stdout when the events
+    go to a file and on stderr when they go to stdout (stdout carries data only); a batch gives every file."""
+    samples = Path(__file__).resolve().parents[1] / "samples"
+    source, truth = samples / "step.aedat4", samples / "step.truth.h5"
+    filtered = json.loads(run("bafilter", source, "-o", tmp_path / "a.aedat4", "--json").stdout)
+    assert filtered["command"] == "bafilter" and filtered["events_in"] == 14_811
+    _, kept = read_all(tmp_path / "a.aedat4")
+    assert filtered["events_out"] == len(kept)
+    converted = json.loads(run("convert", source, "-o", tmp_path / "b.csv", "--json").stdout)
+    assert converted["events_in"] == converted["events_out"] == 14_811
+    piped = run("correct", source, "--thresholds", truth, "--json")
+    assert piped.stdout.startswith(b"#!AER-DAT4.0")
+    corrected = json.loads(piped.stderr)
+    assert corrected["command"] == "correct" and corrected["output"] == "-" and corrected["events_out"] > 0
+    simulated = json.loads(run("simulate", "scene:bars", "--size", "16x16", "--duration", "100ms", "--seed", 1,
+                               "-o", tmp_path / "c.aedat4", "--json").stdout)
+    assert simulated["events"] == simulated["signal"] + simulated["leak"] + simulated["shot"] + simulated["hot"]
+    assert simulated["events"] == len(read_all(tmp_path / "c.aedat4")[1])
+    batch = json.loads(run("convert", source, samples / "flicker.aedat4", "-o", tmp_path / "many", "--json").stdout)
+    assert [f["events_in"] for f in batch["files"]] == [14_811, 19_382] and batch["failed"] == 0
+
+
+def test_shell_completion_offers_subcommands_and_options():
+    """The completion documented in the README: bash_complete answers with the subcommand and its options."""
+    def complete(words: str, index: int) -> str:
+        env = {**os.environ, "COMP_WORDS": words, "COMP_CWORD": str(index), "_EVTOOLS_COMPLETE": "bash_complete"}
+        return subprocess.run([EVTOOLS], env=env, capture_output=True, text=True, timeout=60).stdout
+
+    assert "plain,bafilter" in complete("evtools baf", 1)
+    assert "plain,--polarity-maps" in complete("evtools bafilter --polarity", 2)
+    assert "_evtools_completion" in subprocess.run([EVTOOLS], env={**os.environ, "_EVTOOLS_COMPLETE": "bash_source"},
+                                                    capture_output=True, text=True, timeout=60).stdout

@@ -264,9 +264,10 @@ def test_cli_bad_inputs_give_one_line_errors(tmp_path):
     assert_clean_error(run("simulate", walk_path, "--hot-pixel-fraction", "2", "-o", out, check=False),
                        "--hot-pixel-fraction must be")
     assert_clean_error(run("simulate", walk_path, "--cutoff-hz", "30", "-o", out, check=False), "--cutoff-hz")
-    assert_clean_error(run("simulate", walk_path, "--size", "64x64", "-o", out, check=False), "--sensor-size")
+    smaller = run("simulate", walk_path, "--size", "64x64", "-o", out, check=False)  # --size: the stream's size
+    assert smaller.returncode == 1 and b"outside the 64x64 sensor" in smaller.stderr
     assert_clean_error(run("simulate", walk_path, "--truth", walk_path, "-o", out, check=False), "overwrite")
     assert_clean_error(run("simulate", "-", "-o", out, check=False, input=b""), "empty input")
-    assert_clean_error(run("simulate", "scene:static", "--sensor-size", "8x8", "-o", out, check=False),
+    assert_clean_error(run("simulate", "scene:static", "--aedat2-layout", "dvs128", "-o", out, check=False),
                        "event-stream sources only")
     assert not out.exists()

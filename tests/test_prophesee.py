@@ -143,3 +143,39 @@ def test_bad_input_names_the_file(tmp_path):
     path.write_bytes(b"% camera prophesee\n" + bytes(8))
     with pytest.raises(FormatError, match=r"bad\.raw.*EVT version"):
         read_all(path, format="prophesee")
+
+
+def _dat(records, version="2", width=640, height=480, size=8) -> bytes:
+    """A Prophesee DAT file written from its description: '%' lines, type and size bytes, (t, w) uint32 pairs."""
+    import struct
+
+    header = (f"% Data file containing CD events.\n% Version {version}\n% Date 2020-01-02 03:04:05\n"
+              f"% Height {height}\n% Width {width}\n").encode()
+    body = b"".join(struct.pack("<II", t, x | (y << 14) | (p << 28)) for t, x, y, p in records)
+    return header + bytes([0x0C, size]) + body
+
+
+def test_prophesee_dat_is_read_and_not_taken_for_aedat2(tmp_path):
+    from evtools.formats import FormatError, open_events
+
+    records = [(10, 5, 7, 1), (20, 639, 479, 0), (4_294_967_290, 1, 2, 1), (5, 3, 4, 0)]  # the last: a wrap
+    path = tmp_path / "rec.dat"
+    path.write_bytes(_dat(records))
+    with open_events(path) as stream:
+        assert stream.info.format == "prophesee_dat" and (stream.info.width, stream.info.height) == (640, 480)
+        events = np.concatenate(list(stream))
+    assert events["t"].tolist() == [10, 20, 4_294_967_290, (1 << 32) + 5]
+    assert events["x"].tolist() == [5, 639, 1, 3] and events["y"].tolist() == [7, 479, 2, 4]
+    assert events["p"].tolist() == [True, False, True, False]
+    import evtools
+
+    jaer = tmp_path / "jaer.dat"  # jAER also names AEDAT 2.0 files .dat: its magic line decides
+    evtools.write(jaer, make_events([1, 2], [3, 4], [5, 6], [1, 0]), evtools.StreamInfo(128, 128))
+    with open_events(jaer) as stream:
+        assert stream.info.format == "aedat2"
+    for data, needle in ((_dat(records, version="1"), "version 1"), (_dat(records, size=12), "12 bytes"),
+                         (_dat(records)[:-3], "truncated")):
+        path.write_bytes(data)
+        with pytest.raises(FormatError, match=needle):
+            with open_events(path) as stream:
+                list(stream)

@@ -58,15 +58,15 @@ def main() -> None:
     print(f"{'rate ev/s':>10} {'stages':<26} {'events out':>10} {'median ms':>9} {'p99 ms':>7} {'max ms':>7} "
           f"{'p99 this stage':>14}")
     for rate_hz in map(int, arguments.rates.split(",")):
-        header, packets, last_t_us = paced_source(rate_hz, arguments.seconds)
+        header, packets, last_t_us, end_mark = paced_source(rate_hz, arguments.seconds)
         warm = folder / f"warm-{rate_hz}"
         warm.mkdir()
-        pipeline_latency_ms(stages, header, packets[:100], last_t_us[:100], warm)  # kernels compiled and cached
+        pipeline_latency_ms(stages, header, packets[:100], last_t_us[:100], end_mark, warm)  # kernels compiled
         previous_p99 = 0.0
         for count in range(1, len(stages) + 1):
             run = folder / f"{rate_hz}-{count}"
             run.mkdir()
-            latency_ms = pipeline_latency_ms(stages[:count], header, packets, last_t_us, run)
+            latency_ms = pipeline_latency_ms(stages[:count], header, packets, last_t_us, end_mark, run)
             p99 = float(np.percentile(latency_ms, 99))
             names = " | ".join(stage[0] for stage in stages[:count])
             print(f"{rate_hz:>10,} {names:<26} {len(latency_ms):>10,} {np.median(latency_ms):>9.1f} {p99:>7.1f} "
