@@ -7,7 +7,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 OUT := samples/out
 
-.PHONY: demo test bench docs clean
+.PHONY: demo test bench fuzz docs clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -53,6 +53,10 @@ demo: $(VENV)/.installed
 
 test: $(VENV)/.installed-test
 	$(BIN)/python -m pytest -q
+
+# the readers against 2,000 mutants of every format, each format in a child under a memory and time limit
+fuzz: $(VENV)/.installed-test
+	$(BIN)/python -m tests.fuzz all 2000
 
 bench: $(VENV)/.installed-test
 	$(BIN)/python -m tests.bench.bench_formats

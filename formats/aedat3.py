@@ -110,7 +110,7 @@ class Aedat3Reader:
                     f"{self.name}: corrupt AEDAT 3.1 packet header at byte offset {offset} "
                     f"(eventSize {size}, eventCapacity {capacity}, eventNumber {number})"
                 )
-            body = stream.read(size * capacity)
+            body = _read_body(stream, size * capacity, self.source.seekable)
             if len(body) < size * capacity:
                 raise FormatError(
                     f"{self.name}: truncated AEDAT 3.1 packet at byte offset {offset} "
@@ -164,3 +164,24 @@ class Aedat3Reader:
                 pending, held = [], 0
         if pending:
             yield np.concatenate(pending)
+
+
+def _read_body(stream: BinaryIO, n: int, seekable: bool) -> bytes:
+    """``n`` bytes or, when the input ends first, what there is; never allocates more than the input holds (a
+    damaged size field would ask for gigabytes): a file's remaining length is checked first, a pipe is read in
+    bounded pieces."""
+    if seekable:
+        here = stream.tell()
+        end = stream.seek(0, 2)
+        stream.seek(here)
+        if n > end - here:
+            return stream.read(end - here)
+        return stream.read(n)
+    pieces, got = [], 0
+    while got < n:
+        piece = stream.read(min(n - got, 1 << 24))
+        if not piece:
+            break
+        pieces.append(piece)
+        got += len(piece)
+    return b"".join(pieces)

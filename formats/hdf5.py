@@ -13,6 +13,8 @@ Prophesee's HDF5 files need the ECF codec, which hdf5plugin does not ship: they 
 
 from __future__ import annotations
 
+import contextlib
+
 from typing import BinaryIO, Iterator
 
 import numpy as np
@@ -92,10 +94,22 @@ class Hdf5Reader:
         except OSError as error:
             raise FormatError(f"{self.name}: not a readable HDF5 file ({error})") from None
         try:
-            self._open_layout(options)
+            with self._corruption():
+                self._open_layout(options)
         except BaseException:
             self.file.close()
             raise
+
+    @contextlib.contextmanager
+    def _corruption(self):
+        """h5py's own exceptions on a damaged file (RuntimeError, KeyError, ...) as one FormatError naming it."""
+        try:
+            yield
+        except FormatError:
+            raise
+        except (OSError, RuntimeError, ValueError, KeyError, TypeError, AttributeError, IndexError,
+                OverflowError, UnicodeDecodeError) as error:
+            raise FormatError(f"{self.name}: damaged or unreadable HDF5 ({type(error).__name__}: {error})") from None
 
     def _open_layout(self, options: ReadOptions) -> None:
         h5py = _h5py()
@@ -174,6 +188,9 @@ class Hdf5Reader:
         else:
             t, x, y, p = (column[start:stop] for column in self.columns)
             out["p"] = p > 0
+        if t.dtype.kind == "f" and not np.isfinite(t).all():
+            raise FormatError(f"{self.name}: event times that are not numbers between events {start} and {stop} "
+                              "(a damaged file?)")
         if self.layout == "event_utils" or t.dtype.kind == "f":
             scale = 1e6 if self.layout == "event_utils" and t.dtype.kind == "f" else 1.0
             out["t"] = np.rint(t * scale).astype(np.int64)
@@ -181,8 +198,12 @@ class Hdf5Reader:
             out["t"] = t.astype(np.int64)
         if self.t_offset_us:
             out["t"] += self.t_offset_us
-        out["x"] = x
-        out["y"] = y
+        for field, values in (("x", x), ("y", y)):
+            if len(values) and (np.min(values) < 0 or np.max(values) > 32767 or
+                                (values.dtype.kind == "f" and not np.isfinite(values).all())):
+                raise FormatError(f"{self.name}: event {field} coordinates outside 0..32767 between events {start} "
+                                  f"and {stop} (a damaged file?)")
+            out[field] = values
         return out
 
     def _scan_size(self) -> tuple[int, int]:
@@ -195,7 +216,9 @@ class Hdf5Reader:
 
     def __iter__(self) -> Iterator[np.ndarray]:
         for start in range(0, self.n_events, self.chunk_events):
-            yield self._read(start, min(start + self.chunk_events, self.n_events))
+            with self._corruption():
+                chunk = self._read(start, min(start + self.chunk_events, self.n_events))
+            yield chunk
 
     def close(self) -> None:
         self.file.close()

@@ -377,6 +377,11 @@ def atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[str]:
         raise
 
 
+MAX_INFERRED_SIDE = 8192
+"""A sensor size inferred from the events (the file does not store it) is refused beyond this many pixels a side:
+the largest event cameras have 1280 x 960; a damaged coordinate would otherwise allocate gigabytes of maps."""
+
+
 def resolve_sensor_size(source: Source, from_file, sensor_size, scan=None) -> tuple[int, int]:
     """The sensor size of a stream: what the file says, else ``--sensor-size``, else inferred by ``scan()``.
 
@@ -386,22 +391,36 @@ def resolve_sensor_size(source: Source, from_file, sensor_size, scan=None) -> tu
     """
     import logging
 
+    from evtools.errors import EvtoolsError
+    from evtools.events import check_sensor_size
+
+    def checked(size, said: str) -> tuple[int, int]:
+        try:
+            check_sensor_size(*size)
+        except EvtoolsError as error:
+            raise FormatError(f"{source.name}: {said} {size[0]}x{size[1]}: {error}") from None
+        return tuple(size)
+
     if from_file is not None:
         if sensor_size is not None and tuple(sensor_size) != tuple(from_file):
             logging.getLogger("evtools").warning(
                 "%s: file says %dx%d, using --sensor-size %dx%d", source.name, *from_file, *sensor_size
             )
             return tuple(sensor_size)
-        return tuple(from_file)
+        return checked(from_file, "the file says the sensor is")
     if sensor_size is not None:
         return tuple(sensor_size)
     if scan is not None and source.seekable:
         width, height = scan()
+        if max(width, height) > MAX_INFERRED_SIDE:
+            raise FormatError(f"{source.name}: the file does not store the sensor size and its events reach "
+                              f"{width}x{height}, larger than any camera ({MAX_INFERRED_SIDE} a side): a damaged "
+                              "file? If the size is right, give --sensor-size WxH")
         logging.getLogger("evtools").warning(
             "%s: sensor size not stored in the file; inferred %dx%d from the events (give --sensor-size to set it)",
-            source.name, width, height,
+            source.name, max(width, 1), max(height, 1),
         )
-        return max(width, 1), max(height, 1)
+        return checked((max(width, 1), max(height, 1)), "inferred from the events, the sensor is")
     raise FormatError(f"{source.name}: the file does not store the sensor size; give --sensor-size WxH")
 
 

@@ -112,7 +112,12 @@ class ProphesseeRawReader:
             raise FormatError(f"{self.name}: Prophesee RAW with {said}; evtools reads EVT 2.0 and EVT 3.0")
         self.version = version
         self.word_bytes = 4 if version == "2.0" else 2
-        width, height = resolve_sensor_size(source, header_size(header), options.sensor_size, scan=self._scan)
+        try:
+            stated = header_size(header)
+        except ValueError:
+            raise FormatError(f"{self.name}: the header's sensor size is not a number "
+                              f"(% format {header.get('format', '')})") from None
+        width, height = resolve_sensor_size(source, stated, options.sensor_size, scan=self._scan)
         self.info = StreamInfo(
             width, height, "prophesee",
             metadata={"evt": version, "header": header, "dropped_events": 0, "triggers": 0, "other_words": 0},
