@@ -49,6 +49,10 @@ from evtools._kernels.correct import (
 from evtools.errors import EvtoolsError
 from evtools.events import EVENT_DTYPE, check_sensor_size, empty_events, join
 
+MAX_EVENTS_PER_EVENT = 100
+"""A target this many times smaller than the largest pixel threshold is refused: each input event would create about
+that many events (a target of 1e-9 once grew a 2,560-event run to 24 GB)."""
+
 LANES = 2
 """The pixels are re-sampled in two lanes, the even and the odd sensor rows (any scene's events split about
 evenly), each with its own queue of waiting pixels and its own reorder buffer, so that the lanes of a long part
@@ -208,6 +212,15 @@ class ThresholdCorrector:
         if mode not in MODES:
             raise CorrectionError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
         self.target_on, self.target_off = resolve_target(target, on, off, usable)
+        with np.errstate(invalid="ignore"):
+            largest_on = float(np.nanmax(np.where(usable, on, 0)))
+            largest_off = float(np.nanmax(np.where(usable, off, 0)))
+        ratio = max(largest_on / self.target_on, largest_off / self.target_off)
+        if ratio > MAX_EVENTS_PER_EVENT:
+            raise CorrectionError(
+                f"target {self.target_on:.4g} / {self.target_off:.4g} (ON / OFF) is {ratio:,.0f} times smaller than the "
+                f"largest thresholds ({largest_on:.4g} / {largest_off:.4g}): one input event could create about "
+                f"{ratio:,.0f} events, more than the {MAX_EVENTS_PER_EVENT} allowed; give a larger target")
         self.mode = mode
         self.turns = (mode in ("turns", "highpass", "exponential")) if turns is None else bool(turns)
         self.curves = (mode == "exponential") if curves is None else bool(curves)

@@ -23,7 +23,7 @@ import numpy as np
 
 from evtools.events import EVENT_DTYPE, StreamInfo
 from evtools.formats.errors import FormatError
-from evtools.formats.io import Source, resolve_sensor_size
+from evtools.formats.io import read_at_most, Source, resolve_sensor_size
 from evtools.formats.registry import ReadOptions
 
 MAGIC = b"#!AER-DAT3.1\r\n"
@@ -110,7 +110,7 @@ class Aedat3Reader:
                     f"{self.name}: corrupt AEDAT 3.1 packet header at byte offset {offset} "
                     f"(eventSize {size}, eventCapacity {capacity}, eventNumber {number})"
                 )
-            body = _read_body(stream, size * capacity, self.source.seekable)
+            body = read_at_most(stream, size * capacity, self.source.seekable)
             if len(body) < size * capacity:
                 raise FormatError(
                     f"{self.name}: truncated AEDAT 3.1 packet at byte offset {offset} "
@@ -165,23 +165,3 @@ class Aedat3Reader:
         if pending:
             yield np.concatenate(pending)
 
-
-def _read_body(stream: BinaryIO, n: int, seekable: bool) -> bytes:
-    """``n`` bytes or, when the input ends first, what there is; never allocates more than the input holds (a
-    damaged size field would ask for gigabytes): a file's remaining length is checked first, a pipe is read in
-    bounded pieces."""
-    if seekable:
-        here = stream.tell()
-        end = stream.seek(0, 2)
-        stream.seek(here)
-        if n > end - here:
-            return stream.read(end - here)
-        return stream.read(n)
-    pieces, got = [], 0
-    while got < n:
-        piece = stream.read(min(n - got, 1 << 24))
-        if not piece:
-            break
-        pieces.append(piece)
-        got += len(piece)
-    return b"".join(pieces)

@@ -92,6 +92,10 @@ def _parse_ioheader(data: bytes, name: str) -> tuple[int, int, str]:
     return compression, data_position, description
 
 
+MAX_PACKET_BYTES = 1 << 30
+"""A packet larger than this (64 M events) is taken for a damaged size field, not allocated (DV writes packets of
+at most a few megabytes)."""
+
 END_MARK_KEY = "evtoolsEndMark"
 """An evtools writer says (this attribute, true, in the event stream's info node) that it ends its stream with an
 empty event packet, its end mark: DV, dv-processing and ``aedat`` read the packet as no events and the attribute
@@ -189,7 +193,7 @@ class Aedat4Reader:
         self._last_count: int | None = None  # events in the last event packet read (0: the end mark)
         try:
             from_file = (int(events["width"]), int(events["height"])) if events["width"] else None
-        except ValueError:
+        except (ValueError, TypeError):
             from_file = None
         if from_file is None and options.sensor_size is None:
             raise FormatError(f"{self.name}: the event stream does not state its size; give --sensor-size WxH")
@@ -201,7 +205,7 @@ class Aedat4Reader:
         )
 
     def _read_exact(self, n: int, what: str) -> bytes:
-        data = self.source.stream.read(n)
+        data = formats_io.read_at_most(self.source.stream, n, self.source.seekable)
         if len(data) != n:
             raise FormatError(f"{self.name}: truncated AEDAT 4.0 {what} (wanted {n} bytes, got {len(data)})")
         return data
@@ -215,6 +219,8 @@ class Aedat4Reader:
         pending: deque = deque()
         pool = ThreadPoolExecutor(DECODE_THREADS, thread_name_prefix="evtools-decode") if self.decompress else None
         live, first_arrival_s = self.source.live, 0.0
+        file_bytes = os.fstat(stream.fileno()).st_size if self.source.seekable and hasattr(stream, "fileno") \
+            else float("inf")
         try:
             while self.data_position < 0 or self.position < self.data_position:
                 # a live input: what has arrived is passed on, unless the next packet has arrived whole and the
@@ -235,6 +241,9 @@ class Aedat4Reader:
                 stream_id, size = struct.unpack("<iI", head)
                 offset = self.position
                 self.position += 8 + size
+                if self.position > file_bytes or size > MAX_PACKET_BYTES:
+                    raise FormatError(f"{self.name}: truncated AEDAT 4.0 packet at byte {offset} (its size field says "
+                                      f"{size:,} bytes: the file was cut or damaged)")
                 if stream_id != self.stream_id:
                     skipped_packets += 1
                     self._skip(size, offset)
@@ -313,7 +322,7 @@ class Aedat4Reader:
         self._filled += len(events)
 
     def _read_packet(self, n: int, size: int, offset: int) -> bytes:
-        data = self.source.stream.read(n)
+        data = formats_io.read_at_most(self.source.stream, n, self.source.seekable)
         if len(data) != n:
             raise FormatError(f"{self.name}: truncated AEDAT 4.0 packet at byte {offset} (its size is {size} bytes)")
         return data

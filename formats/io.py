@@ -296,6 +296,25 @@ def _read_up_to(raw, n: int, enough: int) -> bytes:
     return b"".join(parts)
 
 
+def read_at_most(stream: BinaryIO, n: int, seekable: bool) -> bytes:
+    """``n`` bytes of ``stream`` or, when it ends first, what there is; never allocates more than the input holds
+    (a damaged length field may ask for gigabytes): a file's remaining length is checked first, a pipe is read in
+    pieces of at most 16 MiB."""
+    if seekable:
+        here = stream.tell()
+        end = stream.seek(0, 2)
+        stream.seek(here)
+        return stream.read(min(n, max(end - here, 0)))
+    pieces, got = [], 0
+    while got < n:
+        piece = stream.read(min(n - got, 1 << 24))
+        if not piece:
+            break
+        pieces.append(piece)
+        got += len(piece)
+    return b"".join(pieces)
+
+
 def same_file(a: str, b: str) -> bool:
     """True if paths ``a`` and ``b`` name the same existing file."""
     try:

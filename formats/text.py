@@ -241,6 +241,7 @@ class TextReader:
             self._check((t == _INT64_MAX) | (t == _INT64_MIN), rows, line_no, "t does not fit in 64 bits")
         self._check((x < 0) | (x > MAX_SENSOR_SIDE) | (y < 0) | (y > MAX_SENSOR_SIDE), rows, line_no,
                     f"x or y outside 0..{MAX_SENSOR_SIDE}")
+        self._check((p != 0) & (p != 1) & (p != -1), rows, line_no, "p must be 0 or 1 (or -1 and +1)")
         out = np.empty(len(values), dtype=EVENT_DTYPE)
         out["t"] = t
         out["x"] = x

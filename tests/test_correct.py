@@ -445,3 +445,22 @@ def test_cli_matches_the_library_and_reports_bad_input(tmp_path, step):
     bad = run("correct", source, "--thresholds", tmp_path / "t.h5", "--target", "0", check=False)
     assert bad.returncode == 2 and b"positive" in bad.stderr
     assert_clean_error(run("correct", source, "--thresholds", tmp_path / "none.h5", check=False), "none.h5")
+
+
+def test_a_target_that_would_flood_the_output_is_refused(tmp_path):
+    """correct --target 1e-9 once grew to 24 GB: a target more than MAX_EVENTS_PER_EVENT times below the largest
+    threshold is refused up front, naming the ratio; a small but sane target still runs."""
+    from pathlib import Path
+
+    from evtools.correction import MAX_EVENTS_PER_EVENT, CorrectionError, ThresholdCorrector
+    from tests.helpers import assert_clean_error, run
+
+    on = np.full((4, 4), 0.3)
+    with pytest.raises(CorrectionError, match="times smaller"):
+        ThresholdCorrector(4, 4, on, on, target=0.3 / (MAX_EVENTS_PER_EVENT + 1))
+    ThresholdCorrector(4, 4, on, on, target=0.3 / (MAX_EVENTS_PER_EVENT - 1))
+    samples = Path(__file__).resolve().parents[1] / "samples"
+    result = run("correct", samples / "step.aedat4", "--thresholds", samples / "step.truth.h5", "--target", "1e-9",
+                 "-o", tmp_path / "x.aedat4", check=False)
+    assert_clean_error(result, "larger target")
+    assert not (tmp_path / "x.aedat4").exists()

@@ -200,3 +200,15 @@ def test_csv_header_without_needed_columns(tmp_path):
 def test_coordinates_outside_int16(tmp_path):
     with pytest.raises(FormatError, match=r"o\.csv: line 2: x or y outside"):
         read_text(tmp_path, "t,x,y,p\n1,70000,3,1\n", "o.csv", sensor_size=(8, 8))
+
+
+def test_polarity_must_be_zero_one_or_minus_one_plus_one(tmp_path):
+    """CSV polarity 2, 0.5 and -7 used to become 1, 1 and 0: refused with the line number."""
+    from tests.helpers import assert_clean_error, run
+
+    for value in ("2", "0.5", "-7"):
+        path = tmp_path / "p.csv"
+        path.write_text(f"t,x,y,p\n1,1,1,1\n2,1,1,{value}\n")
+        assert_clean_error(run("info", path, "--sensor-size", "4x4", check=False), "p.csv", "line 3", "p must be")
+    path.write_text("t,x,y,p\n1,1,1,-1\n2,1,1,1\n3,1,1,0\n")
+    assert run("info", path, "--sensor-size", "4x4").returncode == 0
