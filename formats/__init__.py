@@ -113,11 +113,14 @@ def open_events(
 
 
 def _named(target: str, function, *args):
-    """Call ``function``; a :class:`FormatError` it raises gets the output's name in front."""
+    """Call ``function`` (a writer's, touching only the output); a :class:`FormatError` it raises gets the output's
+    name in front, and an OSError (a full disk, a lost mount) becomes one naming the output, not a temporary."""
     try:
         return function(*args)
     except FormatError as error:
         raise FormatError(f"{target}: {error}") from None
+    except OSError as error:
+        raise FormatError(f"{target}: cannot write ({error.strerror or error})") from None
 
 
 class _NamedWriter:

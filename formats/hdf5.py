@@ -91,7 +91,7 @@ class Hdf5Reader:
         self.chunk_events = max(1, int(options.chunk_events))
         try:
             self.file = h5py.File(source.spooled(), "r")
-        except OSError as error:
+        except (OSError, ValueError, RuntimeError, KeyError, TypeError, OverflowError) as error:  # h5py's, damaged
             raise FormatError(f"{self.name}: not a readable HDF5 file ({error})") from None
         try:
             with self._corruption():
@@ -357,6 +357,6 @@ class Hdf5Writer:
             self._append_ms(None, final=True)
             self.file.create_dataset("t_offset", data=np.int64(self.t_offset_us or 0), track_times=False)
         finally:
-            self.file.close()
-            self.file = None
+            file, self.file = self.file, None
+            file.close()  # even when a write failed (a full disk): HDF5 must not flush into a closed stream later
         self.stream.flush()

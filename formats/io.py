@@ -357,8 +357,21 @@ def output_stream(path: str | os.PathLike | None, *, binary_name: str, needs_see
             _check_stream_target(stream, path, binary_name, needs_seek)
             yield stream
         return
-    with atomic_path(real) as temporary, open(temporary, "w+b", buffering=1 << 20) as stream:
-        yield stream
+    with atomic_path(real) as temporary:
+        try:
+            stream = open(temporary, "w+b", buffering=1 << 20)
+        except OSError as error:  # name the user's path, not the temporary
+            raise FormatError(f"{path}: cannot write ({error.strerror or error})") from None
+        try:
+            yield stream
+        except BaseException:
+            with contextlib.suppress(OSError):  # the body's error is the one to report (a full disk: both)
+                stream.close()
+            raise
+        try:
+            stream.close()  # the last flush
+        except OSError as error:
+            raise FormatError(f"{path}: cannot write ({error.strerror or error})") from None
 
 
 def _check_stream_target(stream, name: str, binary_name: str, needs_seek: bool) -> None:
