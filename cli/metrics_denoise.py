@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 
@@ -22,6 +23,15 @@ def _labels_for(truth: str, n_events: int, name: str) -> np.ndarray:
         raise DenoiseMetricsError(f"{truth}: {len(labels):,} labels but {name} has {n_events:,} events (give the "
                                   "truth file written with that stream)")
     return labels
+
+
+@contextlib.contextmanager
+def _naming(filtered: str, noisy: str):
+    """A matching error names both streams."""
+    try:
+        yield
+    except DenoiseMetricsError as error:
+        raise DenoiseMetricsError(f"{filtered} against {noisy}: {error}") from None
 
 
 def _count_events(path: str) -> int:
@@ -79,7 +89,7 @@ def denoise(filtered, truth, noisy, as_json):
     """
     labels = _labels_for(truth, _count_events(noisy), noisy)
     matcher = DenoiseMatcher()
-    with open_events(noisy) as source, open_events(filtered) as output:
+    with open_events(noisy) as source, open_events(filtered) as output, _naming(output.name, noisy):
         inputs = iter(source)
         for chunk in with_progress(output, output, f"matching {output.name}"):
             matcher.add_output(chunk)

@@ -119,6 +119,8 @@ def _named(target: str, function, *args):
         return function(*args)
     except FormatError as error:
         raise FormatError(f"{target}: {error}") from None
+    except BrokenPipeError:  # the reader went away (`| head`): a quiet stop, not an error
+        raise
     except OSError as error:
         raise FormatError(f"{target}: cannot write ({error.strerror or error})") from None
 

@@ -197,7 +197,7 @@ class Aedat4Reader:
             from_file = None
         if from_file is None and options.sensor_size is None:
             raise FormatError(f"{self.name}: the event stream does not state its size; give --sensor-size WxH")
-        width, height = options.sensor_size or from_file
+        width, height = formats_io.resolve_sensor_size(source, from_file, options.sensor_size)
         skipped = sorted(s["name"] or s["type"] for i, s in streams.items() if i != self.stream_id)
         self.info = StreamInfo(
             width, height, "aedat4",

@@ -228,3 +228,14 @@ def _read_by_dv(path):
         if batch is not None:
             batches.append(batch.numpy())
     return np.concatenate(batches)
+
+
+def test_a_given_sensor_size_that_differs_from_the_files_is_warned(tmp_path):
+    """--sensor-size over the size an AEDAT 4.0 file states: used, with a warning (it was silent)."""
+    from tests.helpers import run
+
+    path = tmp_path / "a.aedat4"
+    with create_events(path, StreamInfo(32, 24)) as writer:
+        writer.write(random_events(100, 32, 24, seed=1))
+    result = run("info", path, "--sensor-size", "64x64")
+    assert b"file says 32x24, using --sensor-size 64x64" in result.stderr

@@ -105,7 +105,7 @@ def test_cli_denoise_matches_the_library(noisy, tmp_path):
     assert_clean_error(run("metrics", "denoise", filtered, "--truth", other_truth, "--input", path, check=False),
                        "labels")
     assert_clean_error(run("metrics", "denoise", path, "--truth", other_truth, "--input", other, check=False),
-                       "subsequence")
+                       "subsequence", f"{path} against {other}")  # both streams named
 
 
 def test_issue_auc_claims(noisy, tmp_path):
