@@ -49,6 +49,8 @@ def convert(inputs, input_format, sensor_size, aedat2_layout, output, jobs, sche
     """
     if speed is not None and not realtime:
         raise click.UsageError("--speed needs --realtime")
+    if output and output.startswith("tcp://") and output_format not in (None, "aedat4"):
+        raise click.UsageError(f"-o {output}: a network output carries AEDAT 4.0, not --format {output_format}")
     suffix = by_name(output_format or "aedat4").extensions[0]
     pairs = plan(inputs, output, suffix)
     options = dict(input_format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout,

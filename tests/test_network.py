@@ -238,5 +238,6 @@ def test_bad_servers_give_one_line_errors_naming_the_address(tmp_path):
                            capture_output=True, text=True, env=env, cwd=ROOT, timeout=60)
     assert whole.returncode == 0, whole.stderr
     assert_same_events(evtools.read(tmp_path / "whole.aedat4")[0], events)
-    busy = run("convert", str(recording), "-o", f"tcp://127.0.0.1:{whole_port}", "--format", "csv")
-    assert busy.returncode == 1 and "carries AEDAT 4.0" in busy.stderr
+    busy = subprocess.run([*EVTOOLS, "convert", str(recording), "-o", f"tcp://127.0.0.1:{whole_port}", "--format",
+                           "csv"], capture_output=True, text=True, env=env, cwd=ROOT, timeout=60)
+    assert busy.returncode == 2 and "carries AEDAT 4.0" in busy.stderr  # a usage error
