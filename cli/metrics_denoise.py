@@ -154,45 +154,6 @@ def _score_filter(noisy: str, labels: np.ndarray, methods: str, preset: str, par
     return matcher.finish()
 
 
-def draw_roc(path: str, curves: list[tuple[str, list[tuple[float, float]], float]], title: str = "") -> None:
-    """Draw ROC curves (FPR, TPR) into a PNG with OpenCV."""
-    import cv2
-
-    size, margin = 560, 60
-    image = np.full((size + 2 * margin, size + 2 * margin, 3), 255, dtype=np.uint8)
-    colours = [(180, 119, 31), (14, 127, 255), (44, 160, 44), (40, 39, 214), (189, 103, 148), (75, 86, 140),
-               (194, 119, 227), (127, 127, 127)]
-
-    def point(f, t):
-        return int(round(margin + f * size)), int(round(margin + (1 - t) * size))
-
-    for v in np.linspace(0, 1, 6):
-        cv2.line(image, point(v, 0), point(v, 1), (225, 225, 225), 1)
-        cv2.line(image, point(0, v), point(1, v), (225, 225, 225), 1)
-        cv2.putText(image, f"{v:.1f}", (point(v, 0)[0] - 12, point(v, 0)[1] + 20), cv2.FONT_HERSHEY_SIMPLEX, 0.4,
-                    (0, 0, 0), 1, cv2.LINE_AA)
-        cv2.putText(image, f"{v:.1f}", (point(0, v)[0] - 35, point(0, v)[1] + 4), cv2.FONT_HERSHEY_SIMPLEX, 0.4,
-                    (0, 0, 0), 1, cv2.LINE_AA)
-    cv2.rectangle(image, point(0, 1), point(1, 0), (0, 0, 0), 1)
-    cv2.line(image, point(0, 0), point(1, 1), (200, 200, 200), 1, cv2.LINE_AA)
-    cv2.putText(image, "FPR (noise kept)", (margin + size // 2 - 60, size + margin + 45), cv2.FONT_HERSHEY_SIMPLEX,
-                0.5, (0, 0, 0), 1, cv2.LINE_AA)
-    cv2.putText(image, "TPR", (8, margin - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
-    cv2.putText(image, title, (margin, 30), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (0, 0, 0), 1, cv2.LINE_AA)
-    for index, (label, curve, area) in enumerate(curves):
-        colour = colours[index % len(colours)]
-        pts = np.array([point(f, t) for f, t in curve], dtype=np.int32)
-        cv2.polylines(image, [pts], False, colour, 2, cv2.LINE_AA)
-        for p in pts[1:-1]:
-            cv2.circle(image, tuple(int(v) for v in p), 3, colour, -1, cv2.LINE_AA)
-        y = margin + size - 20 - 20 * (len(curves) - 1 - index)
-        cv2.line(image, (margin + size - 230, y - 4), (margin + size - 205, y - 4), colour, 2)
-        cv2.putText(image, f"{label}  AUC {area:.3f}", (margin + size - 200, y), cv2.FONT_HERSHEY_SIMPLEX, 0.45,
-                    (0, 0, 0), 1, cv2.LINE_AA)
-    if not cv2.imwrite(str(path), image):
-        raise DenoiseMetricsError(f"{path}: OpenCV cannot write this image (use a .png name)")
-
-
 @click.command()
 @click.argument("noisy", type=click.Path(exists=True, dir_okay=False))
 @click.option("--truth", required=True, type=click.Path(exists=True, dir_okay=False),
@@ -207,7 +168,8 @@ def draw_roc(path: str, curves: list[tuple[str, list[tuple[float, float]], float
 @click.option("--polarity-maps", is_flag=True, help="stcf: a time map per polarity (see bafilter).")
 @click.option("--set", "settings", multiple=True, callback=_settings, metavar="PARAM=VALUE",
               help="Hold another parameter at a value for every point (repeat: --set radius=2 --set k=3).")
-@click.option("--plot", type=click.Path(dir_okay=False), default=None, help="Draw the ROC curves into this PNG.")
+@click.option("--plot", type=click.Path(dir_okay=False), default=None,
+              help="Draw the ROC curves, every point with its swept value, into this figure (.png, .svg, .pdf).")
 @json_option
 def roc(noisy, truth, methods, sweep, preset, weights, polarity_maps, settings, plot, as_json):
     """DND21 ROC of each --method over --sweep on NOISY: (FPR, TPR) per value, (0,0) and (1,1), trapezoid AUC.
@@ -220,6 +182,13 @@ def roc(noisy, truth, methods, sweep, preset, weights, polarity_maps, settings, 
             parse_methods(chain)
         except BAFilterError as error:
             raise click.BadParameter(str(error), param_hint="--method") from None
+    if plot:
+        from evtools.plots import PlotError, figure_format
+
+        try:
+            figure_format(plot)
+        except PlotError as error:
+            raise click.BadParameter(str(error), param_hint="--plot") from None
     labels = _labels_for(truth, _count_events(noisy), noisy)
     name, values = sweep
     results, curves = [], []
@@ -235,7 +204,10 @@ def roc(noisy, truth, methods, sweep, preset, weights, polarity_maps, settings, 
         results.append({"method": chain, "parameter": name, "held": settings, "points": rows, "auc": area})
         curves.append((chain, curve, area))
     if plot:
-        draw_roc(plot, curves, f"ROC, sweep {name}")
+        from evtools.plots import roc_figure, save
+
+        save(roc_figure([{"label": result["method"], "parameter": result["parameter"], "points": result["points"],
+                          "auc": result["auc"]} for result in results]), plot)
     if wants_json(as_json):
         click.echo(json.dumps(_clean({"file": noisy, "preset": preset, "methods": results}), indent=2))
         return

@@ -5,15 +5,10 @@ from __future__ import annotations
 import json
 
 import click
-import numpy as np
 
 from evtools.cli.options import json_option, wants_json
-from evtools.metrics.thresholds import ThresholdMetricsError, estimation_picture, threshold_errors
-from evtools.formats.io import output_stream
+from evtools.metrics.thresholds import ThresholdMetricsError, threshold_errors
 from evtools.formats.thresholds import read_thresholds
-
-PICTURE_EXTENSIONS = {".png": "PNG", ".jpg": "JPEG", ".jpeg": "JPEG", ".bmp": "BMP", ".tif": "TIFF", ".tiff": "TIFF"}
-
 
 @click.command()
 @click.argument("estimate_path", metavar="EST.h5", type=click.Path(dir_okay=False))
@@ -36,10 +31,12 @@ def thresholds(estimate_path, truth_path, plot_path, as_json):
             f"{truth.width}x{truth.height}; compare the estimate with the truth of the same sensor"
         )
     if plot_path is not None:
-        extension = "." + plot_path.rsplit(".", 1)[-1].lower() if "." in plot_path else ""
-        if extension not in PICTURE_EXTENSIONS:
-            raise click.BadParameter(f"{plot_path}: give a picture name ending in "
-                                     f"{', '.join(PICTURE_EXTENSIONS)}", param_hint="--plot")
+        from evtools.plots import PlotError, figure_format
+
+        try:
+            figure_format(plot_path)
+        except PlotError as error:
+            raise click.BadParameter(str(error), param_hint="--plot") from None
     try:
         result = threshold_errors(estimate.on, estimate.off, estimate.valid, truth.on, truth.off)
     except ThresholdMetricsError as error:
@@ -48,22 +45,13 @@ def thresholds(estimate_path, truth_path, plot_path, as_json):
     if "rejected_by_fit" in estimate.attributes:  # pixels with enough events whose events did not fit the model
         result["rejected_by_fit"] = int(estimate.attributes["rejected_by_fit"])
     if plot_path is not None:
-        _write_picture(plot_path, extension, estimation_picture(
-            estimate.on, estimate.off, estimate.valid, truth.on, truth.off))
+        from evtools.plots import save, thresholds_figure
+
+        save(thresholds_figure(estimate.on, estimate.off, estimate.valid, truth.on, truth.off), plot_path)
     if wants_json(as_json):
         click.echo(json.dumps(result, indent=2))
     else:
         _print_table(result)
-
-
-def _write_picture(path: str, extension: str, rgb: np.ndarray) -> None:
-    import cv2
-
-    ok, encoded = cv2.imencode(extension, np.ascontiguousarray(rgb[..., ::-1]))
-    if not ok:
-        raise ThresholdMetricsError(f"{path}: OpenCV could not encode the picture")
-    with output_stream(path, binary_name=PICTURE_EXTENSIONS[extension], needs_seek=True) as stream:
-        stream.write(encoded.tobytes())
 
 
 def _print_table(result: dict) -> None:

@@ -114,16 +114,12 @@ def stcf_grid() -> None:
 
 
 def draw(curves, path, title) -> None:
-    """All methods' ROC curves of one recording in one PNG (evtools' OpenCV drawing)."""
+    """All methods' ROC curves of one stream in one figure (evtools.plots, matplotlib), every point labelled."""
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-    from evtools.cli.metrics_denoise import draw_roc
-    from evtools.metrics.denoise import roc_auc
+    from evtools.plots import roc_figure, save
 
-    drawn = []
-    for method, entry in curves:
-        curve, area = roc_auc([(p["fpr"], p["tpr"]) for p in entry["points"]])
-        drawn.append((method, curve, area))
-    draw_roc(path, drawn, title)
+    save(roc_figure([{"label": label, "parameter": entry["parameter"], "points": entry["points"],
+                      "auc": entry["auc"]} for label, entry in curves], title), path)
 
 
 if __name__ == "__main__":

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from evtools.metrics.thresholds import ThresholdMetricsError, estimation_picture, threshold_errors
+from evtools.metrics.thresholds import ThresholdMetricsError, threshold_errors
 from evtools.formats.thresholds import ThresholdMap, write_thresholds
 from tests.helpers import assert_clean_error, run
 
@@ -40,12 +40,6 @@ def test_wrong_size_is_an_error():
     true_on, true_off = maps()
     with pytest.raises(ThresholdMetricsError, match="differ in size"):
         threshold_errors(true_on[:, :4], true_off[:, :4], np.ones((6, 4), bool), true_on, true_off)
-
-
-def test_picture_has_three_panels():
-    true_on, true_off = maps()
-    image = estimation_picture(true_on * 1.05, true_off, np.ones(true_on.shape, bool), true_on, true_off)
-    assert image.ndim == 3 and image.dtype == np.uint8 and image.shape[1] > 3 * image.shape[0] // 2
 
 
 def test_cli_json_plot_and_errors(tmp_path):

@@ -3,13 +3,12 @@
 :func:`threshold_errors` computes, for ON and OFF separately over the pixels whose estimate is valid, the relative
 RMSE ``sqrt(mean(((est - true) / true)^2))`` (the report's Table 1 figure), the bias (mean relative error), the
 correlation between estimated and true thresholds, and the fraction of pixels left invalid.
-:func:`estimation_picture` draws the estimated map, the true map and the relative error side by side (the
+:func:`evtools.plots.thresholds_figure` draws the estimated map, the true map and the relative error side by side (the
 report's Figure 29).
 """
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 
@@ -73,39 +72,3 @@ def threshold_errors(estimated_on, estimated_off, valid, true_on, true_off) -> d
             "pixels": int(len(e)),
         }
     return result
-
-
-def estimation_picture(estimated_on, estimated_off, valid, true_on, true_off, *, scale: int | None = None):
-    """RGB picture: estimated ON|OFF, true ON|OFF (one colour scale), relative error ON|OFF (%), side by side.
-
-    Invalid pixels are grey. Returns an ``(rows, columns, 3)`` uint8 array.
-    """
-    import cv2
-
-    from evtools.render import thresholds_picture
-
-    est_on, est_off, valid, true_on, true_off = _check(estimated_on, estimated_off, valid, true_on, true_off)
-    valid = valid.astype(bool)
-    values = np.concatenate([true_on.ravel(), true_off.ravel(), est_on[valid], est_off[valid]]).astype(np.float64)
-    values = values[np.isfinite(values)]
-    if not len(values):
-        raise ThresholdMetricsError("no finite threshold to draw")
-    value_range = (float(values.min()), float(values.max()))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        error_on = 100.0 * (est_on - true_on) / true_on
-        error_off = 100.0 * (est_off - true_off) / true_off
-    errors = np.concatenate([error_on[valid], error_off[valid]])
-    errors = errors[np.isfinite(errors)]
-    limit = float(np.max(np.abs(errors))) if len(errors) else 1.0
-    limit = limit if limit > 0 and math.isfinite(limit) else 1.0
-    panels = [
-        thresholds_picture(est_on, est_off, valid, value_range=value_range, scale=scale, units="log",
-                           titles=("estimated ON", "estimated OFF")).image,
-        thresholds_picture(true_on, true_off, None, value_range=value_range, scale=scale, units="log",
-                           titles=("true ON", "true OFF")).image,
-        thresholds_picture(error_on, error_off, valid, value_range=(-limit, limit), scale=scale, units="%",
-                           colormap=cv2.COLORMAP_COOL, titles=("ON error", "OFF error")).image,
-    ]
-    height = max(p.shape[0] for p in panels)
-    padded = [np.pad(p, ((0, height - p.shape[0]), (0, 0), (0, 0)), constant_values=255) for p in panels]
-    return np.concatenate(padded, axis=1)

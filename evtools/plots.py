@@ -1,0 +1,131 @@
+"""Plots with matplotlib (figures a paper can use): ROC curves and threshold maps, written as PNG, SVG or PDF by
+the file's extension. Event frames and video stay with OpenCV (:mod:`evtools.render`), the fast path.
+
+Colour scales of maps are clipped at robust percentiles (2 and 98) so that one wild pixel cannot flatten the rest;
+the clipping is written on the colour bar. Estimate and truth share one scale; errors use a diverging scale centred
+on 0.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from evtools.errors import EvtoolsError
+
+FORMATS = {".png": "png", ".svg": "svg", ".pdf": "pdf"}
+"""Figure formats, by the extension of the file name."""
+CLIP_PERCENTILES = (2.0, 98.0)
+"""Where colour scales of maps are clipped (the bars say so)."""
+
+
+class PlotError(EvtoolsError, ValueError):
+    """A figure that cannot be made or written."""
+
+
+def figure_format(path: str) -> str:
+    """The matplotlib format of ``path`` (png, svg, pdf) from its extension; a clear error otherwise."""
+    extension = os.path.splitext(str(path))[1].lower()
+    if extension not in FORMATS:
+        raise PlotError(f"{path}: give a figure name ending in {', '.join(FORMATS)}")
+    return FORMATS[extension]
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")  # files only, no display
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def save(figure, path: str) -> None:
+    """Write ``figure`` to ``path`` (atomically: a failed write leaves nothing) and close it."""
+    from evtools.formats.io import atomic_path
+
+    kind = figure_format(path)
+    plt = _pyplot()
+    try:
+        with atomic_path(path, os.path.splitext(str(path))[1]) as temporary:
+            figure.savefig(temporary, format=kind, dpi=150, bbox_inches="tight",
+                           metadata={"Date": None} if kind in ("svg", "pdf") else None)
+    except OSError as error:
+        raise PlotError(f"{path}: cannot write ({error.strerror or error})") from None
+    finally:
+        plt.close(figure)
+
+
+def roc_figure(curves: list[dict], title: str = ""):
+    """ROC curves: each ``{"label", "parameter", "points": [{"value", "fpr", "tpr"}...], "auc"}``; every point is
+    marked with its swept value, the AUC is in the legend."""
+    plt = _pyplot()
+    figure, axes = plt.subplots(figsize=(6, 5.4))
+    axes.plot([0, 1], [0, 1], color="0.8", linewidth=1, linestyle="--", label="chance")
+    for curve in curves:
+        points = sorted((p for p in curve["points"] if p["fpr"] is not None and p["tpr"] is not None),
+                        key=lambda p: (p["fpr"], p["tpr"]))
+        fpr = [0.0] + [p["fpr"] for p in points] + [1.0]
+        tpr = [0.0] + [p["tpr"] for p in points] + [1.0]
+        line, = axes.plot(fpr, tpr, marker="o", markersize=3.5, linewidth=1.5,
+                          label=f"{curve['label']}, swept {curve.get('parameter', '?')}  (AUC {curve['auc']:.3f})")
+        for point in points:
+            axes.annotate(f"{point['value']:g}", (point["fpr"], point["tpr"]), textcoords="offset points",
+                          xytext=(4, -9), fontsize=6.5, color=line.get_color())
+    axes.set_xlim(0, 1)
+    axes.set_ylim(0, 1.02)
+    axes.set_xlabel("FPR: fraction of noise kept")
+    axes.set_ylabel("TPR: fraction of signal kept")
+    swept = {curve.get("parameter", "") for curve in curves}
+    axes.set_title(title or f"ROC (the swept {', '.join(sorted(swept))} at each point)")
+    axes.grid(True, color="0.92")
+    axes.legend(loc="lower right", fontsize=8)
+    return figure
+
+
+def _robust_range(values: np.ndarray) -> tuple[float, float]:
+    low, high = np.percentile(values, CLIP_PERCENTILES)
+    if high <= low:
+        low, high = float(values.min()), float(values.max())
+    if high <= low:
+        high = low + 1e-9
+    return float(low), float(high)
+
+
+def thresholds_figure(estimated_on, estimated_off, valid, true_on, true_off, units: str = "log units"):
+    """Estimated and true ON / OFF maps on one shared scale (clipped at the 2nd and 98th percentiles, said on the
+    bar) and the relative error (estimate / truth - 1) on a diverging scale centred on 0; invalid pixels grey."""
+    plt = _pyplot()
+    maps = {"ON": (np.asarray(estimated_on, float), np.asarray(true_on, float)),
+            "OFF": (np.asarray(estimated_off, float), np.asarray(true_off, float))}
+    valid = np.asarray(valid, bool)
+    valid = valid if valid.ndim == 3 else np.stack([valid, valid])
+    shown = [np.where(mask & np.isfinite(estimate), estimate, np.nan) for mask, (estimate, _) in
+             zip(valid, maps.values())]
+    values = np.concatenate([s[np.isfinite(s)] for s in shown] + [t[np.isfinite(t)].ravel() for _, t in maps.values()])
+    if not len(values):
+        raise PlotError("no pixel has a valid estimate to draw")
+    low, high = _robust_range(values)
+    errors = [(s / t - 1.0) * 100.0 for s, (_, t) in zip(shown, maps.values())]
+    finite = np.concatenate([e[np.isfinite(e)] for e in errors])
+    limit = float(np.percentile(np.abs(finite), CLIP_PERCENTILES[1])) if len(finite) else 1.0
+    limit = max(limit, 1e-6)
+    figure, axes = plt.subplots(2, 3, figsize=(12, 6.4), constrained_layout=True)
+    cmap = plt.get_cmap("viridis").with_extremes(bad="0.75")
+    diverging = plt.get_cmap("RdBu_r").with_extremes(bad="0.75")
+    for row, ((name, (_, truth)), estimate, error) in enumerate(zip(maps.items(), shown, errors)):
+        image = axes[row, 0].imshow(estimate, cmap=cmap, vmin=low, vmax=high, interpolation="nearest")
+        axes[row, 1].imshow(truth, cmap=cmap, vmin=low, vmax=high, interpolation="nearest")
+        wrong = axes[row, 2].imshow(error, cmap=diverging, vmin=-limit, vmax=limit, interpolation="nearest")
+        axes[row, 0].set_title(f"{name}: estimated")
+        axes[row, 1].set_title(f"{name}: true")
+        axes[row, 2].set_title(f"{name}: error, % of the true value")
+        bar = figure.colorbar(image, ax=axes[row, :2], shrink=0.9, extend="both")
+        bar.set_label(f"threshold, {units}\nclipped at the 2nd and 98th percentiles", fontsize=8)
+        error_bar = figure.colorbar(wrong, ax=axes[row, 2], shrink=0.9, extend="both")
+        error_bar.set_label(f"error, %\nclipped at ±{limit:.3g} (98th percentile of |error|)", fontsize=8)
+        for axis in axes[row]:
+            axis.set_xticks([])
+            axis.set_yticks([])
+    return figure

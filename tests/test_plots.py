@@ -1,0 +1,75 @@
+"""matplotlib figures (issue 18 item 1): every plot to PNG, SVG and PDF, axes and clipping checked in the SVG."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from evtools.formats.thresholds import ThresholdMap, write_thresholds
+from evtools.plots import PlotError, roc_figure, save, thresholds_figure
+from tests.helpers import run
+
+CURVES = [{"label": "stcf", "parameter": "dt_us", "auc": 0.9,
+           "points": [{"value": 1000, "fpr": 0.05, "tpr": 0.6}, {"value": 10000, "fpr": 0.2, "tpr": 0.9}]},
+          {"label": "mlpf", "parameter": "threshold", "auc": 0.95,
+           "points": [{"value": 0.5, "fpr": 0.02, "tpr": 0.85}, {"value": 0.1, "fpr": 0.1, "tpr": 0.95}]}]
+
+
+def _maps(seed=0):
+    rng = np.random.default_rng(seed)
+    true_on, true_off = rng.normal(0.2, 0.02, (12, 16)), rng.normal(0.25, 0.02, (12, 16))
+    return true_on, true_off
+
+
+@pytest.mark.parametrize("suffix, magic", [(".png", b"\x89PNG"), (".svg", b"<?xml"), (".pdf", b"%PDF")])
+def test_every_figure_in_every_format(tmp_path, suffix, magic):
+    true_on, true_off = _maps()
+    estimated_on = true_on * 1.02
+    estimated_on[3, 4] = true_on[3, 4] * 1.93  # one pixel 93 % off: the scales must not be flattened by it
+    valid = np.ones(true_on.shape, bool)
+    valid[0, 0] = False
+    for name, figure in (("roc", roc_figure(CURVES)),
+                         ("maps", thresholds_figure(estimated_on, true_off, valid, true_on, true_off))):
+        path = tmp_path / f"{name}{suffix}"
+        save(figure, path)
+        data = path.read_bytes()
+        assert data.startswith(magic) and len(data) > 5000, (name, len(data))
+        if suffix == ".svg":
+            text = data.decode()
+            if name == "roc":
+                assert "FPR" in text and "TPR" in text and "AUC 0.950" in text and "10000" in text
+            else:
+                assert "clipped at the 2nd and 98th percentiles" in text and "98th percentile of |error|" in text
+                assert "error, % of the true value" in text
+
+
+def test_colour_scales_are_robust_and_the_error_scale_is_centred():
+    true_on, true_off = _maps(1)
+    estimated_on = true_on * 1.02
+    estimated_on[3, 4] = true_on[3, 4] * 1.93
+    figure = thresholds_figure(estimated_on, true_off, np.ones(true_on.shape, bool), true_on, true_off)
+    images = [axis.images[0] for axis in figure.axes if axis.images]
+    low, high = images[0].get_clim()
+    assert high < estimated_on[3, 4]  # the outlier is clipped, not the top of the scale
+    assert images[0].get_clim() == images[1].get_clim()  # estimate and truth share the scale
+    error_low, error_high = images[2].get_clim()
+    assert error_low == -error_high and error_high < 93  # centred on 0, the 93 % pixel clipped
+
+
+def test_cli_plots_by_extension_and_refuses_others(tmp_path):
+    true_on, true_off = _maps()
+    write_thresholds(str(tmp_path / "t.h5"), ThresholdMap(true_on, true_off, np.ones(true_on.shape, bool)))
+    write_thresholds(str(tmp_path / "e.h5"), ThresholdMap(true_on * 1.1, true_off, np.ones(true_on.shape, bool)))
+    for suffix in (".svg", ".pdf", ".png"):
+        run("metrics", "thresholds", tmp_path / "e.h5", "--truth", tmp_path / "t.h5", "--plot",
+            tmp_path / f"m{suffix}", "--json")
+        assert (tmp_path / f"m{suffix}").stat().st_size > 5000
+    bad = run("metrics", "thresholds", tmp_path / "e.h5", "--truth", tmp_path / "t.h5", "--plot", tmp_path / "m.gif",
+              check=False)
+    assert bad.returncode == 2 and b".png, .svg, .pdf" in bad.stderr
+    with pytest.raises(PlotError, match="m.bmp"):
+        save(roc_figure(CURVES), tmp_path / "m.bmp")
+    assert json.loads(run("metrics", "thresholds", tmp_path / "e.h5", "--truth", tmp_path / "t.h5",
+                          "--json").stdout)["on"]["rel_rmse"] > 0
