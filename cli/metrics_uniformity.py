@@ -8,9 +8,7 @@ import click
 
 from evtools.cli.options import json_option, read_options, wants_json
 from evtools.events import concatenate
-from evtools.metrics.uniformity import (
-    UniformityError, detect_edges, draw_edge_levels, edge_uniformity, edges_from_starts,
-)
+from evtools.metrics.uniformity import UniformityError, detect_edges, edge_uniformity, edges_from_starts, pixel_levels
 from evtools.formats import open_events
 
 
@@ -34,7 +32,7 @@ def _read(path, **options):
               help="Edge start times (us); default: detected from bursts of activity across pixels.")
 @click.option("--reference", metavar="IDEAL", type=click.Path(dir_okay=False), default=None,
               help="The stream of an ideal sensor with one uniform threshold: adds count and timing errors.")
-@click.option("--plot", metavar="FIG.png", type=click.Path(dir_okay=False), default=None,
+@click.option("--plot", metavar="FIG.png|svg|pdf", type=click.Path(dir_okay=False), default=None,
               help="Draw the per-pixel reconstructions (cumulative level vs time) of one edge.")
 @click.option("--before", metavar="IN2", type=click.Path(dir_okay=False), default=None,
               help="With --plot: the uncorrected stream, drawn beside IN.")
@@ -52,6 +50,13 @@ def uniformity(input, input_format, sensor_size, aedat2_layout, edges_at, refere
     evtools metrics uniformity corrected.aedat4 --reference ideal.aedat4
     evtools metrics uniformity corrected.aedat4 --before raw.aedat4 --plot edges.png
     """
+    if plot:
+        from evtools.plots import PlotError, figure_format
+
+        try:
+            figure_format(plot)
+        except PlotError as error:
+            raise click.BadParameter(str(error), param_hint="--plot") from None
     options = dict(format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout)
     info, name, events = _read(input, **options)
     try:
@@ -75,18 +80,17 @@ def uniformity(input, input_format, sensor_size, aedat2_layout, edges_at, refere
 
 
 def _plot(path, events, width, edges, index, before, options) -> None:
-    import cv2
+    from evtools.plots import edge_levels_figure, save
 
     if index >= len(edges):
         raise UniformityError(f"--plot-edge {index}: the stream has {len(edges)} edges")
+    edge = edges[index]
     panels = []
     if before is not None:
         _, before_name, before_events = _read(before, **options)
-        panels.append((f"before: {before_name}", before_events))
-    panels.append(("after" if before is not None else "events", events))
-    image = draw_edge_levels(panels, width, edges[index])
-    if not cv2.imwrite(str(path), image):
-        raise UniformityError(f"{path}: cannot write the picture (use a .png name)")
+        panels.append((f"before: {before_name}", list(pixel_levels(before_events, width, edge).values())))
+    panels.append(("after" if before is not None else "events", list(pixel_levels(events, width, edge).values())))
+    save(edge_levels_figure(panels, edge.start_us, edge.end_us), path)
 
 
 def _print_table(result: dict) -> None:

@@ -129,3 +129,22 @@ def thresholds_figure(estimated_on, estimated_off, valid, true_on, true_off, uni
             axis.set_xticks([])
             axis.set_yticks([])
     return figure
+
+
+def edge_levels_figure(panels: list[tuple[str, list]], edge_start_us: int, edge_end_us: int):
+    """Per-pixel reconstructions over one edge (the founding report's Figures 31 and 32): for each panel
+    ``(title, levels)``, ``levels`` being (t_us, level) per pixel as :func:`evtools.metrics.uniformity.pixel_levels`
+    gives them, each pixel's ON-minus-OFF count as a staircase against the time since the edge began, panels side
+    by side on one scale."""
+    plt = _pyplot()
+    figure, axes = plt.subplots(1, len(panels), figsize=(5.2 * len(panels), 4), sharey=True, squeeze=False)
+    for axis, (title, levels) in zip(axes[0], panels):
+        for t_us, level in levels:
+            times_ms = np.concatenate([[0.0], (np.asarray(t_us) - edge_start_us) / 1e3])
+            axis.step(times_ms, np.concatenate([[0.0], level]), where="post", linewidth=0.7, alpha=0.6)
+        axis.set_title(title, fontsize=10)
+        axis.set_xlim(0, max(edge_end_us - edge_start_us, 1) / 1e3)
+        axis.set_xlabel("time since the edge began, ms")
+        axis.grid(True, color="0.92")
+    axes[0, 0].set_ylabel("events so far, ON minus OFF\n(times the threshold: log intensity)")
+    return figure

@@ -73,3 +73,15 @@ def test_cli_plots_by_extension_and_refuses_others(tmp_path):
         save(roc_figure(CURVES), tmp_path / "m.bmp")
     assert json.loads(run("metrics", "thresholds", tmp_path / "e.h5", "--truth", tmp_path / "t.h5",
                           "--json").stdout)["on"]["rel_rmse"] > 0
+
+
+def test_edge_levels_figure_in_svg_with_labelled_axes(tmp_path):
+    """metrics uniformity --plot: per-pixel staircases against time in ms, before and after side by side."""
+    samples = __import__("pathlib").Path(__file__).resolve().parents[1] / "samples"
+    figure = tmp_path / "edges.svg"
+    run("metrics", "uniformity", samples / "step.aedat4", "--before", samples / "step.aedat4", "--plot", figure,
+        "--json")
+    text = figure.read_text()
+    assert "time since the edge began, ms" in text and "ON minus OFF" in text and "before: " in text
+    bad = run("metrics", "uniformity", samples / "step.aedat4", "--plot", tmp_path / "e.jpg", check=False)
+    assert bad.returncode == 2

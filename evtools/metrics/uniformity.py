@@ -21,8 +21,7 @@ import numpy as np
 
 from evtools.errors import EvtoolsError
 
-__all__ = ["UniformityError", "Edge", "detect_edges", "edges_from_starts", "edge_uniformity", "pixel_levels",
-           "draw_edge_levels"]
+__all__ = ["UniformityError", "Edge", "detect_edges", "edges_from_starts", "edge_uniformity", "pixel_levels"]
 
 BIN_US = 1_000
 """Width of the activity bins of the automatic edge detection."""
@@ -187,42 +186,3 @@ def pixel_levels(events: np.ndarray, width: int, edge: Edge, step: float = 1.0) 
         mine = window[pixel == i]
         out[int(i)] = (mine["t"], np.cumsum(np.where(mine["p"], step, -step)))
     return out
-
-
-def draw_edge_levels(panels, width: int, edge: Edge, size=(480, 360)) -> np.ndarray:
-    """A BGR picture of each panel's per-pixel reconstructions over ``edge`` (the report's Figures 31 and 32).
-
-    ``panels`` is a list of ``(title, events)``; each pixel's cumulative level (+1 per ON, -1 per OFF event, as a
-    staircase) is drawn against time, one shared scale, panels side by side.
-    """
-    import cv2
-
-    w, h = size
-    margin = 30
-    levels = [pixel_levels(events, width, edge) for _, events in panels]
-    values = [lv for panel in levels for _, lv in panel.values()]
-    low = min([0.0] + [float(v.min()) for v in values])
-    high = max([1.0] + [float(v.max()) for v in values])
-    image = np.full((h, w * len(panels), 3), 255, np.uint8)
-    span_us = max(1, edge.end_us - edge.start_us)
-    rng = np.random.default_rng(0)
-    for k, ((title, _), panel) in enumerate(zip(panels, levels)):
-        x0 = k * w
-        cv2.rectangle(image, (x0 + margin, margin), (x0 + w - 10, h - margin), (0, 0, 0), 1)
-        cv2.putText(image, title[:40], (x0 + margin, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1,
-                    cv2.LINE_AA)
-        cv2.putText(image, f"{span_us / 1e3:.0f} ms", (x0 + w - 80, h - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.4,
-                    (0, 0, 0), 1, cv2.LINE_AA)
-        for t_us, level in panel.values():
-            xs = x0 + margin + (t_us - edge.start_us) / span_us * (w - 10 - 2 * margin)
-            ys = h - margin - (np.concatenate([[0.0], level]) - low) / (high - low) * (h - 2 * margin)
-            # staircase: (x0, y_base), (x0, y0), (x1, y0), (x1, y1), ...
-            points = np.empty((2 * len(xs), 2))
-            points[0::2, 0] = xs
-            points[1::2, 0] = xs
-            points[0::2, 1] = ys[:-1]
-            points[1::2, 1] = ys[1:]
-            points = points.round().astype(np.int32)
-            colour = tuple(int(c) for c in rng.integers(0, 200, 3))
-            cv2.polylines(image, [points], False, colour, 1, cv2.LINE_AA)
-    return image
