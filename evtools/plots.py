@@ -80,7 +80,11 @@ def roc_figure(curves: list[dict], title: str = ""):
     swept = {curve.get("parameter", "") for curve in curves}
     axes.set_title(title or f"ROC (the swept {', '.join(sorted(swept))} at each point)")
     axes.grid(True, color="0.92")
-    axes.legend(loc="lower right", fontsize=8)
+    if len(curves) > 3:  # many curves: the legend beside the axes, not over them
+        figure.set_size_inches(9.5, 5.4)
+        axes.legend(loc="center left", bbox_to_anchor=(1.02, 0.5), fontsize=8)
+    else:
+        axes.legend(loc="lower right", fontsize=8)
     return figure
 
 
