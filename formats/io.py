@@ -23,6 +23,7 @@ from evtools import interrupt
 from evtools.formats.errors import FormatError
 
 HEAD_BYTES = 4096
+"""How many leading bytes format detection looks at."""
 LIVE_MAX_LATENCY_S = 0.02
 """A live input's events wait at most this long in a reader (``evtools --max-latency``): packets that arrived
 together are passed on as one chunk (a stage that fell behind catches up), but a chunk's first packet is never held
@@ -30,7 +31,6 @@ longer than this for more."""
 LIVE_HEAD_BYTES = 256
 """What a live input must send before its format is sniffed (every format's signature fits, and AEDAT 4.0's header
 is longer: its XML alone exceeds it)."""
-"""How many leading bytes format detection looks at."""
 
 STDIO = "-"
 
