@@ -165,6 +165,9 @@ def _render_video(stream, framer: EventFramer, output: str, extension: str, scal
     background_bgr = framer.palette.background[::-1]
     width, height = framer.width * scale, framer.height * scale
     size = (width + width % 2, height + height % 2)
+    # FFmpeg's per-frame warnings ("Failed to write frame") would repeat for every frame of a failure that the
+    # checks below report in one line
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
     # cv2 writes to a path and picks the container by its extension: a temporary name beside the target
     with atomic_path(output, suffix=extension) as temporary:
         writer = cv2.VideoWriter(temporary, cv2.CAP_FFMPEG, cv2.VideoWriter_fourcc(*VIDEO_FOURCC[extension]), fps, size)
@@ -172,15 +175,23 @@ def _render_video(stream, framer: EventFramer, output: str, extension: str, scal
             if not writer.isOpened():
                 raise RenderError(f"{output}: OpenCV cannot write {extension} video ({VIDEO_FOURCC[extension]} codec)")
             count = 0
+            folder = os.path.dirname(os.path.abspath(temporary))
             for _, frame in _frames(with_progress(stream, stream, f"rendering {stream.name}"), framer):
                 writer.write(_even(_bgr(frame, scale), background_bgr))
                 count += 1
+                if count % 32 == 0 and os.statvfs(folder).f_bavail == 0:  # OpenCV only prints write failures
+                    raise RenderError(f"{output}: cannot write (No space left on device)")
             if not count:
                 raise _nothing_to_draw(stream.name, framer, start_us)
         finally:
             writer.release()
         if os.path.getsize(temporary) == 0:
             raise RenderError(f"{output}: OpenCV wrote an empty video")
+        written = cv2.VideoCapture(temporary)
+        frames = int(written.get(cv2.CAP_PROP_FRAME_COUNT))
+        written.release()
+        if frames < count:  # a write that failed without a word (a full disk between two checks)
+            raise RenderError(f"{output}: the video holds {frames} of its {count} frames (a full disk?)")
 
 
 def _render_map(path: str, output: str, extension: str, scale: int | None, value_range) -> None:

@@ -33,3 +33,11 @@ def test_a_full_disk_names_the_output_and_leaves_nothing(small_disk, suffix):
     result = run("convert", SAMPLES / "flicker.aedat4", "-o", target, check=False)
     assert_clean_error(result, str(target), "No space left on device")
     assert os.listdir(small_disk) == []
+
+
+def test_a_video_on_a_full_disk_fails_in_one_line_and_leaves_nothing(small_disk):
+    """render to MP4 used to exit 0 after hundreds of "Failed to write frame" lines, a truncated video left."""
+    target = small_disk / "v.mp4"
+    result = run("render", SAMPLES / "flicker.aedat4", "-o", target, "--window-us", "2000", check=False)
+    assert_clean_error(result, str(target), "No space left on device")
+    assert os.listdir(small_disk) == []
