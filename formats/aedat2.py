@@ -122,6 +122,9 @@ class Aedat2Reader:
         if not lines or not lines[0].startswith(b"#!AER-DAT2"):
             found = lines[0][:16] if lines else self._first
             raise FormatError(f"{self.name}: not an AEDAT 2.0 file (starts with {found!r}, expected {MAGIC!r})")
+        if not lines[-1].endswith(b"\n"):  # the file ends inside a header line: cut, not an empty recording
+            raise FormatError(f"{self.name}: truncated AEDAT 2.0 header (the file ends inside a header line, at "
+                              f"byte {self.header_bytes})")
         text = [line.decode("latin-1").rstrip("\r\n") for line in lines]
         chip = next((m.group(1) for m in map(_AECHIP.match, text) if m), None)
         stored = next(((int(m.group(1)), int(m.group(2))) for m in map(_SIZE.match, text) if m), None)

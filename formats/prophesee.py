@@ -132,6 +132,9 @@ class ProphesseeRawReader:
             if first != b"%":
                 return lines, consumed, first
             line = first + stream.readline()
+            if not line.endswith(b"\n"):  # the file ends inside a header line: cut, not an empty recording
+                raise FormatError(f"{self.name}: truncated Prophesee RAW header (the file ends inside a header line, "
+                                  f"at byte {consumed + len(line)})")
             consumed += len(line)
             text = line.decode("latin-1").rstrip("\r\n")
             lines.append(text)

@@ -49,3 +49,12 @@ def test_reproducers_give_one_line_errors_naming_the_file(tmp_path):
     assert damaged.returncode in (0, 1) and b"Traceback" not in damaged.stderr
     if damaged.returncode:
         assert_clean_error(damaged, "d.h5")
+
+
+def test_files_cut_inside_their_header_are_refused(tmp_path):
+    """AEDAT 2.0 and Prophesee RAW files that end inside a header line used to read as empty streams, exit 0."""
+    for name, size, needle in (("dvs128_walk.aedat", 100, "truncated AEDAT 2.0 header"),
+                               ("gen41_sample.evt3.raw", 50, "truncated Prophesee RAW header")):
+        cut = tmp_path / name
+        cut.write_bytes(data_file(name).read_bytes()[:size])
+        assert_clean_error(run("info", cut, check=False), str(cut), needle)
