@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import logging
+import itertools
 import os
 
 import click
 import numpy as np
 
-from evtools.cli.options import Duration, read_options
+from evtools.cli.options import TimeBound, read_options
 from evtools.cli.progress import with_progress
 from evtools.render import (
     BACKGROUNDS,
@@ -56,9 +57,9 @@ def _refuse(ctx: click.Context, names: dict[str, str], why: str) -> None:
               help="OUT.png (or .jpg): one window; OUT.mp4 (or .avi): a video of the whole stream.")
 @click.option("--window-us", type=click.IntRange(min=1), default=DEFAULT_WINDOW_US, show_default=True,
               help="Time window accumulated into one frame, microseconds.")
-@click.option("--start", "start_us", type=Duration(minimum_us=0), default=None, metavar="TIME",
-              help="Start of the first window on the stream's clock, with its unit (e.g. 136.6s; default: the first "
-                   "event).")
+@click.option("--start", "start", type=TimeBound(), default=None, metavar="TIME",
+              help="Start of the first window, from the stream's first event (2s, 500ms), or on the stream's clock "
+                   "after @ (@136.6s); default: the first event.")
 @click.option("--scale", type=click.IntRange(1, 64), default=None, metavar="K",
               help="Enlarge K times, nearest neighbour (default: enough for about 480 pixels; maps: 256 per map).")
 @click.option("--fps", type=click.FloatRange(min=0, min_open=True, max=1000), default=DEFAULT_FPS,
@@ -70,7 +71,7 @@ def _refuse(ctx: click.Context, names: dict[str, str], why: str) -> None:
 @click.option("--range", "value_range", type=float, nargs=2, default=None, metavar="LOW HIGH",
               help="--map: values at the ends of the colour scale (default: the maps' range without outliers).")
 @click.pass_context
-def render(ctx, input, input_format, sensor_size, aedat2_layout, output, window_us, start_us, scale, fps,
+def render(ctx, input, input_format, sensor_size, aedat2_layout, output, window_us, start, scale, fps,
            background, map_path, value_range):
     """Draw IN (default stdin) as event frames, or a thresholds map with --map: users look before they read.
 
@@ -86,7 +87,7 @@ def render(ctx, input, input_format, sensor_size, aedat2_layout, output, window_
     if map_path is not None:
         if input != STDIO:
             raise click.UsageError("give either an event stream IN or --map THRESHOLDS.h5, not both")
-        _refuse(ctx, {"window_us": "--window-us", "start_us": "--start", "fps": "--fps", "background": "--background",
+        _refuse(ctx, {"window_us": "--window-us", "start": "--start", "fps": "--fps", "background": "--background",
                       "input_format": "--input-format", "sensor_size": "--sensor-size",
                       "aedat2_layout": "--aedat2-layout"}, "applies to event streams, not to --map")
         if extension not in IMAGE_EXTENSIONS:
@@ -101,11 +102,17 @@ def render(ctx, input, input_format, sensor_size, aedat2_layout, output, window_
     with open_events(input, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as stream:
         info = stream.info
         scale = scale or auto_scale(info.width, info.height)
+        chunks = iter(stream)
+        first = next(chunks, None)  # its first event is where a relative --start counts from
+        start_us = None
+        if start is not None:
+            start_us = start.us if start.absolute or first is None else int(first["t"][0]) + start.us
+        chunks = itertools.chain([] if first is None else [first], chunks)
         framer = EventFramer(info.width, info.height, window_us, start_us=start_us, background=background)
         if extension in IMAGE_EXTENSIONS:
-            _render_image(stream, framer, output, extension, scale, start_us)
+            _render_image(chunks, stream, framer, output, extension, scale, start_us)
         else:
-            _render_video(stream, framer, output, extension, scale, fps, start_us)
+            _render_video(chunks, stream, framer, output, extension, scale, fps, start_us)
 
 
 def _frames(chunks, framer: EventFramer):
@@ -135,9 +142,9 @@ def _write_image(output: str, extension: str, rgb: np.ndarray) -> None:
         stream.write(encoded.tobytes())
 
 
-def _render_image(stream, framer: EventFramer, output: str, extension: str, scale: int, start_us) -> None:
+def _render_image(chunks, stream, framer: EventFramer, output: str, extension: str, scale: int, start_us) -> None:
     """The first window only: reading stops as soon as it is complete."""
-    first = next(_frames(stream, framer), None)
+    first = next(_frames(chunks, framer), None)
     if first is None:
         raise _nothing_to_draw(stream.name, framer, start_us)
     window_start_us, frame = first
@@ -158,7 +165,8 @@ def _even(image: np.ndarray, colour) -> np.ndarray:
     return padded
 
 
-def _render_video(stream, framer: EventFramer, output: str, extension: str, scale: int, fps: float, start_us) -> None:
+def _render_video(chunks, stream, framer: EventFramer, output: str, extension: str, scale: int, fps: float,
+                  start_us) -> None:
     """Every window as one frame, written as it is made: memory does not grow with the stream."""
     import cv2
 
@@ -176,7 +184,7 @@ def _render_video(stream, framer: EventFramer, output: str, extension: str, scal
                 raise RenderError(f"{output}: OpenCV cannot write {extension} video ({VIDEO_FOURCC[extension]} codec)")
             count = 0
             folder = os.path.dirname(os.path.abspath(temporary))
-            for _, frame in _frames(with_progress(stream, stream, f"rendering {stream.name}"), framer):
+            for _, frame in _frames(with_progress(chunks, stream, f"rendering {stream.name}"), framer):
                 writer.write(_even(_bgr(frame, scale), background_bgr))
                 count += 1
                 if count % 32 == 0 and os.statvfs(folder).f_bavail == 0:  # OpenCV only prints write failures

@@ -280,3 +280,15 @@ def test_bad_inputs_give_one_line_and_exit_1(tmp_path):
     assert_clean_error(run("render", "--map", tmp_path / "half.h5", "-o", tmp_path / "h.mp4", check=False), "h.mp4")
     assert run("render", stream, "--map", garbage, "-o", tmp_path / "b.png", check=False).returncode == 2
     assert sorted(p.name for p in tmp_path.iterdir()) == ["empty.aedat4", "garbage.h5", "half.h5", "s.aedat4"]
+
+
+def test_start_is_relative_to_the_first_event_unless_absolute(tmp_path):
+    """--start 88ms counts from the stream's first event (a recording starting at 136.6 s used to give a black
+    frame); --start @TIME is on the stream's own clock."""
+    events = make_events([1_000_000, 1_000_500, 1_090_000], [0, 5, 7], [0, 3, 5], [1, 0, 1])
+    path = write_stream(tmp_path / "s.aedat4", events, 8, 6)
+    run("render", path, "-o", tmp_path / "rel.png", "--scale", 1, "--start", "88ms", "--window-us", 5000)
+    relative = cv2.imread(str(tmp_path / "rel.png"))[..., ::-1]
+    assert tuple(relative[5, 7]) == DARK.on and tuple(relative[0, 0]) == DARK.background
+    run("render", path, "-o", tmp_path / "abs.png", "--scale", 1, "--start", "@1.088s", "--window-us", 5000)
+    assert (cv2.imread(str(tmp_path / "abs.png"))[..., ::-1] == relative).all()
