@@ -70,9 +70,12 @@ def _refuse(ctx: click.Context, names: dict[str, str], why: str) -> None:
               help="Draw the thresholds map of this HDF5 file (datasets on, off; optional valid) instead of events.")
 @click.option("--range", "value_range", type=float, nargs=2, default=None, metavar="LOW HIGH",
               help="--map: values at the ends of the colour scale (default: the maps' range without outliers).")
+@click.option("--rate", is_flag=True,
+              help="Draw the event rate over time (ON, OFF) and the per-pixel rate map of the whole stream "
+                   "instead of frames (-o FIG.png, .svg or .pdf).")
 @click.pass_context
 def render(ctx, input, input_format, sensor_size, aedat2_layout, output, window_us, start, scale, fps,
-           background, map_path, value_range):
+           background, map_path, value_range, rate):
     """Draw IN (default stdin) as event frames, or a thresholds map with --map: users look before they read.
 
     A frame colours each pixel by the events of one time window: ON (brighter) orange, OFF (darker) blue,
@@ -83,6 +86,11 @@ def render(ctx, input, input_format, sensor_size, aedat2_layout, output, window_
     evtools simulate scene:bars --size 128x96 | evtools render -o bars.mp4
     evtools render --map thresholds.h5 -o thresholds.png
     """
+    if rate:
+        _refuse(ctx, {"window_us": "--window-us", "start": "--start", "fps": "--fps", "background": "--background",
+                      "map_path": "--map", "value_range": "--range", "scale": "--scale"}, "does not apply to --rate")
+        _render_rate(input, output, dict(format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout))
+        return
     extension = _extension(output)
     if map_path is not None:
         if input != STDIO:
@@ -113,6 +121,24 @@ def render(ctx, input, input_format, sensor_size, aedat2_layout, output, window_
             _render_image(chunks, stream, framer, output, extension, scale, start_us)
         else:
             _render_video(chunks, stream, framer, output, extension, scale, fps, start_us)
+
+
+def _render_rate(input: str, output: str, options: dict) -> None:
+    from evtools.plots import PlotError, RateCounter, figure_format, rate_figure, save
+
+    try:
+        figure_format(output)
+    except PlotError as error:
+        raise click.BadParameter(str(error), param_hint="-o") from None
+    if input != STDIO and same_file(output, input):
+        raise RenderError(f"{output}: output would overwrite the input; choose another -o")
+    with open_events(input, **options) as stream:
+        counter = RateCounter(stream.info.width, stream.info.height)
+        for chunk in with_progress(stream, stream, f"counting {stream.name}"):
+            counter.add(chunk)
+    if counter.first_us is None:
+        raise RenderError(f"{stream.name}: no events to plot (the stream is empty)")
+    save(rate_figure(counter, f"event rate of {os.path.basename(stream.name)}"), output)
 
 
 def _frames(chunks, framer: EventFramer):

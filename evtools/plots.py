@@ -152,3 +152,70 @@ def edge_levels_figure(panels: list[tuple[str, list]], edge_start_us: int, edge_
         axis.grid(True, color="0.92")
     axes[0, 0].set_ylabel("events so far, ON minus OFF\n(times the threshold: log intensity)")
     return figure
+
+
+class RateCounter:
+    """Event counts of a stream, chunk by chunk: per time bin (ON and OFF) and per pixel, for :func:`rate_figure`.
+    Bins start at the first event; ``bin_us`` of 1 ms, merged in pairs whenever there would be more than
+    ``max_bins`` (so memory stays bounded on any stream length)."""
+
+    def __init__(self, width: int, height: int, bin_us: int = 1000, max_bins: int = 4096) -> None:
+        self.width, self.height = width, height
+        self.bin_us, self.max_bins = int(bin_us), int(max_bins)
+        self.first_us: int | None = None
+        self.last_us: int | None = None
+        self.bins = np.zeros((2, 0), np.int64)  # OFF, ON
+        self.pixels = np.zeros(width * height, np.int64)
+
+    def add(self, chunk: np.ndarray) -> None:
+        if not len(chunk):
+            return
+        if self.first_us is None:
+            self.first_us = int(chunk["t"][0])
+        self.last_us = int(chunk["t"][-1])
+        while (self.last_us - self.first_us) // self.bin_us >= self.max_bins:  # coarser bins: pairs merged
+            pairs = self.bins[:, : self.bins.shape[1] // 2 * 2].reshape(2, -1, 2).sum(axis=2)
+            odd = self.bins[:, self.bins.shape[1] // 2 * 2:]
+            self.bins, self.bin_us = np.concatenate([pairs, odd], axis=1), self.bin_us * 2
+        index = (chunk["t"] - self.first_us) // self.bin_us
+        size = int(index[-1]) + 1
+        if size > self.bins.shape[1]:
+            self.bins = np.pad(self.bins, ((0, 0), (0, size - self.bins.shape[1])))
+        polarity = chunk["p"].astype(np.int64)
+        self.bins += np.bincount(polarity * size + index, minlength=2 * size).reshape(2, size)[:, : self.bins.shape[1]]
+        self.pixels += np.bincount(chunk["y"].astype(np.int64) * self.width + chunk["x"], minlength=len(self.pixels))
+
+
+def rate_figure(counter: RateCounter, title: str = ""):
+    """The event rate over time (ON and OFF, events/s) above the per-pixel rate map (events/s, log scale clipped at
+    the 98th percentile, said on the bar): where a hot pixel or a flickering light would show."""
+    from matplotlib.colors import LogNorm
+
+    plt = _pyplot()
+    if counter.first_us is None:
+        raise PlotError("no events to plot")
+    span_s = max(counter.last_us - counter.first_us + 1, 1) / 1e6
+    figure, (top, bottom) = plt.subplots(2, 1, figsize=(8, 8.5), gridspec_kw={"height_ratios": [1, 1.6]})
+    times_s = (np.arange(counter.bins.shape[1]) + 0.5) * counter.bin_us / 1e6
+    top.plot(times_s, counter.bins[1] / (counter.bin_us / 1e6), color="tab:orange", linewidth=1, label="ON")
+    top.plot(times_s, counter.bins[0] / (counter.bin_us / 1e6), color="tab:blue", linewidth=1, label="OFF")
+    top.set_xlabel("time since the first event, s")
+    top.set_ylabel(f"events/s (bins of {counter.bin_us / 1e3:g} ms)")
+    top.set_xlim(0, span_s)
+    top.grid(True, color="0.92")
+    top.legend(loc="upper right", fontsize=8)
+    top.set_title(title or "event rate")
+    rates = counter.pixels.reshape(counter.height, counter.width) / span_s
+    positive = rates[rates > 0]
+    high = float(np.percentile(positive, 98)) if len(positive) else 1.0
+    low = max(float(positive.min()) if len(positive) else 0.1, high / 1e4, 1e-3)
+    cmap = plt.get_cmap("magma").with_extremes(under="black")
+    image = bottom.imshow(np.maximum(rates, low * 0.999), cmap=cmap, norm=LogNorm(vmin=low, vmax=max(high, low * 1.01)),
+                          interpolation="nearest")
+    bottom.set_title(f"events/s per pixel over {span_s:.3g} s")
+    bottom.set_xticks([])
+    bottom.set_yticks([])
+    bar = figure.colorbar(image, ax=bottom, shrink=0.85, extend="both")
+    bar.set_label(f"events/s, log scale, clipped at the 98th percentile ({high:.3g}); black: no event", fontsize=8)
+    figure.tight_layout()
+    return figure

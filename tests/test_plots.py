@@ -6,6 +6,8 @@ import json
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from evtools.formats.thresholds import ThresholdMap, write_thresholds
 from evtools.plots import PlotError, roc_figure, save, thresholds_figure
@@ -85,3 +87,40 @@ def test_edge_levels_figure_in_svg_with_labelled_axes(tmp_path):
     assert "time since the edge began, ms" in text and "ON minus OFF" in text and "before: " in text
     bad = run("metrics", "uniformity", samples / "step.aedat4", "--plot", tmp_path / "e.jpg", check=False)
     assert bad.returncode == 2
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**16), n=st.integers(1, 3000), span_us=st.integers(1, 10_000_000),
+       cuts=st.lists(st.integers(0, 3000), max_size=6), max_bins=st.integers(2, 64))
+def test_rate_counter_counts_every_event_whatever_the_chunks(seed, n, span_us, cuts, max_bins):
+    from evtools.events import join, make_events
+    from evtools.plots import RateCounter
+    from tests.helpers import cut
+
+    rng = np.random.default_rng(seed)
+    events = make_events(np.sort(rng.integers(0, span_us, n)), rng.integers(0, 7, n), rng.integers(0, 5, n),
+                         rng.integers(0, 2, n))
+    whole, parts = RateCounter(7, 5, max_bins=max_bins), RateCounter(7, 5, max_bins=max_bins)
+    whole.add(events)
+    for part in cut(events, cuts):
+        parts.add(part)
+    for counter in (whole, parts):
+        assert counter.bins.shape[1] <= max_bins
+        assert counter.bins[1].sum() == events["p"].sum() and counter.bins.sum() == n
+        assert (counter.pixels == np.bincount(events["y"].astype(int) * 7 + events["x"], minlength=35)).all()
+        # each bin holds the events of its time span
+        edges = counter.first_us + np.arange(counter.bins.shape[1] + 1) * counter.bin_us
+        assert (counter.bins.sum(axis=0) == np.histogram(events["t"], edges)[0]).all()
+    assert (whole.bins == parts.bins).all() and whole.bin_us == parts.bin_us
+
+
+def test_render_rate_draws_the_rates_figure(tmp_path):
+    from tests.conftest import data_file
+
+    recording = data_file("dvxplorer_sample.aedat4")
+    for suffix in (".png", ".svg"):
+        run("render", recording, "--rate", "-o", tmp_path / f"r{suffix}")
+        assert (tmp_path / f"r{suffix}").stat().st_size > 10_000
+    assert "events/s per pixel" in (tmp_path / "r.svg").read_text()
+    refused = run("render", recording, "--rate", "--window-us", 100, "-o", tmp_path / "x.png", check=False)
+    assert refused.returncode == 2 and b"--window-us does not apply to --rate" in refused.stderr
