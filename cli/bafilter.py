@@ -111,7 +111,8 @@ positive = click.IntRange(min=1)
 @click.option("--hot-pixels", "hot_pixels_path", type=click.Path(dir_okay=False), default=None,
               help="hotpixel: drop the pixels of this CSV list (`x,y` lines) instead of learning.")
 @click.option("--save-hot-pixels", "save_hot_pixels", type=click.Path(dir_okay=False), default=None,
-              help="hotpixel: write the hot pixels (learned or given) to this CSV file.")
+              help="hotpixel: write the hot pixels (learned or given) to this CSV file, or draw them on the "
+                   "learning stretch's rate map (.png, .svg, .pdf).")
 @click.option("--threshold", type=click.FloatRange(0.0, 1.0, min_open=True, max_open=True), default=None,
               help="mlpf: keep an event when its probability of being signal is above this [0.5].")
 @click.option("--weights", type=click.Path(exists=True, dir_okay=False), default=None,
@@ -164,7 +165,15 @@ def filter_one(input, output, *, input_format, sensor_size, aedat2_layout, metho
             process_stream(stream, ba, writer, f"filtering {stream.name}")
             if save_hot_pixels:  # inside the output's block: when the list cannot be written, no output is left
                 hot = ba.hot_map if ba.hot_map is not None else np.zeros((info.height, info.width), bool)
-                write_hot_pixels(save_hot_pixels, hot)
+                if os.path.splitext(save_hot_pixels)[1].lower() in (".png", ".svg", ".pdf"):
+                    from evtools.plots import hot_pixels_figure, save
+
+                    stage = next(stage for stage in ba.stages if stage.method == "hotpixel")
+                    counts = getattr(stage, "counts", None)
+                    save(hot_pixels_figure(hot, None if counts is None else counts.reshape(hot.shape),
+                                           getattr(stage, "learned_duration_s", 0.0)), save_hot_pixels)
+                else:
+                    write_hot_pixels(save_hot_pixels, hot)
     removed = ba.events_in - ba.events_out
     share = removed / ba.events_in if ba.events_in else 0.0
     log.info(f"bafilter {','.join(methods)}: {ba.events_in:,} in, {ba.events_out:,} kept, {removed:,} removed "

@@ -219,3 +219,30 @@ def rate_figure(counter: RateCounter, title: str = ""):
     bar.set_label(f"events/s, log scale, clipped at the 98th percentile ({high:.3g}); black: no event", fontsize=8)
     figure.tight_layout()
     return figure
+
+
+def hot_pixels_figure(hot: np.ndarray, counts: np.ndarray | None, duration_s: float):
+    """The hot pixels (circled) on the per-pixel event rate of the learning stretch (log scale), or on their own
+    map when no counts were learned (a given list)."""
+    from matplotlib.colors import LogNorm
+
+    plt = _pyplot()
+    figure, axes = plt.subplots(figsize=(7, 5.5))
+    ys, xs = np.nonzero(hot)
+    if counts is not None and duration_s > 0 and counts.any():
+        rates = counts / duration_s
+        positive = rates[rates > 0]
+        high = float(positive.max())
+        low = max(float(positive.min()), high / 1e5)
+        image = axes.imshow(np.maximum(rates, low * 0.999), norm=LogNorm(vmin=low, vmax=max(high, low * 1.01)),
+                            cmap=plt.get_cmap("magma").with_extremes(under="black"), interpolation="nearest")
+        figure.colorbar(image, ax=axes, shrink=0.85).set_label(
+            f"events/s in the learning stretch ({duration_s:.3g} s), log scale", fontsize=8)
+    else:
+        axes.imshow(hot, cmap="gray_r", interpolation="nearest")
+    axes.scatter(xs, ys, s=60, facecolors="none", edgecolors="cyan", linewidths=1.2, label=f"{len(xs)} hot pixels")
+    axes.set_title(f"hot pixels: {len(xs)} of {hot.size:,}")
+    axes.legend(loc="upper right", fontsize=8)
+    axes.set_xticks([])
+    axes.set_yticks([])
+    return figure

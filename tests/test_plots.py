@@ -124,3 +124,16 @@ def test_render_rate_draws_the_rates_figure(tmp_path):
     assert "events/s per pixel" in (tmp_path / "r.svg").read_text()
     refused = run("render", recording, "--rate", "--window-us", 100, "-o", tmp_path / "x.png", check=False)
     assert refused.returncode == 2 and b"--window-us does not apply to --rate" in refused.stderr
+
+
+def test_bafilter_draws_the_hot_pixels_on_their_rates(tmp_path):
+    """--save-hot-pixels map.svg draws the learned hot pixels, circled, on the learning stretch's rate map; a .csv
+    name still writes the list."""
+    from tests.conftest import data_file
+
+    noisy = tmp_path / "hot.aedat4"
+    run("simulate", data_file("dvs128_walk.aedat"), "--hot-pixel-fraction", "0.001", "--seed", 3, "-o", noisy)
+    run("bafilter", noisy, "--method", "hotpixel", "--save-hot-pixels", tmp_path / "hot.svg", "-o", tmp_path / "a.aedat4")
+    run("bafilter", noisy, "--method", "hotpixel", "--save-hot-pixels", tmp_path / "hot.csv", "-o", tmp_path / "b.aedat4")
+    count = len((tmp_path / "hot.csv").read_text().splitlines()) - 1
+    assert count > 0 and f"hot pixels: {count} of 16,384" in (tmp_path / "hot.svg").read_text()
