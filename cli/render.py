@@ -29,6 +29,8 @@ DEFAULT_WINDOW_US = 33_333
 """One thirtieth of a second: at the default 30 frames per second a video plays in real time."""
 DEFAULT_FPS = 30.0
 IMAGE_EXTENSIONS = {".png": "PNG image", ".jpg": "JPEG image", ".jpeg": "JPEG image"}
+MANY_FRAMES = 18_000
+"""A video reaching this many frames (10 minutes at 30 fps) gets a warning naming --window-us."""
 VIDEO_FOURCC = {".mp4": "mp4v", ".avi": "MJPG"}
 """Video containers by extension and the codec OpenCV's FFmpeg backend writes into each."""
 
@@ -213,6 +215,10 @@ def _render_video(chunks, stream, framer: EventFramer, output: str, extension: s
             for _, frame in _frames(with_progress(chunks, stream, f"rendering {stream.name}"), framer):
                 writer.write(_even(_bgr(frame, scale), background_bgr))
                 count += 1
+                if count == MANY_FRAMES:
+                    log.warning("%s: %d frames so far, one per --window-us %d us: the video will play for more than "
+                                "%.0f minutes at %g fps (a larger --window-us makes it shorter)", output, count,
+                                framer.window_us, count / fps / 60, fps)
                 if count % 32 == 0 and os.statvfs(folder).f_bavail == 0:  # OpenCV only prints write failures
                     raise RenderError(f"{output}: cannot write (No space left on device)")
             if not count:

@@ -26,6 +26,8 @@ read-ahead queue, the one being filled, the processor's output, the write-behind
 
 MAX_SENSOR_SIDE = 32767
 """x and y are int16."""
+MAX_SENSOR_PIXELS = 1 << 26
+"""The largest sensor accepted, in pixels (8192 x 8192; the largest event cameras have about 1.2 million)."""
 
 
 @dataclass
@@ -57,10 +59,17 @@ class StreamInfo:
 
 
 def check_sensor_size(width: int, height: int) -> None:
-    """Raise :class:`InvalidEventsError` unless ``1 <= width, height <= 32767``."""
+    """Raise :class:`InvalidEventsError` unless ``1 <= width, height <= 32767`` and the sensor has at most
+    :data:`MAX_SENSOR_PIXELS` pixels (per-pixel maps of a larger one would take tens of gigabytes)."""
     for name, value in (("width", width), ("height", height)):
         if not 1 <= int(value) <= MAX_SENSOR_SIDE:
             raise InvalidEventsError(f"sensor {name} {value} is not in 1..{MAX_SENSOR_SIDE}")
+    pixels = int(width) * int(height)
+    if pixels > MAX_SENSOR_PIXELS:
+        raise InvalidEventsError(
+            f"sensor {width}x{height} has {pixels:,} pixels, more than {MAX_SENSOR_PIXELS:,} (8192 x 8192, beyond any "
+            f"event camera): its per-pixel state would need about {pixels * 32 / 2**30:,.0f} GiB; give the sensor's "
+            "real size (--sensor-size / --size)")
 
 
 def parse_sensor_size(text: str) -> tuple[int, int]:

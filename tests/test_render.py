@@ -292,3 +292,36 @@ def test_start_is_relative_to_the_first_event_unless_absolute(tmp_path):
     assert tuple(relative[5, 7]) == DARK.on and tuple(relative[0, 0]) == DARK.background
     run("render", path, "-o", tmp_path / "abs.png", "--scale", 1, "--start", "@1.088s", "--window-us", 5000)
     assert (cv2.imread(str(tmp_path / "abs.png"))[..., ::-1] == relative).all()
+
+
+def test_a_video_of_very_many_frames_is_announced(tmp_path, monkeypatch):
+    """render --window-us 1 on a long stream made 500,000 frames without a word: past MANY_FRAMES a warning names
+    --window-us (run in-process with the threshold lowered)."""
+    import logging
+
+    from click.testing import CliRunner
+
+    import evtools.cli.render as render_cli
+    from evtools.cli.main import cli
+
+    monkeypatch.setattr(render_cli, "MANY_FRAMES", 5)
+    events = make_events(np.arange(0, 20_000, 100), np.zeros(200, int), np.zeros(200, int), np.ones(200, int))
+    path = write_stream(tmp_path / "s.aedat4", events, 8, 6)
+    records = []
+    handler = logging.Handler()
+    handler.emit = records.append
+    logging.getLogger("evtools").addHandler(handler)
+    try:
+        result = CliRunner().invoke(cli, ["render", str(path), "-o", str(tmp_path / "v.mp4"), "--window-us", "1000"])
+    finally:
+        logging.getLogger("evtools").removeHandler(handler)
+    assert result.exit_code == 0, result.output
+    assert any("--window-us" in record.getMessage() for record in records)
+
+
+def test_a_sensor_beyond_any_camera_is_refused_with_its_memory():
+    from evtools.events import InvalidEventsError, StreamInfo
+
+    with pytest.raises(InvalidEventsError, match="GiB"):
+        StreamInfo(32767, 32767)
+    StreamInfo(8192, 8192)
