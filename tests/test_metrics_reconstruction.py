@@ -10,7 +10,7 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from evtools.events import join, make_events
+from evtools.events import make_events
 from evtools.metrics.reconstruction import HighPassReconstructor, reconstruction_errors, ssim
 from tests.helpers import assert_clean_error, cut, run
 from tests.naive.reconstruction import reconstruct_naive

@@ -93,7 +93,7 @@ def test_edge_levels_figure_in_svg_with_labelled_axes(tmp_path):
 @given(seed=st.integers(0, 2**16), n=st.integers(1, 3000), span_us=st.integers(1, 10_000_000),
        cuts=st.lists(st.integers(0, 3000), max_size=6), max_bins=st.integers(2, 64))
 def test_rate_counter_counts_every_event_whatever_the_chunks(seed, n, span_us, cuts, max_bins):
-    from evtools.events import join, make_events
+    from evtools.events import make_events
     from evtools.plots import RateCounter
     from tests.helpers import cut
 
