@@ -72,12 +72,16 @@ def _refuse(ctx: click.Context, names: dict[str, str], why: str) -> None:
               help="Draw the thresholds map of this HDF5 file (datasets on, off; optional valid) instead of events.")
 @click.option("--range", "value_range", type=float, nargs=2, default=None, metavar="LOW HIGH",
               help="--map: values at the ends of the colour scale (default: the maps' range without outliers).")
+@click.option("--mode", type=click.Choice(["accumulate", "decay", "time-surface"]), default="accumulate",
+              show_default=True,
+              help="accumulate: each window's events alone; decay: every event adds +-1 that fades by e each window; "
+                   "time-surface: each pixel's last event, fading by e each window since.")
 @click.option("--rate", is_flag=True,
               help="Draw the event rate over time (ON, OFF) and the per-pixel rate map of the whole stream "
                    "instead of frames (-o FIG.png, .svg or .pdf).")
 @click.pass_context
 def render(ctx, input, input_format, sensor_size, aedat2_layout, output, window_us, start, scale, fps,
-           background, map_path, value_range, rate):
+           background, map_path, value_range, mode, rate):
     """Draw IN (default stdin) as event frames, or a thresholds map with --map: users look before they read.
 
     A frame colours each pixel by the events of one time window: ON (brighter) orange, OFF (darker) blue,
@@ -90,7 +94,8 @@ def render(ctx, input, input_format, sensor_size, aedat2_layout, output, window_
     """
     if rate:
         _refuse(ctx, {"window_us": "--window-us", "start": "--start", "fps": "--fps", "background": "--background",
-                      "map_path": "--map", "value_range": "--range", "scale": "--scale"}, "does not apply to --rate")
+                      "map_path": "--map", "value_range": "--range", "scale": "--scale", "mode": "--mode"},
+                "does not apply to --rate")
         _render_rate(input, output, dict(format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout))
         return
     extension = _extension(output)
@@ -99,7 +104,7 @@ def render(ctx, input, input_format, sensor_size, aedat2_layout, output, window_
             raise click.UsageError("give either an event stream IN or --map THRESHOLDS.h5, not both")
         _refuse(ctx, {"window_us": "--window-us", "start": "--start", "fps": "--fps", "background": "--background",
                       "input_format": "--input-format", "sensor_size": "--sensor-size",
-                      "aedat2_layout": "--aedat2-layout"}, "applies to event streams, not to --map")
+                      "aedat2_layout": "--aedat2-layout", "mode": "--mode"}, "applies to event streams, not to --map")
         if extension not in IMAGE_EXTENSIONS:
             raise RenderError(f"{output}: a thresholds map is drawn as an image; give -o MAP.png")
         _render_map(map_path, output, extension, scale, value_range)
@@ -118,7 +123,7 @@ def render(ctx, input, input_format, sensor_size, aedat2_layout, output, window_
         if start is not None:
             start_us = start.us if start.absolute or first is None else int(first["t"][0]) + start.us
         chunks = itertools.chain([] if first is None else [first], chunks)
-        framer = EventFramer(info.width, info.height, window_us, start_us=start_us, background=background)
+        framer = EventFramer(info.width, info.height, window_us, start_us=start_us, background=background, mode=mode)
         if extension in IMAGE_EXTENSIONS:
             _render_image(chunks, stream, framer, output, extension, scale, start_us)
         else:

@@ -144,6 +144,12 @@ def _palette(background: str) -> FramePalette:
         raise RenderError(f"unknown background {background!r}; choose one of {', '.join(BACKGROUNDS)}") from None
 
 
+MODES = ("accumulate", "decay", "time-surface")
+"""accumulate: each window's events alone (the net polarity of each pixel); decay: every event adds +-1 to its pixel,
+and the level decays by e each window (a leaky memory of the recent past); time-surface: each pixel shows its last
+event, fading by e each window since (Lagorce et al., HOTS, TPAMI 2017)."""
+
+
 class EventFramer:
     """Cuts a stream into time windows and makes one RGB event frame per window.
 
@@ -162,6 +168,8 @@ class EventFramer:
         Start of the first window, microseconds; None: the first event's time.
     background : {"dark", "white"}
         Palette of the frames (:data:`BACKGROUNDS`).
+    mode : {"accumulate", "decay", "time-surface"}
+        How a frame shows the events (:data:`MODES`).
 
     Attributes
     ----------
@@ -172,12 +180,22 @@ class EventFramer:
     """
 
     def __init__(
-        self, width: int, height: int, window_us: int, *, start_us: int | None = None, background: str = "dark"
+        self, width: int, height: int, window_us: int, *, start_us: int | None = None, background: str = "dark",
+        mode: str = "accumulate",
     ) -> None:
         check_sensor_size(width, height)
         if int(window_us) != window_us or window_us <= 0:
             raise RenderError(f"window length must be a whole number of microseconds > 0, got {window_us}")
+        if mode not in MODES:
+            raise RenderError(f"unknown mode {mode!r}; choose one of {', '.join(MODES)}")
+        self.mode = mode
         self.width, self.height, self.window_us = int(width), int(height), int(window_us)
+        # decay: each event adds +-1 that decays by e every window; time-surface: each pixel's last event fades by e
+        # every window (both carried from window to window)
+        self._level = np.zeros((self.height, self.width), np.float64)
+        self._gain = np.zeros((self.height, self.width), np.float64)
+        self._last_us = np.full((self.height, self.width), np.iinfo(np.int64).min // 2, np.int64)
+        self._last_on = np.zeros((self.height, self.width), bool)
         self.palette = _palette(background)
         self.background = background
         self._window_start_us = None if start_us is None else int(start_us)
@@ -205,7 +223,10 @@ class EventFramer:
         while i < len(chunk):
             end_us = self._window_start_us + self.window_us
             j = int(np.searchsorted(t, end_us, side="left"))
-            accumulate_events(chunk[i:j], self._on, self._off)
+            if self.mode == "accumulate":
+                accumulate_events(chunk[i:j], self._on, self._off)
+            else:
+                self._remember(chunk[i:j])
             self.events_used += j - i
             if j == len(chunk):
                 return
@@ -222,19 +243,49 @@ class EventFramer:
         if self.events_used:
             yield self._window_start_us, self._take_frame()
 
+    def _remember(self, events: np.ndarray) -> None:
+        """decay and time-surface: the window's events into the carried state (order within a pixel kept)."""
+        if not len(events):
+            return
+        flat = events["y"].astype(np.int64) * self.width + events["x"]
+        if self.mode == "decay":  # +-exp((t - window start) / window): at the window's end, times exp(-1)
+            weight = np.exp((events["t"] - self._window_start_us) / self.window_us)
+            np.add.at(self._gain.reshape(-1), flat, np.where(events["p"], weight, -weight))
+        else:  # the last event of each pixel: events are time-sorted, so the last write of a pixel wins
+            order = np.unique(flat[::-1], return_index=True)[1]
+            last = len(flat) - 1 - order
+            self._last_us.reshape(-1)[flat[last]] = events["t"][last]
+            self._last_on.reshape(-1)[flat[last]] = events["p"][last]
+
     def _take_frame(self) -> np.ndarray:
+        if self.mode == "decay":
+            self._level = (self._level + self._gain) * math.exp(-1.0)
+            self._gain.fill(0.0)
+            return self._shade(np.tanh(np.abs(self._level)), self._level > 0)
+        if self.mode == "time-surface":
+            end_us = self._window_start_us + self.window_us
+            return self._shade(np.exp(-(end_us - self._last_us) / self.window_us), self._last_on)
         frame = self.palette.table()[_pixel_codes(self._on, self._off)]
         self._on.fill(0)
         self._off.fill(0)
         return frame
 
+    def _shade(self, strength: np.ndarray, on: np.ndarray) -> np.ndarray:
+        """Background blended toward the ON or OFF colour by ``strength`` (0..1)."""
+        background = np.array(self.palette.background, np.float64)
+        colour = np.where(on[..., None], np.array(self.palette.on, np.float64), np.array(self.palette.off, np.float64))
+        strength = np.clip(strength, 0.0, 1.0)[..., None]
+        return np.round(background + (colour - background) * strength).astype(np.uint8)
+
     def _blank(self) -> np.ndarray:
+        if self.mode != "accumulate":  # the carried state fades on
+            return self._take_frame()
         return np.broadcast_to(np.array(self.palette.background, np.uint8), (self.height, self.width, 3)).copy()
 
 
 def event_frames(
     events: np.ndarray, width: int, height: int, window_us: int, *, start_us: int | None = None,
-    background: str = "dark",
+    background: str = "dark", mode: str = "accumulate",
 ) -> list[tuple[int, np.ndarray]]:
     """All frames of one array of events: :class:`EventFramer` ``process`` then ``flush``.
 
@@ -243,7 +294,7 @@ def event_frames(
     list of (int, ndarray)
         ``(window_start_us, rgb_frame)`` per window, frames of shape (height, width, 3).
     """
-    framer = EventFramer(width, height, window_us, start_us=start_us, background=background)
+    framer = EventFramer(width, height, window_us, start_us=start_us, background=background, mode=mode)
     return [*framer.process(events), *framer.flush()]
 
 

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import math
+
 import cv2
 import h5py
 import numpy as np
@@ -325,3 +327,39 @@ def test_a_sensor_beyond_any_camera_is_refused_with_its_memory():
     with pytest.raises(InvalidEventsError, match="GiB"):
         StreamInfo(32767, 32767)
     StreamInfo(8192, 8192)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**16), mode=st.sampled_from(["decay", "time-surface"]),
+       cuts=st.lists(st.integers(0, 300), max_size=5), window_us=st.integers(50, 3000))
+def test_decay_and_time_surface_equal_their_definitions_whatever_the_chunks(seed, mode, cuts, window_us):
+    """Against the definitions, pixel by pixel at each window's end E: decay = tanh|sum +-exp(-(E - t) / W)|, with
+    the sign's colour; time-surface = exp(-(E - last t) / W) in the last event's colour."""
+    from evtools.render import EventFramer
+
+    rng = np.random.default_rng(seed)
+    n = 300
+    events = make_events(np.sort(rng.integers(0, 20_000, n)), rng.integers(0, 4, n), rng.integers(0, 3, n),
+                         rng.integers(0, 2, n))
+    framer = EventFramer(4, 3, window_us, mode=mode)
+    frames = [frame for part in cut(events, cuts) for frame in framer.process(part)] + list(framer.flush())
+    whole = EventFramer(4, 3, window_us, mode=mode)
+    assert all((a[1] == b[1]).all() for a, b in zip(frames, [*whole.process(events), *whole.flush()]))
+    background, on, off = (np.array(c, float) for c in (DARK.background, DARK.on, DARK.off))
+    for start_us, frame in frames[:-1]:  # the last window may be unfinished
+        end_us = start_us + window_us
+        past = events[events["t"] < end_us]
+        for y in range(3):
+            for x in range(4):
+                mine = past[(past["x"] == x) & (past["y"] == y)]
+                if mode == "decay":
+                    level = sum((1.0 if p else -1.0) * math.exp(-(end_us - t) / window_us)
+                                for t, p in zip(mine["t"].tolist(), mine["p"].tolist()))
+                    strength, colour = math.tanh(abs(level)), on if level > 0 else off
+                elif len(mine):
+                    strength = math.exp(-(end_us - int(mine["t"][-1])) / window_us)
+                    colour = on if mine["p"][-1] else off
+                else:
+                    strength, colour = 0.0, off
+                expected = np.round(background + (colour - background) * strength)
+                assert np.abs(frame[y, x].astype(float) - expected).max() <= 1, (mode, x, y, start_us)
