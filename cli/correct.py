@@ -63,7 +63,7 @@ def correct(inputs, input_format, sensor_size, aedat2_layout, output, jobs, sche
 
     \b
     evtools correct flicker.aedat4 --thresholds thresholds.h5 -o corrected.aedat4
-    evtools simulate scene:step --truth t.h5 | evtools correct --thresholds t.h5 --mode foh | evtools info -
+    evtools correct step.aedat4 --thresholds step.truth.h5 --mode foh | evtools info -
     evtools correct drifting.aedat4 --thresholds series.h5 --target 0.2 -o corrected.aedat4  # estimate --online
     """
     pairs = plan(inputs, output, ".aedat4")
