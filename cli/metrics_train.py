@@ -75,9 +75,7 @@ def train_denoiser(noisy, truths, output, patch, hidden, tau_us, seed, max_event
     for name in (*noisy, *truths):
         if os.path.exists(output) and same_file(output, name):
             raise click.UsageError(f"{output}: is an input; choose another -o")
-    with open_events(noisy[0]) as first:  # counts decide the sampling fraction; labels give them cheaply
-        pass
-    total = sum(len(read_labels(truth)) for truth in truths)
+    total = sum(len(read_labels(truth)) for truth in truths)  # events over all inputs: the sampling fraction
     fraction = min(1.0, max_events / max(total, 1))
     rng = np.random.default_rng(seed)
     parts = [_features(n, t, patch, tau_us, fraction, held_out, rng) for n, t in zip(noisy, truths)]
@@ -92,7 +90,7 @@ def train_denoiser(noisy, truths, output, patch, hidden, tau_us, seed, max_event
               "events_total": total, "train_events": report.train_events,
               "held_out_events": report.validation_events, "signal_fraction": report.signal_fraction,
               "epochs": report.epochs, "train_loss": report.train_loss, "held_out_loss": report.validation_loss,
-              "held_out_auc": report.validation_auc, "sensor": f"{first.info.width}x{first.info.height}"}
+              "held_out_auc": report.validation_auc}
     if wants_json(as_json):
         click.echo(json.dumps(result, indent=2))
     else:
