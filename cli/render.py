@@ -76,12 +76,14 @@ def _refuse(ctx: click.Context, names: dict[str, str], why: str) -> None:
               show_default=True,
               help="accumulate: each window's events alone; decay: every event adds +-1 that fades by e each window; "
                    "time-surface: each pixel's last event, fading by e each window since.")
+@click.option("--caption", is_flag=True,
+              help="Write each frame's time window on it (seconds from the first event, and the window's length).")
 @click.option("--rate", is_flag=True,
               help="Draw the event rate over time (ON, OFF) and the per-pixel rate map of the whole stream "
                    "instead of frames (-o FIG.png, .svg or .pdf).")
 @click.pass_context
 def render(ctx, input, input_format, sensor_size, aedat2_layout, output, window_us, start, scale, fps,
-           background, map_path, value_range, mode, rate):
+           background, map_path, value_range, mode, caption, rate):
     """Draw IN (default stdin) as event frames, or a thresholds map with --map: users look before they read.
 
     A frame colours each pixel by the events of one time window: ON (brighter) orange, OFF (darker) blue,
@@ -94,7 +96,8 @@ def render(ctx, input, input_format, sensor_size, aedat2_layout, output, window_
     """
     if rate:
         _refuse(ctx, {"window_us": "--window-us", "start": "--start", "fps": "--fps", "background": "--background",
-                      "map_path": "--map", "value_range": "--range", "scale": "--scale", "mode": "--mode"},
+                      "map_path": "--map", "value_range": "--range", "scale": "--scale", "mode": "--mode",
+                      "caption": "--caption"},
                 "does not apply to --rate")
         _render_rate(input, output, dict(format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout))
         return
@@ -104,7 +107,8 @@ def render(ctx, input, input_format, sensor_size, aedat2_layout, output, window_
             raise click.UsageError("give either an event stream IN or --map THRESHOLDS.h5, not both")
         _refuse(ctx, {"window_us": "--window-us", "start": "--start", "fps": "--fps", "background": "--background",
                       "input_format": "--input-format", "sensor_size": "--sensor-size",
-                      "aedat2_layout": "--aedat2-layout", "mode": "--mode"}, "applies to event streams, not to --map")
+                      "aedat2_layout": "--aedat2-layout", "mode": "--mode", "caption": "--caption"},
+                "applies to event streams, not to --map")
         if extension not in IMAGE_EXTENSIONS:
             raise RenderError(f"{output}: a thresholds map is drawn as an image; give -o MAP.png")
         _render_map(map_path, output, extension, scale, value_range)
@@ -125,9 +129,9 @@ def render(ctx, input, input_format, sensor_size, aedat2_layout, output, window_
         chunks = itertools.chain([] if first is None else [first], chunks)
         framer = EventFramer(info.width, info.height, window_us, start_us=start_us, background=background, mode=mode)
         if extension in IMAGE_EXTENSIONS:
-            _render_image(chunks, stream, framer, output, extension, scale, start_us)
+            _render_image(chunks, stream, framer, output, extension, scale, start_us, caption)
         else:
-            _render_video(chunks, stream, framer, output, extension, scale, fps, start_us)
+            _render_video(chunks, stream, framer, output, extension, scale, fps, start_us, caption)
 
 
 def _render_rate(input: str, output: str, options: dict) -> None:
@@ -161,10 +165,6 @@ def _nothing_to_draw(name: str, framer: EventFramer, start_us: int | None) -> Re
                        f"{framer.first_t_us} us to {framer.last_t_us} us)")
 
 
-def _bgr(frame: np.ndarray, scale: int) -> np.ndarray:
-    return np.ascontiguousarray(upscale(frame, scale)[..., ::-1])
-
-
 def _write_image(output: str, extension: str, rgb: np.ndarray) -> None:
     import cv2
 
@@ -175,7 +175,21 @@ def _write_image(output: str, extension: str, rgb: np.ndarray) -> None:
         stream.write(encoded.tobytes())
 
 
-def _render_image(chunks, stream, framer: EventFramer, output: str, extension: str, scale: int, start_us) -> None:
+def _captioned(image: np.ndarray, framer: EventFramer, window_start_us: int) -> np.ndarray:
+    """``image`` (RGB) with its window written at the bottom left: seconds since the first event, window length."""
+    import cv2
+
+    text = f"{(window_start_us - framer.first_t_us) / 1e6:.3f} s  +{framer.window_us / 1e3:g} ms"
+    height, width = image.shape[:2]
+    size = max(0.35, min(width / 700, 1.5))
+    colour = (0, 0, 0) if framer.background == "white" else (235, 235, 235)
+    image = np.ascontiguousarray(image)
+    cv2.putText(image, text, (4, height - 6), cv2.FONT_HERSHEY_SIMPLEX, size, colour, 1, cv2.LINE_AA)
+    return image
+
+
+def _render_image(chunks, stream, framer: EventFramer, output: str, extension: str, scale: int, start_us,
+                  caption: bool = False) -> None:
     """The first window only: reading stops as soon as it is complete."""
     first = next(_frames(chunks, framer), None)
     if first is None:
@@ -184,7 +198,8 @@ def _render_image(chunks, stream, framer: EventFramer, output: str, extension: s
     if not (frame != framer.palette.table()[1]).any():
         log.warning("%s: no events in the window %d us .. %d us (the stream starts at %d us); the picture is empty",
                     stream.name, window_start_us, window_start_us + framer.window_us, framer.first_t_us)
-    _write_image(output, extension, upscale(frame, scale))
+    image = upscale(frame, scale)
+    _write_image(output, extension, _captioned(image, framer, window_start_us) if caption else image)
 
 
 def _even(image: np.ndarray, colour) -> np.ndarray:
@@ -199,7 +214,7 @@ def _even(image: np.ndarray, colour) -> np.ndarray:
 
 
 def _render_video(chunks, stream, framer: EventFramer, output: str, extension: str, scale: int, fps: float,
-                  start_us) -> None:
+                  start_us, caption: bool = False) -> None:
     """Every window as one frame, written as it is made: memory does not grow with the stream."""
     import cv2
 
@@ -217,8 +232,11 @@ def _render_video(chunks, stream, framer: EventFramer, output: str, extension: s
                 raise RenderError(f"{output}: OpenCV cannot write {extension} video ({VIDEO_FOURCC[extension]} codec)")
             count = 0
             folder = os.path.dirname(os.path.abspath(temporary))
-            for _, frame in _frames(with_progress(chunks, stream, f"rendering {stream.name}"), framer):
-                writer.write(_even(_bgr(frame, scale), background_bgr))
+            for window_start_us, frame in _frames(with_progress(chunks, stream, f"rendering {stream.name}"), framer):
+                image = upscale(frame, scale)
+                if caption:
+                    image = _captioned(image, framer, window_start_us)
+                writer.write(_even(np.ascontiguousarray(image[..., ::-1]), background_bgr))
                 count += 1
                 if count == MANY_FRAMES:
                     log.warning("%s: %d frames so far, one per --window-us %d us: the video will play for more than "

@@ -363,3 +363,16 @@ def test_decay_and_time_surface_equal_their_definitions_whatever_the_chunks(seed
                     strength, colour = 0.0, off
                 expected = np.round(background + (colour - background) * strength)
                 assert np.abs(frame[y, x].astype(float) - expected).max() <= 1, (mode, x, y, start_us)
+
+
+def test_caption_writes_the_window_only_when_asked(tmp_path):
+    """--caption writes the frame's window in its bottom rows; without it the frame is the events alone."""
+    events = make_events([1_000_000, 1_000_500, 1_090_000], [0, 5, 7], [0, 3, 5], [1, 0, 1])
+    path = write_stream(tmp_path / "s.aedat4", events, 64, 48)
+    run("render", path, "-o", tmp_path / "plain.png", "--scale", 4)
+    run("render", path, "-o", tmp_path / "caption.png", "--scale", 4, "--caption")
+    plain, captioned = cv2.imread(str(tmp_path / "plain.png")), cv2.imread(str(tmp_path / "caption.png"))
+    changed = np.nonzero((plain != captioned).any(axis=2))[0]
+    assert len(changed) and changed.min() >= plain.shape[0] - 30  # only the bottom band carries the text
+    run("render", path, "-o", tmp_path / "v.mp4", "--caption", "--window-us", 20_000)
+    assert (tmp_path / "v.mp4").stat().st_size > 0
