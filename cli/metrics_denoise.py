@@ -9,7 +9,7 @@ import math
 import click
 import numpy as np
 
-from evtools.cli.options import json_option, read_options, wants_json
+from evtools.cli.options import figure_path, json_option, read_options, wants_json
 from evtools.cli.progress import with_progress
 from evtools.filters import METHODS, BAFilter, BAFilterError, parse_methods
 from evtools.metrics.denoise import LABEL_NAMES, DenoiseMatcher, DenoiseMetricsError, EsrMeter, roc_auc
@@ -182,21 +182,16 @@ def roc(noisy, truth, methods, sweep, preset, weights, polarity_maps, settings, 
             parse_methods(chain)
         except BAFilterError as error:
             raise click.BadParameter(str(error), param_hint="--method") from None
-    if plot:
-        from evtools.plots import PlotError, figure_format
-
-        try:
-            figure_format(plot)
-        except PlotError as error:
-            raise click.BadParameter(str(error), param_hint="--plot") from None
+    figure_path(plot, "--plot")
     labels = _labels_for(truth, _count_events(noisy), noisy)
     name, values = sweep
     results, curves = [], []
     for chain in methods:
         points, rows = [], []
         for value in values:
-            params = {**settings, name: value, **({"weights": weights} if weights and "mlpf" in parse_methods(chain) else {}),
-                      **({"polarity_maps": True} if polarity_maps and "stcf" in parse_methods(chain) else {})}
+            stages = parse_methods(chain)
+            params = {**settings, name: value, **({"weights": weights} if weights and "mlpf" in stages else {}),
+                      **({"polarity_maps": True} if polarity_maps and "stcf" in stages else {})}
             score = _score_filter(noisy, labels, chain, preset, params)
             rows.append({"value": value, **score.as_dict()})
             points.append((score.fpr, score.tpr))

@@ -6,7 +6,7 @@ import json
 
 import click
 
-from evtools.cli.options import json_option, wants_json
+from evtools.cli.options import figure_path, json_option, wants_json
 from evtools.metrics.thresholds import ThresholdMetricsError, threshold_errors
 from evtools.formats.thresholds import read_thresholds
 
@@ -30,13 +30,7 @@ def thresholds(estimate_path, truth_path, plot_path, as_json):
             f"{estimate_path}: thresholds are {estimate.width}x{estimate.height} but the truth {truth_path} is "
             f"{truth.width}x{truth.height}; compare the estimate with the truth of the same sensor"
         )
-    if plot_path is not None:
-        from evtools.plots import PlotError, figure_format
-
-        try:
-            figure_format(plot_path)
-        except PlotError as error:
-            raise click.BadParameter(str(error), param_hint="--plot") from None
+    figure_path(plot_path, "--plot")
     try:
         result = threshold_errors(estimate.on, estimate.off, estimate.valid, truth.on, truth.off)
     except ThresholdMetricsError as error:

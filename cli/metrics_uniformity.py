@@ -6,7 +6,7 @@ import json
 
 import click
 
-from evtools.cli.options import json_option, read_options, wants_json
+from evtools.cli.options import figure_path, json_option, read_options, wants_json
 from evtools.events import concatenate
 from evtools.metrics.uniformity import UniformityError, detect_edges, edge_uniformity, edges_from_starts, pixel_levels
 from evtools.formats import open_events
@@ -50,13 +50,7 @@ def uniformity(input, input_format, sensor_size, aedat2_layout, edges_at, refere
     evtools metrics uniformity corrected.aedat4 --reference ideal.aedat4
     evtools metrics uniformity corrected.aedat4 --before raw.aedat4 --plot edges.png
     """
-    if plot:
-        from evtools.plots import PlotError, figure_format
-
-        try:
-            figure_format(plot)
-        except PlotError as error:
-            raise click.BadParameter(str(error), param_hint="--plot") from None
+    figure_path(plot, "--plot")
     options = dict(format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout)
     info, name, events = _read(input, **options)
     try:

@@ -97,6 +97,20 @@ def slicing_options(function):
     return function
 
 
+def figure_path(path: str | None, param_hint: str) -> str | None:
+    """``path`` when it names a figure evtools can write (.png, .svg, .pdf), else a usage error: checked before any
+    work is done."""
+    if path is None:
+        return None
+    from evtools.plots import PlotError, figure_format
+
+    try:
+        figure_format(path)
+    except PlotError as error:
+        raise click.BadParameter(str(error), param_hint=param_hint) from None
+    return path
+
+
 input_argument = click.argument("input", default="-", metavar="[IN]", type=click.Path(dir_okay=False, allow_dash=True))
 output_option = click.option(
     "-o", "--output", default="-", metavar="OUT", type=click.Path(dir_okay=False, allow_dash=True),

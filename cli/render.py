@@ -9,11 +9,12 @@ import os
 import click
 import numpy as np
 
-from evtools.cli.options import TimeBound, read_options
+from evtools.cli.options import TimeBound, figure_path, read_options
 from evtools.cli.progress import with_progress
 from evtools.render import (
     BACKGROUNDS,
     EventFramer,
+    MODES,
     RenderError,
     auto_scale,
     thresholds_picture,
@@ -72,7 +73,7 @@ def _refuse(ctx: click.Context, names: dict[str, str], why: str) -> None:
               help="Draw the thresholds map of this HDF5 file (datasets on, off; optional valid) instead of events.")
 @click.option("--range", "value_range", type=float, nargs=2, default=None, metavar="LOW HIGH",
               help="--map: values at the ends of the colour scale (default: the maps' range without outliers).")
-@click.option("--mode", type=click.Choice(["accumulate", "decay", "time-surface"]), default="accumulate",
+@click.option("--mode", type=click.Choice(MODES), default="accumulate",
               show_default=True,
               help="accumulate: each window's events alone; decay: every event adds +-1 that fades by e each window; "
                    "time-surface: each pixel's last event, fading by e each window since.")
@@ -135,12 +136,9 @@ def render(ctx, input, input_format, sensor_size, aedat2_layout, output, window_
 
 
 def _render_rate(input: str, output: str, options: dict) -> None:
-    from evtools.plots import PlotError, RateCounter, figure_format, rate_figure, save
+    from evtools.plots import RateCounter, rate_figure, save
 
-    try:
-        figure_format(output)
-    except PlotError as error:
-        raise click.BadParameter(str(error), param_hint="-o") from None
+    figure_path(output, "-o")
     if input != STDIO and same_file(output, input):
         raise RenderError(f"{output}: output would overwrite the input; choose another -o")
     with open_events(input, **options) as stream:
