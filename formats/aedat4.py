@@ -366,7 +366,7 @@ def _description(info: StreamInfo, compression: int) -> str:
         f'                <attr key="sizeX" type="int">{info.width}</attr>\n'
         f'                <attr key="sizeY" type="int">{info.height}</attr>\n'
         f'                <attr key="source" type="string">{source}</attr>\n'
-        f'                <attr key="{END_MARK_KEY}" type="bool">true</attr>\n'
+        f'                <attr key="{END_MARK_KEY}" type="string">true</attr>\n'
         '            </node>\n'
         '        </node>\n'
         '    </node>\n'
