@@ -27,6 +27,10 @@ events, DVXplorer recording, AEDAT 4.0 LZ4), at the same speed file to file; `co
 
 MAX_SENSOR_SIDE = 32767
 """x and y are int16."""
+MAX_TIME_US = 1 << 62
+"""Event times lie in -2^62..2^62 us (146,000 years either way of 0): a kernel adds windows and gaps to a time
+without overflow, and 2^63 - 1 stays free to mean "no event yet"."""
+
 MAX_SENSOR_PIXELS = 1 << 26
 """The largest sensor accepted, in pixels (8192 x 8192; the largest event cameras have about 1.2 million)."""
 
@@ -188,6 +192,11 @@ class StreamChecker:
                     f"{self.name}: event {self.events_seen + i} at (x={chunk['x'][i]}, y={chunk['y'][i]}) lies "
                     f"outside the {self.info.width}x{self.info.height} sensor (give the right --sensor-size)"
                 )
+            if t[0] < -MAX_TIME_US or t[-1] > MAX_TIME_US:  # sorted (checked below): the ends bound the rest
+                i = 0 if t[0] < -MAX_TIME_US else int(np.argmax(t > MAX_TIME_US))
+                raise InvalidEventsError(
+                    f"{self.name}: event {self.events_seen + i} has time {int(t[i])} us, outside the +-2^62 us "
+                    "(+-146,000 years) that evtools supports")
             if self.last_t is not None and t[0] < self.last_t:
                 self._backwards(0, self.last_t, t[0])
             backwards = t[1:] < t[:-1]

@@ -18,7 +18,7 @@ from typing import BinaryIO, Iterator
 
 import numpy as np
 
-from evtools.events import EVENT_DTYPE, MAX_SENSOR_SIDE, StreamInfo
+from evtools.events import EVENT_DTYPE, MAX_SENSOR_SIDE, MAX_TIME_US, StreamInfo
 from evtools.formats.errors import FormatError
 from evtools.formats.io import Source, resolve_sensor_size
 from evtools.formats.registry import ReadOptions, WriteOptions
@@ -37,8 +37,6 @@ COLUMN_ALIASES = {
 """Header names (lower case, without ``@size``) and the event field they mean."""
 
 _NUMBER = re.compile(rb"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
-_INT64_MAX = np.iinfo(np.int64).max
-_INT64_MIN = np.iinfo(np.int64).min
 
 
 class TextReader:
@@ -237,8 +235,9 @@ class TextReader:
             t = np.rint(t * 1e6 if not self.csv else t)
             self._check((x != np.floor(x)) | (y != np.floor(y)) | ~np.isfinite(p), rows, line_no,
                         "x and y must be integers, p a number")
-        else:
-            self._check((t == _INT64_MAX) | (t == _INT64_MIN), rows, line_no, "t does not fit in 64 bits")
+        # the integer parser saturates at +-(2^63 - 1): such a value, and any beyond the supported range, is refused
+        self._check((t > MAX_TIME_US) | (t < -MAX_TIME_US), rows, line_no,
+                    "t is outside the +-2^62 us (+-146,000 years) that evtools supports")
         self._check((x < 0) | (x > MAX_SENSOR_SIDE) | (y < 0) | (y > MAX_SENSOR_SIDE), rows, line_no,
                     f"x or y outside 0..{MAX_SENSOR_SIDE}")
         self._check((p != 0) & (p != 1) & (p != -1), rows, line_no, "p must be 0 or 1 (or -1 and +1)")

@@ -80,3 +80,16 @@ def test_rechunk_gives_fixed_sizes_whatever_the_input_cuts(cuts, size):
     out = list(rechunk(cut(events, cuts), size))
     assert all(len(chunk) == size for chunk in out[:-1]) and 0 < len(out[-1]) <= size
     np.testing.assert_array_equal(concatenate(out), events)
+
+
+def test_checker_refuses_times_outside_the_supported_range():
+    """Kernels add windows to times and keep 2^63 - 1 for "no event yet": times beyond +-2^62 us are refused by
+    event index, whatever the reader (the CSV reader refuses them by line)."""
+    info = StreamInfo(4, 4)
+    chunk = make_events([0, 2**62, 2**62 + 1], [0, 0, 0], [0, 0, 0], [1, 1, 1])
+    with pytest.raises(InvalidEventsError, match=r"s: event 2 has time 4611686018427387905 us, outside"):
+        StreamChecker(info, "s").check(chunk)
+    early = make_events([-(2**62) - 1, 0], [0, 0], [0, 0], [1, 1])
+    with pytest.raises(InvalidEventsError, match=r"event 0 has time -4611686018427387905 us"):
+        StreamChecker(info, "s").check(early)
+    assert len(StreamChecker(info, "s").check(chunk[:2])) == 2

@@ -212,3 +212,17 @@ def test_polarity_must_be_zero_one_or_minus_one_plus_one(tmp_path):
         assert_clean_error(run("info", path, "--sensor-size", "4x4", check=False), "p.csv", "line 3", "p must be")
     path.write_text("t,x,y,p\n1,1,1,-1\n2,1,1,1\n3,1,1,0\n")
     assert run("info", path, "--sensor-size", "4x4").returncode == 0
+
+
+@pytest.mark.parametrize("t,fits", [(2**62, True), (-(2**62), True), (2**62 + 1, False), (2**63 - 1, False),
+                                    (2**63, False), (-(2**63), False), (10**30, False)])
+def test_times_beyond_the_supported_range_are_refused_by_name(tmp_path, t, fits):
+    """t = 2^63 - 1 was refused as "does not fit in 64 bits" (it does; the parser saturates there, so the two
+    could not be told apart): times are supported in +-2^62 us, and a time outside is refused as such."""
+    text = f"t,x,y,p\n0,1,1,1\n{t},1,1,1\n" if t > 0 else f"t,x,y,p\n{t},1,1,1\n0,1,1,1\n"
+    if fits:
+        events, _ = read_text(tmp_path, text, "r.csv", sensor_size=(4, 4))
+        assert int(events["t"].max() if t > 0 else events["t"].min()) == t
+    else:
+        with pytest.raises(FormatError, match=r"r\.csv: line \d: t is outside the \+-2\^62 us"):
+            read_text(tmp_path, text, "r.csv", sensor_size=(4, 4))

@@ -9,6 +9,8 @@ from ``wait4``:
   ``MonoCameraRecording`` (batches' ``numpy()`` concatenated); faery's ``events_stream_from_file(...).to_array()``;
 - ``bafilter --preset dv`` file to file against dv-processing's read + ``BackgroundActivityNoiseFilter`` + write,
   both writing uncompressed AEDAT 4.0 (evtools' default);
+- ``estimate --method offe`` and ``correct`` (with offe's map) file to file, against issue 15's targets (30 Mev/s
+  whole process, peak RSS under 100 MiB);
 - start-up: 1,000 events read.
 
 Ratios are peer time / evtools time (> 1: evtools is faster). Peers missing from the environment are installed
@@ -156,6 +158,17 @@ def main() -> None:
                     theirs = fastest(args.repeat, measure_child, "bench_peers", "filter", path, folder / "dv.aedat4",
                                      "none", key="wall_seconds")  # evtools writes uncompressed: so does dv
                     _row(task, "dv_processing", theirs, events, ours)
+                for name, argv in (("estimate --method offe", ["estimate", path, "--method", "offe", "-o",
+                                                              folder / "th.h5"]),
+                                   ("correct (offe's thresholds)", ["correct", path, "--thresholds", folder / "th.h5",
+                                                                    "-o", out])):
+                    task = f"{name}, {events // 1_000_000}M {compression}"
+                    ours = fastest(args.repeat, measure_command, [EVTOOLS, "-q", *argv])
+                    ours["wall_seconds"] = ours["seconds"]
+                    _row(task, "evtools", ours, events, None)
+                    print(f"{'':42} {'target':14} {events / 30e6:8.2f} {30.0:7.1f} {100:9.0f}   (issue 15: "
+                          f"{'met' if events / ours['seconds'] >= 30e6 else 'not met'} / "
+                          f"{'met' if ours['peak_mb'] < 100 else 'not met'})", flush=True)
                 path.unlink()
         task = "start-up: read 1,000 events"
         ours = fastest(args.repeat, measure_child, "bench_peers", "read", "evtools", tiny, key="wall_seconds")
