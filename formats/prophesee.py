@@ -19,8 +19,9 @@ Prophesee, "EVT 2.0 Format" and "EVT 3.0 Format", https://docs.prophesee.ai/stab
 
 from __future__ import annotations
 
+import logging
 import re
-from typing import Iterator
+from typing import BinaryIO, Iterator
 
 import numpy as np
 
@@ -29,7 +30,7 @@ from evtools._kernels.evt3 import (DROPPED_NO_TIME, DROPPED_NO_Y, MAX_EVENTS_PER
 from evtools.events import EVENT_DTYPE, StreamInfo
 from evtools.formats.errors import FormatError
 from evtools.formats.io import Source, resolve_sensor_size
-from evtools.formats.registry import ReadOptions
+from evtools.formats.registry import ReadOptions, WriteOptions
 
 EVT2_TIME_HIGH_BITS = 28
 GENERATION_SIZES = (("genx320", (320, 320)), ("imx636", (1280, 720)), ("gen4", (1280, 720)), ("gen3", (640, 480)))
@@ -235,6 +236,54 @@ class ProphesseeRawReader:
         for events in self._events(self.info.metadata):
             if len(events):
                 yield events
+
+
+class Evt2Writer:
+    """Write events as a Prophesee RAW file in EVT 2.0 (what Metavision's tools read): the header ``% evt 2.0``,
+    ``% format EVT2;height=H;width=W``, ``% geometry WxH``, ``% end``, then for each event a CD word, preceded by
+    an EVT_TIME_HIGH word whenever ``t >> 6`` changes. Times are stored modulo 2^34 us (4.8 hours) as the format
+    does: a stream that starts later (DV's times are Unix times) reads back shifted by a multiple of 2^34 us (a
+    warning says by how much); readers unwrap a fall by more than half the range, so consecutive events must lie
+    less than about 2^33 us (2.4 hours) apart. Times must not be negative and the sensor must fit the 11-bit
+    coordinates (2048 x 2048)."""
+
+    def __init__(self, stream: BinaryIO, info: StreamInfo, options: WriteOptions) -> None:
+        if info.width > 2048 or info.height > 2048:
+            raise FormatError(f"EVT 2.0 cannot hold a {info.width}x{info.height} sensor (11-bit x and y: 2048 at "
+                              "most); write another format")
+        self.stream = stream
+        stream.write(f"% evt 2.0\n% format EVT2;height={info.height};width={info.width}\n"
+                     f"% geometry {info.width}x{info.height}\n% end\n".encode("ascii"))
+        self._last_high = -1  # t >> 6 of the last time-high word written
+
+    def write(self, chunk: np.ndarray) -> None:
+        """Append a chunk of ``EVENT_DTYPE`` events."""
+        if len(chunk) == 0:
+            return
+        t = chunk["t"]
+        if t[0] < 0:
+            raise FormatError(f"EVT 2.0 cannot store negative timestamps ({int(t[0])} us)")
+        if self._last_high < 0 and t[0] >= 1 << 34:
+            shift = int(t[0]) >> 34 << 34
+            logging.getLogger("evtools").warning(
+                f"EVT 2.0 keeps times modulo 2^34 us (4.8 hours): the file's times read back {shift:,} us earlier "
+                f"(the first event at {int(t[0]) - shift:,} us)")
+        high = t >> 6
+        before = np.concatenate(([self._last_high], high[:-1]))
+        steps = high[1:] - high[:-1] if self._last_high < 0 else high - before
+        if len(steps) and steps.max() >= 1 << (EVT2_TIME_HIGH_BITS - 1):
+            raise FormatError("EVT 2.0 cannot store two consecutive events about 2^33 us (2.4 hours) or more apart")
+        new_high = high != before
+        at = np.arange(len(chunk)) + np.cumsum(new_high)  # each event's word, after the time-high words so far
+        words = np.empty(len(chunk) + int(np.count_nonzero(new_high)), dtype="<u4")
+        words[at[new_high] - 1] = (0x8 << 28) | (high[new_high] & ((1 << EVT2_TIME_HIGH_BITS) - 1))
+        words[at] = ((chunk["p"].astype(np.uint32) << 28) | ((t & 0x3F).astype(np.uint32) << 22)
+                     | (chunk["x"].astype(np.uint32) << 11) | chunk["y"].astype(np.uint32))
+        self.stream.write(memoryview(words).cast("B"))
+        self._last_high = int(high[-1])
+
+    def close(self) -> None:
+        """Finish the file (EVT 2.0 has no trailer); does not close the stream."""
 
 
 DAT_RECORD = np.dtype([("t", "<u4"), ("w", "<u4")])

@@ -239,3 +239,35 @@ def simulate_naive(simulator, frames) -> list[tuple[int, int, int, bool, int]]:
     for t_us, frame in frames:
         sensor.frame(int(t_us), frame)
     return sensor.events
+
+
+def evt2_decode_naive(data: bytes) -> tuple[dict[str, str], list[tuple[int, int, int, int]]]:
+    """A Prophesee EVT 2.0 RAW file, line by line and word by word as the specification reads: the ``%`` header
+    lines as ``{key: value}``, then ``(t_us, x, y, p)`` of every CD word (type 0 OFF, 1 ON: time low in bits
+    22-27, x in 11-21, y in 0-10) after the latest EVT_TIME_HIGH (type 8: t >> 6 in bits 0-27), its 28-bit field
+    unwrapped when it falls by more than half its range.
+
+    References
+    ----------
+    Prophesee, "EVT 2.0 Format", https://docs.prophesee.ai/stable/data/encoding_formats/evt2.html
+    """
+    header, position = {}, 0
+    while data[position:position + 1] == b"%":
+        end = data.index(b"\n", position)
+        key, _, value = data[position + 1:end].decode("ascii").strip().partition(" ")
+        header[key] = value
+        position = end + 1
+    events, time_high, previous, wraps = [], None, None, 0
+    for i in range(position, len(data) - 3, 4):
+        word = int.from_bytes(data[i:i + 4], "little")
+        kind = word >> 28
+        if kind == 8:
+            field = word & ((1 << 28) - 1)
+            if previous is not None and previous - field > 1 << 27:
+                wraps += 1
+            previous = field
+            time_high = field + (wraps << 28)
+        elif kind in (0, 1) and time_high is not None:
+            t_low, x, y = (word >> 22) & 63, (word >> 11) & 2047, word & 2047
+            events.append((time_high * 64 + t_low, x, y, kind))
+    return header, events
