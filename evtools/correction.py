@@ -321,7 +321,8 @@ class ThresholdCorrector:
         if not self._any_use:  # every pixel at the target: the input, bit for bit and in its order
             return chunk.copy()
         words = np.ascontiguousarray(chunk).view(np.int64).reshape(-1, 2)
-        out = empty_events(self.held + 2 * len(words))  # written part by part (pages untouched cost nothing)
+        # written part by part, every byte of a record (merge_sorted writes both words): not zeroed first
+        out = np.empty(self.held + 2 * len(words), EVENT_DTYPE)
         filled = 0
         for begin in range(0, len(words), PART):
             part = words[begin:begin + PART]
@@ -337,7 +338,7 @@ class ThresholdCorrector:
             bound = self._bound(int(part[-1, 0]))
             counts = self._each_lane(lambda lane, n: lane.release(n, bound), counts, parallel)
             if filled + sum(counts) > len(out):
-                out = join([out[:filled], empty_events(max(len(out), sum(counts)))])
+                out = join([out[:filled], np.empty(max(len(out), sum(counts)), EVENT_DTYPE)])
             filled = self._merged(counts, out, filled)
         return out[:filled]
 
