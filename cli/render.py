@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
-import logging
+import contextlib
 import itertools
+import logging
 import os
 
 import click
@@ -32,8 +33,10 @@ DEFAULT_FPS = 30.0
 IMAGE_EXTENSIONS = {".png": "PNG image", ".jpg": "JPEG image", ".jpeg": "JPEG image"}
 MANY_FRAMES = 18_000
 """A video reaching this many frames (10 minutes at 30 fps) gets a warning naming --window-us."""
-VIDEO_FOURCC = {".mp4": "mp4v", ".avi": "MJPG"}
-"""Video containers by extension and the codec OpenCV's FFmpeg backend writes into each."""
+VIDEO_FOURCC = {".mp4": ("avc1", "mp4v"), ".avi": ("MJPG",)}
+"""Video containers by extension and the codecs OpenCV's FFmpeg backend may write into each, the first it can
+open taken: H.264 (``avc1``) where the OpenCV build has an encoder for it (the PyPI wheels do not: patents), else
+MPEG-4 Part 2 (``mp4v``), which every player reads."""
 
 
 def _extension(output: str) -> str:
@@ -42,6 +45,18 @@ def _extension(output: str) -> str:
         known = ", ".join([*IMAGE_EXTENSIONS, *VIDEO_FOURCC])
         raise RenderError(f"{output}: cannot tell what to write from the extension; give one of {known}")
     return extension
+
+
+def _known_colormap(ctx, param, value):
+    if value is None:
+        return None
+    from evtools.render import colormap_table
+
+    try:
+        colormap_table(value)
+    except RenderError as error:
+        raise click.BadParameter(str(error)) from None
+    return value
 
 
 def _given(ctx: click.Context, name: str) -> bool:
@@ -63,6 +78,9 @@ def _refuse(ctx: click.Context, names: dict[str, str], why: str) -> None:
 @click.option("--start", "start", type=TimeBound(), default=None, metavar="TIME",
               help="Start of the first window, from the stream's first event (2s, 500ms), or on the stream's clock "
                    "after @ (@136.6s); default: the first event.")
+@click.option("--end", "end", type=TimeBound(), default=None, metavar="TIME",
+              help="Events from this time on are not drawn (as --start); a PNG without --window-us shows --start "
+                   "to --end as one window.")
 @click.option("--scale", type=click.IntRange(1, 64), default=None, metavar="K",
               help="Enlarge K times, nearest neighbour (default: enough for about 480 pixels; maps: 256 per map).")
 @click.option("--fps", type=click.FloatRange(min=0, min_open=True, max=1000), default=DEFAULT_FPS,
@@ -77,14 +95,18 @@ def _refuse(ctx: click.Context, names: dict[str, str], why: str) -> None:
               show_default=True,
               help="accumulate: each window's events alone; decay: every event adds +-1 that fades by e each window; "
                    "time-surface: each pixel's last event, fading by e each window since.")
+@click.option("--colormap", default=None, metavar="NAME", callback=_known_colormap,
+              help="decay, time-surface: colour each pixel's signed value (OFF -1 .. ON +1) with this matplotlib "
+                   "colormap (coolwarm, RdBu_r, viridis, gray...) instead of the ON/OFF colours; --map: the maps' "
+                   "colormap (default viridis).")
 @click.option("--caption", is_flag=True,
               help="Write each frame's time window on it (seconds from the first event, and the window's length).")
 @click.option("--rate", is_flag=True,
               help="Draw the event rate over time (ON, OFF) and the per-pixel rate map of the whole stream "
                    "instead of frames (-o FIG.png, .svg or .pdf).")
 @click.pass_context
-def render(ctx, input, input_format, sensor_size, aedat2_layout, output, window_us, start, scale, fps,
-           background, map_path, value_range, mode, caption, rate):
+def render(ctx, input, input_format, sensor_size, aedat2_layout, output, window_us, start, end, scale, fps,
+           background, map_path, value_range, mode, colormap, caption, rate):
     """Draw IN (default stdin) as event frames, or a thresholds map with --map: users look before they read.
 
     A frame colours each pixel by the events of one time window: ON (brighter) orange, OFF (darker) blue,
@@ -92,13 +114,16 @@ def render(ctx, input, input_format, sensor_size, aedat2_layout, output, window_
 
     \b
     evtools render recording.aedat4 -o frame.png --window-us 10000
+    evtools render recording.aedat4 -o part.png --start 1s --end 1.5s --mode decay --colormap coolwarm
     evtools simulate scene:bars --size 128x96 | evtools render -o bars.mp4
     evtools render --map thresholds.h5 -o thresholds.png
+
+    Videos are H.264 where the OpenCV build encodes it, else MPEG-4 Part 2 (the PyPI wheels), which is said.
     """
     if rate:
-        _refuse(ctx, {"window_us": "--window-us", "start": "--start", "fps": "--fps", "background": "--background",
-                      "map_path": "--map", "value_range": "--range", "scale": "--scale", "mode": "--mode",
-                      "caption": "--caption"},
+        _refuse(ctx, {"window_us": "--window-us", "start": "--start", "end": "--end", "fps": "--fps",
+                      "background": "--background", "map_path": "--map", "value_range": "--range", "scale": "--scale",
+                      "mode": "--mode", "colormap": "--colormap", "caption": "--caption"},
                 "does not apply to --rate")
         _render_rate(input, output, dict(format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout))
         return
@@ -106,15 +131,20 @@ def render(ctx, input, input_format, sensor_size, aedat2_layout, output, window_
     if map_path is not None:
         if input != STDIO:
             raise click.UsageError("give either an event stream IN or --map THRESHOLDS.h5, not both")
-        _refuse(ctx, {"window_us": "--window-us", "start": "--start", "fps": "--fps", "background": "--background",
-                      "input_format": "--input-format", "sensor_size": "--sensor-size",
+        _refuse(ctx, {"window_us": "--window-us", "start": "--start", "end": "--end", "fps": "--fps",
+                      "background": "--background", "input_format": "--input-format", "sensor_size": "--sensor-size",
                       "aedat2_layout": "--aedat2-layout", "mode": "--mode", "caption": "--caption"},
                 "applies to event streams, not to --map")
         if extension not in IMAGE_EXTENSIONS:
             raise RenderError(f"{output}: a thresholds map is drawn as an image; give -o MAP.png")
-        _render_map(map_path, output, extension, scale, value_range)
+        _render_map(map_path, output, extension, scale, value_range, colormap)
         return
     _refuse(ctx, {"value_range": "--range"}, "applies to --map only")
+    if colormap is not None and mode == "accumulate":
+        raise click.UsageError("--colormap colours --mode decay and time-surface (and --map); accumulate frames use "
+                               "the ON/OFF colours of --background")
+    if start is not None and end is not None and start.absolute == end.absolute and end.us <= start.us:
+        raise click.BadParameter(f"the end ({end.us} us) is not after the start ({start.us} us)", param_hint="--end")
     if extension in IMAGE_EXTENSIONS:
         _refuse(ctx, {"fps": "--fps"}, "applies to video outputs (.mp4, .avi) only")
     if input != STDIO and same_file(output, input):
@@ -124,11 +154,18 @@ def render(ctx, input, input_format, sensor_size, aedat2_layout, output, window_
         scale = scale or auto_scale(info.width, info.height)
         chunks = iter(stream)
         first = next(chunks, None)  # its first event is where a relative --start counts from
-        start_us = None
+        start_us = end_us = None
         if start is not None:
             start_us = start.us if start.absolute or first is None else int(first["t"][0]) + start.us
+        if end is not None:
+            end_us = end.us if end.absolute or first is None else int(first["t"][0]) + end.us
+            if extension in IMAGE_EXTENSIONS and not _given(ctx, "window_us"):  # the picture of start .. end
+                window_us = max(1, end_us - (int(first["t"][0]) if start_us is None else start_us))
         chunks = itertools.chain([] if first is None else [first], chunks)
-        framer = EventFramer(info.width, info.height, window_us, start_us=start_us, background=background, mode=mode)
+        if end_us is not None:
+            chunks = _before(chunks, end_us)
+        framer = EventFramer(info.width, info.height, window_us, start_us=start_us, background=background, mode=mode,
+                             colormap=colormap)
         if extension in IMAGE_EXTENSIONS:
             _render_image(chunks, stream, framer, output, extension, scale, start_us, caption)
         else:
@@ -148,6 +185,15 @@ def _render_rate(input: str, output: str, options: dict) -> None:
     if counter.first_us is None:
         raise RenderError(f"{stream.name}: no events to plot (the stream is empty)")
     save(rate_figure(counter, f"event rate of {os.path.basename(stream.name)}"), output)
+
+
+def _before(chunks, end_us: int):
+    """The events before ``end_us``; reading stops at the first chunk that reaches it."""
+    for chunk in chunks:
+        if len(chunk) and chunk["t"][-1] >= end_us:
+            yield chunk[:int(np.searchsorted(chunk["t"], end_us, side="left"))]
+            return
+        yield chunk
 
 
 def _frames(chunks, framer: EventFramer):
@@ -174,13 +220,15 @@ def _write_image(output: str, extension: str, rgb: np.ndarray) -> None:
 
 
 def _captioned(image: np.ndarray, framer: EventFramer, window_start_us: int) -> np.ndarray:
-    """``image`` (RGB) with its window written at the bottom left: seconds since the first event, window length."""
+    """``image`` (RGB or BGR: the text is grey) with its window written at the bottom left: seconds since the first
+    event, window length."""
     import cv2
 
     text = f"{(window_start_us - framer.first_t_us) / 1e6:.3f} s  +{framer.window_us / 1e3:g} ms"
     height, width = image.shape[:2]
     size = max(0.35, min(width / 700, 1.5))
-    colour = (0, 0, 0) if framer.background == "white" else (235, 235, 235)
+    red, green, blue = framer.background_rgb
+    colour = (0, 0, 0) if 0.299 * red + 0.587 * green + 0.114 * blue > 128 else (235, 235, 235)
     image = np.ascontiguousarray(image)
     cv2.putText(image, text, (4, height - 6), cv2.FONT_HERSHEY_SIMPLEX, size, colour, 1, cv2.LINE_AA)
     return image
@@ -211,30 +259,47 @@ def _even(image: np.ndarray, colour) -> np.ndarray:
     return padded
 
 
-def _render_video(chunks, stream, framer: EventFramer, output: str, extension: str, scale: int, fps: float,
-                  start_us, caption: bool = False) -> None:
-    """Every window as one frame, written as it is made: memory does not grow with the stream."""
+def _open_video(temporary: str, output: str, extension: str, fps: float, size: tuple[int, int]) -> tuple:
+    """An OpenCV VideoWriter with the first codec of :data:`VIDEO_FOURCC` that this build can open (FFmpeg's
+    messages while it probes silenced), and that codec's name."""
     import cv2
 
-    background_bgr = framer.palette.background[::-1]
+    codecs = VIDEO_FOURCC[extension]
+    for codec in codecs:
+        with _quiet_stderr():
+            writer = cv2.VideoWriter(temporary, cv2.CAP_FFMPEG, cv2.VideoWriter_fourcc(*codec), fps, size)
+        if writer.isOpened():
+            return writer, codec
+        writer.release()
+    raise RenderError(f"{output}: OpenCV cannot write {extension} video (codecs tried: {', '.join(codecs)})")
+
+
+def _render_video(chunks, stream, framer: EventFramer, output: str, extension: str, scale: int, fps: float,
+                  start_us, caption: bool = False) -> None:
+    """Every window as one frame, written as it is made: memory does not grow with the stream. Frames are encoded
+    on a second thread (OpenCV releases the GIL) while the next ones are drawn."""
+    import cv2
+
+    from evtools.formats.io import WriteBehind
+
+    background_bgr = framer.background_rgb[::-1]
     width, height = framer.width * scale, framer.height * scale
     size = (width + width % 2, height + height % 2)
     # FFmpeg's per-frame warnings ("Failed to write frame") would repeat for every frame of a failure that the
-    # checks below report in one line
+    # checks below report in one line, and its codec probing prints tags it falls back from
     cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
     # cv2 writes to a path and picks the container by its extension: a temporary name beside the target
     with atomic_path(output, suffix=extension) as temporary:
-        writer = cv2.VideoWriter(temporary, cv2.CAP_FFMPEG, cv2.VideoWriter_fourcc(*VIDEO_FOURCC[extension]), fps, size)
+        writer, codec = _open_video(temporary, output, extension, fps, size)
+        encoder = WriteBehind(_VideoFrames(writer), depth=4)
         try:
-            if not writer.isOpened():
-                raise RenderError(f"{output}: OpenCV cannot write {extension} video ({VIDEO_FOURCC[extension]} codec)")
             count = 0
             folder = os.path.dirname(os.path.abspath(temporary))
             for window_start_us, frame in _frames(with_progress(chunks, stream, f"rendering {stream.name}"), framer):
-                image = upscale(frame, scale)
+                image = upscale(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR), scale)
                 if caption:
                     image = _captioned(image, framer, window_start_us)
-                writer.write(_even(np.ascontiguousarray(image[..., ::-1]), background_bgr))
+                encoder.write(_even(image, background_bgr))
                 count += 1
                 if count == MANY_FRAMES:
                     log.warning("%s: %d frames so far, one per --window-us %d us: the video will play for more than "
@@ -245,7 +310,7 @@ def _render_video(chunks, stream, framer: EventFramer, output: str, extension: s
             if not count:
                 raise _nothing_to_draw(stream.name, framer, start_us)
         finally:
-            writer.release()
+            encoder.close()  # the frames queued are encoded, then the writer released
         if os.path.getsize(temporary) == 0:
             raise RenderError(f"{output}: OpenCV wrote an empty video")
         written = cv2.VideoCapture(temporary)
@@ -253,15 +318,49 @@ def _render_video(chunks, stream, framer: EventFramer, output: str, extension: s
         written.release()
         if frames < count:  # a write that failed without a word (a full disk between two checks)
             raise RenderError(f"{output}: the video holds {frames} of its {count} frames (a full disk?)")
+    if codec == "mp4v":
+        log.info("%s: this OpenCV build has no H.264 encoder: the video is MPEG-4 Part 2 (mp4v), which every player "
+                 "reads; for H.264, re-encode it (ffmpeg -i %s -c:v libx264 out.mp4)", output, output)
 
 
-def _render_map(path: str, output: str, extension: str, scale: int | None, value_range) -> None:
+class _VideoFrames:
+    """A VideoWriter as a chunk writer (``write``, ``close``) for :class:`evtools.formats.io.WriteBehind`."""
+
+    def __init__(self, writer) -> None:
+        self.writer = writer
+
+    def write(self, image: np.ndarray) -> None:
+        self.writer.write(image)
+
+    def close(self) -> None:
+        self.writer.release()
+
+
+@contextlib.contextmanager
+def _quiet_stderr():
+    """FFmpeg prints to the process's stderr (fd 2) while OpenCV probes codecs: silenced for that moment only."""
+    try:
+        saved = os.dup(2)
+    except OSError:
+        yield
+        return
+    try:
+        with open(os.devnull, "wb") as null:
+            os.dup2(null.fileno(), 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
+def _render_map(path: str, output: str, extension: str, scale: int | None, value_range, colormap=None) -> None:
     thresholds = read_thresholds(path)
     on, off, valid, units = thresholds.on, thresholds.off, thresholds.valid, thresholds.attributes["units"]
     if same_file(output, path):
         raise RenderError(f"{output}: output would overwrite the input; choose another -o")
     try:
-        picture = thresholds_picture(on, off, valid, value_range=value_range, scale=scale, units=units)
+        picture = thresholds_picture(on, off, valid, value_range=value_range, scale=scale, units=units,
+                                     colormap=colormap)
     except RenderError as error:
         raise RenderError(f"{path}: {error}") from None
     _write_image(output, extension, picture.image)

@@ -137,6 +137,25 @@ def event_frame(on_counts: np.ndarray, off_counts: np.ndarray, background: str =
     return palette.table()[_pixel_codes(on_counts, off_counts)]
 
 
+def _shade_table(palette: FramePalette) -> np.ndarray:
+    """(512, 3) ``uint8``: rows 0-255 the background blended toward the OFF colour by k/255, rows 256-511 toward
+    the ON colour."""
+    steps = np.arange(256, dtype=np.float64)[:, None] / 255.0
+    background = np.array(palette.background, np.float64)
+    return np.concatenate([np.round(background + (np.array(colour, np.float64) - background) * steps)
+                           for colour in (palette.off, palette.on)]).astype(np.uint8)
+
+
+def colormap_table(name: str) -> np.ndarray:
+    """A matplotlib colormap as a (256, 3) ``uint8`` RGB table; an unknown name raises :class:`RenderError`."""
+    from matplotlib import colormaps
+
+    if name not in colormaps:
+        raise RenderError(f"unknown colormap {name!r}; for example coolwarm, RdBu_r, seismic, viridis, gray "
+                          "(any of matplotlib's)")
+    return np.round(colormaps[name](np.linspace(0.0, 1.0, 256))[:, :3] * 255.0).astype(np.uint8)
+
+
 def _palette(background: str) -> FramePalette:
     try:
         return BACKGROUNDS[background]
@@ -170,6 +189,10 @@ class EventFramer:
         Palette of the frames (:data:`BACKGROUNDS`).
     mode : {"accumulate", "decay", "time-surface"}
         How a frame shows the events (:data:`MODES`).
+    colormap : str or None
+        decay and time-surface: a matplotlib colormap name (``coolwarm``, ``viridis``, ``gray``...) that colours
+        each pixel's signed value, -1 (OFF) .. +1 (ON), 0 in its middle; None: the palette's ON and OFF colours
+        fading into the background.
 
     Attributes
     ----------
@@ -181,7 +204,7 @@ class EventFramer:
 
     def __init__(
         self, width: int, height: int, window_us: int, *, start_us: int | None = None, background: str = "dark",
-        mode: str = "accumulate",
+        mode: str = "accumulate", colormap: str | None = None,
     ) -> None:
         check_sensor_size(width, height)
         if int(window_us) != window_us or window_us <= 0:
@@ -198,6 +221,11 @@ class EventFramer:
         self._last_on = np.zeros((self.height, self.width), bool)
         self.palette = _palette(background)
         self.background = background
+        if colormap is not None and mode == "accumulate":
+            raise RenderError("a colormap colours the decay and time-surface modes; accumulate uses the ON/OFF colours")
+        self.colormap = colormap
+        self._table = self.palette.table()
+        self._shades = _shade_table(self.palette) if colormap is None else colormap_table(colormap)
         self._window_start_us = None if start_us is None else int(start_us)
         self._on = np.zeros((self.height, self.width), dtype=np.uint32)
         self._off = np.zeros((self.height, self.width), dtype=np.uint32)
@@ -243,6 +271,13 @@ class EventFramer:
         if self.events_used:
             yield self._window_start_us, self._take_frame()
 
+    @property
+    def background_rgb(self) -> tuple[int, int, int]:
+        """The colour of a pixel without events: the palette's background, or the colormap's middle."""
+        if self.colormap is None:
+            return tuple(self.palette.background)
+        return tuple(int(v) for v in self._shades[127])
+
     def _remember(self, events: np.ndarray) -> None:
         """decay and time-surface: the window's events into the carried state (order within a pixel kept)."""
         if not len(events):
@@ -265,17 +300,19 @@ class EventFramer:
         if self.mode == "time-surface":
             end_us = self._window_start_us + self.window_us
             return self._shade(np.exp(-(end_us - self._last_us) / self.window_us), self._last_on)
-        frame = self.palette.table()[_pixel_codes(self._on, self._off)]
+        frame = self._table[_pixel_codes(self._on, self._off)]
         self._on.fill(0)
         self._off.fill(0)
         return frame
 
     def _shade(self, strength: np.ndarray, on: np.ndarray) -> np.ndarray:
-        """Background blended toward the ON or OFF colour by ``strength`` (0..1)."""
-        background = np.array(self.palette.background, np.float64)
-        colour = np.where(on[..., None], np.array(self.palette.on, np.float64), np.array(self.palette.off, np.float64))
-        strength = np.clip(strength, 0.0, 1.0)[..., None]
-        return np.round(background + (colour - background) * strength).astype(np.uint8)
+        """The background blended toward the ON or OFF colour by ``strength`` (0..1), or with a colormap the
+        colour of the signed value (+-strength), each through a table of 256 steps (within one unit of the exact
+        blend)."""
+        level = np.rint(np.clip(strength, 0.0, 1.0) * 255.0).astype(np.intp)
+        if self.colormap is None:
+            return self._shades[level + 256 * on]
+        return self._shades[np.where(on, 255 + level, 255 - level) >> 1]
 
     def _blank(self) -> np.ndarray:
         if self.mode != "accumulate":  # the carried state fades on
@@ -285,7 +322,7 @@ class EventFramer:
 
 def event_frames(
     events: np.ndarray, width: int, height: int, window_us: int, *, start_us: int | None = None,
-    background: str = "dark", mode: str = "accumulate",
+    background: str = "dark", mode: str = "accumulate", colormap: str | None = None,
 ) -> list[tuple[int, np.ndarray]]:
     """All frames of one array of events: :class:`EventFramer` ``process`` then ``flush``.
 
@@ -294,7 +331,8 @@ def event_frames(
     list of (int, ndarray)
         ``(window_start_us, rgb_frame)`` per window, frames of shape (height, width, 3).
     """
-    framer = EventFramer(width, height, window_us, start_us=start_us, background=background, mode=mode)
+    framer = EventFramer(width, height, window_us, start_us=start_us, background=background, mode=mode,
+                         colormap=colormap)
     return [*framer.process(events), *framer.flush()]
 
 
@@ -305,7 +343,11 @@ def upscale(image: np.ndarray, factor: int) -> np.ndarray:
         raise RenderError(f"scale must be a whole number >= 1, got {factor}")
     if factor == 1:
         return image
-    return np.repeat(np.repeat(image, factor, axis=0), factor, axis=1)
+    import cv2
+
+    height, width = image.shape[:2]
+    return cv2.resize(np.ascontiguousarray(image), (width * factor, height * factor),
+                      interpolation=cv2.INTER_NEAREST_EXACT)
 
 
 def auto_scale(width: int, height: int, target_px: int = 480, max_factor: int = 16) -> int:
@@ -407,7 +449,7 @@ def thresholds_picture(
     *,
     value_range: tuple[float, float] | None = None,
     scale: int | None = None,
-    colormap: int | None = None,
+    colormap: str | None = None,
     units: str = "",
     titles: tuple[str, str] = ("ON threshold", "OFF threshold"),
 ) -> MapPicture:
@@ -426,8 +468,8 @@ def thresholds_picture(
         wild pixels do not flatten the rest; a bar end that clips values is labelled with ``<=`` or ``>=``.
     scale : int, optional
         Picture pixels per map pixel (nearest neighbour). Default: enough for maps about 256 pixels wide.
-    colormap : int, optional
-        An OpenCV colormap (``cv2.COLORMAP_*``); default viridis, perceptually uniform and colour-blind safe.
+    colormap : str, optional
+        A matplotlib colormap name; default viridis, perceptually uniform and colour-blind safe.
     units : str
         Unit of the values, written under the colour bar.
     titles : (str, str)
@@ -463,7 +505,7 @@ def thresholds_picture(
     low, high = (float(v) for v in value_range)
     if not (math.isfinite(low) and math.isfinite(high)) or high < low:
         raise RenderError(f"value range {low} .. {high} is not an increasing pair of finite numbers")
-    colormap = cv2.COLORMAP_VIRIDIS if colormap is None else colormap
+    colormap = cv2.COLORMAP_VIRIDIS if colormap is None else colormap_table(colormap)[:, ::-1].reshape(256, 1, 3).copy()
     height, width = on.shape
     scale = max(1, math.ceil(256 / width)) if scale is None else int(scale)
     if scale < 1:

@@ -376,3 +376,64 @@ def test_caption_writes_the_window_only_when_asked(tmp_path):
     assert len(changed) and changed.min() >= plain.shape[0] - 30  # only the bottom band carries the text
     run("render", path, "-o", tmp_path / "v.mp4", "--caption", "--window-us", 20_000)
     assert (tmp_path / "v.mp4").stat().st_size > 0
+
+
+def test_end_bounds_the_picture_and_the_video(tmp_path):
+    """--end (relative like --start, or @absolute): events from it on are not drawn; a PNG without --window-us is
+    the one window --start .. --end; a video stops at the window holding the end."""
+    events = make_events([1_000_000, 1_020_000, 1_040_000, 1_090_000], [0, 1, 2, 3], [0, 0, 0, 0], [1, 1, 0, 1])
+    path = write_stream(tmp_path / "s.aedat4", events, 4, 1)
+    run("render", path, "-o", tmp_path / "a.png", "--scale", 1, "--start", "10ms", "--end", "@1.05s")
+    drawn = cv2.imread(str(tmp_path / "a.png"))[..., ::-1]
+    assert [tuple(drawn[0, x]) for x in range(4)] == [DARK.background, DARK.on, DARK.off, DARK.background]
+    run("render", path, "-o", tmp_path / "v.mp4", "--scale", 1, "--end", "45ms", "--window-us", 10_000)
+    capture = cv2.VideoCapture(str(tmp_path / "v.mp4"))
+    assert capture.get(cv2.CAP_PROP_FRAME_COUNT) == 5  # windows from 0 to 40 ms; the event at 90 ms is past --end
+    assert run("render", path, "-o", tmp_path / "b.png", "--start", "50ms", "--end", "40ms",
+               check=False).returncode == 2
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**16), mode=st.sampled_from(["decay", "time-surface"]),
+       colormap=st.sampled_from(["coolwarm", "viridis", "gray"]), window_us=st.integers(50, 3000))
+def test_a_colormap_colours_the_signed_value(seed, mode, colormap, window_us):
+    """With --colormap, a pixel takes the colormap's colour at (1 + v) / 2, v = +-strength (ON +, OFF -): the
+    table entry within one step of the exact position, whatever the chunks."""
+    from matplotlib import colormaps
+
+    rng = np.random.default_rng(seed)
+    n = 200
+    events = make_events(np.sort(rng.integers(0, 10_000, n)), rng.integers(0, 4, n), rng.integers(0, 3, n),
+                         rng.integers(0, 2, n))
+    coloured = event_frames(events, 4, 3, window_us, mode=mode, colormap=colormap)
+    plain = event_frames(events, 4, 3, window_us, mode=mode)
+    table = np.round(colormaps[colormap](np.linspace(0, 1, 256))[:, :3] * 255)
+    on, off, background = (np.array(c, float) for c in (DARK.on, DARK.off, DARK.background))
+    for (_, frame), (_, reference) in zip(coloured, plain):
+        for y in range(3):
+            for x in range(4):
+                # the plain frame's colour tells the strength and the sign: background + (colour - background) * s
+                shade = reference[y, x].astype(float)
+                towards_on = np.abs(shade - background - (on - background) * np.clip(
+                    np.dot(shade - background, on - background) / np.dot(on - background, on - background), 0, 1))
+                is_on = towards_on.max() <= 1.5 and np.any(shade != background)
+                colour = on if is_on else off
+                strength = np.clip(np.dot(shade - background, colour - background)
+                                   / np.dot(colour - background, colour - background), 0, 1)
+                position = 127.5 + (127.5 if is_on else -127.5) * strength
+                candidates = table[max(0, int(position) - 2):int(position) + 3]
+                assert (np.abs(candidates - frame[y, x]).max(axis=1) == 0).any(), (x, y, position)
+
+
+def test_colormap_is_checked_and_the_video_codec_is_said(tmp_path):
+    events = random_events(2000, 16, 12, seed=2)
+    path = write_stream(tmp_path / "s.aedat4", events, 16, 12)
+    assert run("render", path, "-o", tmp_path / "a.png", "--colormap", "coolwarm", check=False).returncode == 2
+    assert run("render", path, "-o", tmp_path / "a.png", "--mode", "decay", "--colormap", "nosuch",
+               check=False).returncode == 2
+    done = run("render", path, "-o", tmp_path / "v.mp4", "--window-us", 100_000)
+    capture = cv2.VideoCapture(str(tmp_path / "v.mp4"))
+    fourcc = int(capture.get(cv2.CAP_PROP_FOURCC)).to_bytes(4, "little").decode().lower()
+    assert fourcc in ("avc1", "h264", "fmp4", "mp4v")
+    if fourcc not in ("avc1", "h264"):  # the PyPI wheels have no H.264 encoder: said in one line
+        assert b"no H.264 encoder: the video is MPEG-4 Part 2" in done.stderr and done.stderr.count(b"\n") == 1
