@@ -10,11 +10,13 @@ import click
 import numpy as np
 
 from evtools.cli.batch import batch_options, plan, run
+from evtools.cli.options import slicing_options
 from evtools.cli.progress import process_stream
 from evtools.filters import METHODS, PRESETS, BAFilter, BAFilterError, parse_methods
 from evtools.errors import EvtoolsError
 from evtools.formats import create_events, open_events
 from evtools.formats.io import STDIO, atomic_path, same_file
+from evtools.transform import on_sliced_sensor, sliced
 
 log = logging.getLogger("evtools")
 
@@ -117,9 +119,10 @@ positive = click.IntRange(min=1)
               help="mlpf: keep an event when its probability of being signal is above this [0.5].")
 @click.option("--weights", type=click.Path(exists=True, dir_okay=False), default=None,
               help="mlpf: weights from `evtools metrics train-denoiser` [the ones shipped with evtools].")
+@slicing_options(polarity=False)
 def bafilter(inputs, input_format, sensor_size, aedat2_layout, output, jobs, scheduler, as_json, methods, preset,
              dt_us, k, radius, polarity, window, distance, learn_us, hot_ratio, hot_rate_hz, hot_min_events, hot_pixels_path,
-             save_hot_pixels, threshold, weights, polarity_maps):
+             save_hot_pixels, threshold, weights, polarity_maps, slicing):
     """Remove background activity from IN (default stdin), writing OUT or -o OUT (default stdout).
 
     Several inputs go to the folder -o FOLDER (the same names), --jobs at a time.
@@ -144,19 +147,24 @@ def bafilter(inputs, input_format, sensor_size, aedat2_layout, output, jobs, sch
                    preset=preset, dt_us=dt_us, k=k, radius=radius, polarity=polarity, window=window,
                    distance=distance, learn_us=learn_us, hot_ratio=hot_ratio, hot_rate_hz=hot_rate_hz,
                    hot_min_events=hot_min_events, hot_pixels_path=hot_pixels_path, save_hot_pixels=save_hot_pixels,
-                   threshold=threshold, weights=weights, polarity_maps=polarity_maps)
+                   threshold=threshold, weights=weights, polarity_maps=polarity_maps, slicing=slicing)
     run(filter_one, pairs, options, jobs, scheduler, as_json)
 
 
 def filter_one(input, output, *, input_format, sensor_size, aedat2_layout, methods, preset, dt_us, k, radius,
                polarity, window, distance, learn_us, hot_ratio, hot_rate_hz, hot_min_events, hot_pixels_path,
-               save_hot_pixels, threshold=None, weights=None, polarity_maps=None) -> tuple[int, int]:
-    """Filter one file (the command's whole work for one input): (events in, events kept)."""
+               save_hot_pixels, threshold=None, weights=None, polarity_maps=None, slicing=None) -> tuple[int, int]:
+    """Filter one file (the command's whole work for one input): (events in, events kept); ``slicing``: the
+    shared slicing options (:func:`evtools.transform.sliced`), applied as the events are read."""
     if save_hot_pixels:
         _check_hot_pixels_target(save_hot_pixels, input, output)
-    with open_events(input, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as stream:
+    with open_events(input, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as opened:
+        stream = sliced(opened, slicing)
         info = stream.info
-        hot_map = read_hot_pixels(hot_pixels_path, info.width, info.height) if hot_pixels_path else None
+        hot_map = None
+        if hot_pixels_path:  # the list is in the file's coordinates
+            hot_map = on_sliced_sensor(stream, read_hot_pixels(hot_pixels_path, opened.info.width,
+                                                               opened.info.height))
         ba = BAFilter(info.width, info.height, methods, preset=preset, dt_us=dt_us, k=k, radius=radius,
                       polarity=polarity, window=window, distance=distance, learn_us=learn_us, hot_ratio=hot_ratio,
                       hot_rate_hz=hot_rate_hz, hot_min_events=hot_min_events, hot_map=hot_map, threshold=threshold,

@@ -35,7 +35,7 @@ log = logging.getLogger("evtools")
               help="With --realtime: X times the recorded speed (2: twice as fast).")
 @slicing_options
 def convert(inputs, input_format, sensor_size, aedat2_layout, output, jobs, scheduler, as_json, output_format,
-            compression, realtime, speed, start, end, polarity, crop, flip_x, flip_y, transpose):
+            compression, realtime, speed, slicing):
     """Convert IN (default stdin) to OUT or -o OUT (default stdout), chunk by chunk in bounded memory.
 
     Several inputs go to the folder -o FOLDER, each named after its input with --format's extension.
@@ -55,8 +55,7 @@ def convert(inputs, input_format, sensor_size, aedat2_layout, output, jobs, sche
     pairs = plan(inputs, output, suffix)
     options = dict(input_format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout,
                    output_format=output_format, compression=compression, speed=speed or 1.0 if realtime else None,
-                   slicing=dict(start=start, end=end, polarity=polarity, crop=crop, flip_x=flip_x, flip_y=flip_y,
-                                transpose=transpose))
+                   slicing=slicing)
     run(convert_one, pairs, options, jobs, scheduler, as_json)
 
 
@@ -66,7 +65,7 @@ def convert_one(input, output, *, input_format, sensor_size, aedat2_layout, outp
     ``slicing``: :class:`evtools.transform.Transform`'s options (time slice, polarity, crop, flips, transpose)."""
     events_in = events_out = 0
     with open_events(input, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as stream:
-        transform = Transform(stream.info, **slicing) if slicing and any(slicing.values()) else None
+        transform = Transform(stream.info, **slicing) if slicing else None
         with create_events(
             output, transform.info if transform else stream.info, format=output_format, compression=compression,
             aedat2_layout=aedat2_layout, inputs=(input,),

@@ -3,14 +3,17 @@
 from __future__ import annotations
 
 import logging
+from dataclasses import replace
 
 import click
 
 from evtools.cli.batch import batch_options, plan, run
+from evtools.cli.options import slicing_options
 from evtools.cli.progress import process_stream
 from evtools.correction import CORRECT_DEFAULTS, MAX_WINDOW_US, MODES, CorrectionError, ThresholdCorrector
 from evtools.formats import create_events, open_events
 from evtools.formats.thresholds import read_thresholds
+from evtools.transform import on_sliced_sensor, sliced
 
 log = logging.getLogger("evtools")
 
@@ -51,8 +54,9 @@ def _target(ctx, param, value):
 @click.option("--start-us", type=int, default=None, metavar="T",
               help="exponential, turns, highpass: time the sensor started (every pixel at its reference); default: the first "
                    "event.")
+@slicing_options
 def correct(inputs, input_format, sensor_size, aedat2_layout, output, jobs, scheduler, as_json, thresholds_path,
-            target, mode, hold_us, max_gap_us, tau_us, start_us):
+            target, mode, hold_us, max_gap_us, tau_us, start_us, slicing):
     """Re-sample every pixel of IN (default stdin) at one target threshold; write -o OUT (default stdout).
 
     Several inputs (one camera's recordings) go to the folder -o FOLDER.
@@ -69,16 +73,20 @@ def correct(inputs, input_format, sensor_size, aedat2_layout, output, jobs, sche
     pairs = plan(inputs, output, ".aedat4")
     options = dict(input_format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout,
                    thresholds_path=thresholds_path, target=target, mode=mode, hold_us=hold_us,
-                   max_gap_us=max_gap_us, tau_us=tau_us, start_us=start_us)
+                   max_gap_us=max_gap_us, tau_us=tau_us, start_us=start_us, slicing=slicing)
     run(correct_one, pairs, options, jobs, scheduler, as_json)
 
 
 def correct_one(input, output, *, input_format, sensor_size, aedat2_layout, thresholds_path, target, mode, hold_us,
-                max_gap_us, tau_us, start_us) -> tuple[int, int]:
-    """Correct one file: (events in, events out)."""
+                max_gap_us, tau_us, start_us, slicing=None) -> tuple[int, int]:
+    """Correct one file: (events in, events out); ``slicing``: the shared slicing options
+    (:func:`evtools.transform.sliced`), the thresholds map cut and turned with the events."""
     thresholds = read_thresholds(thresholds_path, series=True)
-    with open_events(input, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as stream:
-        thresholds.check_size(stream.info.width, stream.info.height, thresholds_path)
+    with open_events(input, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as opened:
+        thresholds.check_size(opened.info.width, opened.info.height, thresholds_path)  # the file's sensor
+        stream = sliced(opened, slicing)
+        thresholds = replace(thresholds, **{name: on_sliced_sensor(stream, getattr(thresholds, name))
+                                            for name in ("on", "off", "valid")})
         try:
             corrector = ThresholdCorrector(
                 stream.info.width, stream.info.height, thresholds.on, thresholds.off, thresholds.valid,

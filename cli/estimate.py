@@ -7,8 +7,9 @@ import math
 import click
 
 from evtools.cli.batch import batch_options, plan, run
-from evtools.cli.options import Duration
+from evtools.cli.options import Duration, slicing_options
 from evtools.cli.progress import with_progress
+from evtools.transform import sliced
 from evtools.estimation import (
     DEFAULT_MAX_ERROR,
     DEFAULT_MAX_FIT,
@@ -113,11 +114,12 @@ def _stimulus(levels, period_us, profile, amplitude, speed, wavelength, rise) ->
                    "replaces --stimulus-period.")
 @click.option("--stimulus-wavelength", type=click.FloatRange(min=0, min_open=True), default=None, metavar="PX",
               help="stimulus: a moving gradient's rise-and-fall length (simulate's --wavelength).")
+@slicing_options
 def estimate(inputs, input_format, sensor_size, aedat2_layout, output, jobs, scheduler, as_json,
              method, segment_us, nominal, radius, online,
              interval, forget, min_events,
              max_fit, stimulus_amplitude, stimulus_levels, stimulus_period, stimulus_profile, stimulus_rise,
-             stimulus_phase, stimulus_speed, stimulus_wavelength):
+             stimulus_phase, stimulus_speed, stimulus_wavelength, slicing):
     """Estimate every pixel's ON and OFF contrast thresholds from IN (default stdin), streaming, into -o FILE.
 
     Several inputs go to the folder -o FOLDER, one NAME.h5 each, --jobs at a time.
@@ -148,15 +150,18 @@ def estimate(inputs, input_format, sensor_size, aedat2_layout, output, jobs, sch
     options = dict(input_format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout,
                    parameters=dict(method=method, nominal=nominal, segment_us=segment_us, stimulus=stimulus,
                                    phase=stimulus_phase, min_events=min_events, max_fit=max_fit, radius_px=radius,
-                                   interval_us=interval_us, forget_us=forget))
+                                   interval_us=interval_us, forget_us=forget), slicing=slicing)
     run(estimate_one, pairs, options, jobs, scheduler, as_json)
 
 
-def estimate_one(input, output, *, input_format, sensor_size, aedat2_layout, parameters) -> tuple[int, int]:
-    """Estimate one file's thresholds into ``output``: (events in, 0)."""
+def estimate_one(input, output, *, input_format, sensor_size, aedat2_layout, parameters, slicing=None
+                 ) -> tuple[int, int]:
+    """Estimate one file's thresholds into ``output``: (events in, 0); ``slicing``: the shared slicing options
+    (:func:`evtools.transform.sliced`): the map is of the sliced sensor."""
     if input != STDIO and same_file(output, input):
         raise EstimationError(f"{output}: the thresholds file would overwrite the input; choose another -o")
-    with open_events(input, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as stream:
+    with open_events(input, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as opened:
+        stream = sliced(opened, slicing)
         try:
             estimator = ThresholdEstimator(stream.info.width, stream.info.height, **parameters)
             for chunk in with_progress(stream, stream, f"estimating from {stream.name}"):

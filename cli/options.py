@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+
 import re
 import sys
 
@@ -77,24 +79,42 @@ def _rectangle(ctx, param, value):
     return tuple(int(part) for part in parts)
 
 
-def slicing_options(function):
-    """--start, --end, --polarity, --crop, --flip-x, --flip-y, --transpose (see evtools.transform)."""
-    options = [
-        click.option("--start", type=TimeBound(), default=None, metavar="TIME",
-                     help="Keep events from this time on: from the stream's first event (2s, 500ms), or absolute "
-                          "after @ (@136.6s)."),
-        click.option("--end", type=TimeBound(), default=None, metavar="TIME",
-                     help="Keep events before this time (as --start)."),
-        click.option("--polarity", type=click.Choice(["on", "off"]), default=None, help="Keep one polarity."),
-        click.option("--crop", callback=_rectangle, default=None, metavar="X,Y,W,H",
-                     help="Keep the events inside this rectangle, moved to its origin: the sensor becomes W x H."),
-        click.option("--flip-x", is_flag=True, help="Mirror left-right (x -> W - 1 - x), after --crop."),
-        click.option("--flip-y", is_flag=True, help="Mirror top-bottom (y -> H - 1 - y), after --crop."),
-        click.option("--transpose", is_flag=True, help="Swap x and y, last: the sensor becomes H x W."),
-    ]
-    for option in reversed(options):
-        function = option(function)
-    return function
+SLICING_NAMES = ("start", "end", "polarity", "crop", "flip_x", "flip_y", "transpose")
+
+
+def slicing_options(function=None, *, polarity: bool = True):
+    """--start, --end, --polarity, --crop, --flip-x, --flip-y, --transpose (see evtools.transform), given to the
+    command as one ``slicing`` dict (None when none is given). ``polarity=False`` leaves --polarity out (bafilter,
+    where it is STCF's option)."""
+    def decorate(command):
+        @functools.wraps(command)
+        def with_slicing(*args, **kwargs):
+            slicing = {name: kwargs.pop(name) if name != "polarity" or polarity else None for name in SLICING_NAMES}
+            return command(*args, slicing=slicing if any(slicing.values()) else None, **kwargs)
+
+        options = [
+            click.option("--start", type=TimeBound(), default=None, metavar="TIME",
+                         help="Keep events from this time on: from the stream's first event (2s, 500ms), or "
+                              "absolute after @ (@136.6s)."),
+            click.option("--end", type=TimeBound(), default=None, metavar="TIME",
+                         help="Keep events before this time (as --start)."),
+            click.option("--polarity", type=click.Choice(["on", "off"]), default=None, help="Keep one polarity.")
+            if polarity else None,
+            click.option("--crop", callback=_rectangle, default=None, metavar="X,Y,W,H",
+                         help="Keep the events inside this rectangle, moved to its origin: the sensor becomes "
+                              "W x H."),
+            click.option("--flip-x", is_flag=True, default=None, help="Mirror left-right (x -> W - 1 - x), after "
+                                                                       "--crop."),
+            click.option("--flip-y", is_flag=True, default=None, help="Mirror top-bottom (y -> H - 1 - y), after "
+                                                                       "--crop."),
+            click.option("--transpose", is_flag=True, default=None, help="Swap x and y, last: the sensor becomes "
+                                                                          "H x W."),
+        ]
+        for option in reversed([option for option in options if option is not None]):
+            with_slicing = option(with_slicing)
+        return with_slicing
+
+    return decorate if function is None else decorate(function)
 
 
 def figure_path(path: str | None, param_hint: str) -> str | None:

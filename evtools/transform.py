@@ -103,3 +103,53 @@ class Transform:
 
     def flush(self) -> np.ndarray:
         return empty_events()
+
+    def pixels(self, values: np.ndarray) -> np.ndarray:
+        """A per-pixel array (``(..., height, width)``: a thresholds map, a series of maps) under the same crop,
+        flips and transpose as the events, so that map and stream stay pixel for pixel aligned."""
+        if self.crop is not None:
+            x0, y0, w, h = self.crop
+            values = values[..., y0:y0 + h, x0:x0 + w]
+        if self.flip_x:
+            values = values[..., :, ::-1]
+        if self.flip_y:
+            values = values[..., ::-1, :]
+        if self.transpose:
+            values = np.swapaxes(values, -1, -2)
+        return np.ascontiguousarray(values)
+
+
+class SlicedStream:
+    """An open stream seen through a :class:`Transform`: ``info`` is the transformed stream's, iteration yields
+    the transformed chunks (none empty) and stops reading once the end has passed; everything else is the
+    stream's."""
+
+    def __init__(self, stream, transform: Transform) -> None:
+        self._stream = stream
+        self.transform = transform
+        self.info = transform.info
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)
+
+    def __iter__(self):
+        for chunk in self._stream:
+            chunk = self.transform.process(chunk)
+            if len(chunk):
+                yield chunk
+            if self.transform.done:
+                return
+
+
+def sliced(stream, slicing: dict | None):
+    """``stream`` itself when ``slicing`` (:class:`Transform`'s options, as the commands' shared options give
+    them) asks for nothing, else a :class:`SlicedStream`."""
+    if not slicing or not any(slicing.values()):
+        return stream
+    return SlicedStream(stream, Transform(stream.info, **slicing))
+
+
+def on_sliced_sensor(stream, values: np.ndarray) -> np.ndarray:
+    """A per-pixel array of ``stream``'s file (a thresholds map, a hot-pixel map) on the sensor that ``stream``
+    shows (cropped, flipped, transposed by :func:`sliced`, or as it is)."""
+    return stream.transform.pixels(values) if isinstance(stream, SlicedStream) else values

@@ -488,8 +488,8 @@ def _triangle_stream(rng, width, height, period_us, amplitude, rise, span_us, pr
        period_us=st.integers(100_000, 2_000_000), width=st.integers(2, 9), height=st.integers(1, 6))
 def test_phases_found_from_the_events_give_exact_thresholds(seed, rise, amplitude, period_us, width, height):
     """Random per-pixel phases, rise fractions, amplitudes, periods and sizes: every pixel's phase is found from its
-    own events; the thresholds are exact to 0.1 % RMSE (only the microsecond rounding of the times remains), no
-    valid pixel is off by more than 1 %, and a pixel is left invalid only when its events never show two in a row of
+    own events; the thresholds are exact to 0.1 % RMSE (only the microsecond rounding of the times remains: on
+    the fastest ramps, up to 1 us in the shortest time between two events), no valid pixel is off by more than 1 %, and a pixel is left invalid only when its events never show two in a row of
     one polarity (changes across a turn are left out: a denoiser often removes the event after a turn)."""
     rng = np.random.default_rng(seed)
     events, on, off = _triangle_stream(rng, width, height, period_us, amplitude, rise, 6 * period_us)
@@ -507,10 +507,13 @@ def test_phases_found_from_the_events_give_exact_thresholds(seed, rise, amplitud
     assert not (valid & ~runs.all(axis=2)).any()
     assert (runs.all(axis=2) & ~valid).sum() <= estimate.attributes["rejected_by_fit"]
     assert valid.mean() >= 0.9 or amplitude < 1.0
-    for est, true in ((estimate.on, on), (estimate.off, off)):
+    # the times' rounding (+-0.5 us) against the time between two events: on the fastest ramps (4 log units
+    # rising in 12.5 ms, a threshold of 0.1: 312 us) it alone is 0.3 % of an interval
+    for est, true, ramp_us in ((estimate.on, on, rise * period_us), (estimate.off, off, (1 - rise) * period_us)):
         relative = est[valid] / true[valid] - 1
-        assert np.sqrt(np.mean(relative**2)) <= 1e-3
-        assert np.abs(relative).max() <= 1e-2
+        rounding = 1.0 / (true[valid].min() * ramp_us / amplitude) if valid.any() else 0.0
+        assert np.sqrt(np.mean(relative**2)) <= max(1e-3, rounding)
+        assert np.abs(relative).max() <= max(1e-2, 3 * rounding)
 
 
 @settings(max_examples=6, deadline=None)
