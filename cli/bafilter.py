@@ -140,6 +140,8 @@ def bafilter(inputs, input_format, sensor_size, aedat2_layout, output, jobs, sch
         raise click.UsageError("--hot-pixels and --save-hot-pixels need --method hotpixel")
     if (threshold is not None or weights) and "mlpf" not in methods:
         raise click.UsageError("--threshold and --weights need --method mlpf")
+    if save_hot_pixels == STDIO and output in (None, STDIO):
+        raise click.UsageError("--save-hot-pixels - and the events cannot both go to stdout; give -o FILE")
     pairs = plan(inputs, output, ".aedat4")
     if save_hot_pixels and len(pairs) > 1:
         raise click.UsageError("--save-hot-pixels writes one file: give one input")

@@ -249,15 +249,15 @@ def open_source(source: str, size, duration, fps, timestamps, scene_options) -> 
     if source.startswith("scene:"):
         return scene_source(source[len("scene:"):], size, duration, scene_options)
     if scene_options:
-        raise SimulationError("scene options (--period, --speed, ...) apply to scene:NAME sources only")
+        raise click.UsageError("scene options (--period, --speed, ...) apply to scene:NAME sources only")
     if duration is not None:
-        raise SimulationError("--duration applies to scene:NAME sources only")
+        raise click.UsageError("--duration applies to scene:NAME sources only")
     if os.path.isdir(source):
         return folder_source(source, timestamps, fps, size)
     if not os.path.exists(source):
         raise SimulationError(f"{source}: no such file or folder (a scene is given as scene:NAME)")
     if timestamps is not None:
-        raise SimulationError("--timestamps applies to image folders only")
+        raise click.UsageError("--timestamps applies to image folders only")
     return video_source(source, fps, size)
 
 
@@ -453,7 +453,7 @@ def simulate(source, output, output_format, truth, truth_frame_rate, input_forma
                                                ("--truth-frame-rate", truth_frame_rate)) if value is not None]
         frame_only += ["--" + name.replace("_", "-") for name in given if name not in NOISE_DEFAULTS]
         if frame_only:
-            raise SimulationError(
+            raise click.UsageError(
                 f"{', '.join(frame_only)}: not for an event stream, which gets only noise (leak, shot, hot "
                 f"pixels)"
             )
@@ -465,7 +465,7 @@ def simulate(source, output, output_format, truth, truth_frame_rate, input_forma
         return
     for name, value in (("--input-format", input_format), ("--aedat2-layout", aedat2_layout)):
         if value is not None:
-            raise SimulationError(f"{name} applies to event-stream sources only")
+            raise click.UsageError(f"{name} applies to event-stream sources only")
     scene_options = {}
     for keyword, name in _SCENE_OPTIONS.items():
         value = options.pop(name)

@@ -1,0 +1,116 @@
+"""Exit codes across the whole command line (issue 18 item 5): every option of every command, given a value of the
+wrong kind, is a usage error (exit 2, a message naming the option, no traceback, nothing written); an unknown
+option is one too; a missing input is a data error (exit 1, one line naming the file); --help exits 0 with -q and
+-v listed. The options are found by walking click's parameters, so a new option is swept without a new test."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+import pytest
+from click.testing import CliRunner
+
+from evtools.cli.main import COMMANDS, cli
+from evtools.cli.metrics import metrics
+from evtools.cli.options import Duration, TimeBound
+
+SAMPLES = Path(__file__).resolve().parents[1] / "samples"
+STEP, TRUTH = SAMPLES / "step.aedat4", SAMPLES / "step.truth.h5"
+
+BASES = {
+    "info": [str(STEP)],
+    "convert": [str(STEP), "-o", "{out}.aedat4"],
+    "simulate": ["scene:bars", "--size", "8x6", "--duration", "10ms", "-o", "{out}.aedat4"],
+    "render": [str(STEP), "-o", "{out}.png"],
+    "bafilter": [str(STEP), "-o", "{out}.aedat4"],
+    "estimate": [str(STEP), "-o", "{out}.h5"],
+    "correct": [str(STEP), "--thresholds", str(TRUTH), "-o", "{out}.aedat4"],
+    "metrics denoise": [str(STEP), "--truth", str(TRUTH), "--input", str(STEP)],
+    "metrics roc": [str(STEP), "--truth", str(TRUTH), "-m", "baf", "--sweep", "dt-us=1000,2000"],
+    "metrics esr": [str(STEP)],
+    "metrics thresholds": [str(TRUTH), "--truth", str(TRUTH)],
+    "metrics reconstruction": [str(STEP), "--truth", str(TRUTH)],
+    "metrics train-denoiser": [str(STEP), "--truth", str(TRUTH), "-o", "{out}.npz"],
+    "metrics uniformity": [str(STEP)],
+}
+"""A valid invocation of each command (files from samples/), to which one bad option is added."""
+
+
+def _commands() -> dict[str, click.Command]:
+    found = {}
+    for name in COMMANDS:
+        command = cli.get_command(click.Context(cli), name)
+        if name == "metrics":
+            for sub in metrics.lazy_commands:
+                found[f"metrics {sub}"] = metrics.get_command(click.Context(metrics), sub)
+        else:
+            found[name] = command
+    return found
+
+
+def _bad_value(option: click.Option) -> list[str] | None:
+    """A value of the wrong kind for ``option`` (as command-line words), or None when any text is a value."""
+    kind = option.type
+    if isinstance(kind, click.Choice):
+        bad = "nope"
+    elif isinstance(kind, (click.types.IntParamType, click.types.FloatParamType)):
+        bad = "abc"
+    elif isinstance(kind, (TimeBound, Duration)):
+        bad = "soon"
+    elif isinstance(kind, click.Path) and kind.exists:
+        bad = "/nonexistent/evtools-test"
+    elif isinstance(kind, click.Tuple):
+        return ["abc"] * option.nargs
+    else:
+        return None
+    return [bad] * max(option.nargs, 1)
+
+
+def _cases():
+    cases = []
+    for name, command in _commands().items():
+        for option in command.params:
+            if isinstance(option, click.Option) and not option.is_flag and option.opts[0] not in ("--help",):
+                words = _bad_value(option)
+                if words is not None:
+                    cases.append(pytest.param(name, option.opts[-1], words, id=f"{name} {option.opts[-1]}"))
+    return cases
+
+
+def test_every_command_has_a_valid_base_invocation():
+    assert set(BASES) == set(_commands())
+    assert len(_cases()) >= 60  # the sweep covers the command line, not a handful of options
+
+
+@pytest.mark.parametrize("name,option,words", _cases())
+def test_a_value_of_the_wrong_kind_is_a_usage_error(tmp_path, name, option, words):
+    base = [part.format(out=tmp_path / "out") for part in BASES[name]]
+    result = CliRunner().invoke(cli, [*name.split(), *base, option, *words])
+    assert result.exit_code == 2, (result.exit_code, result.stderr)
+    assert option in result.stderr or option.lstrip("-") in result.stderr, result.stderr
+    assert "Traceback" not in result.stderr and result.exception is None or isinstance(result.exception, SystemExit)
+    assert not list(tmp_path.iterdir())  # nothing written
+
+
+@pytest.mark.parametrize("name", sorted(BASES))
+def test_unknown_options_missing_inputs_and_help(tmp_path, name):
+    runner = CliRunner()
+    base = [part.format(out=tmp_path / "out") for part in BASES[name]]
+    unknown = runner.invoke(cli, [*name.split(), *base, "--no-such-option"])
+    assert unknown.exit_code == 2 and "No such option" in unknown.stderr
+    missing = [str(tmp_path / "missing.aedat4") if part in (str(STEP),) else part for part in base]
+    if name == "simulate":  # (scene options with a file are a usage error: --duration applies to scenes only)
+        assert runner.invoke(cli, ["simulate", str(STEP), "--duration", "1s", "-o", base[-1]]).exit_code == 2
+        missing = [str(tmp_path / "missing.aedat4"), "-o", base[-1]]
+    if name == "metrics thresholds":
+        missing[0] = str(tmp_path / "missing.h5")
+    data = runner.invoke(cli, [*name.split(), *missing])
+    assert data.exit_code in (1, 2), data.stderr  # 2: click's own check of a path that must exist
+    lines = data.stderr.strip().splitlines()
+    assert "missing." in data.stderr and "Traceback" not in data.stderr
+    if data.exit_code == 1:
+        assert len(lines) == 1 and lines[0].startswith("evtools: error: ")
+    assert not [p for p in tmp_path.iterdir()]  # nothing written
+    text = runner.invoke(cli, [*name.split(), "--help"])
+    assert text.exit_code == 0 and "-q, --quiet" in text.output and "-v, --verbose" in text.output
