@@ -389,12 +389,18 @@ def atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[str]:
     """A temporary path beside ``path``, renamed to ``path`` when the block ends without an error, else removed.
 
     For writers that need a path of their own (OpenCV); ``suffix`` keeps an extension they dispatch on.
-    The file gets the permissions of any new file (``mkstemp`` alone would make it private).
+    The file gets the permissions of any new file (``mkstemp`` alone would make it private). A symbolic link keeps
+    pointing where it did (its target is replaced); a FIFO, a socket or a device is refused (a writer that wants a
+    path cannot write into it, and renaming over it would destroy it).
     """
-    path = os.fspath(path)
+    named = os.fspath(path)
+    path = os.path.realpath(named)
+    if os.path.exists(path) and not os.path.isfile(path):
+        kind = "a folder" if os.path.isdir(path) else "not a regular file (a FIFO, a device)"
+        raise FormatError(f"{named}: is {kind}; this output is written as a file: give -o FILE")
     directory = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(directory):
-        raise FormatError(f"{path}: directory {directory} does not exist")
+        raise FormatError(f"{named}: directory {directory} does not exist")
     fd, temporary = tempfile.mkstemp(dir=directory, prefix="." + os.path.basename(path) + ".", suffix=".part" + suffix)
     os.close(fd)
     try:

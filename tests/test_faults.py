@@ -1,17 +1,163 @@
-"""Faults (issue 19): a full disk. Outputs on FIFOs, symlinks and /dev/null, stops by signal and a killed upstream
-are covered in tests/test_live.py and tests/test_aedat4.py."""
+"""Faults (issue 19), one matrix over the commands that stream: a stop (SIGTERM) while waiting on a live pipe, an
+upstream killed mid-stream, outputs through a symbolic link, into a FIFO and onto /dev/null, an output that names
+the input, a full disk. (SIGINT, whole pipelines and the end mark at a packet boundary: tests/test_live.py and
+tests/test_aedat4.py.)"""
 
 from __future__ import annotations
 
+import hashlib
 import os
 import subprocess
+import sys
+import time
 from pathlib import Path
 
 import pytest
 
-from tests.helpers import assert_clean_error, run
+import evtools
+from tests.helpers import assert_clean_error, assert_same_events, run
 
-SAMPLES = Path(__file__).resolve().parents[1] / "samples"
+ROOT = Path(__file__).resolve().parents[1]
+SAMPLES = ROOT / "samples"
+EVTOOLS = str(Path(sys.executable).with_name("evtools"))
+
+STREAM_COMMANDS = {
+    # name: (argv after the input, output suffix)
+    "convert": ([], ".aedat4"),
+    "bafilter": (["--method", "baf", "--dt-us", "50000"], ".aedat4"),
+    "correct": (["--thresholds", "{truth}"], ".aedat4"),
+    "simulate": (["--shot-noise-rate-hz", "1", "--seed", "1"], ".aedat4"),
+    "estimate": (["--min-events", "2"], ".h5"),
+    "render": (["--window-us", "50000"], ".mp4"),
+}
+"""Every command that reads a stream and writes a file, with options that suit the stream of :func:`stream`."""
+
+HOLD = """
+import sys, time
+data = open(sys.argv[1], "rb").read()
+sys.stdout.buffer.write(data[: int(len(data) * float(sys.argv[2]))])
+sys.stdout.buffer.flush()
+time.sleep(60)  # the pipe stays open: the reader waits for more
+"""
+
+
+@pytest.fixture(scope="module")
+def stream(tmp_path_factory) -> tuple[Path, Path]:
+    """A 64 x 48 bars stream of several packets (32,768 events each) and its camera's thresholds."""
+    folder = tmp_path_factory.mktemp("faults")
+    run("simulate", "scene:bars", "--size", "64x48", "--duration", "1500ms", "--seed", "3", "--truth",
+        folder / "truth.h5", "-o", folder / "bars.aedat4")
+    return folder / "bars.aedat4", folder / "truth.h5"
+
+
+def _options(name: str, stream) -> list[str]:
+    return [part.format(truth=stream[1]) for part in STREAM_COMMANDS[name][0]]
+
+
+def _feed(path: Path, fraction: float) -> subprocess.Popen:
+    """A writer of the first ``fraction`` of ``path``'s bytes that then keeps the pipe open."""
+    return subprocess.Popen([sys.executable, "-c", HOLD, str(path), str(fraction)], stdout=subprocess.PIPE)
+
+
+def _stage(name: str, output: Path, feed: subprocess.Popen, extra: list[str]) -> subprocess.Popen:
+    process = subprocess.Popen([EVTOOLS, "-q", name, "-", *extra, "-o", str(output)], stdin=feed.stdout,
+                               stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    feed.stdout.close()
+    return process
+
+
+def _no_temporaries(folder: Path) -> None:
+    assert [p.name for p in folder.iterdir() if p.name.startswith(".") or p.name.endswith(".part")] == []
+
+
+@pytest.mark.parametrize("name", sorted(STREAM_COMMANDS))
+def test_sigterm_while_waiting_on_a_pipe_stops_cleanly(tmp_path, stream, name):
+    """SIGTERM while a command waits for more of a live pipe: exit 143, one line, no traceback, no temporary; what
+    it wrote is complete (an event file readable, and a prefix of the whole run's events where it is a filter)."""
+    output = tmp_path / f"out{STREAM_COMMANDS[name][1]}"
+    feed = _feed(stream[0], 0.5)
+    stage = _stage(name, output, feed, _options(name, stream))
+    try:
+        time.sleep(2.5)
+        assert stage.poll() is None, stage.stderr.read()
+        stage.send_signal(15)
+        assert stage.wait(timeout=30) == 143
+    finally:
+        feed.kill()
+        stage.kill()
+    stderr = stage.stderr.read()
+    assert "Traceback" not in stderr and len(stderr.strip().splitlines()) == 1 and "stopped by" in stderr, stderr
+    _no_temporaries(tmp_path)
+    if output.exists() and output.suffix == ".aedat4":
+        events, _ = evtools.read(output)
+        if name in ("convert", "bafilter"):  # a filter's output is a prefix of its whole run's
+            whole = tmp_path / "whole.aedat4"
+            run(name, stream[0], *_options(name, stream), "-o", whole)
+            assert 0 < len(events) and len(events) <= len(evtools.read(whole)[0])
+            assert_same_events(events, evtools.read(whole)[0][:len(events)])
+
+
+@pytest.mark.parametrize("name", sorted(STREAM_COMMANDS))
+def test_an_upstream_killed_mid_stream_is_an_error_without_output(tmp_path, stream, name):
+    """The writer of the pipe killed (SIGKILL) after 60 % of a stream: the command does not pass the part as whole:
+    exit 1, one line naming stdin, no output, no temporary."""
+    output = tmp_path / f"out{STREAM_COMMANDS[name][1]}"
+    feed = _feed(stream[0], 0.6)
+    stage = _stage(name, output, feed, _options(name, stream))
+    try:
+        time.sleep(1.0)
+        feed.kill()
+        assert stage.wait(timeout=30) == 1
+    finally:
+        stage.kill()
+    stderr = stage.stderr.read()
+    assert "Traceback" not in stderr and len(stderr.strip().splitlines()) == 1, stderr
+    assert stderr.startswith("evtools: error: <stdin>") or "stdin" in stderr, stderr
+    assert not output.exists()
+    _no_temporaries(tmp_path)
+
+
+@pytest.mark.parametrize("name", sorted(STREAM_COMMANDS))
+def test_outputs_through_links_fifos_and_devices_and_never_over_the_input(tmp_path, stream, name):
+    """-o through a symbolic link: the link stays, its target gets the output (what a regular file gets); -o a
+    FIFO: the reader gets the output, the FIFO stays (HDF5 and MP4, which seek or are written by path, are refused
+    on a FIFO in one line); -o /dev/null: exit 0, still a device; -o naming the input (through a link): refused,
+    the input unchanged."""
+    extra, suffix = _options(name, stream), STREAM_COMMANDS[name][1]
+    source = tmp_path / "in.aedat4"
+    source.write_bytes(stream[0].read_bytes())
+    regular = tmp_path / f"regular{suffix}"
+    run(name, source, *extra, "-o", regular)
+    target, link = tmp_path / f"target{suffix}", tmp_path / f"link{suffix}"
+    target.write_bytes(b"old")
+    link.symlink_to(target)
+    run(name, source, *extra, "-o", link)
+    assert link.is_symlink() and os.readlink(link) == str(target)
+    if suffix == ".aedat4":
+        assert target.read_bytes() == regular.read_bytes()
+    else:
+        assert target.stat().st_size > 100 and target.read_bytes()[:4] == regular.read_bytes()[:4]
+    fifo = tmp_path / f"out{suffix}.fifo"
+    os.mkfifo(fifo)
+    copy = tmp_path / f"copy{suffix}"
+    reader = subprocess.Popen([sys.executable, "-c", f"open({str(copy)!r}, 'wb').write(open({str(fifo)!r}, 'rb').read())"])
+    written = run(name, source, *extra, "-o", fifo, *(["--format", "aedat4"] if name in ("convert", "simulate") else []),
+                  check=False)
+    if suffix == ".aedat4":  # a FIFO is a live output: flushed chunk by chunk, so its packets may be cut otherwise
+        assert written.returncode == 0 and reader.wait(timeout=30) == 0, written.stderr
+        assert_same_events(evtools.read(copy)[0], evtools.read(regular)[0])
+    else:
+        reader.kill()
+        assert written.returncode in (1, 2) and written.stderr.decode().count("\n") == 1, written.stderr
+    assert fifo.is_fifo()
+    if suffix == ".aedat4":
+        assert run(name, source, *extra, "-o", "/dev/null").returncode == 0 and Path("/dev/null").is_char_device()
+    before = hashlib.sha256(source.read_bytes()).hexdigest()
+    alias = tmp_path / f"alias{suffix}"
+    alias.symlink_to(source)
+    refused = run(name, source, *extra, "-o", alias, check=False)
+    assert refused.returncode == 1 and b"input" in refused.stderr and refused.stderr.count(b"\n") == 1, refused.stderr
+    assert hashlib.sha256(source.read_bytes()).hexdigest() == before
 
 
 @pytest.fixture
