@@ -30,7 +30,10 @@ log = logging.getLogger("evtools")
 DEFAULT_WINDOW_US = 33_333
 """One thirtieth of a second: at the default 30 frames per second a video plays in real time."""
 DEFAULT_FPS = 30.0
-IMAGE_EXTENSIONS = {".png": "PNG image", ".jpg": "JPEG image", ".jpeg": "JPEG image"}
+IMAGE_EXTENSIONS = {".png": "PNG image", ".jpg": "JPEG image", ".jpeg": "JPEG image", ".svg": "SVG picture",
+                    ".pdf": "PDF document"}
+"""Pictures by extension: PNG and JPEG encoded by OpenCV; SVG and PDF (for papers) by matplotlib, the frame embedded
+as a raster image the size of the upscaled frame (pixels stay sharp: no smoothing)."""
 MANY_FRAMES = 18_000
 """A video reaching this many frames (10 minutes at 30 fps) gets a warning naming --window-us."""
 VIDEO_FOURCC = {".mp4": ("avc1", "mp4v"), ".avi": ("MJPG",)}
@@ -43,7 +46,8 @@ def _extension(output: str) -> str:
     extension = os.path.splitext(output)[1].lower()
     if extension not in IMAGE_EXTENSIONS and extension not in VIDEO_FOURCC:
         known = ", ".join([*IMAGE_EXTENSIONS, *VIDEO_FOURCC])
-        raise RenderError(f"{output}: cannot tell what to write from the extension; give one of {known}")
+        raise click.BadParameter(f"{output}: cannot tell what to write from the extension; give one of {known}",
+                                 param_hint="-o")
     return extension
 
 
@@ -210,13 +214,24 @@ def _nothing_to_draw(name: str, framer: EventFramer, start_us: int | None) -> Re
 
 
 def _write_image(output: str, extension: str, rgb: np.ndarray) -> None:
-    import cv2
+    if extension in (".svg", ".pdf"):
+        import io
 
-    ok, encoded = cv2.imencode(extension, np.ascontiguousarray(rgb[..., ::-1]))
-    if not ok:
-        raise RenderError(f"{output}: OpenCV could not encode the picture as {extension}")
+        from matplotlib.image import imsave
+
+        buffer = io.BytesIO()
+        imsave(buffer, np.ascontiguousarray(rgb), format=extension[1:],
+               metadata={"Date": None} if extension == ".pdf" else None)
+        encoded = buffer.getvalue()
+    else:
+        import cv2
+
+        ok, encoded = cv2.imencode(extension, np.ascontiguousarray(rgb[..., ::-1]))
+        if not ok:
+            raise RenderError(f"{output}: OpenCV could not encode the picture as {extension}")
+        encoded = encoded.tobytes()
     with output_stream(output, binary_name=IMAGE_EXTENSIONS[extension], needs_seek=True) as stream:
-        stream.write(encoded.tobytes())
+        stream.write(encoded)
 
 
 def _captioned(image: np.ndarray, framer: EventFramer, window_start_us: int) -> np.ndarray:

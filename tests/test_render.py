@@ -268,7 +268,8 @@ def test_bad_inputs_give_one_line_and_exit_1(tmp_path):
     garbage.write_bytes(b"not an HDF5 file at all")
     with h5py.File(tmp_path / "half.h5", "w") as h5:
         h5["on"] = np.zeros((3, 3), np.float32)
-    assert_clean_error(run("render", stream, "-o", tmp_path / "out.gif", check=False), "out.gif", ".png")
+    unknown = run("render", stream, "-o", tmp_path / "out.gif", check=False)  # a usage error: the extension
+    assert unknown.returncode == 2 and b"out.gif" in unknown.stderr and b".svg" in unknown.stderr
     assert_clean_error(run("render", empty, "-o", tmp_path / "e.png", check=False), "empty.aedat4", "no events")
     assert_clean_error(run("render", empty, "-o", tmp_path / "e.mp4", check=False), "empty.aedat4", "no events")
     assert_clean_error(run("render", stream, "-o", tmp_path / "l.png", "--start", "1000s", check=False),
@@ -437,3 +438,30 @@ def test_colormap_is_checked_and_the_video_codec_is_said(tmp_path):
     assert fourcc in ("avc1", "h264", "fmp4", "mp4v")
     if fourcc not in ("avc1", "h264"):  # the PyPI wheels have no H.264 encoder: said in one line
         assert b"no H.264 encoder: the video is MPEG-4 Part 2" in done.stderr and done.stderr.count(b"\n") == 1
+
+
+def test_frames_and_maps_as_svg_and_pdf_for_papers(tmp_path):
+    """render -o x.svg / x.pdf (were refused): the frame embedded at the size of the upscaled frame, the same pixels
+    as the PNG; a thresholds map too."""
+    import base64
+    import re
+
+    events = random_events(400, width=16, height=12, seed=9)
+    stream = write_stream(tmp_path / "s.aedat4", events, 16, 12)
+    run("render", stream, "-o", tmp_path / "f.png", "--scale", "4")
+    run("render", stream, "-o", tmp_path / "f.svg", "--scale", "4")
+    run("render", stream, "-o", tmp_path / "f.pdf", "--scale", "4")
+    svg = (tmp_path / "f.svg").read_text()
+    embedded = re.search(r'<image[^>]*xlink:href="data:image/png;base64,([^"]+)"', svg)
+    picture = cv2.imdecode(np.frombuffer(base64.b64decode(embedded.group(1)), np.uint8), cv2.IMREAD_UNCHANGED)
+    if 'transform="scale(1 -1)' in svg:  # matplotlib stores the raster bottom-up and flips it back on display
+        picture = picture[::-1]
+    png = cv2.imread(str(tmp_path / "f.png"))
+    assert picture.shape[:2] == png.shape[:2] == (48, 64)
+    assert (picture[..., :3] == png).all()
+    assert (tmp_path / "f.pdf").read_bytes().startswith(b"%PDF")
+    truth = tmp_path / "t.h5"
+    run("simulate", "scene:flicker", "--size", "16x12", "--duration", "100ms", "--truth", truth, "-o",
+        tmp_path / "x.aedat4")
+    run("render", "--map", truth, "-o", tmp_path / "map.pdf")
+    assert (tmp_path / "map.pdf").read_bytes().startswith(b"%PDF")
