@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import logging
 import math
 
 import click
+import numpy as np
 
 from evtools.cli.batch import batch_options, plan, run
 from evtools.cli.options import Duration, slicing_options
@@ -26,6 +28,8 @@ from evtools.estimation import (
 from evtools.formats import open_events
 from evtools.formats.io import STDIO, same_file
 from evtools.formats.thresholds import ThresholdMap, write_thresholds
+
+log = logging.getLogger("evtools")
 
 DEFAULT_LEVELS = (50.0, 200.0)
 
@@ -177,4 +181,10 @@ def estimate_one(input, output, *, input_format, sensor_size, aedat2_layout, par
     else:
         thresholds = ThresholdMap(result.on, result.off, result.valid, attributes, result.fit, result.phase_us)
     write_thresholds(output, thresholds)
+    last = -1 if thresholds.t_us is not None else slice(None)  # a series: its last map
+    usable, on, off = thresholds.usable()[last], thresholds.on[last], thresholds.off[last]
+    medians = f", median ON {np.median(on[usable]):.3g} OFF {np.median(off[usable]):.3g}" if usable.any() else ""
+    maps = f", {len(thresholds.t_us)} maps over time" if thresholds.t_us is not None else ""
+    log.info(f"estimate {parameters['method']}: {result.attributes['events']:,} events, {int(usable.sum()):,} of "
+             f"{usable.size:,} pixels estimated ({100 * usable.mean():.1f} %){medians}{maps} -> {output}")
     return result.attributes["events"], 0

@@ -261,6 +261,8 @@ def _render_image(chunks, stream, framer: EventFramer, output: str, extension: s
                     stream.name, window_start_us, window_start_us + framer.window_us, framer.first_t_us)
     image = upscale(frame, scale)
     _write_image(output, extension, _captioned(image, framer, window_start_us) if caption else image)
+    log.info("render: %s events in %g ms from %.3f s (%s) -> %s", f"{framer.events_used:,}", framer.window_us / 1e3,
+             (window_start_us - framer.first_t_us) / 1e6, framer.mode, output)
 
 
 def _even(image: np.ndarray, colour) -> np.ndarray:
@@ -333,9 +335,12 @@ def _render_video(chunks, stream, framer: EventFramer, output: str, extension: s
         written.release()
         if frames < count:  # a write that failed without a word (a full disk between two checks)
             raise RenderError(f"{output}: the video holds {frames} of its {count} frames (a full disk?)")
+    note = ""
     if codec == "mp4v":
-        log.info("%s: this OpenCV build has no H.264 encoder: the video is MPEG-4 Part 2 (mp4v), which every player "
-                 "reads; for H.264, re-encode it (ffmpeg -i %s -c:v libx264 out.mp4)", output, output)
+        note = (f"; MPEG-4 Part 2: this OpenCV build has no H.264 encoder (for H.264: ffmpeg -i {output} -c:v libx264 "
+                "out.mp4)")
+    log.info("render: %s frames of %g ms (%s) from %s events at %g fps -> %s%s", f"{count:,}",
+             framer.window_us / 1e3, framer.mode, f"{framer.events_used:,}", fps, output, note)
 
 
 class _VideoFrames:

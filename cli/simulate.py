@@ -23,6 +23,7 @@ from evtools.events import CHUNK_EVENTS, StreamInfo, join, parse_sensor_size
 from evtools.noise import NOISE_DEFAULTS, NoiseInjector
 from evtools.simulation import (
     DEFAULT_PARAMETERS,
+    MIN_THRESHOLD,
     FLICKER_PROFILES,
     LABELS,
     PRESETS,
@@ -347,8 +348,9 @@ def _attribute(value):
     return "" if value is None else value
 
 
-def _float_option(name: str, help: str):
-    return click.option(name, type=float, default=None, help=help)
+def _float_option(name: str, help: str, low: float | None = 0.0, high: float | None = None):
+    """A number option of the pixel model, refused by click (a usage error, exit 2) outside ``low``..``high``."""
+    return click.option(name, type=click.FloatRange(low, high), default=None, help=help)
 
 
 @click.command()
@@ -384,8 +386,8 @@ def _float_option(name: str, help: str):
 @click.option("--preset", type=click.Choice(sorted(PRESETS)), default=None,
               help="v2e's parameter sets: clean (sigma 0.02, no low-pass, no noise) or noisy (sigma 0.05, "
                    "cutoff 30 Hz, leak 0.1 Hz, shot 5 Hz); options given explicitly override it.")
-@_float_option("--pos-thres", "Mean ON threshold, log units (default 0.2).")
-@_float_option("--neg-thres", "Mean OFF threshold, log units (default 0.2).")
+@_float_option("--pos-thres", "Mean ON threshold, log units (default 0.2).", low=MIN_THRESHOLD)
+@_float_option("--neg-thres", "Mean OFF threshold, log units (default 0.2).", low=MIN_THRESHOLD)
 @_float_option("--sigma-thres", "Per-pixel threshold standard deviation (default 0.03).")
 @click.option("--thres-drift", "thres_drift", type=float, default=None, metavar="PERCENT_PER_S",
               help="Every threshold drifts linearly by this percentage of its first value per second (default 0).")
@@ -399,11 +401,12 @@ def _float_option(name: str, help: str):
                "Per-pixel spread of the leak rate, decades (default 0.1; 0.5 for an event stream).")
 @_float_option("--shot-noise-rate-hz",
                "Shot-noise rate per pixel in the dark (any intensity for an event stream), ON+OFF (default 0).")
-@click.option("--refractory-us", type=int, default=None, help="Refractory period, microseconds (default 0).")
-@_float_option("--hot-pixel-fraction", "Fraction of hot pixels (default 0).")
+@click.option("--refractory-us", type=click.IntRange(min=0), default=None,
+              help="Refractory period, microseconds (default 0).")
+@_float_option("--hot-pixel-fraction", "Fraction of hot pixels (default 0).", high=1.0)
 @_float_option("--hot-pixel-rate-hz", "Event rate of a hot pixel (default 100).")
-@_float_option("--dead-pixel-fraction", "Fraction of dead pixels (default 0).")
-@click.option("--seed", type=int, default=None,
+@_float_option("--dead-pixel-fraction", "Fraction of dead pixels (default 0).", high=1.0)
+@click.option("--seed", type=click.IntRange(min=0), default=None,
               help="Seed of every random draw (default: a fresh one, recorded in --truth and the output's source).")
 @click.option("--frame-rate", type=float, default=None,
               help="Frame rate, Hz: of a scene (default 1000), of an image folder without timestamps, or to "
