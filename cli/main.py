@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import gc
+import contextlib
 import importlib
 import logging
 import os
@@ -170,6 +171,17 @@ def main() -> None:
     interrupt.install()  # Ctrl-C / SIGTERM end the input stream: outputs complete, exit 130 / 143
     try:
         cli(prog_name="evtools")
+    except SystemExit as done:
+        if done.code not in (None, 0):
+            # A failed run has closed its outputs and removed its temporaries (context managers) and said why; it
+            # ends here, without the interpreter's finalisation: h5py crashes (SIGSEGV) freeing the objects of a
+            # file whose write failed (a full disk), which would turn exit 1 into a crash
+            with contextlib.suppress(Exception):
+                sys.stdout.flush()
+            with contextlib.suppress(Exception):
+                sys.stderr.flush()
+            os._exit(done.code if isinstance(done.code, int) else 1)
+        raise
     finally:
         # When numba is loaded (a kernel compiled, or an argument only numba takes), Python's last garbage
         # collections walk every object it created (~0.2 s per process, measured with `time`); frozen objects are

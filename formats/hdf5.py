@@ -14,7 +14,6 @@ Prophesee's HDF5 files need the ECF codec, which hdf5plugin does not ship: they 
 from __future__ import annotations
 
 import contextlib
-
 from typing import BinaryIO, Iterator
 
 import numpy as np
@@ -245,6 +244,18 @@ def _compression_args(name: str | None) -> dict:
     raise FormatError(f"unknown HDF5 compression {name!r}; choose one of {', '.join(COMPRESSIONS)}")
 
 
+_ABANDONED: list = []
+"""h5py objects of files whose write failed, never freed (see :func:`abandon`)."""
+
+
+def abandon(*objects) -> None:
+    """Keep the h5py objects of a file whose write failed (a full disk) until the process ends: h5py crashes
+    (SIGSEGV) when they are freed, even once closed (reproduced with h5py alone). The command line ends a failed run
+    without the interpreter's finalisation (:func:`evtools.cli.main.main`), so they are never freed; a library
+    user's process keeps them."""
+    _ABANDONED.append(objects)
+
+
 class Hdf5Writer:
     """Writes evtools' HDF5 layout: DSEC's datasets plus the sensor size as root attributes.
 
@@ -299,6 +310,13 @@ class Hdf5Writer:
         """Append a chunk of ``EVENT_DTYPE`` (sorted by t)."""
         if len(chunk) == 0:
             return
+        try:
+            self._write(chunk)
+        except BaseException:
+            self.abandon()
+            raise
+
+    def _write(self, chunk: np.ndarray) -> None:
         if self.t_offset_us is None:
             self.t_offset_us = int(chunk["t"][0])
         while len(chunk):
@@ -356,7 +374,15 @@ class Hdf5Writer:
                 self.pending_events = 0
             self._append_ms(None, final=True)
             self.file.create_dataset("t_offset", data=np.int64(self.t_offset_us or 0), track_times=False)
-        finally:
-            file, self.file = self.file, None
-            file.close()  # even when a write failed (a full disk): HDF5 must not flush into a closed stream later
+            self.file.close()  # HDF5 writes its last blocks through the stream here: a full disk fails here
+        except BaseException:
+            self.abandon()
+            raise
+        self.file = None
         self.stream.flush()
+
+    def abandon(self) -> None:
+        """After a failed write: this file's h5py objects are kept, never freed (see :func:`abandon`)."""
+        if self.file is not None:
+            abandon(self.file, self.datasets, self.ms_dataset)
+            self.file, self.datasets, self.ms_dataset = None, {}, None

@@ -135,24 +135,40 @@ def write_thresholds(path: str, thresholds: ThresholdMap) -> None:
     """Write ``on``, ``off``, ``valid`` (and ``fit`` when known) and the attributes to ``path`` atomically."""
     import h5py
 
-    with output_stream(path, binary_name="HDF5", needs_seek=True) as stream, h5py.File(stream, "w") as h5:
-        for name in ("on", "off"):
-            h5.create_dataset(name, data=np.asarray(getattr(thresholds, name), dtype=np.float32))
-            h5[name].attrs["units"] = "log intensity"
-        h5.create_dataset("valid", data=np.asarray(thresholds.valid, dtype=bool))
-        if thresholds.fit is not None:
-            h5.create_dataset("fit", data=np.asarray(thresholds.fit, dtype=np.float32))
-            h5["fit"].attrs["units"] = "thresholds (RMS deviation of the level changes; a change that does not fit: 1)"
-        if thresholds.t_us is not None:
-            h5.create_dataset("t_us", data=np.asarray(thresholds.t_us, dtype=np.int64))
-            h5["t_us"].attrs["units"] = "us (map k holds from t_us[k] on)"
-        if thresholds.phase_us is not None:
-            h5.create_dataset("phase_us", data=np.asarray(thresholds.phase_us, dtype=np.float64))
-            h5["phase_us"].attrs["units"] = "us (a valley of the stimulus, modulo its period)"
-        for key, value in thresholds.attributes.items():
-            if key == "units":
-                continue
-            h5.attrs[key] = value if not isinstance(value, (dict, list, tuple)) else str(value)
+    from evtools.formats.hdf5 import abandon
+
+    with output_stream(path, binary_name="HDF5", needs_seek=True) as stream:
+        h5 = h5py.File(stream, "w")
+        try:
+            _fill(h5, thresholds)
+            h5.close()  # HDF5 writes its blocks through the stream here: a full disk fails here
+        except OSError as error:
+            abandon(h5)
+            raise FormatError(f"{path}: cannot write ({error.strerror or error})") from None
+        except BaseException:
+            abandon(h5)
+            raise
+
+
+def _fill(h5, thresholds: ThresholdMap) -> None:
+    """The datasets and attributes of a thresholds file."""
+    for name in ("on", "off"):
+        h5.create_dataset(name, data=np.asarray(getattr(thresholds, name), dtype=np.float32))
+        h5[name].attrs["units"] = "log intensity"
+    h5.create_dataset("valid", data=np.asarray(thresholds.valid, dtype=bool))
+    if thresholds.fit is not None:
+        h5.create_dataset("fit", data=np.asarray(thresholds.fit, dtype=np.float32))
+        h5["fit"].attrs["units"] = "thresholds (RMS deviation of the level changes; a change that does not fit: 1)"
+    if thresholds.t_us is not None:
+        h5.create_dataset("t_us", data=np.asarray(thresholds.t_us, dtype=np.int64))
+        h5["t_us"].attrs["units"] = "us (map k holds from t_us[k] on)"
+    if thresholds.phase_us is not None:
+        h5.create_dataset("phase_us", data=np.asarray(thresholds.phase_us, dtype=np.float64))
+        h5["phase_us"].attrs["units"] = "us (a valley of the stimulus, modulo its period)"
+    for key, value in thresholds.attributes.items():
+        if key == "units":
+            continue
+        h5.attrs[key] = value if not isinstance(value, (dict, list, tuple)) else str(value)
 
 
 def read_labels(path: str) -> np.ndarray:

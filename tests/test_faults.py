@@ -173,13 +173,29 @@ def small_disk(tmp_path):
     subprocess.run(["umount", str(mount)], capture_output=True)
 
 
-@pytest.mark.parametrize("suffix", [".aedat4", ".csv"])
-def test_a_full_disk_names_the_output_and_leaves_nothing(small_disk, suffix):
-    """Writing 300 KB onto 256 KiB: one line naming the user's output (not a temporary), exit 1, no file left."""
+@pytest.mark.parametrize("suffix", [".aedat4", ".csv", ".h5"])
+def test_a_full_disk_names_the_output_and_leaves_nothing(small_disk, suffix, tmp_path):
+    """Writing more than 256 KiB onto 256 KiB: one line naming the user's output (not a temporary), exit 1, no file
+    left. HDF5 too: h5py crashed (SIGSEGV) freeing the objects of the failed file, after the clean line."""
+    source = SAMPLES / "flicker.aedat4"
+    if suffix == ".h5":  # HDF5 compresses the small sample below the limit: a longer stream
+        source = tmp_path / "long.aedat4"
+        run("simulate", "scene:bars", "--size", "128x96", "--duration", "2s", "--seed", "1", "-o", source)
     target = small_disk / f"out{suffix}"
-    result = run("convert", SAMPLES / "flicker.aedat4", "-o", target, check=False)
+    result = run("convert", source, "-o", target, check=False)
     assert_clean_error(result, str(target), "No space left on device")
     assert os.listdir(small_disk) == []
+
+
+def test_a_thresholds_map_on_a_full_disk_names_it(small_disk, tmp_path):
+    """estimate's HDF5 map onto a full disk: the map's name in the one line (was "No space left on device" alone),
+    exit 1 (not a crash), no file."""
+    filler = small_disk / "filler"
+    filler.write_bytes(b"\0" * (250 * 1024))
+    target = small_disk / "t.h5"
+    result = run("estimate", SAMPLES / "flicker.aedat4", "-o", target, check=False)
+    assert_clean_error(result, str(target), "No space left on device")
+    assert sorted(os.listdir(small_disk)) == ["filler"]
 
 
 def test_a_video_on_a_full_disk_fails_in_one_line_and_leaves_nothing(small_disk):
