@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import functools
-
 import re
 import sys
 
@@ -86,10 +85,12 @@ def slicing_options(function=None, *, polarity: bool = True):
     """--start, --end, --polarity, --crop, --flip-x, --flip-y, --transpose (see evtools.transform), given to the
     command as one ``slicing`` dict (None when none is given). ``polarity=False`` leaves --polarity out (bafilter,
     where it is STCF's option)."""
+    given = SLICING_NAMES if polarity else tuple(name for name in SLICING_NAMES if name != "polarity")
+
     def decorate(command):
         @functools.wraps(command)
         def with_slicing(*args, **kwargs):
-            slicing = {name: kwargs.pop(name) if name != "polarity" or polarity else None for name in SLICING_NAMES}
+            slicing = {name: kwargs.pop(name) if name in given else None for name in SLICING_NAMES}
             return command(*args, slicing=slicing if any(slicing.values()) else None, **kwargs)
 
         options = [
