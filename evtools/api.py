@@ -30,7 +30,7 @@ from typing import Any, Iterable, Iterator
 import numpy as np
 
 from evtools.errors import EvtoolsError
-from evtools.events import EVENT_DTYPE, StreamInfo, concatenate, empty_events, make_events
+from evtools.events import EVENT_DTYPE, StreamInfo, empty_events, make_events
 
 __all__ = [
     "bafilter", "correct", "estimate", "from_columns", "from_dv", "from_tonic", "inject_noise", "open", "read",
@@ -67,7 +67,7 @@ def read(path: str | os.PathLike, **options) -> tuple[np.ndarray, StreamInfo]:
     (4, 2, [0, 5, 5], [1, 2, 3])
     """
     with open(path, **options) as stream:
-        return concatenate(stream), stream.info
+        return stream.read_all(), stream.info
 
 
 def open(path: str | os.PathLike | None = None, **options):  # noqa: A001 - the name users expect (evtools.open)

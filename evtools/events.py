@@ -109,6 +109,8 @@ def concatenate(chunks: Iterable[np.ndarray]) -> np.ndarray:
     the result, whose pages are touched only as they are filled: the peak is the stream plus one chunk, not twice
     the stream."""
     parts = [np.asarray(chunk) for chunk in chunks]
+    if len(parts) == 1 and parts[0].dtype == EVENT_DTYPE and parts[0].flags.c_contiguous:
+        return parts[0]  # the one chunk is the result: no copy
     if len(parts) <= 1:
         return join(parts) if parts else empty_events()
     out = np.empty(sum(len(part) for part in parts), EVENT_DTYPE)
