@@ -312,8 +312,8 @@ class Hdf5Writer:
             return
         try:
             self._write(chunk)
-        except BaseException:
-            self.abandon()
+        except BaseException as error:
+            self._give_up(error)
             raise
 
     def _write(self, chunk: np.ndarray) -> None:
@@ -375,14 +375,23 @@ class Hdf5Writer:
             self._append_ms(None, final=True)
             self.file.create_dataset("t_offset", data=np.int64(self.t_offset_us or 0), track_times=False)
             self.file.close()  # HDF5 writes its last blocks through the stream here: a full disk fails here
-        except BaseException:
-            self.abandon()
+        except BaseException as error:
+            self._give_up(error)
             raise
         self.file = None
         self.stream.flush()
 
-    def abandon(self) -> None:
-        """After a failed write: this file's h5py objects are kept, never freed (see :func:`abandon`)."""
-        if self.file is not None:
-            abandon(self.file, self.datasets, self.ms_dataset)
-            self.file, self.datasets, self.ms_dataset = None, {}, None
+    def _give_up(self, error: BaseException) -> None:
+        """After ``error``: the file is closed when HDF5 itself did not fail (events refused, a stop); after a
+        failed write (an OSError: a full disk) its h5py objects are kept, never freed (see :func:`abandon`)."""
+        if self.file is None:
+            return
+        if not isinstance(error, OSError):
+            try:
+                self.file.close()
+                self.file = None
+                return
+            except BaseException:
+                pass
+        abandon(self.file, self.datasets, self.ms_dataset)
+        self.file, self.datasets, self.ms_dataset = None, {}, None
