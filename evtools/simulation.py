@@ -118,6 +118,33 @@ def _check_fraction(name: str, value: float) -> float:
     return value
 
 
+PARALLEL_PIXELS = 1 << 15
+"""Sensors of at least this many pixels are advanced in two lanes of rows (top half, bottom half) on two threads:
+the pixels are independent (each its own state and random stream, keyed by its index), and the lanes' events are
+joined in row order before the sort by time, so the output is the same bit for bit."""
+
+
+class _PixelLane:
+    """Pixels ``first..end - 1`` (whole rows) and the output columns their events go to (time, x, y, polarity,
+    label), grown as needed."""
+
+    def __init__(self, first: int, end: int, capacity: int) -> None:
+        self.first, self.end, self.count = first, end, 0
+        self.columns = (np.empty(capacity, np.int64), np.empty(capacity, np.int16), np.empty(capacity, np.int16),
+                        np.empty(capacity, np.bool_), np.empty(capacity, np.uint8))
+
+    def grow(self) -> None:
+        grown = tuple(np.empty(2 * len(column), column.dtype) for column in self.columns)
+        for old, new in zip(self.columns, grown):
+            new[:self.count] = old[:self.count]
+        self.columns = grown
+
+    def taken(self) -> tuple[np.ndarray, ...]:
+        """The events so far (views of the columns, valid until the next advance); the lane starts empty again."""
+        count, self.count = self.count, 0
+        return tuple(column[:count] for column in self.columns)
+
+
 class DvsSimulator:
     """A DVS sensor of ``width x height`` pixels, turning frames of intensity into events.
 
@@ -257,12 +284,12 @@ class DvsSimulator:
         self._shot_draws = np.zeros(n, dtype=np.uint64)
         self._hot_draws = np.zeros(n, dtype=np.uint64)
         self._t_us: int | None = None  # time of the last frame seen
-        self._capacity = max(1 << 16, 2 * n)
-        self._out_t = np.empty(self._capacity, dtype=np.int64)
-        self._out_x = np.empty(self._capacity, dtype=np.int16)
-        self._out_y = np.empty(self._capacity, dtype=np.int16)
-        self._out_p = np.empty(self._capacity, dtype=np.bool_)
-        self._out_label = np.empty(self._capacity, dtype=np.uint8)
+        # the rows in lanes (PARALLEL_PIXELS), each advanced on its own thread into its own output columns
+        lanes = 2 if n >= PARALLEL_PIXELS else 1
+        rows = [self.height * k // lanes for k in range(lanes + 1)]
+        self._lanes = [_PixelLane(rows[k] * self.width, rows[k + 1] * self.width, max(1 << 15, n // lanes))
+                       for k in range(lanes)]
+        self._pool = None
 
     # -- the per-pixel maps, drawn once -------------------------------------------------------------------
 
@@ -368,7 +395,7 @@ class DvsSimulator:
         times = times.astype(np.int64)
         # 8-bit frames (video) stay 8-bit: the kernel takes their lin-log from a table of the 256 levels
         dtype = np.uint8 if frames.dtype == np.uint8 else np.float32
-        count = 0
+        pieces = []  # with lanes: each frame's events, the lanes' rows in order
         for k in range(len(frames)):
             frame = np.ascontiguousarray(frames[k], dtype=dtype).reshape(-1)
             t1 = int(times[k])
@@ -382,22 +409,48 @@ class DvsSimulator:
                 factor = max(1.0 + drift * ((self._t_us + t1) / 2 - self._t0_us) * 1e-6, MIN_THRESHOLD_FACTOR)
                 np.multiply(self.on_thres.reshape(-1), factor, out=self._on)
                 np.multiply(self.off_thres.reshape(-1), factor, out=self._off)
-            pixel = 0
-            while True:
-                count, pixel = advance_pixels(
-                    frame, self._t_us, t1, self.width, self.parameters["cutoff_hz"], self.parameters["fixed_cutoff"],
-                    self.parameters["refractory_us"], self._on, self._off, self._leak_rate_hz,
-                    self._shot_rate_hz, self._hot_rate_hz, self._any_leak, self._any_shot, self._any_hot,
-                    self._shot_key, self._hot_key,
-                    self._lp_log, self._ref_log, self._last_event_us, self._shot_budget, self._hot_budget,
-                    self._shot_draws, self._hot_draws,
-                    self._out_t, self._out_x, self._out_y, self._out_p, self._out_label, count, pixel,
-                )
-                if pixel == frame.size:
-                    break
-                self._grow(count)
+            if len(self._lanes) == 1:
+                self._advance(self._lanes[0], frame, t1)
+            else:
+                if self._pool is None:
+                    from concurrent.futures import ThreadPoolExecutor
+
+                    self._pool = ThreadPoolExecutor(1, thread_name_prefix="evtools-pixels")
+                second = self._pool.submit(self._advance, self._lanes[1], frame, t1)
+                try:
+                    self._advance(self._lanes[0], frame, t1)
+                finally:
+                    second.result()  # never leave the other lane running on the shared state
+                # a frame at a time: an event at a frame's time may tie with the next frame's first ones
+                pieces.append([np.concatenate(parts) for parts in zip(*(lane.taken() for lane in self._lanes))])
             self._t_us = t1
-        return self._take(count)
+        if len(self._lanes) == 1:
+            return self._sorted(self._lanes[0].taken())
+        if len(pieces) == 1:
+            return self._sorted(pieces[0])
+        return self._sorted([np.concatenate(parts) for parts in zip(*pieces)] if pieces else
+                            [column[:0] for column in self._lanes[0].columns])
+
+    def _advance(self, lane: "_PixelLane", frame: np.ndarray, t1: int) -> None:
+        """Advance ``lane``'s pixels to ``frame`` at ``t1``, appending their events to its columns."""
+        pixel = lane.first
+        while True:
+            lane.count, pixel = advance_pixels(
+                frame, self._t_us, t1, self.width, self.parameters["cutoff_hz"], self.parameters["fixed_cutoff"],
+                self.parameters["refractory_us"], self._on, self._off, self._leak_rate_hz,
+                self._shot_rate_hz, self._hot_rate_hz, self._any_leak, self._any_shot, self._any_hot,
+                self._shot_key, self._hot_key,
+                self._lp_log, self._ref_log, self._last_event_us, self._shot_budget, self._hot_budget,
+                self._shot_draws, self._hot_draws, *lane.columns, lane.count, pixel, lane.end,
+            )
+            if pixel == lane.end:
+                return
+            lane.grow()
+
+    def __getstate__(self) -> dict:
+        state = dict(self.__dict__)
+        state["_pool"] = None  # a thread pool does not pickle; a copy makes its own
+        return state
 
     def flush(self) -> np.ndarray:
         """Nothing is held back (each frame interval's events leave with it): an empty chunk."""
@@ -414,17 +467,10 @@ class DvsSimulator:
         self._ref_log[:] = self._lp_log - np.where(self._leak_rate_hz > 0, self._leak_phase * self._on, 0.0)
         self._t_us = t_us
 
-    def _grow(self, keep: int) -> None:
-        self._capacity *= 2
-        for name in ("_out_t", "_out_x", "_out_y", "_out_p", "_out_label"):
-            old = getattr(self, name)
-            new = np.empty(self._capacity, dtype=old.dtype)
-            new[:keep] = old[:keep]
-            setattr(self, name, new)
-
-    def _take(self, count: int) -> tuple[np.ndarray, np.ndarray]:
-        columns = (self._out_t[:count], self._out_x[:count], self._out_y[:count], self._out_p[:count],
-                   self._out_label[:count])
+    def _sorted(self, columns) -> tuple[np.ndarray, np.ndarray]:
+        """Events and labels of ``columns`` (time, x, y, polarity, label in frame then raster order), sorted by
+        time: ties keep that order, so the result does not depend on the lanes."""
+        count = len(columns[0])
         events = np.empty(count, dtype=EVENT_DTYPE)
         labels = np.empty(count, dtype=np.uint8)
         # the kernel writes pixel by pixel; a stable sort by time leaves ties in (frame, row, column, own order).

@@ -172,9 +172,9 @@ def advance_pixels(
     frame, t0_us, t1_us, width, cutoff_hz, fixed_cutoff, refractory_us,
     on_thres, off_thres, leak_rate_hz, shot_rate_hz, hot_rate_hz, any_leak, any_shot, any_hot, shot_key, hot_key,
     lp_log, ref_log, last_event_us, shot_budget, hot_budget, shot_draws, hot_draws,
-    out_t_us, out_x, out_y, out_p, out_label, count, first_pixel,
+    out_t_us, out_x, out_y, out_p, out_label, count, first_pixel, last_pixel,
 ):  # pragma: no cover - compiled
-    """Advance pixels ``first_pixel..`` from time ``t0_us`` to the frame ``frame`` at ``t1_us``; emit their events.
+    """Advance pixels ``first_pixel..last_pixel - 1`` from time ``t0_us`` to the frame ``frame`` at ``t1_us``; emit their events.
 
     Per pixel ``i`` (raster order, ``x = i % width``): the intensity I (0-255) becomes ``L = lin_log(I)``; the
     low-pass state moves ``lp += eps * (L - lp)`` with ``eps = min(1, ((I + 20) / 275) * dt * 2 pi cutoff_hz)``
@@ -221,18 +221,18 @@ def advance_pixels(
         order and, within a pixel, in time order.
     count : int
         Number of events already in the output arrays.
-    first_pixel : int
-        First pixel to advance (0, or where a previous call ran out of space).
+    first_pixel, last_pixel : int
+        The pixels to advance, ``first_pixel`` to ``last_pixel - 1`` (a lane of rows; ``first_pixel`` where a previous
+        call ran out of space).
 
     Returns
     -------
     count : int
         Number of events in the output arrays after the call.
     next_pixel : int
-        ``n_pixels`` when every pixel was advanced; otherwise the pixel whose events did not fit (its state is
+        ``last_pixel`` when every pixel was advanced; otherwise the pixel whose events did not fit (its state is
         unchanged): grow the output arrays and call again from there.
     """
-    n_pixels = frame.size
     capacity = out_t_us.size
     dt_us = float(t1_us - t0_us)
     dt_s = dt_us * 1e-6
@@ -245,7 +245,7 @@ def advance_pixels(
     inf = math.inf
     x = first_pixel % width
     y = first_pixel // width
-    for i in range(first_pixel, n_pixels):
+    for i in range(first_pixel, last_pixel):
         start_count = count
         at = np.uint64(i)  # unsigned: indexing needs no code for negative indices
         intensity, log_now = _pixel_log(frame, at, log_table)
@@ -372,7 +372,7 @@ def advance_pixels(
         if x == width:
             x = 0
             y += 1
-    return count, n_pixels
+    return count, last_pixel
 
 
 @kernel
