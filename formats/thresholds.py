@@ -8,7 +8,6 @@ the method and its parameters as attributes of the file.
 
 from __future__ import annotations
 
-import contextlib
 import os
 from dataclasses import dataclass, field
 from typing import Any
@@ -61,8 +60,6 @@ class ThresholdMap:
 def _open_h5(path: str):
     import h5py
 
-    with contextlib.suppress(ImportError):
-        import hdf5plugin  # noqa: F401  (compressed datasets)
     if not os.path.exists(path):
         raise FormatError(f"{path}: no such file")
     try:
@@ -96,15 +93,13 @@ def read_thresholds(path: str, series: bool = False) -> ThresholdMap:
                 "height x width: write one with `evtools estimate` or `evtools simulate --truth`)"
             )
         try:
-            on = np.asarray(h5["on"][()], dtype=np.float32)
-            off = np.asarray(h5["off"][()], dtype=np.float32)
-            valid = np.asarray(h5["valid"][()], dtype=bool) if isinstance(h5.get("valid"), h5py.Dataset) else None
-            fit = np.asarray(h5["fit"][()], dtype=np.float32) if isinstance(h5.get("fit"), h5py.Dataset) else None
-            phase_us = h5.get("phase_us")
-            phase_us = np.asarray(phase_us[()], dtype=np.float64) if isinstance(phase_us, h5py.Dataset) else None
-            t_us = np.asarray(h5["t_us"][()]) if isinstance(h5.get("t_us"), h5py.Dataset) else None
-        except OSError as error:
-            raise FormatError(f"{path}: cannot read the maps ({error})") from None
+            on, off, valid, fit, phase_us, t_us = _maps(h5)
+        except OSError:  # a compression filter HDF5 lacks (Zstd, Blosc...): hdf5plugin's, loaded only now (6 MiB)
+            try:
+                import hdf5plugin  # noqa: F401
+                on, off, valid, fit, phase_us, t_us = _maps(h5)
+            except (ImportError, OSError) as error:
+                raise FormatError(f"{path}: cannot read the maps ({error})") from None
         attributes = {key: _text(value) for key, value in h5.attrs.items()}
         units = _text(h5["on"].attrs.get("units", ""))
     maps = (valid, fit)
@@ -129,6 +124,18 @@ def read_thresholds(path: str, series: bool = False) -> ThresholdMap:
     if t_us is not None and not series:  # the latest map
         return ThresholdMap(on[-1], off[-1], valid[-1], attributes, None if fit is None else fit[-1], phase_us)
     return ThresholdMap(on, off, valid, attributes, fit, phase_us, None if t_us is None else t_us.astype(np.int64))
+
+
+def _maps(h5):
+    """on, off, valid, fit, phase_us, t_us of an open thresholds file (None for those it lacks)."""
+    import h5py
+
+    def read(name, dtype=None):
+        dataset = h5.get(name)
+        return np.asarray(dataset[()], dtype=dtype) if isinstance(dataset, h5py.Dataset) else None
+
+    return (read("on", np.float32), read("off", np.float32), read("valid", bool), read("fit", np.float32),
+            read("phase_us", np.float64), read("t_us"))
 
 
 def write_thresholds(path: str, thresholds: ThresholdMap) -> None:

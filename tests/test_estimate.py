@@ -18,7 +18,7 @@ from evtools.metrics.thresholds import threshold_errors
 from evtools.simulation import DvsSimulator, scene_frames
 from evtools.events import StreamInfo
 from evtools.formats import create_events
-from evtools.formats.thresholds import read_thresholds
+from evtools.formats.thresholds import ThresholdMap, read_thresholds, write_thresholds
 from tests.helpers import assert_clean_error, cut, random_events, read_all, run
 from tests.naive.ideal_pixel import ideal_events, triangle_corners
 from tests.conftest import data_file
@@ -820,3 +820,27 @@ def test_neighbour_sums_equal_a_loop_over_the_window(height, width, radius_px, s
                     if (v, u) != (y, x):
                         expected[y, x] += values[v, u]
     np.testing.assert_allclose(_around(values, radius_px), expected, rtol=1e-12, atol=1e-12)
+
+
+def test_a_zstd_compressed_map_is_read_and_a_plain_one_needs_no_plugin(tmp_path):
+    """hdf5plugin (6 MiB, ~30 ms) is loaded only for a map whose datasets need one of its filters: a map written by
+    another tool with Zstd reads the same; reading evtools' own (uncompressed) map does not import it."""
+    import subprocess
+    import sys
+
+    import hdf5plugin
+
+    on = np.random.default_rng(1).uniform(0.1, 0.3, (6, 8)).astype(np.float32)
+    with h5py.File(tmp_path / "z.h5", "w") as h5:
+        h5.create_dataset("on", data=on, **hdf5plugin.Zstd())
+        h5.create_dataset("off", data=on + 0.01, **hdf5plugin.Zstd())
+    plain = tmp_path / "plain.h5"
+    write_thresholds(str(plain), ThresholdMap(on, on + 0.01, np.ones(on.shape, bool), {"method": "test"}))
+    probe = ("import sys; from evtools.formats.thresholds import read_thresholds as r; a = r(sys.argv[1]); "
+             "b = r(sys.argv[2]); print(float(abs(a.on - b.on).max()), 'hdf5plugin' in sys.modules)")
+    only_plain = subprocess.run([sys.executable, "-c", probe, str(plain), str(plain)], capture_output=True, text=True,
+                                check=True).stdout.split()
+    assert only_plain == ["0.0", "False"]
+    both = subprocess.run([sys.executable, "-c", probe, str(tmp_path / "z.h5"), str(plain)], capture_output=True,
+                          text=True, check=True).stdout.split()
+    assert both == ["0.0", "True"]
