@@ -177,8 +177,10 @@ def test_every_stream_command_slices_as_convert_does(tmp_path_factory, case):
             suffix = ".h5" if name == "estimate" else ".aedat4"
             result = runner.invoke(cli, ["-q", *command, *maps, str(folder / source), *extra, "-o",
                                          str(folder / (output + suffix))])
-            outputs.append((result.exit_code, result.stderr.replace(str(folder / source), "IN"),
-                            folder / (output + suffix)))
+            named = result.stderr.replace(str(folder / source), "IN")
+            for given in maps:  # the map each run was given
+                named = named.replace(given, "MAP")
+            outputs.append((result.exit_code, named, folder / (output + suffix)))
         (code_a, text_a, path_a), (code_b, text_b, path_b) = outputs
         assert code_a == code_b, (name, text_a, text_b)
         if code_a:  # the same refusal (too few events for a map, say)
