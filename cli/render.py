@@ -24,6 +24,7 @@ from evtools.render import (
 from evtools.formats import open_events
 from evtools.formats.io import STDIO, atomic_path, output_stream, same_file
 from evtools.formats.thresholds import read_thresholds
+from evtools.transform import sliced
 
 log = logging.getLogger("evtools")
 
@@ -153,21 +154,17 @@ def render(ctx, input, input_format, sensor_size, aedat2_layout, output, window_
         _refuse(ctx, {"fps": "--fps"}, "applies to video outputs (.mp4, .avi) only")
     if input != STDIO and same_file(output, input):
         raise RenderError(f"{output}: output would overwrite the input; choose another -o")
-    with open_events(input, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as stream:
+    with open_events(input, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as opened:
+        stream = sliced(opened, {"end": end})  # events from --end on are neither drawn nor read
         info = stream.info
         scale = scale or auto_scale(info.width, info.height)
         chunks = iter(stream)
         first = next(chunks, None)  # its first event is where a relative --start counts from
-        start_us = end_us = None
-        if start is not None:
-            start_us = start.us if start.absolute or first is None else int(first["t"][0]) + start.us
-        if end is not None:
-            end_us = end.us if end.absolute or first is None else int(first["t"][0]) + end.us
-            if extension in IMAGE_EXTENSIONS and not _given(ctx, "window_us"):  # the picture of start .. end
-                window_us = max(1, end_us - (int(first["t"][0]) if start_us is None else start_us))
+        first_us = None if first is None else int(first["t"][0])
+        start_us = None if start is None or first is None else start.resolve(first_us)
+        if end is not None and first is not None and extension in IMAGE_EXTENSIONS and not _given(ctx, "window_us"):
+            window_us = max(1, end.resolve(first_us) - (first_us if start_us is None else start_us))  # start .. end
         chunks = itertools.chain([] if first is None else [first], chunks)
-        if end_us is not None:
-            chunks = _before(chunks, end_us)
         framer = EventFramer(info.width, info.height, window_us, start_us=start_us, background=background, mode=mode,
                              colormap=colormap)
         if extension in IMAGE_EXTENSIONS:
@@ -189,15 +186,6 @@ def _render_rate(input: str, output: str, options: dict) -> None:
     if counter.first_us is None:
         raise RenderError(f"{stream.name}: no events to plot (the stream is empty)")
     save(rate_figure(counter, f"event rate of {os.path.basename(stream.name)}"), output)
-
-
-def _before(chunks, end_us: int):
-    """The events before ``end_us``; reading stops at the first chunk that reaches it."""
-    for chunk in chunks:
-        if len(chunk) and chunk["t"][-1] >= end_us:
-            yield chunk[:int(np.searchsorted(chunk["t"], end_us, side="left"))]
-            return
-        yield chunk
 
 
 def _frames(chunks, framer: EventFramer):

@@ -28,6 +28,10 @@ class Time:
     us: int
     absolute: bool = False
 
+    def resolve(self, first_us: int) -> int:
+        """This time on the stream's clock, for a stream whose first event is at ``first_us``."""
+        return self.us if self.absolute else first_us + self.us
+
 
 class Transform:
     """Slices and re-maps a ``width x height`` stream; :attr:`info` is the output's stream description.
@@ -65,12 +69,8 @@ class Transform:
         self.done = False  # the end has passed: no later event can be kept
 
     def _bounds(self) -> tuple[float, float]:
-        def resolve(bound: Time | None, default: float) -> float:
-            if bound is None:
-                return default
-            return bound.us if bound.absolute else self.first_us + bound.us
-
-        return resolve(self.start, -np.inf), resolve(self.end, np.inf)
+        return (-np.inf if self.start is None else self.start.resolve(self.first_us),
+                np.inf if self.end is None else self.end.resolve(self.first_us))
 
     def process(self, chunk: np.ndarray) -> np.ndarray:
         if not len(chunk) or self.done:
