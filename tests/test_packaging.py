@@ -35,3 +35,38 @@ def test_the_wheel_has_one_top_level_package(tmp_path):
     assert "evtools/estimation.py" in names and "evtools/estimate.py" not in names
     entry_points = next(n for n in names if n.endswith("entry_points.txt"))
     assert "evtools = evtools.cli.main:main" in zipfile.ZipFile(wheel).read(entry_points).decode()
+
+
+def _child(code: str, **environment) -> str:
+    env = {key: value for key, value in __import__("os").environ.items() if key != "OPENBLAS_NUM_THREADS"}
+    env.update(environment)
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
+                          check=True).stdout.strip()
+
+
+MAIN = """
+import sys
+from evtools.cli import main
+early = 'numpy' in sys.modules
+sys.argv = ['evtools', 'info', '--help']
+try:
+    main.main()
+except SystemExit:
+    pass
+import os
+print(early, os.environ.get('OPENBLAS_NUM_THREADS'))
+"""
+
+
+def test_the_command_line_sets_blas_threads_before_numpy_loads():
+    """The entry point runs before numpy is imported (``evtools`` loads its names lazily), so its one-thread BLAS
+    default takes effect; a user's own setting wins."""
+    assert _child(MAIN).split("\n")[-1] == "False 1"
+    assert _child(MAIN, OPENBLAS_NUM_THREADS="3").split("\n")[-1] == "False 3"
+
+
+def test_the_package_names_load_on_first_use():
+    out = _child("import sys, evtools; a = 'numpy' in sys.modules; from evtools import read, EVENT_DTYPE, "
+                 "StreamInfo; print(a, 'numpy' in sys.modules, read.__module__, sorted(evtools.__all__) == "
+                 "sorted(n for n in evtools.__all__ if hasattr(evtools, n)), 'read' in dir(evtools))")
+    assert out == "False True evtools.api True True"
