@@ -15,8 +15,11 @@ future event is created at or after ``bound = max(earliest segment start of any 
 ``latency_us`` is one window, ``max_gap_us`` (``hold_us`` in all modes but ``foh`` when smaller), or three with
 turns: a segment that waits for the pixel's next event starts at most one window before its event and waits at
 most two (a pixel that has not fired yet counts as having fired at the stream's start). So the latency and
-the buffer are bounded by ``latency_us`` of output, whatever the gaps. The created events of a chunk are sorted by a counting sort over their time span
-(coarser buckets, each put in order by insertion, when the span is large) and merged with the held ones inside a numba kernel. When every
+the buffer are bounded by ``latency_us`` of output, whatever the gaps (a dense stream holds its rate times
+``latency_us``: 8.6 M events at 9.5 Mev/s with the defaults). The events a part creates are sorted once, by a
+counting sort over their time span (coarser buckets, each put in order by insertion, when the span is large), into
+a run that stays in place until its events are released; a release merges the runs' released parts (a k-way merge
+in numba kernels), so an event is moved a few times however long it is held. When every
 pixel's thresholds equal the target, each input event creates exactly itself, and the output is the input, bit
 for bit and in its order.
 
@@ -41,9 +44,10 @@ from evtools._kernels.correct import (
     PIXEL_DTYPE,
     correct_events,
     earliest_start,
+    merge_runs,
     merge_sorted,
-    release_sorted,
     settle_waiting,
+    sort_created,
     split_rows,
 )
 from evtools.errors import EvtoolsError
@@ -55,14 +59,18 @@ that many events (a target of 1e-9 once grew a 2,560-event run to 24 GB)."""
 
 LANES = 2
 """The pixels are re-sampled in two lanes, the even and the odd sensor rows (any scene's events split about
-evenly), each with its own queue of waiting pixels and its own reorder buffer, so that the lanes of a long part
-run on two threads. The lanes' outputs are merged, the even rows' first on ties (each lane's ties in creation
-order): the output depends on neither the threads nor the chunks."""
+evenly), each with its own queue of waiting pixels and its own reorder buffer (:class:`_Lane`), so that the lanes
+of a long part run on two threads. The lanes' outputs are merged, the even rows' first on ties (each lane's ties in
+creation order): the output depends on neither the threads nor the chunks."""
 
 PART = 1 << 17
-"""Events per part of a long chunk: each part is split into the lanes, re-sampled, and released. The lanes' buffers
-are sized by it: 2^18 held 25 MiB more at the same speed; 2^16 is 50 % slower (each release merges the events held,
-up to three windows' worth, again: the cost of a part grows with what is held, not only with its events)."""
+"""Events per part of a long chunk: each part is split into the lanes, re-sampled, sorted into a run, and released.
+The lanes' buffers are sized by it; smaller parts cost more per event (each has fixed costs: a scan of the pixels
+for the bound, two hand-overs to the lane thread, a release over every live run): on 10 M events of a DVXplorer
+recording 2^16 took 1.4x the time of 2^17 (and 1.6x on the same events 50 times denser) for 9 MiB less."""
+
+SPENT_RUNS = 8
+"""How many released runs' buffers a lane keeps for its next runs (fresh ones would be paged in again)."""
 
 PARALLEL_EVENTS = 1 << 14
 """Parts of at least this many events run their lanes on two threads (smaller ones are not worth a hand-over)."""
@@ -321,9 +329,7 @@ class ThresholdCorrector:
         if not self._any_use:  # every pixel at the target: the input, bit for bit and in its order
             return chunk.copy()
         words = np.ascontiguousarray(chunk).view(np.int64).reshape(-1, 2)
-        # written part by part, every byte of a record (merge_sorted writes both words): not zeroed first
-        out = np.empty(self.held + 2 * len(words), EVENT_DTYPE)
-        filled = 0
+        pieces = []
         for begin in range(0, len(words), PART):
             part = words[begin:begin + PART]
             even, odd = self._lanes[0].input_room(len(part)), self._lanes[1].input_room(len(part))
@@ -333,14 +339,13 @@ class ThresholdCorrector:
                                                                self._checks_us)
             checks_us = self._checks_us[:n_checks]
             parallel = len(part) >= PARALLEL_EVENTS
-            counts = self._each_lane(lambda lane, lane_words: lane.resample(self, lane_words, checks_us),
-                                     [even[:n_even], odd[:n_odd]], parallel)
+            self._each_lane(lambda lane, lane_words: lane.hold(lane.resample(self, lane_words, checks_us)),
+                            [even[:n_even], odd[:n_odd]], parallel)
             bound = self._bound(int(part[-1, 0]))
-            counts = self._each_lane(lambda lane, n: lane.release(n, bound), counts, parallel)
-            if filled + sum(counts) > len(out):
-                out = join([out[:filled], np.empty(max(len(out), sum(counts)), EVENT_DTYPE)])
-            filled = self._merged(counts, out, filled)
-        return out[:filled]
+            released = self._each_lane(lambda lane, _: lane.release(bound), [None] * LANES, parallel)
+            pieces.append(np.empty(sum(len(times) for times, _ in released), EVENT_DTYPE))
+            self._merged(released, pieces[-1], 0)
+        return pieces[0] if len(pieces) == 1 else join(pieces)
 
     def _each_lane(self, work, arguments: list, parallel: bool) -> list:
         """``work(lane, argument)`` for every lane, the second lane on the pool's thread when ``parallel``."""
@@ -355,15 +360,15 @@ class ThresholdCorrector:
             done = second.result()  # never leave the other lane running on the shared state
         return [first, done]
 
-    def _merged(self, counts: list[int], out: np.ndarray, filled: int) -> int:
-        """The lanes' released events (each sorted by time) merged into ``out`` from ``filled`` on, the first
-        lane's first on ties; returns the new end."""
-        (first_t, first_w), (second_t, second_w) = self._lanes[0].out, self._lanes[1].out
-        n_first, n_second = counts
-        words = out.view(np.int64).reshape(-1, 2)[filled:filled + n_first + n_second]
-        merge_sorted(first_t[:n_first], first_w[:n_first], second_t[:n_second], second_w[:n_second], words[:, 0],
-                     words[:, 1])
-        return filled + n_first + n_second
+    @staticmethod
+    def _merged(released: list[tuple[np.ndarray, np.ndarray]], out: np.ndarray, filled: int) -> int:
+        """The lanes' released events (each sorted by time: times, second words) merged into ``out`` from
+        ``filled`` on, the first lane's first on ties (every byte of a record written); returns the new end."""
+        (first_t, first_w), (second_t, second_w) = released
+        end = filled + len(first_t) + len(second_t)
+        words = out.view(np.int64).reshape(-1, 2)[filled:end]
+        merge_sorted(first_t, first_w, second_t, second_w, words[:, 0], words[:, 1])
+        return end
 
     def __getstate__(self) -> dict:
         state = dict(self.__dict__)
@@ -380,10 +385,22 @@ class ThresholdCorrector:
 
     def flush(self) -> np.ndarray:
         """The segments still waiting for a next event, re-sampled with what is known, and everything held (the
-        stream ended)."""
-        counts = [lane.release(lane.settle_all(self), NO_EVENT_US) for lane in self._lanes]
-        out = empty_events(sum(counts))
-        self._merged(counts, out, 0)
+        stream ended), released in steps of about :data:`PART` events (a dense stream holds millions: one release
+        of them all would need its merge buffers at that size)."""
+        for lane in self._lanes:
+            lane.hold(lane.settle_all(self))
+        runs = [run for lane in self._lanes for run in lane.runs]
+        out = np.empty(self.held, EVENT_DTYPE)
+        if not runs:
+            return out
+        # bounds evenly spaced in time across what is held, one per PART events: as many releases as parts
+        first_us = min(int(times[start]) for times, _, start in runs)
+        span_us = max(int(times[-1]) for times, _, _ in runs) - first_us
+        steps = -(-len(out) // PART)
+        filled = 0
+        for step in range(1, steps + 1):
+            bound = first_us + span_us * step // steps if step < steps else NO_EVENT_US
+            filled = self._merged([lane.release(bound) for lane in self._lanes], out, filled)
         return out
 
 
@@ -401,20 +418,25 @@ def _grown(buffers, capacity: int, keep: int) -> tuple[np.ndarray, ...]:
 
 class _Lane:
     """One lane's pixels (see :data:`LANES`): the queue of pixels that wait for their next event, the events the
-    latest part created (creation order), the reorder buffer (sorted) and the released events."""
+    latest part created (creation order), and the reorder buffer: one run of created events per part, sorted by
+    time, from which every release takes the events up to its bound (a run is dropped once it is all released),
+    so that an event is sorted once and merged once, however long it is held."""
 
     def __init__(self):
         self.queue_pixel = np.empty(1 << 16, dtype=np.int64)
         self.queue_us = np.empty(1 << 16, dtype=np.int64)
         self.head = self.tail = 0
         self.new = _buffers(1 << 16)
-        self.held = _buffers(1 << 16)
-        self.keep = _buffers(1 << 16)
-        self.n_held = 0
-        self.sorted = _buffers(1 << 16)
         self.counts = np.empty(1 << 18, dtype=np.int64)
-        self.out = _buffers(1 << 16)
+        self.runs: list[list] = []  # [times, second words, first event not yet released], oldest first
+        self.spent: list[tuple[np.ndarray, np.ndarray]] = []  # the buffers of released runs, for new runs
+        self.gathered = self.spare = self.out = _buffers(0)
         self.input = np.empty((0, 2), np.int64)
+
+    @property
+    def n_held(self) -> int:
+        """How many created events the runs hold."""
+        return sum(len(times) - start for times, _, start in self.runs)
 
     def input_room(self, count: int) -> np.ndarray:
         """Room for ``count`` input events ((count, 2) int64) of a part, reused from part to part."""
@@ -466,23 +488,47 @@ class _Lane:
         times[:live] = self.queue_us[self.head:self.tail]
         self.queue_pixel, self.queue_us, self.head, self.tail = pixels, times, 0, live
 
-    def release(self, n: int, bound: int) -> int:
-        """Merge the held and the ``n`` events in ``self.new``: those at or before ``bound`` into ``self.out``
-        (returns their number), the rest held."""
-        h = self.n_held
-        if len(self.sorted[0]) < n:
-            self.sorted = _buffers(2 * n)
+    def hold(self, n: int) -> None:
+        """Sort the ``n`` events in ``self.new`` (creation order) into a new run."""
+        if n == 0:
+            return
         if len(self.counts) < 4 * n:
             self.counts = np.empty(4 * n, dtype=np.int64)
-        if len(self.keep[0]) < h + n:
-            self.keep = _buffers(2 * (h + n))
-        if len(self.out[0]) < h + n:
-            self.out = _buffers(2 * (h + n))
-        released, kept = release_sorted(*self.held, h, *self.new, n, bound, self.counts, *self.sorted, *self.out,
-                                        *self.keep)
-        self.held, self.keep = self.keep, self.held
-        self.n_held = kept
-        return released
+        room = next((k for k, (times, _) in enumerate(self.spent) if len(times) >= n), None)
+        buffers = self.spent.pop(room) if room is not None else _buffers(n + n // 4)
+        run = [buffers[0][:n], buffers[1][:n]]
+        sort_created(*self.new, n, self.counts, *run)
+        self.runs.append([*run, 0])
+
+    def release(self, bound: int) -> tuple[np.ndarray, np.ndarray]:
+        """The held events at or before ``bound``, sorted by time, ties in creation order (times, second words):
+        the runs' parts up to ``bound``, merged in the runs' order (:func:`merge_runs`); a single part is
+        returned as it is (a view of its run)."""
+        parts = []
+        for run in self.runs:
+            times, words, start = run
+            end = start + int(np.searchsorted(times[start:], bound, side="right"))
+            if end > start:
+                parts.append((times[start:end], words[start:end]))
+            run[2] = end
+        self.spent += [(run[0].base, run[1].base) for run in self.runs if run[2] == len(run[0])]
+        del self.spent[:-SPENT_RUNS]
+        self.runs = [run for run in self.runs if run[2] < len(run[0])]
+        if len(parts) <= 1:
+            return parts[0] if parts else _buffers(0)
+        total = sum(len(times) for times, _ in parts)
+        if len(self.out[0]) < total:
+            self.gathered, self.spare, self.out = (_buffers(total + total // 4) for _ in range(3))
+        out_t, out_w = self.out[0][:total], self.out[1][:total]
+        if len(parts) == 2:
+            merge_sorted(*parts[0], *parts[1], out_t, out_w)
+            return out_t, out_w
+        ends = np.cumsum([0] + [len(times) for times, _ in parts])
+        for (times, words), begin in zip(parts, ends):
+            self.gathered[0][begin:begin + len(times)] = times
+            self.gathered[1][begin:begin + len(times)] = words
+        merge_runs(*self.gathered, ends, *self.spare, out_t, out_w)
+        return out_t, out_w
 
 
 def _carried(values: np.ndarray, usable: np.ndarray) -> np.ndarray:

@@ -199,6 +199,64 @@ def test_split_rows_and_merge_sorted_against_numpy():
     assert np.array_equal(out_t, np.r_[a_t, b_t][order]) and np.array_equal(out_w, np.r_[a_w, b_w][order])
 
 
+@settings(max_examples=60, deadline=None)
+@given(lengths=st.lists(st.integers(0, 40), min_size=1, max_size=19), span=st.integers(0, 60),
+       seed=st.integers(0, 2**32 - 1))
+def test_merge_runs_is_a_stable_merge(lengths, span, seed):
+    """The reorder buffer's k-way merge against numpy's stable sort of the runs laid end to end (ties: the
+    earlier run first, then the order within a run)."""
+    from evtools._kernels.correct import merge_runs
+
+    rng = np.random.default_rng(seed)
+    runs_t = [np.sort(rng.integers(-5, span + 1, n)) for n in lengths]
+    run_t = np.concatenate(runs_t).astype(np.int64)
+    run_w = rng.integers(0, 1 << 40, len(run_t))
+    ends = np.cumsum([0] + lengths).astype(np.int64)
+    expected = np.argsort(run_t, kind="stable")
+    spare_t, spare_w = np.empty_like(run_t), np.empty_like(run_w)
+    out_t, out_w = np.full_like(run_t, -99), np.full_like(run_w, -99)
+    assert merge_runs(run_t.copy(), run_w.copy(), ends, spare_t, spare_w, out_t, out_w) == len(run_t)
+    assert np.array_equal(out_t, run_t[expected]) and np.array_equal(out_w, run_w[expected])
+
+
+@settings(max_examples=60, deadline=None)
+@given(n=st.integers(0, 300), span=st.integers(0, 10**7), buckets=st.integers(1, 64), seed=st.integers(0, 2**32 - 1))
+def test_sort_created_is_a_stable_sort(n, span, buckets, seed):
+    """The counting sort of a part's created events (a bucket per us, or coarse buckets each sorted by insertion
+    when the span is longer than the counts) against numpy's stable sort."""
+    from evtools._kernels.correct import sort_created
+
+    rng = np.random.default_rng(seed)
+    new_t = rng.integers(0, span + 1, n) + rng.integers(-(2**40), 2**40)
+    new_w = rng.integers(0, 1 << 40, n)
+    sorted_t, sorted_w = np.full(n, -1, np.int64), np.full(n, -1, np.int64)
+    sort_created(new_t, new_w, n, np.empty(buckets, np.int64), sorted_t, sorted_w)
+    order = np.argsort(new_t, kind="stable")
+    assert np.array_equal(sorted_t, new_t[order]) and np.array_equal(sorted_w, new_w[order])
+
+
+def test_a_dense_stream_is_released_in_parts():
+    """Everything held at the end (a latency longer than the stream) is released in steps of about PART events,
+    not merged at once: the lanes' merge buffers stay near PART, and the output is the one-part output."""
+    events = random_events(6000, W, H, seed=11)
+    events["t"] = events["t"] * 100_000 // (int(events["t"][-1]) + 1) + 1  # 0.1 s, with max_gap_us 1 s
+    # one more pixel fires once, at the start: its first ramp waits (anchored at the stream's start) for a next
+    # event that never comes, so nothing can be released before the end
+    events = join([make_events([0], [W], [0], [True]), events])
+    on, off = (np.pad(m, ((0, 0), (0, 1)), constant_values=0.25) for m in thresholds(11))
+    options = dict(target=0.2, mode="exponential", max_gap_us=10**6, hold_us=10**6)
+    whole = correct_thresholds(events, W + 1, H, on, off, **options)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr("evtools.correction.PART", 500)
+        corrector = ThresholdCorrector(W + 1, H, on, off, **options)
+        released = [corrector.process(chunk) for chunk in cut(events, range(0, 6000, 500))]
+        assert sum(map(len, released)) == 0 and corrector.held > 5000  # all held until the end
+        assert sum(len(lane.runs) for lane in corrector._lanes) >= 20
+        rest = corrector.flush()
+        assert max(len(lane.out[0]) for lane in corrector._lanes) < 2000
+    assert_same_events(rest, whole)
+
+
 @pytest.mark.parametrize("mode", MODES + ("exponential",))
 def test_earliest_start_against_numpy(mode):
     from evtools._kernels.correct import FIRST, TURN, earliest_start
@@ -225,7 +283,7 @@ def test_output_is_sorted_and_held_events_are_bounded(mode, latency_us):
     for chunk in cut(events, range(0, 20000, 997)):
         released.append(corrector.process(chunk))
         if len(chunk):  # nothing held is older than the latency bound before the newest input
-            oldest_us = min((lane.held[0][0] for lane in corrector._lanes if lane.n_held), default=None)
+            oldest_us = min((times[start] for lane in corrector._lanes for times, _, start in lane.runs), default=None)
             assert corrector.held == 0 or oldest_us >= chunk["t"][-1] - latency_us
     out = join(released + [corrector.flush()])
     assert out.dtype == EVENT_DTYPE and np.all(np.diff(out["t"]) >= 0)

@@ -243,10 +243,11 @@ def _resolve(level, t_b, pending_us, kind, up, interval_a, interval_b, theta_on,
 
 
 @kernel(inline=True)
-def _room(level, theta_on, theta_off, min_target):
+def _room(level, theta_on, theta_off, per_target):
     """The most events one input event can create at a pixel: a pending segment (the carried level, an extremum
-    below one threshold, the event's threshold) and the event's own segment."""
-    return (abs(level) + 3.0 * (theta_on + theta_off)) / min_target + 6.0
+    below one threshold, the event's threshold) and the event's own segment (``per_target``: 1 / the smaller
+    target; a product, not a division, in the per-event loop, and the + 6 covers its rounding)."""
+    return (abs(level) + 3.0 * (theta_on + theta_off)) * per_target + 6.0
 
 
 @kernel(inline=True)
@@ -294,7 +295,7 @@ def settle_waiting(width, state, status, target_on, target_off, window_us, queue
     Returns (count, queue head); the head stops early when the output arrays are full. A queue entry whose pixel
     has had an event since is stale and skipped."""
     capacity = out_t.shape[0]
-    min_target = min(target_on, target_off)
+    per_target = 1.0 / min(target_on, target_off)
     while head < tail and queue_us[head] < before_us:
         if head + AHEAD < tail:  # the queue is read in order: its pixels' states can be fetched early
             ahead = queue_pixel[head + AHEAD]
@@ -306,7 +307,7 @@ def settle_waiting(width, state, status, target_on, target_off, window_us, queue
             continue
         row = state[pixel]
         if row.last_us == queue_us[head]:
-            if n + _room(row.level, float(row.on), float(row.off), min_target) > capacity:
+            if n + _room(row.level, float(row.on), float(row.off), per_target) > capacity:
                 return n, head
             xy = ((pixel // width) << 16) | (pixel % width)
             n = _settle(state, status, pixel, xy, 0.0, float(window_us), target_on, target_off, out_t, out_w, n)
@@ -373,7 +374,7 @@ def correct_events(words, start, width, state, status, use, target_on, target_of
     for one queue entry per input event.
     """
     capacity = out_t.shape[0]
-    min_target = min(target_on, target_off)
+    per_target = 1.0 / min(target_on, target_off)
     end = words.shape[0]
     i = start
     checks = checks_us.shape[0]
@@ -407,7 +408,7 @@ def correct_events(words, start, width, state, status, use, target_on, target_of
         row = state[pixel]
         theta_on = float(row.on)
         theta_off = float(row.off)
-        if n + _room(row.level, theta_on, theta_off, min_target) > capacity:
+        if n + _room(row.level, theta_on, theta_off, per_target) > capacity:
             return i, n, head, tail, checked
         d = theta_on if on else -theta_off
         sign = 1 if on else -1
@@ -481,72 +482,88 @@ def _merge(a_t, a_w, i, a_end, b_t, b_w, j, b_end, dst_t, dst_w, d):
 
 
 @kernel
-def release_sorted(held_t, held_w, h, new_t, new_w, n, bound, counts, sorted_t, sorted_w, out_t, out_w,
-                   keep_t, keep_w):  # pragma: no cover - compiled
-    """Merge the held events (sorted) with the new ones (creation order); split at ``bound``.
+def sort_created(new_t, new_w, n, counts, sorted_t, sorted_w):  # pragma: no cover - compiled
+    """Sort the ``n`` created events ``new_*`` (creation order) by time into ``sorted_*``, ties in creation order.
 
-    The new events are sorted by time into ``sorted_*``, ties in creation order: a counting sort that scatters
-    them straight to their places, with a bucket per us when ``counts`` covers their time span, else buckets of
-    ``2**shift`` us, each then put in order by a stable insertion sort. The merged stream is sorted, so the events at or before ``bound`` are its first ones: the runs' parts
-    up to ``bound`` are merged into ``out_*``, the rest into ``keep_*`` (held first on ties: they were created
-    earlier). Returns (released, kept).
-    """
-    if n > 0:
-        low = new_t[0]
-        high = new_t[0]
+    A counting sort that scatters them straight to their places, with a bucket per us when ``counts`` covers their
+    time span, else buckets of ``2**shift`` us, each then put in order by a stable insertion sort (created events
+    are nearly in order, so buckets are short and mostly sorted already)."""
+    if n == 0:
+        return
+    low = new_t[0]
+    high = new_t[0]
+    for k in range(n):
+        low = min(low, new_t[k])
+        high = max(high, new_t[k])
+    shift = 0  # buckets of 2**shift us, so that the span fits the counts
+    while ((high - low) >> shift) + 1 > counts.shape[0]:
+        shift += 1
+    buckets = ((high - low) >> shift) + 1
+    counts[:buckets] = 0
+    for k in range(n):
+        counts[(new_t[k] - low) >> shift] += 1
+    total = 0
+    for b in range(buckets):
+        c = counts[b]
+        counts[b] = total
+        total += c
+    if shift == 0:  # a bucket per us: reads in order, writes scattered (stores do not stall like loads)
         for k in range(n):
-            low = min(low, new_t[k])
-            high = max(high, new_t[k])
-        shift = 0  # buckets of 2**shift us, so that the span fits the counts
-        while ((high - low) >> shift) + 1 > counts.shape[0]:
-            shift += 1
-        buckets = ((high - low) >> shift) + 1
-        counts[:buckets] = 0
-        for k in range(n):
-            counts[(new_t[k] - low) >> shift] += 1
-        total = 0
+            bucket = new_t[k] - low
+            place = counts[bucket]
+            counts[bucket] = place + 1
+            sorted_w[place] = new_w[k]
+        place = 0  # counts[b] is now where bucket b ends: the times follow in order, no scatter needed
         for b in range(buckets):
-            c = counts[b]
-            counts[b] = total
-            total += c
-        if shift == 0:  # a bucket per us: reads in order, writes scattered (stores do not stall like loads)
-            for k in range(n):
-                bucket = new_t[k] - low
-                place = counts[bucket]
-                counts[bucket] = place + 1
-                sorted_w[place] = new_w[k]
-            place = 0  # counts[b] is now where bucket b ends: the times follow in order, no scatter needed
-            for b in range(buckets):
-                while place < counts[b]:
-                    sorted_t[place] = low + b
-                    place += 1
-        else:  # a long span (a slow stream): coarser buckets, then each sorted by time (stable insertion sort;
-            # created events are nearly in order, so buckets are short and mostly sorted already)
-            for k in range(n):
-                bucket = (new_t[k] - low) >> shift
-                place = counts[bucket]
-                counts[bucket] = place + 1
-                sorted_t[place] = new_t[k]
-                sorted_w[place] = new_w[k]
-            begin = 0
-            for b in range(buckets):
-                end = counts[b]
-                for j in range(begin + 1, end):
-                    t = sorted_t[j]
-                    w = sorted_w[j]
-                    i = j - 1
-                    while i >= begin and sorted_t[i] > t:
-                        sorted_t[i + 1] = sorted_t[i]
-                        sorted_w[i + 1] = sorted_w[i]
-                        i -= 1
-                    sorted_t[i + 1] = t
-                    sorted_w[i + 1] = w
-                begin = end
-    held_end = np.searchsorted(held_t[:h], bound, side="right")
-    new_end = np.searchsorted(sorted_t[:n], bound, side="right")
-    released = _merge(held_t, held_w, 0, held_end, sorted_t, sorted_w, 0, new_end, out_t, out_w, 0)
-    kept = _merge(held_t, held_w, held_end, h, sorted_t, sorted_w, new_end, n, keep_t, keep_w, 0)
-    return released, kept
+            while place < counts[b]:
+                sorted_t[place] = low + b
+                place += 1
+        return
+    for k in range(n):
+        bucket = (new_t[k] - low) >> shift
+        place = counts[bucket]
+        counts[bucket] = place + 1
+        sorted_t[place] = new_t[k]
+        sorted_w[place] = new_w[k]
+    begin = 0
+    for b in range(buckets):
+        end = counts[b]
+        for j in range(begin + 1, end):
+            t = sorted_t[j]
+            w = sorted_w[j]
+            i = j - 1
+            while i >= begin and sorted_t[i] > t:
+                sorted_t[i + 1] = sorted_t[i]
+                sorted_w[i + 1] = sorted_w[i]
+                i -= 1
+            sorted_t[i + 1] = t
+            sorted_w[i + 1] = w
+        begin = end
+
+
+@kernel
+def merge_runs(run_t, run_w, ends, spare_t, spare_w, out_t, out_w):  # pragma: no cover - compiled
+    """Merge the time-sorted runs ``run[ends[k]:ends[k + 1]]`` into ``out``, ties in the runs' order (a stable
+    k-way merge): adjacent runs merged pairwise, the earlier first on ties, pass after pass through ``spare``
+    (both buffers are overwritten, and ``ends``) until two remain, merged into ``out``. Each event is moved
+    ``ceil(log2(runs))`` times. Returns the count."""
+    runs = ends.shape[0] - 1
+    a_t, a_w, b_t, b_w = run_t, run_w, spare_t, spare_w
+    while runs > 2:
+        merged = 0
+        for r in range(0, runs, 2):
+            low = ends[r]
+            middle = ends[r + 1]
+            high = ends[r + 2] if r + 2 <= runs else middle
+            _merge(a_t, a_w, low, middle, a_t, a_w, middle, high, b_t, b_w, low)
+            ends[merged + 1] = high  # (ends[merged] is low: index merged <= r was written or is ends[0])
+            merged += 1
+        runs = merged
+        a_t, b_t = b_t, a_t
+        a_w, b_w = b_w, a_w
+    middle = ends[1]
+    high = ends[2] if runs == 2 else middle
+    return _merge(a_t, a_w, ends[0], middle, a_t, a_w, middle, high, out_t, out_w, 0)
 
 
 @kernel
