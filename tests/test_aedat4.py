@@ -5,11 +5,11 @@ import struct
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from evtools.events import StreamInfo, make_events
-from evtools.formats import FormatError, create_events
+from evtools.events import StreamInfo, join, make_events
+from evtools.formats import FormatError, create_events, open_events
 from evtools.formats.aedat4 import Aedat4Writer
 from evtools.formats.registry import WriteOptions
 from tests.conftest import data_file
@@ -121,6 +121,24 @@ def test_reading_any_chunk_size_gives_the_same_events(tmp_path, chunk_events):
     _write(tmp_path / "a.aedat4", events)
     _, back = read_all(tmp_path / "a.aedat4", chunk_events=chunk_events)
     assert_same_events(back, events)
+
+
+@settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(packet_events=st.integers(1, 3000), chunk_events=st.integers(1, 50_000), n=st.integers(0, 30_000),
+       compression=st.sampled_from(COMPRESSIONS))
+def test_small_packets_read_the_same_in_any_chunks(tmp_path, packet_events, chunk_events, n, compression):
+    """DV records packets of a few thousand events; compressed ones are decoded in groups of about a chunk: the
+    events and the chunks' sizes (at most chunk_events, or a packet) do not depend on how packets fall in groups."""
+    events = random_events(n, seed=n)
+    path = tmp_path / f"small_{compression}.aedat4"
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr("evtools.formats.aedat4.PACKET_EVENTS", packet_events)
+        with create_events(path, StreamInfo(346, 260), compression=compression) as writer:
+            writer.write(events)
+    with open_events(path, chunk_events=chunk_events) as stream:
+        chunks = list(stream)
+    assert all(0 < len(chunk) <= max(chunk_events, packet_events) for chunk in chunks)  # (packets are not cut)
+    assert_same_events(join(chunks) if chunks else random_events(0), events)
 
 
 def test_empty_stream_round_trips(tmp_path):
