@@ -1,7 +1,8 @@
 """Peers benchmark (issue 15): evtools beside dv-processing, aedat and faery, measured in one run.
 
 The files: the real DVXplorer recording (111,954 events) repeated in time to ``--events`` events (10 M and 50 M),
-stored as DV stores recordings: AEDAT 4.0, LZ4 and uncompressed, in ``/dev/shm`` when it has room. Every row is a
+stored as DV stores recordings: AEDAT 4.0, LZ4 and uncompressed, in packets of the recording's own size (1,898
+events, about 10 ms: a reader's cost per packet counts), in ``/dev/shm`` when it has room. Every row is a
 whole process (interpreter start-up and imports included), the fastest of ``--repeat`` runs, with its peak RSS
 from ``wait4``:
 
@@ -48,12 +49,46 @@ def ensure_peers() -> list[str]:
     return [module for module in PEERS if importlib.util.find_spec(module) is not None]
 
 
+def recorded_packet_events(path: Path) -> int:
+    """The mean number of events in the event packets of the AEDAT 4.0 file ``path`` (DV's packets: 1,897 in the
+    DVXplorer recording, about 10 ms each)."""
+    import struct
+
+    from evtools.formats import open_events
+
+    with open_events(path) as stream:
+        reader, events = stream.reader, len(stream.read_all())
+    packets, end = 0, reader.data_position if reader.data_position > 0 else float("inf")  # (DV's index table)
+    with open(path, "rb") as file:
+        file.seek(14)  # the magic
+        (length,) = struct.unpack("<I", file.read(4))
+        file.seek(length, 1)
+        while file.tell() < end and len(head := file.read(8)) == 8:
+            stream_id, size = struct.unpack("<iI", head)
+            packets += stream_id == reader.stream_id
+            file.seek(size, 1)
+    return max(1, round(events / max(packets, 1)))
+
+
 def make_file(path: Path, events: int, compression: str) -> None:
+    """``events`` events of the recording repeated in time, in packets of the recording's own size (as DV wrote
+    them: the reader's cost per packet counts), compressed as DV can."""
     import evtools
+    import evtools.formats.aedat4 as aedat4
 
     recording, info = evtools.read(RECORDING)
     recording["t"] -= recording["t"][0]
     span_us = int(recording["t"][-1]) + 1
+    packet_events, aedat4.PACKET_EVENTS = aedat4.PACKET_EVENTS, recorded_packet_events(RECORDING)
+    try:
+        _write_tiled(path, recording, info, span_us, events, compression)
+    finally:
+        aedat4.PACKET_EVENTS = packet_events
+
+
+def _write_tiled(path: Path, recording, info, span_us: int, events: int, compression: str) -> None:
+    import evtools
+
     with evtools.writer(path, info, compression=compression) as sink:
         done, k = 0, 0
         while done < events:
