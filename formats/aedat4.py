@@ -218,7 +218,8 @@ class Aedat4Reader:
         compressed ones are decompressed by :data:`DECODE_THREADS` threads (the codecs release the GIL) in groups of
         about a chunk (:meth:`_decode_group`), up to :data:`DECODE_AHEAD` groups ahead, and placed in file order."""
         stream, skipped_packets = self.source.stream, 0
-        self._chunk, self._filled = np.empty(self.options.chunk_events, EVENT_DTYPE), 0
+        self._recycled = formats_io.Recycled()
+        self._chunk, self._filled = self._recycled.take(self.options.chunk_events), 0
         pending: deque = deque()  # futures of decoded groups, in file order
         group: list[tuple[bytes, int]] = []  # compressed packets (body, file offset) not yet handed to the pool
         group_bytes, ratio = 0, GUESSED_RATIO
@@ -235,7 +236,7 @@ class Aedat4Reader:
                     while pending:
                         yield from self._place_group(*pending.popleft().result())
                     yield self._chunk[:self._filled]
-                    self._chunk, self._filled = np.empty(self.options.chunk_events, EVENT_DTYPE), 0
+                    self._chunk, self._filled = self._recycled.take(self.options.chunk_events), 0
                 head = stream.read(8)
                 if not head:
                     break
@@ -286,6 +287,7 @@ class Aedat4Reader:
         finally:
             if pool is not None:
                 pool.shutdown(wait=True, cancel_futures=True)
+            self._recycled.arrays.clear()  # the chunks given out stay valid; nothing more is recycled
         if self._filled:
             yield self._chunk[:self._filled]
         self.info.metadata["skipped_packets"] = skipped_packets
@@ -326,11 +328,12 @@ class Aedat4Reader:
         10M-event file read 1.27 -> 0.6 s). Returns (events, events in the group's last packet, decoded bytes per
         compressed byte)."""
         packets = [self._decode(body, offset) for body, offset in group]
-        events = np.empty(sum(len(packet) for packet in packets), EVENT_DTYPE)
-        at = 0
-        for packet in packets:
-            _copy_records(events[at:at + len(packet)], packet)
-            at += len(packet)
+        events = self._recycled.take(sum(len(packet) for packet in packets))
+        target, at = memoryview(events.view(np.uint8)), 0
+        for packet in packets:  # raw bytes, one buffer copy a packet (numpy's calls cost more than DV's packets)
+            target[at: at + packet.nbytes] = memoryview(packet.view(np.uint8))
+            at += packet.nbytes
+        events.view(np.uint64).reshape(-1, 2)[:, 1] &= PAYLOAD_MASK  # the file's padding: zeroed
         return events, len(packets[-1]), 16 * len(events) / max(1, sum(len(body) for body, _ in group))
 
     def _place_group(self, events: np.ndarray, last_count: int, ratio: float) -> Iterator[np.ndarray]:
@@ -338,7 +341,7 @@ class Aedat4Reader:
         the chunk. Returns ``ratio`` (for the size of the next groups)."""
         if self._filled and self._filled + len(events) > len(self._chunk):
             yield self._chunk[:self._filled]
-            self._chunk, self._filled = np.empty(self.options.chunk_events, EVENT_DTYPE), 0
+            self._chunk, self._filled = self._recycled.take(self.options.chunk_events), 0
         if self._filled == 0 and len(events) >= self.options.chunk_events // 2:
             for begin in range(0, len(events), self.options.chunk_events):
                 yield events[begin: begin + self.options.chunk_events]
@@ -353,7 +356,7 @@ class Aedat4Reader:
         if self._filled + count > len(self._chunk):
             if self._filled:
                 yield self._chunk[:self._filled]
-            self._chunk, self._filled = np.empty(max(self.options.chunk_events, count), EVENT_DTYPE), 0
+            self._chunk, self._filled = self._recycled.take(max(self.options.chunk_events, count)), 0
 
     def _place(self, events: np.ndarray) -> Iterator[np.ndarray]:
         """Append one packet's events to the chunk (yielding the chunk first if they do not fit)."""

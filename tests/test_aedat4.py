@@ -141,6 +141,38 @@ def test_small_packets_read_the_same_in_any_chunks(tmp_path, packet_events, chun
     assert_same_events(join(chunks) if chunks else random_events(0), events)
 
 
+def test_recycled_chunk_memory_is_reused_only_when_nothing_refers_to_it():
+    from evtools.formats.io import Recycled
+
+    pool = Recycled(keep=3)
+    first = pool.take(100)
+    part = first[10:20]  # a view of a view: it keeps the memory too
+    del first
+    second = pool.take(100)
+    assert not np.shares_memory(second, part)
+    del part
+    third = pool.take(90)
+    assert not np.shares_memory(third, second) and third.base is not None and len(third) == 90
+    kept = id(third.base)
+    del third
+    assert id(pool.take(100).base) == kept  # free again: reused, not allocated
+
+
+def test_chunks_held_by_the_consumer_are_never_overwritten(tmp_path):
+    """The reader recycles its chunks' memory: every chunk kept (or a slice of it) still holds its events."""
+    events = random_events(60_000, seed=8)
+    path = tmp_path / "held.aedat4"
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr("evtools.formats.aedat4.PACKET_EVENTS", 700)
+        with create_events(path, StreamInfo(346, 260), compression="lz4") as writer:
+            writer.write(events)
+    with open_events(path, chunk_events=2000) as stream:
+        slices = [chunk[: len(chunk) // 2 + 1].copy() for chunk in stream]  # copies: the truth
+    with open_events(path, chunk_events=2000) as stream:
+        held = [chunk[: len(chunk) // 2 + 1] for chunk in stream]  # views only
+    assert len(held) > 20 and all(np.array_equal(a, b) for a, b in zip(held, slices))
+
+
 def test_empty_stream_round_trips(tmp_path):
     _write(tmp_path / "empty.aedat4", random_events(0))
     info, events = read_all(tmp_path / "empty.aedat4")
