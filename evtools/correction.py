@@ -66,10 +66,11 @@ creation order): the output depends on neither the threads nor the chunks."""
 PART = 1 << 17
 """Events per part of a long chunk: each part is split into the lanes, re-sampled, sorted into a run, and released.
 The lanes' buffers are sized by it; smaller parts cost more per event (each has fixed costs: a scan of the pixels
-for the bound, two hand-overs to the lane thread, a release over every live run): on 10 M events of a DVXplorer
-recording 2^16 took 1.4x the time of 2^17 (and 1.6x on the same events 50 times denser) for 9 MiB less."""
+for the bound, two hand-overs to the lane thread, a release over every live run, and more runs to merge): on 4 M
+events of a DVXplorer recording the kernels took 117-120 ns an event with 2^16 against 108-114 with 2^17; with
+chunks of 2^16 too, ``correct`` on 10 M events peaked at 101 MiB instead of 128 but took 1.3x the time."""
 
-SPENT_RUNS = 8
+SPENT_RUNS = 2
 """How many released runs' buffers a lane keeps for its next runs (fresh ones would be paged in again)."""
 
 PARALLEL_EVENTS = 1 << 14
@@ -427,7 +428,7 @@ class _Lane:
         self.queue_us = np.empty(1 << 16, dtype=np.int64)
         self.head = self.tail = 0
         self.new = _buffers(1 << 16)
-        self.counts = np.empty(1 << 18, dtype=np.int64)
+        self.counts = np.empty(0, dtype=np.int64)
         self.runs: list[list] = []  # [times, second words, first event not yet released], oldest first
         self.spent: list[tuple[np.ndarray, np.ndarray]] = []  # the buffers of released runs, for new runs
         self.gathered = self.spare = self.out = _buffers(0)
@@ -492,12 +493,12 @@ class _Lane:
         """Sort the ``n`` events in ``self.new`` (creation order) into a new run."""
         if n == 0:
             return
-        if len(self.counts) < 4 * n:
-            self.counts = np.empty(4 * n, dtype=np.int64)
+        if len(self.counts) < 2 * n:  # buckets: two per event (a fixed number would cost a small part as a large)
+            self.counts = np.empty(2 * n, dtype=np.int64)
         room = next((k for k, (times, _) in enumerate(self.spent) if len(times) >= n), None)
         buffers = self.spent.pop(room) if room is not None else _buffers(n + n // 4)
         run = [buffers[0][:n], buffers[1][:n]]
-        sort_created(*self.new, n, self.counts, *run)
+        sort_created(*self.new, n, self.counts[:2 * n], *run)
         self.runs.append([*run, 0])
 
     def release(self, bound: int) -> tuple[np.ndarray, np.ndarray]:
