@@ -22,8 +22,8 @@ import time
 import xml.etree.ElementTree as ET
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
+from html import escape  # xml.sax.saxutils.escape's &, <, > (with quote=False), without its 34 ms of imports
 from typing import BinaryIO, Iterator
-from xml.sax.saxutils import escape
 
 import numpy as np
 
@@ -398,7 +398,7 @@ def _ioheader(compression: int, description: str) -> bytes:
 
 
 def _description(info: StreamInfo, compression: int) -> str:
-    source = escape(str(info.metadata.get("source") or "evtools"))
+    source = escape(str(info.metadata.get("source") or "evtools"), quote=False)
     return (
         '<dv version="2.0">\n'
         '    <node name="outInfo" path="/mainloop/Recorder/outInfo/">\n'
