@@ -160,7 +160,9 @@ DECODE_AHEAD = 2
 """Groups of compressed packets (:meth:`Aedat4Reader._decode_group`) in flight at most, each about a chunk."""
 GUESSED_RATIO = 2.0
 """Decoded bytes per compressed byte assumed for the first group (LZ4 on a DVXplorer recording: 2.0, zstd 2.9);
-later groups are sized by the ratio measured so far."""
+later groups are sized by the ratio of the group before, kept within 1 (a group of empty packets would otherwise
+make the next group the rest of the file) and :data:`MAX_RATIO`."""
+MAX_RATIO = 64.0
 
 
 def _packet_events(body: bytes, name: str, offset: int) -> np.ndarray:
@@ -334,7 +336,8 @@ class Aedat4Reader:
             target[at: at + packet.nbytes] = memoryview(packet.view(np.uint8))
             at += packet.nbytes
         events.view(np.uint64).reshape(-1, 2)[:, 1] &= PAYLOAD_MASK  # the file's padding: zeroed
-        return events, len(packets[-1]), 16 * len(events) / max(1, sum(len(body) for body, _ in group))
+        ratio = 16 * len(events) / max(1, sum(len(body) for body, _ in group))
+        return events, len(packets[-1]), min(max(ratio, 1.0), MAX_RATIO)
 
     def _place_group(self, events: np.ndarray, last_count: int, ratio: float) -> Iterator[np.ndarray]:
         """Pass on a decoded group: as chunks of its own when no chunk is being filled (no copy), else appended to

@@ -141,6 +141,35 @@ def test_small_packets_read_the_same_in_any_chunks(tmp_path, packet_events, chun
     assert_same_events(join(chunks) if chunks else random_events(0), events)
 
 
+def test_groups_stay_about_a_chunk_after_empty_packets(tmp_path):
+    """A run of empty event packets decodes to nothing: the next groups are still sized by the bytes of about a
+    chunk, not grown to the rest of the file."""
+    import struct
+
+    from evtools.formats import aedat4
+
+    events = random_events(40_000, seed=9)
+    stream = io.BytesIO()
+    writer = Aedat4Writer(stream, StreamInfo(346, 260), WriteOptions("lz4"))
+    empty = writer.compress(aedat4._packet_prefix(0))
+    for _ in range(300):
+        stream.write(struct.pack("<iI", 0, len(empty)) + empty)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(aedat4, "PACKET_EVENTS", 500)
+        writer.write(events)
+        writer.close()
+    path = tmp_path / "empty_packets.aedat4"
+    path.write_bytes(stream.getvalue())
+    sizes = []
+    decode_group = aedat4.Aedat4Reader._decode_group
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(aedat4.Aedat4Reader, "_decode_group",
+                      lambda self, group: sizes.append(sum(len(body) for body, _ in group)) or decode_group(self, group))
+        _, back = read_all(path, chunk_events=4096)
+    assert_same_events(back, events)
+    assert len(sizes) > 5 and max(sizes) <= 16 * 4096 + max(len(empty), 16 * 500)
+
+
 def test_recycled_chunk_memory_is_reused_only_when_nothing_refers_to_it():
     from evtools.formats.io import Recycled
 
