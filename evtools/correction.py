@@ -10,8 +10,10 @@ created events in time order.
 Ordering. A re-sampled event lies between the start of its segment (the pixel's previous original event, never
 earlier than ``max_gap_us`` before the current event) and the current event, so the events created for one input
 event may precede events already created for others. The corrector keeps the created events in a reorder buffer
-and releases, sorted by time (ties in creation order, the even rows' before the odd rows', see :data:`LANES`), those no later event can precede: every
-future event is created at or after ``bound = max(earliest segment start of any pixel, t_now - latency_us)``.
+and releases, sorted by time (ties in creation order, the even rows' before the odd rows', see :data:`LANES`), those no
+later event can precede or tie with: every future event is created at or after ``bound = max(earliest segment start
+of any pixel, t_now - latency_us)``, so the events before ``bound`` are released (one at ``bound`` may still get a
+tie from the other lane that the order puts first).
 ``latency_us`` is one window, ``max_gap_us`` (``hold_us`` in all modes but ``foh`` when smaller), or three with
 turns: a segment that waits for the pixel's next event starts at most one window before its event and waits at
 most two (a pixel that has not fired yet counts as having fired at the stream's start). So the latency and
@@ -42,6 +44,7 @@ from evtools._kernels.correct import (
     MODE_STEP,
     NO_EVENT_US,
     PIXEL_DTYPE,
+    compact_waiting,
     correct_events,
     earliest_start,
     merge_runs,
@@ -72,6 +75,9 @@ chunks of 2^16 too, ``correct`` on 10 M events peaked at 101 MiB instead of 128 
 
 SPENT_RUNS = 2
 """How many released runs' buffers a lane keeps for its next runs (fresh ones would be paged in again)."""
+
+QUEUE_ENTRIES = 1 << 16
+"""A lane's queue of waiting pixels starts with room for this many entries (it is compacted, then grown)."""
 
 PARALLEL_EVENTS = 1 << 14
 """Parts of at least this many events run their lanes on two threads (smaller ones are not worth a hand-over)."""
@@ -377,7 +383,7 @@ class ThresholdCorrector:
         return state
 
     def _bound(self, t_now: int) -> int:
-        """The time up to which created events are final once the stream has reached ``t_now``: every later event
+        """The time before which created events are final once the stream has reached ``t_now``: every later event
         is created at or after the earliest segment start any pixel may still use (its latest event, or the start
         of the segment that waits for its next event; a tail starts at the latest event), and at most
         ``latency_us`` before ``t_now``."""
@@ -420,12 +426,12 @@ def _grown(buffers, capacity: int, keep: int) -> tuple[np.ndarray, ...]:
 class _Lane:
     """One lane's pixels (see :data:`LANES`): the queue of pixels that wait for their next event, the events the
     latest part created (creation order), and the reorder buffer: one run of created events per part, sorted by
-    time, from which every release takes the events up to its bound (a run is dropped once it is all released),
+    time, from which every release takes the events before its bound (a run is dropped once it is all released),
     so that an event is sorted once and merged once, however long it is held."""
 
     def __init__(self):
-        self.queue_pixel = np.empty(1 << 16, dtype=np.int64)
-        self.queue_us = np.empty(1 << 16, dtype=np.int64)
+        self.queue_pixel = np.empty(QUEUE_ENTRIES, dtype=np.int64)
+        self.queue_us = np.empty(QUEUE_ENTRIES, dtype=np.int64)
         self.head = self.tail = 0
         self.new = _buffers(1 << 16)
         self.counts = np.empty(0, dtype=np.int64)
@@ -451,7 +457,7 @@ class _Lane:
         returns their number."""
         if len(self.new[0]) < 2 * len(words):
             self.new = _buffers(2 * len(words))
-        self._make_queue_room(len(words))
+        self._make_queue_room(len(words), corrector._state)
         c = corrector
         start, n, checked = 0, 0, 0
         while True:
@@ -477,17 +483,20 @@ class _Lane:
                 self.new = _grown(self.new, 2 * len(self.new[0]), n)
         return n
 
-    def _make_queue_room(self, count: int) -> None:
-        """Room for ``count`` more waiting pixels (one per input event at most): when the end is reached, the live
-        part moves to the front (grown if need be), so each entry is copied O(1) times on average."""
+    def _make_queue_room(self, count: int, state: np.ndarray) -> None:
+        """Room for ``count`` more waiting pixels (one per input event at most): when the end is reached, the
+        entries that can still be settled move to the front (:func:`compact_waiting`), and the queue grows when
+        they and ``count`` fill more than half of it, so each entry is moved O(1) times on average."""
         if self.tail + count <= len(self.queue_us):
             return
-        live = self.tail - self.head
-        size = max(len(self.queue_us), 2 * (live + count))
-        pixels, times = np.empty(size, np.int64), np.empty(size, np.int64)
-        pixels[:live] = self.queue_pixel[self.head:self.tail]
-        times[:live] = self.queue_us[self.head:self.tail]
-        self.queue_pixel, self.queue_us, self.head, self.tail = pixels, times, 0, live
+        live = compact_waiting(state, self.queue_pixel, self.queue_us, self.head, self.tail)
+        self.head, self.tail = 0, live
+        if 2 * (live + count) > len(self.queue_us):
+            size = 2 * (live + count)
+            pixels, times = np.empty(size, np.int64), np.empty(size, np.int64)
+            pixels[:live] = self.queue_pixel[:live]
+            times[:live] = self.queue_us[:live]
+            self.queue_pixel, self.queue_us = pixels, times
 
     def hold(self, n: int) -> None:
         """Sort the ``n`` events in ``self.new`` (creation order) into a new run."""
@@ -502,13 +511,13 @@ class _Lane:
         self.runs.append([*run, 0])
 
     def release(self, bound: int) -> tuple[np.ndarray, np.ndarray]:
-        """The held events at or before ``bound``, sorted by time, ties in creation order (times, second words):
-        the runs' parts up to ``bound``, merged in the runs' order (:func:`merge_runs`); a single part is
+        """The held events before ``bound``, sorted by time, ties in creation order (times, second words): the
+        runs' parts before ``bound``, merged in the runs' order (:func:`merge_runs`); a single part is
         returned as it is (a view of its run)."""
         parts = []
         for run in self.runs:
             times, words, start = run
-            end = start + int(np.searchsorted(times[start:], bound, side="right"))
+            end = start + int(np.searchsorted(times[start:], bound, side="left"))
             if end > start:
                 parts.append((times[start:end], words[start:end]))
             run[2] = end

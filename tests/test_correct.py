@@ -101,15 +101,32 @@ def test_default_mode_turns_and_anchors():
 
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(cuts=st.lists(st.integers(0, 2000), max_size=6), mode=st.sampled_from(MODES), turns=st.booleans(),
-       curves=st.booleans())
-def test_chunking_does_not_change_the_output(cuts, mode, turns, curves):
-    events = random_events(2000, W, H, seed=2)
+       curves=st.booleans(), seed=st.integers(0, 2**16), span_us=st.sampled_from([None, 600, 3000]))
+def test_chunking_does_not_change_the_output(cuts, mode, turns, curves, seed, span_us):
+    # span_us: the stream squeezed into that many us (a busy stream, ties between lanes at every release bound:
+    # releasing events at the bound itself put a lane's tie before the other's, 2 cuts in 200 on a 20k stream)
+    events = random_events(2000, W, H, seed=seed)
+    if span_us:
+        events["t"] = events["t"] * span_us // (int(events["t"][-1]) + 1)
     on, off = thresholds(2)
     options = dict(target=0.2, mode=mode, max_gap_us=5000, hold_us=2000, turns=turns, curves=curves)
     whole = correct_thresholds(events, W, H, on, off, **options)
     chunked = run_chunked(ThresholdCorrector(W, H, on, off, **options), cut(events, cuts))
     assert_same_events(chunked, whole)
     assert np.all(np.diff(chunked["t"]) >= 0)
+
+
+@pytest.mark.parametrize("at", [1844, 10380])
+def test_a_cut_at_a_tie_on_the_release_bound_does_not_reorder_the_output(at):
+    """Found by cutting a busy stream (3 events a us) at every 97th event: an event created later exactly at the
+    release bound, in the even rows, tied with an odd-row event already released (released were the events up to
+    and including the bound; now those before it)."""
+    events = random_events(20_000, W, H, seed=12)
+    events["t"] = events["t"] * 6000 // (int(events["t"][-1]) + 1)
+    on, off = thresholds(12)
+    options = dict(target=0.2, mode="exponential", max_gap_us=3000, hold_us=1500)
+    whole = correct_thresholds(events, W, H, on, off, **options)
+    assert_same_events(run_chunked(ThresholdCorrector(W, H, on, off, **options), cut(events, [at])), whole)
 
 
 @settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -233,6 +250,42 @@ def test_sort_created_is_a_stable_sort(n, span, buckets, seed):
     sort_created(new_t, new_w, n, np.empty(buckets, np.int64), sorted_t, sorted_w)
     order = np.argsort(new_t, kind="stable")
     assert np.array_equal(sorted_t, new_t[order]) and np.array_equal(sorted_w, new_w[order])
+
+
+@settings(max_examples=40, deadline=None)
+@given(pixels=st.integers(1, 30), entries=st.integers(0, 200), head=st.integers(0, 50), seed=st.integers(0, 2**32 - 1))
+def test_compact_waiting_keeps_the_entries_that_can_still_be_settled(pixels, entries, head, seed):
+    """The queue of waiting pixels is compacted by dropping entries older than their pixel's latest event (never
+    settled again: settle_waiting needs the two times equal, and a pixel's time never decreases), in order."""
+    from evtools._kernels.correct import PIXEL_DTYPE, compact_waiting
+
+    rng = np.random.default_rng(seed)
+    state = np.zeros(pixels, PIXEL_DTYPE)
+    state["last_us"] = rng.integers(0, 20, pixels)
+    head = min(head, entries)
+    queue_pixel = rng.integers(0, pixels, entries)
+    queue_us = rng.integers(0, 20, entries)
+    expected = [(p, t) for p, t in zip(queue_pixel[head:].tolist(), queue_us[head:].tolist())
+                if state["last_us"][p] == t]
+    kept = compact_waiting(state, queue_pixel, queue_us, head, entries)
+    assert list(zip(queue_pixel[:kept].tolist(), queue_us[:kept].tolist())) == expected
+
+
+@pytest.mark.parametrize("mode", ["exponential", "highpass"])
+def test_a_small_queue_compacted_and_grown_gives_the_same_output(mode):
+    events = random_events(20_000, W, H, seed=12)
+    events["t"] = events["t"] * 6000 // (int(events["t"][-1]) + 1)  # a busy stream: 5,000 events a window
+    on, off = thresholds(12)
+    options = dict(target=0.2, mode=mode, max_gap_us=3000, hold_us=1500)
+    whole = correct_thresholds(events, W, H, on, off, **options)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr("evtools.correction.QUEUE_ENTRIES", 8)
+        patch.setattr("evtools.correction.PART", 300)
+        corrector = ThresholdCorrector(W, H, on, off, **options)
+        small = run_chunked(corrector, cut(events, range(0, 20_000, 700)))
+        # compacted: at most about one live entry a pixel, plus a part's worth, so the queue stayed small
+        assert max(len(lane.queue_us) for lane in corrector._lanes) <= 4 * (W * H + 300)
+    assert_same_events(small, whole)
 
 
 def test_a_dense_stream_is_released_in_parts():

@@ -600,6 +600,23 @@ def split_rows(words, even, odd, due_us, window_us, checks_us):  # pragma: no co
 
 
 @kernel
+def compact_waiting(state, queue_pixel, queue_us, head, tail):  # pragma: no cover - compiled
+    """Move the waiting pixels' queue entries ``[head, tail)`` to the front of the queue, in order, without those
+    that can never be settled: an entry is settled only while its pixel's latest event is the one it was queued at
+    (``last_us`` equal to the entry's time), and a pixel's latest time never decreases. A busy stream's queue
+    otherwise fills with such entries (a million a lane at 9.5 Mev/s), while the live ones are at most about one
+    a pixel. Returns the count kept."""
+    kept = 0
+    for k in range(head, tail):
+        pixel = queue_pixel[k]
+        if state[pixel].last_us == queue_us[k]:
+            queue_pixel[kept] = pixel
+            queue_us[kept] = queue_us[k]
+            kept += 1
+    return kept
+
+
+@kernel
 def earliest_start(state, status):  # pragma: no cover - compiled
     """The earliest time any pixel's next created event can lie at: its latest event, or the start of the segment
     that waits for its next event (a turn's or a first ramp's, ``pending_us`` before it; a tail starts at the
