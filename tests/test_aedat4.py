@@ -115,6 +115,40 @@ def test_bytes_written_do_not_depend_on_chunking(cuts, compression):
     assert one.getvalue() == many.getvalue()
 
 
+@pytest.mark.parametrize("compression", ["lz4", "zstd"])
+def test_packets_compressed_on_several_threads_are_the_bytes_of_one(compression):
+    """Packets are compressed on ENCODE_THREADS threads and written in order: the file is the one a single
+    thread writes, and flush() (a live output) writes every packet given so far."""
+    from evtools.formats import aedat4
+
+    events = random_events(9 * aedat4.PACKET_EVENTS + 123, seed=10)
+    files = {}
+    for threads in (1, 3):
+        with pytest.MonkeyPatch.context() as patch:
+            patch.setattr(aedat4, "ENCODE_THREADS", threads)
+            stream = io.BytesIO()
+            writer = Aedat4Writer(stream, StreamInfo(346, 260), WriteOptions(compression))
+            writer.write(events)
+            writer.flush()
+            flushed = stream.getvalue()
+            writer.close()
+            files[threads] = stream.getvalue()
+    assert files[1] == files[3]
+    assert files[3].startswith(flushed) and len(files[3]) - len(flushed) < 200  # only the end mark came after
+    path_events = read_all_bytes(files[3])
+    assert_same_events(path_events, events)
+
+
+def read_all_bytes(data: bytes):
+    import tempfile
+    from pathlib import Path
+
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "x.aedat4"
+        path.write_bytes(data)
+        return read_all(path)[1]
+
+
 @pytest.mark.parametrize("chunk_events", [1, 1000, 1 << 20])
 def test_reading_any_chunk_size_gives_the_same_events(tmp_path, chunk_events):
     events = random_events(40_000, seed=5)
