@@ -527,12 +527,12 @@ class Recycled:
     when its reference count says no chunk, view or copy-in-progress holds it (views keep their base alive), so
     reuse never touches memory a consumer still sees. Thread-safe: a count read while another thread drops a
     reference can only be too high (the array is skipped). Where reference counts are not exact (a
-    free-threaded interpreter) nothing is reused."""
+    free-threaded interpreter, PyPy) nothing is reused."""
 
     def __init__(self, keep: int = 6) -> None:
         self.arrays: list[np.ndarray] = []
         self.keep = keep
-        self.exact = getattr(sys, "_is_gil_enabled", lambda: True)()
+        self.exact = hasattr(sys, "getrefcount") and getattr(sys, "_is_gil_enabled", lambda: True)()
         self.lock = threading.Lock()
 
     def take(self, n: int) -> np.ndarray:
