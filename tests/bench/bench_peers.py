@@ -3,8 +3,8 @@
 The files: the real DVXplorer recording (111,954 events) repeated in time to ``--events`` events (10 M and 50 M),
 stored as DV stores recordings: AEDAT 4.0, LZ4 and uncompressed, in packets of the recording's own size (1,898
 events, about 10 ms: a reader's cost per packet counts), in ``/dev/shm`` when it has room. Every row is a
-whole process (interpreter start-up and imports included), the fastest of ``--repeat`` runs, with its peak RSS
-from ``wait4``:
+whole process (interpreter start-up and imports included), the fastest of ``--repeat`` runs (the tools compared
+in a row measured in turns), with its peak RSS from ``wait4``:
 
 - read into numpy: ``evtools.read``; ``aedat.Decoder`` (packets concatenated); dv-processing's
   ``MonoCameraRecording`` (batches' ``numpy()`` concatenated); faery's ``events_stream_from_file(...).to_array()``;
@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tests.bench.common import fastest, measure_child, measure_command, scratch_dir
+from tests.bench.common import fastest, fastest_each, measure_child, measure_command, scratch_dir
 
 EVTOOLS = str(Path(sys.executable).with_name("evtools"))
 RECORDING = Path(__file__).resolve().parents[3] / "shared" / "data" / "dvxplorer_sample.aedat4"
@@ -180,22 +180,21 @@ def main() -> None:
                 path = folder / f"in_{events}_{compression}.aedat4"
                 make_file(path, events, compression)
                 task = f"read into numpy, {events // 1_000_000}M {compression}"
-                ours = fastest(args.repeat, measure_child, "bench_peers", "read", "evtools", path, key="wall_seconds")
-                _row(task, "evtools", ours, events, None)
-                for peer in (p for p in ("dv_processing", "aedat", "faery") if p in peers):
-                    theirs = fastest(args.repeat, measure_child, "bench_peers", "read", peer, path,
-                                     key="wall_seconds")
-                    _row(task, peer, theirs, events, ours)
+                tools = ["evtools", *(p for p in ("dv_processing", "aedat", "faery") if p in peers)]
+                results = fastest_each(args.repeat, [(measure_child, "bench_peers", "read", tool, path)
+                                                     for tool in tools], key="wall_seconds")
+                for tool, result in zip(tools, results):
+                    _row(task, tool, result, events, results[0] if tool != "evtools" else None)
                 task = f"bafilter --preset dv file to file, {events // 1_000_000}M {compression}"
                 out = folder / "out.aedat4"
-                ours = fastest(args.repeat, measure_command, [
-                    EVTOOLS, "-q", "bafilter", path, "--method", "baf", "--preset", "dv", "-o", out])
-                ours["wall_seconds"] = ours["seconds"]
-                _row(task, "evtools", ours, events, None)
-                if "dv_processing" in peers:
-                    theirs = fastest(args.repeat, measure_child, "bench_peers", "filter", path, folder / "dv.aedat4",
-                                     "none", key="wall_seconds")  # evtools writes uncompressed: so does dv
-                    _row(task, "dv_processing", theirs, events, ours)
+                contenders = [(_timed_command, [EVTOOLS, "-q", "bafilter", path, "--method", "baf", "--preset", "dv",
+                                                 "-o", out])]
+                if "dv_processing" in peers:  # evtools writes uncompressed: so does dv
+                    contenders.append((measure_child, "bench_peers", "filter", path, folder / "dv.aedat4", "none"))
+                results = fastest_each(args.repeat, contenders, key="wall_seconds")
+                _row(task, "evtools", results[0], events, None)
+                if len(results) > 1:
+                    _row(task, "dv_processing", results[1], events, results[0])
                 for name, argv in (("estimate --method offe", ["estimate", path, "--method", "offe", "-o",
                                                               folder / "th.h5"]),
                                    ("correct (offe's thresholds)", ["correct", path, "--thresholds", folder / "th.h5",
@@ -217,13 +216,19 @@ def main() -> None:
                     _row(task, "evtools", ours, events, None)
                     path.unlink()
         task = "start-up: read 1,000 events"
-        ours = fastest(args.repeat, measure_child, "bench_peers", "read", "evtools", tiny, key="wall_seconds")
-        _row(task, "evtools", ours, 1000, None)
-        for peer in (p for p in ("dv_processing", "aedat", "faery") if p in peers):
-            _row(task, peer, fastest(args.repeat, measure_child, "bench_peers", "read", peer, tiny,
-                                     key="wall_seconds"), 1000, ours)
+        tools = ["evtools", *(p for p in ("dv_processing", "aedat", "faery") if p in peers)]
+        results = fastest_each(args.repeat, [(measure_child, "bench_peers", "read", tool, tiny) for tool in tools],
+                               key="wall_seconds")
+        for tool, result in zip(tools, results):
+            _row(task, tool, result, 1000, results[0] if tool != "evtools" else None)
     finally:
         shutil.rmtree(folder, ignore_errors=True)
+
+
+def _timed_command(argv) -> dict:
+    """:func:`measure_command` with its wall time under the key the children's rows use."""
+    result = measure_command(argv)
+    return {**result, "wall_seconds": result["seconds"]}
 
 
 def _row(task: str, tool: str, result: dict, events: int, ours: dict | None) -> None:

@@ -69,6 +69,15 @@ def fastest(runs: int, measure, *args, key: str = "seconds") -> dict:
     return {**min(results, key=lambda result: result[key]), "peak_mb": max(result["peak_mb"] for result in results)}
 
 
+def fastest_each(runs: int, contenders: list[tuple], key: str = "seconds") -> list[dict]:
+    """:func:`fastest` for several ``(measure, *args)`` at once, measured in turns (A B C, A B C, ...) rather than
+    one after the other: a slow minute of the shared machine then falls on every contender, not on one, so
+    their ratios hold better."""
+    rounds = [[measure(*args) for measure, *args in contenders] for _ in range(max(runs, 1))]
+    return [{**min(results, key=lambda result: result[key]), "peak_mb": max(result["peak_mb"] for result in results)}
+            for results in zip(*rounds)]
+
+
 def scratch_dir(needed_bytes: int) -> str | None:
     """Where benchmarks put their files: ``/dev/shm`` (memory) when it has room, so that a file-to-file row
     measures the tools rather than the disk's write-back; else the default temporary directory (None)."""
