@@ -239,8 +239,11 @@ class Aedat4Reader:
             while self.data_position < 0 or self.position < self.data_position:
                 # a live input: what has arrived is passed on, unless the next packet has arrived whole and the
                 # chunk is younger than LIVE_MAX_LATENCY_S (packets that arrived together go on together)
-                if live and (self._filled or pending) and not (
+                if live and (self._filled or pending or group) and not (
                         time.monotonic() - first_arrival_s < formats_io.LIVE_MAX_LATENCY_S and self._packet_waits()):
+                    if group:
+                        pending.append(pool.submit(self._decode_group, group))
+                        group, group_bytes = [], 0
                     while pending:
                         yield from self._place_group(*pending.popleft().result())
                     yield self._chunk[:self._filled]
@@ -248,7 +251,7 @@ class Aedat4Reader:
                 head = stream.read(8)
                 if not head:
                     break
-                if live and not (self._filled or pending):
+                if live and not (self._filled or pending or group):
                     first_arrival_s = time.monotonic()
                 if len(head) != 8:
                     raise FormatError(f"{self.name}: truncated AEDAT 4.0 packet header at byte {self.position}")
@@ -265,7 +268,8 @@ class Aedat4Reader:
                 if pool is not None:
                     group.append((self._read_packet(size, size, offset), offset))
                     group_bytes += size
-                    if live or group_bytes * ratio >= 16 * self.options.chunk_events:
+                    # a live input's group takes the packets that have arrived (a pipe from a file: many)
+                    if group_bytes * ratio >= 16 * self.options.chunk_events or (live and not self._packet_waits()):
                         pending.append(pool.submit(self._decode_group, group))
                         group, group_bytes = [], 0
                         if len(pending) > DECODE_AHEAD:

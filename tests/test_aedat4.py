@@ -204,6 +204,36 @@ def test_groups_stay_about_a_chunk_after_empty_packets(tmp_path):
     assert len(sizes) > 5 and max(sizes) <= 16 * 4096 + max(len(empty), 16 * 500)
 
 
+def test_a_pipe_groups_the_packets_that_have_arrived(tmp_path):
+    """A live input (here a FIFO fed from a file, as `cat file | evtools ...`) is decoded in groups of the packets
+    already there, not packet by packet (a 10M-event DV file through a pipe: 1.12 -> 0.6 s), with the same events."""
+    import os
+    import threading
+
+    from evtools.formats import aedat4
+
+    events = random_events(40_000, seed=13)
+    path = tmp_path / "small.aedat4"
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(aedat4, "PACKET_EVENTS", 400)
+        with create_events(path, StreamInfo(346, 260), compression="lz4") as writer:
+            writer.write(events)
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    feeder = threading.Thread(target=lambda: fifo.write_bytes(path.read_bytes()))
+    feeder.start()
+    groups = []
+    decode_group = aedat4.Aedat4Reader._decode_group
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(aedat4.Aedat4Reader, "_decode_group",
+                      lambda self, group: groups.append(len(group)) or decode_group(self, group))
+        with open_events(str(fifo)) as stream:
+            back = join(list(stream))
+    feeder.join()
+    assert_same_events(back, events)
+    assert sum(groups) == 101 and len(groups) < 60  # 100 packets and the end mark, not one group each
+
+
 def test_recycled_chunk_memory_is_reused_only_when_nothing_refers_to_it():
     from evtools.formats.io import Recycled
 
