@@ -546,7 +546,7 @@ class Recycled:
             fresh = np.empty(n + n // 8, EVENT_DTYPE)  # room for the next, slightly larger request
             if self.exact:
                 in_use = [kept for kept in self.arrays if sys.getrefcount(kept) > 3]
-                self.arrays = in_use[-(self.keep - 1):] + [fresh]
+                self.arrays = in_use[max(len(in_use) - (self.keep - 1), 0):] + [fresh]
             return fresh[:n]
 
 
