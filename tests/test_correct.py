@@ -104,7 +104,7 @@ def test_default_mode_turns_and_anchors():
        curves=st.booleans(), seed=st.integers(0, 2**16), span_us=st.sampled_from([None, 600, 3000]))
 def test_chunking_does_not_change_the_output(cuts, mode, turns, curves, seed, span_us):
     # span_us: the stream squeezed into that many us (a busy stream, ties between lanes at every release bound:
-    # releasing events at the bound itself put a lane's tie before the other's, 2 cuts in 200 on a 20k stream)
+    # releasing events at the bound itself put a lane's tie before the other's: 2 of 207 single cuts of a 20k stream)
     events = random_events(2000, W, H, seed=seed)
     if span_us:
         events["t"] = events["t"] * span_us // (int(events["t"][-1]) + 1)
