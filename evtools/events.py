@@ -104,10 +104,28 @@ def make_events(t, x, y, p) -> np.ndarray:
     return out
 
 
-def concatenate(chunks: Iterable[np.ndarray]) -> np.ndarray:
+def concatenate(chunks: Iterable[np.ndarray], expected: int | None = None) -> np.ndarray:
     """All chunks as one array (memory grows with the stream). Each chunk is released as soon as it is copied into
     the result, whose pages are touched only as they are filled: the peak is the stream plus one chunk, not twice
-    the stream."""
+    the stream.
+
+    ``expected``: about how many events to expect (an overestimate costs nothing: pages not reached are never
+    touched). Given, each chunk is copied as it arrives into a result of that size (grown by half when it is
+    exceeded), so a reader can reuse the chunk's memory at once; without it the chunks are gathered first and
+    copied into a result of their exact size."""
+    if expected is not None:
+        out, filled = np.empty(max(int(expected), 1), EVENT_DTYPE), 0
+        for chunk in chunks:
+            chunk = np.asarray(chunk)
+            if filled + len(chunk) > len(out):
+                grown = np.empty(max(len(out) * 3 // 2, filled + len(chunk)), EVENT_DTYPE)
+                grown.view(_RECORD)[:filled] = out.view(_RECORD)[:filled]
+                out = grown
+            out.view(_RECORD)[filled:filled + len(chunk)] = (
+                chunk if chunk.dtype == EVENT_DTYPE else chunk.astype(EVENT_DTYPE)).view(_RECORD)
+            filled += len(chunk)
+            del chunk  # the last reference: the reader may reuse its memory for the next chunk
+        return out[:filled]
     parts = [np.asarray(chunk) for chunk in chunks]
     if len(parts) == 1 and parts[0].dtype == EVENT_DTYPE and parts[0].flags.c_contiguous:
         return parts[0]  # the one chunk is the result: no copy

@@ -173,6 +173,8 @@ def test_small_packets_read_the_same_in_any_chunks(tmp_path, packet_events, chun
         chunks = list(stream)
     assert all(0 < len(chunk) <= max(chunk_events, packet_events) for chunk in chunks)  # (packets are not cut)
     assert_same_events(join(chunks) if chunks else random_events(0), events)
+    with open_events(path, chunk_events=chunk_events) as stream:  # the whole-file read (evtools.read)
+        assert_same_events(stream.read_all(), events)
 
 
 def test_groups_stay_about_a_chunk_after_empty_packets(tmp_path):

@@ -27,9 +27,10 @@ def test_concatenate_copies_chunks_of_any_stride_layout_and_count():
     events = random_events(50, seed=5)
     packed = events.astype(np.dtype([("t", "<i8"), ("x", "<i2"), ("y", "<i2"), ("p", "?")]))
     for chunks in ([], [events[:0]], [events[::2]], [events[::3], packed[5:9], events[:0], events[::-7]]):
-        whole = concatenate(iter(chunks))
-        assert whole.dtype == EVENT_DTYPE and whole.flags.c_contiguous
-        assert [tuple(e) for e in whole] == [tuple(e) for chunk in chunks for e in chunk.astype(EVENT_DTYPE)]
+        for expected in (None, 1, 7, 1000):  # a size to expect: under it the result grows, over it is cut
+            whole = concatenate(iter(chunks), expected=expected)
+            assert whole.dtype == EVENT_DTYPE and whole.flags.c_contiguous
+            assert [tuple(e) for e in whole] == [tuple(e) for chunk in chunks for e in chunk.astype(EVENT_DTYPE)]
 
 
 def test_join_copies_records_of_any_stride_and_converts_other_layouts():
