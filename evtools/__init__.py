@@ -12,6 +12,7 @@ the command line sets numpy's thread defaults first (see :func:`evtools.cli.main
 from __future__ import annotations
 
 import importlib
+import importlib.util
 from typing import TYPE_CHECKING
 
 from evtools.errors import EvtoolsError, InvalidEventsError
@@ -35,11 +36,14 @@ if TYPE_CHECKING:  # what type checkers and editors see
 
 
 def __getattr__(name: str):
-    """``evtools.read`` and the other names of ``__all__``, imported from their module on first use."""
+    """``evtools.read`` and the other names of ``__all__``, imported from their module on first use; a submodule
+    (``evtools.metrics``, ``evtools.events``, ...) likewise."""
     if name in _HOME:
         value = getattr(importlib.import_module(_HOME[name]), name)
         globals()[name] = value
         return value
+    if not name.startswith("_") and importlib.util.find_spec(f"{__name__}.{name}") is not None:
+        return importlib.import_module(f"{__name__}.{name}")
     raise AttributeError(f"module 'evtools' has no attribute {name!r}")
 
 

@@ -70,3 +70,7 @@ def test_the_package_names_load_on_first_use():
                  "StreamInfo; print(a, 'numpy' in sys.modules, read.__module__, sorted(evtools.__all__) == "
                  "sorted(n for n in evtools.__all__ if hasattr(evtools, n)), 'read' in dir(evtools))")
     assert out == "False True evtools.api True True"
+    # submodules too, as attributes of the package (evtools.events was one when __init__ imported everything)
+    out = _child("import evtools; print(evtools.events.EVENT_DTYPE.itemsize, evtools.metrics.__name__, "
+                 "hasattr(evtools, 'no_such_thing'))")
+    assert out == "16 evtools.metrics False"
