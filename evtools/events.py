@@ -121,8 +121,7 @@ def concatenate(chunks: Iterable[np.ndarray], expected: int | None = None) -> np
                 grown = np.empty(max(len(out) * 3 // 2, filled + len(chunk)), EVENT_DTYPE)
                 grown.view(_RECORD)[:filled] = out.view(_RECORD)[:filled]
                 out = grown
-            out.view(_RECORD)[filled:filled + len(chunk)] = (
-                chunk if chunk.dtype == EVENT_DTYPE else chunk.astype(EVENT_DTYPE)).view(_RECORD)
+            out.view(_RECORD)[filled:filled + len(chunk)] = _records(chunk)
             filled += len(chunk)
             del chunk  # the last reference: the reader may reuse its memory for the next chunk
         return out[:filled]
@@ -136,8 +135,7 @@ def concatenate(chunks: Iterable[np.ndarray], expected: int | None = None) -> np
     parts.reverse()
     while parts:
         part = parts.pop()
-        part = part if part.dtype == EVENT_DTYPE else part.astype(EVENT_DTYPE)
-        records[filled:filled + len(part)] = part.view(_RECORD)
+        records[filled:filled + len(part)] = _records(part)
         filled += len(part)
         del part  # the last reference: its memory goes back before the next chunk is copied
     return out
@@ -163,9 +161,13 @@ _RECORD = np.dtype((np.void, EVENT_DTYPE.itemsize))
 def join(chunks: list[np.ndarray]) -> np.ndarray:
     """The chunks one after the other, as one :data:`EVENT_DTYPE` array (other layouts of the same fields are
     converted); the records are copied as raw bytes."""
-    records = [np.asarray(chunk) for chunk in chunks]
-    records = [(chunk if chunk.dtype == EVENT_DTYPE else chunk.astype(EVENT_DTYPE)).view(_RECORD) for chunk in records]
-    return np.concatenate(records).view(EVENT_DTYPE)
+    return np.concatenate([_records(np.asarray(chunk)) for chunk in chunks]).view(EVENT_DTYPE)
+
+
+def _records(chunk: np.ndarray) -> np.ndarray:
+    """``chunk`` as raw 16-byte records (:data:`_RECORD`), converted to :data:`EVENT_DTYPE` first when its fields
+    are laid out otherwise."""
+    return (chunk if chunk.dtype == EVENT_DTYPE else chunk.astype(EVENT_DTYPE)).view(_RECORD)
 
 
 def rechunk(chunks: Iterable[np.ndarray], size: int) -> Iterator[np.ndarray]:
