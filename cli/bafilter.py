@@ -10,7 +10,7 @@ import click
 import numpy as np
 
 from evtools.cli.batch import batch_options, plan, run
-from evtools.cli.options import slicing_options
+from evtools.cli.options import check_compression, compression_option, slicing_options
 from evtools.cli.progress import process_stream
 from evtools.filters import METHODS, PRESETS, BAFilter, BAFilterError, parse_methods
 from evtools.errors import EvtoolsError
@@ -119,10 +119,11 @@ positive = click.IntRange(min=1)
               help="mlpf: keep an event when its probability of being signal is above this [0.5].")
 @click.option("--weights", type=click.Path(exists=True, dir_okay=False), default=None,
               help="mlpf: weights from `evtools metrics train-denoiser` [the ones shipped with evtools].")
+@compression_option
 @slicing_options(polarity=False)
 def bafilter(inputs, input_format, sensor_size, aedat2_layout, output, jobs, scheduler, as_json, methods, preset,
              dt_us, k, radius, polarity, window, distance, learn_us, hot_ratio, hot_rate_hz, hot_min_events, hot_pixels_path,
-             save_hot_pixels, threshold, weights, polarity_maps, slicing):
+             save_hot_pixels, threshold, weights, polarity_maps, compression, slicing):
     """Remove background activity from IN (default stdin), writing OUT or -o OUT (default stdout).
 
     Several inputs go to the folder -o FOLDER (the same names), --jobs at a time.
@@ -145,17 +146,20 @@ def bafilter(inputs, input_format, sensor_size, aedat2_layout, output, jobs, sch
     pairs = plan(inputs, output, ".aedat4")
     if save_hot_pixels and len(pairs) > 1:
         raise click.UsageError("--save-hot-pixels writes one file: give one input")
+    check_compression(compression, pairs)
     options = dict(input_format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout, methods=methods,
                    preset=preset, dt_us=dt_us, k=k, radius=radius, polarity=polarity, window=window,
                    distance=distance, learn_us=learn_us, hot_ratio=hot_ratio, hot_rate_hz=hot_rate_hz,
                    hot_min_events=hot_min_events, hot_pixels_path=hot_pixels_path, save_hot_pixels=save_hot_pixels,
-                   threshold=threshold, weights=weights, polarity_maps=polarity_maps, slicing=slicing)
+                   threshold=threshold, weights=weights, polarity_maps=polarity_maps, compression=compression,
+                   slicing=slicing)
     run(filter_one, pairs, options, jobs, scheduler, as_json)
 
 
 def filter_one(input, output, *, input_format, sensor_size, aedat2_layout, methods, preset, dt_us, k, radius,
                polarity, window, distance, learn_us, hot_ratio, hot_rate_hz, hot_min_events, hot_pixels_path,
-               save_hot_pixels, threshold=None, weights=None, polarity_maps=None, slicing=None) -> tuple[int, int]:
+               save_hot_pixels, threshold=None, weights=None, polarity_maps=None, compression=None,
+               slicing=None) -> tuple[int, int]:
     """Filter one file (the command's whole work for one input): (events in, events kept); ``slicing``: the
     shared slicing options (:func:`evtools.transform.sliced`), applied as the events are read."""
     if save_hot_pixels:
@@ -171,7 +175,7 @@ def filter_one(input, output, *, input_format, sensor_size, aedat2_layout, metho
                       polarity=polarity, window=window, distance=distance, learn_us=learn_us, hot_ratio=hot_ratio,
                       hot_rate_hz=hot_rate_hz, hot_min_events=hot_min_events, hot_map=hot_map, threshold=threshold,
                       weights=weights, polarity_maps=polarity_maps)
-        with create_events(output, info, inputs=(input,)) as writer:
+        with create_events(output, info, compression=compression, inputs=(input,)) as writer:
             process_stream(stream, ba, writer, f"filtering {stream.name}")
             if save_hot_pixels:  # inside the output's block: when the list cannot be written, no output is left
                 hot = ba.hot_map if ba.hot_map is not None else np.zeros((info.height, info.width), bool)

@@ -7,7 +7,7 @@ import logging
 import click
 
 from evtools.cli.batch import batch_options, plan, run
-from evtools.cli.options import slicing_options
+from evtools.cli.options import check_compression, compression_option, slicing_options
 from evtools.cli.progress import with_progress
 from evtools.formats import create_events, open_events
 from evtools.formats.io import paced
@@ -24,10 +24,7 @@ log = logging.getLogger("evtools")
     type=click.Choice([f.name for f in FORMATS if f.writer], case_sensitive=False),
     help="Output format; default: from OUT's extension, AEDAT 4.0 on stdout and into a folder.",
 )
-@click.option(
-    "--compression", default=None, metavar="C",
-    help="aedat4: none (default), lz4, zstd; hdf5: none, gzip, lzf, zstd.",
-)
+@compression_option
 @click.option("--realtime", is_flag=True,
               help="Replay at the recorded speed: events leave when their time has come (5 ms slices), so a "
                    "recording stands in for a camera.")
@@ -53,6 +50,7 @@ def convert(inputs, input_format, sensor_size, aedat2_layout, output, jobs, sche
         raise click.UsageError(f"-o {output}: a network output carries AEDAT 4.0, not --format {output_format}")
     suffix = by_name(output_format or "aedat4").extensions[0]
     pairs = plan(inputs, output, suffix)
+    check_compression(compression, pairs, output_format)
     options = dict(input_format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout,
                    output_format=output_format, compression=compression, speed=speed or 1.0 if realtime else None,
                    slicing=slicing)

@@ -8,7 +8,7 @@ from dataclasses import replace
 import click
 
 from evtools.cli.batch import batch_options, plan, run
-from evtools.cli.options import slicing_options
+from evtools.cli.options import check_compression, compression_option, slicing_options
 from evtools.cli.progress import process_stream
 from evtools.correction import CORRECT_DEFAULTS, MAX_WINDOW_US, MODES, CorrectionError, ThresholdCorrector
 from evtools.formats import create_events, open_events
@@ -54,9 +54,10 @@ def _target(ctx, param, value):
 @click.option("--start-us", type=int, default=None, metavar="T",
               help="exponential, turns, highpass: time the sensor started (every pixel at its reference); default: the first "
                    "event.")
+@compression_option
 @slicing_options
 def correct(inputs, input_format, sensor_size, aedat2_layout, output, jobs, scheduler, as_json, thresholds_path,
-            target, mode, hold_us, max_gap_us, tau_us, start_us, slicing):
+            target, mode, hold_us, max_gap_us, tau_us, start_us, compression, slicing):
     """Re-sample every pixel of IN (default stdin) at one target threshold; write -o OUT (default stdout).
 
     Several inputs (one camera's recordings) go to the folder -o FOLDER.
@@ -71,14 +72,15 @@ def correct(inputs, input_format, sensor_size, aedat2_layout, output, jobs, sche
     evtools correct drifting.aedat4 --thresholds series.h5 --target 0.2 -o corrected.aedat4  # estimate --online
     """
     pairs = plan(inputs, output, ".aedat4")
+    check_compression(compression, pairs)
     options = dict(input_format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout,
                    thresholds_path=thresholds_path, target=target, mode=mode, hold_us=hold_us,
-                   max_gap_us=max_gap_us, tau_us=tau_us, start_us=start_us, slicing=slicing)
+                   max_gap_us=max_gap_us, tau_us=tau_us, start_us=start_us, compression=compression, slicing=slicing)
     run(correct_one, pairs, options, jobs, scheduler, as_json)
 
 
 def correct_one(input, output, *, input_format, sensor_size, aedat2_layout, thresholds_path, target, mode, hold_us,
-                max_gap_us, tau_us, start_us, slicing=None) -> tuple[int, int]:
+                max_gap_us, tau_us, start_us, compression=None, slicing=None) -> tuple[int, int]:
     """Correct one file: (events in, events out); ``slicing``: the shared slicing options
     (:func:`evtools.transform.sliced`), the thresholds map cut and turned with the events."""
     thresholds = read_thresholds(thresholds_path, series=True)
@@ -95,7 +97,7 @@ def correct_one(input, output, *, input_format, sensor_size, aedat2_layout, thre
             )
         except CorrectionError as error:
             raise CorrectionError(f"{thresholds_path}: {error}") from None
-        with create_events(output, stream.info, inputs=(input, thresholds_path)) as writer:
+        with create_events(output, stream.info, compression=compression, inputs=(input, thresholds_path)) as writer:
             events_in, events_out = process_stream(stream, corrector, writer, f"correcting {stream.name}")
     log.info(f"correct {mode}: {events_in:,} events in, {events_out:,} out (target {corrector.target_on:.4g} ON, "
              f"{corrector.target_off:.4g} OFF)")

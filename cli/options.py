@@ -163,3 +163,33 @@ def read_options(function):
 
 def wants_json(as_json: bool) -> bool:
     return as_json or not sys.stdout.isatty()
+
+
+def _compression_help() -> str:
+    described = [f"{fmt.name}: {', '.join(fmt.compressions)} (default {fmt.compressions[0]})"
+                 for fmt in BY_NAME.values() if fmt.compressions]
+    return (f"Compression of the output: {'; '.join(described)}. DV records AEDAT 4.0 with lz4; AEDAT 4.0 packets "
+            "are compressed on a pool of threads.")
+
+
+compression_option = click.option("--compression", default=None, metavar="C", help=_compression_help())
+"""``--compression``: of every command that writes an event stream (checked by :func:`check_compression`)."""
+
+
+def check_compression(compression: str | None, pairs, output_format: str | None = None) -> None:
+    """Refuse, as a usage error and before any work, a ``--compression`` that an output's format does not write
+    (``pairs``: the (input, output) pairs of :func:`evtools.cli.batch.plan`)."""
+    if compression is None:
+        return
+    from evtools.formats import check_compression as check, output_format as format_of
+    from evtools.formats.errors import FormatError
+
+    for _, output in pairs:
+        try:
+            fmt = format_of(output, output_format)
+        except FormatError:
+            continue  # no format to check against: the command says why when it opens the output
+        try:
+            check(fmt, compression, output or "-")
+        except FormatError as error:
+            raise click.BadParameter(str(error), param_hint="'--compression'") from None

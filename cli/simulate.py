@@ -17,7 +17,7 @@ import click
 import numpy as np
 
 from evtools import interrupt
-from evtools.cli.options import Duration, aedat2_layout_option, input_format_option
+from evtools.cli.options import Duration, aedat2_layout_option, check_compression, compression_option, input_format_option
 from evtools.cli.progress import with_progress
 from evtools.events import CHUNK_EVENTS, StreamInfo, join, parse_sensor_size
 from evtools.noise import NOISE_DEFAULTS, NoiseInjector
@@ -428,6 +428,7 @@ def _float_option(name: str, help: str, low: float | None = 0.0, high: float | N
 @click.option("--min-level", type=float, default=None, help="Scene's darkest intensity, 0-255 (default 50).")
 @click.option("--max-level", type=float, default=None, help="Scene's brightest intensity, 0-255 (default 200).")
 @click.option("--level", type=float, default=None, help="static: intensity, 0-255 (default 128).")
+@compression_option
 @click.option("--json", "as_json", is_flag=True,
               help="Print the counts as JSON (on stdout when the events go to a file, else on stderr).")
 def simulate(source, output, output_format, truth, truth_frame_rate, input_format, sensor_size, aedat2_layout, size,
@@ -446,6 +447,8 @@ def simulate(source, output, output_format, truth, truth_frame_rate, input_forma
     evtools simulate video.mp4 --preset noisy --seed 1 | evtools info -
     evtools simulate recording.aedat4 --shot-noise-rate-hz 5 --leak-rate-hz 0.2 --truth t.h5 -o noisy.aedat4
     """
+    compression = options.pop("compression")
+    check_compression(compression, [(source, output)], output_format)
     size = _merged("--size", size, "--sensor-size", sensor_size)
     fps = options["frame_rate"] = _merged("--frame-rate", options["frame_rate"], "--fps", fps)
     given = {name: value for name, value in options.items() if value is not None}
@@ -464,7 +467,8 @@ def simulate(source, output, output_format, truth, truth_frame_rate, input_forma
         parameters["leak_spread_decades"] = NOISE_DEFAULTS["leak_spread_decades"]
         parameters.update({key: value for key, value in given.items()})
         stream_options = {"format": input_format, "sensor_size": sensor_size, "aedat2_layout": aedat2_layout}
-        _inject(source, output, output_format, truth, preset, seed, parameters, stream_options, as_json)
+        _inject(source, output, (output_format, compression), truth, preset, seed, parameters, stream_options,
+                as_json)
         return
     for name, value in (("--input-format", input_format), ("--aedat2-layout", aedat2_layout)):
         if value is not None:
@@ -490,7 +494,7 @@ def simulate(source, output, output_format, truth, truth_frame_rate, input_forma
     info = StreamInfo(frames.width, frames.height, metadata={"source": description})
     inputs = (source,) if not source.startswith("scene:") else ()
     counts = np.zeros(len(LABELS), np.int64)
-    with create_events(output, info, format=output_format, inputs=inputs) as writer:
+    with create_events(output, info, format=output_format, compression=compression, inputs=inputs) as writer:
         if truth is None:
             _run(simulator, frames, writer, None, counts)
         else:
@@ -616,9 +620,9 @@ def _check_truth_path(truth: str | None, output: str | None, source: str) -> Non
         raise SimulationError(f"{truth}: --truth would overwrite the input; choose another file")
 
 
-def _inject(source, output, output_format, truth, preset, seed, parameters, stream_options, as_json) -> None:
+def _inject(source, output, written_as, truth, preset, seed, parameters, stream_options, as_json) -> None:
     counts = np.zeros(len(LABELS), np.int64)
-    _inject_into(source, output, output_format, truth, preset, seed, parameters, stream_options, counts)
+    _inject_into(source, output, written_as, truth, preset, seed, parameters, stream_options, counts)
     _report(source, output, counts, as_json)
 
 
@@ -635,14 +639,16 @@ def _report(source: str, output: str | None, counts: np.ndarray, as_json: bool) 
              + ", ".join(f"{count:,} {name}" for name, count in per_label.items()) + ")")
 
 
-def _inject_into(source, output, output_format, truth, preset, seed, parameters, stream_options, counts) -> None:
-    """``evtools simulate EVENTS``: the stream's events unchanged plus labelled noise, chunk by chunk."""
+def _inject_into(source, output, written_as, truth, preset, seed, parameters, stream_options, counts) -> None:
+    """``evtools simulate EVENTS``: the stream's events unchanged plus labelled noise, chunk by chunk; the output
+    ``written_as`` (format, compression)."""
+    output_format, compression = written_as
     _check_truth_path(truth, output, source)
     with open_events(source, **stream_options) as stream:
         width, height = stream.info.width, stream.info.height
         injector = _build(NoiseInjector, width, height, seed=seed, **parameters)
         info = StreamInfo(width, height, metadata={"source": f"evtools simulate {stream.name} seed={injector.seed}"})
-        with create_events(output, info, format=output_format, inputs=(source,)) as writer:
+        with create_events(output, info, format=output_format, compression=compression, inputs=(source,)) as writer:
             if truth is None:
                 _run_injector(injector, stream, writer, None, counts)
                 return

@@ -163,6 +163,18 @@ class _NamedWriter:
         _named(self.target, self.writer.close)
 
 
+def check_compression(fmt, compression: str | None, target: str) -> None:
+    """Refuse a ``compression`` that the format ``fmt`` does not write (a CSV file has none to choose: asking for
+    one is a mistake to report, not to ignore), before the output is created."""
+    if compression is None or compression.lower() in fmt.compressions:
+        return
+    if not fmt.compressions:
+        raise FormatError(f"{target}: {fmt.description} is written uncompressed, --compression {compression} does "
+                          f"not apply (it does to {', '.join(f.name for f in FORMATS if f.compressions)})")
+    raise FormatError(f"{target}: unknown {fmt.description.split(' (')[0]} compression {compression!r}; choose one of "
+                      f"{', '.join(fmt.compressions)}")
+
+
 def output_format(path: str | os.PathLike | None, format: str | None):
     """The format to write: ``format`` if given, else by extension, else AEDAT 4.0 for stdout and for a path
     without an extension that is not a regular file (``/dev/null``, a FIFO: streams, like stdout)."""
@@ -204,9 +216,10 @@ def create_events(
         for input_path in inputs:
             if input_path and input_path != STDIO and same_file(os.fspath(path), input_path):
                 raise FormatError(f"{path}: output would overwrite the input; choose another -o")
+    target = "<stdout>" if path is None or os.fspath(path) == STDIO else os.fspath(path)
+    check_compression(fmt, compression, target)
     options = WriteOptions(compression=compression, aedat2_layout=aedat2_layout)
     writer_class = fmt.writer_class()
-    target = "<stdout>" if path is None or os.fspath(path) == STDIO else os.fspath(path)
     with output_stream(path, binary_name=fmt.description, needs_seek=fmt.writer_needs_seek) as stream:
         live = getattr(stream, "network", False) or is_live(stream)
         writer = WriteBehind(_NamedWriter(target, _named(target, writer_class, stream, info, options), stream, live))

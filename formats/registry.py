@@ -46,6 +46,8 @@ class Format:
     reader: str | None  # "module:Class", imported on first use
     writer: str | None
     writer_needs_seek: bool = False
+    compressions: tuple[str, ...] = ()
+    """The compressions its writer takes (``--compression``), the default first; none: it writes uncompressed."""
 
     def reader_class(self):
         return _load(self.reader)
@@ -93,7 +95,8 @@ def _is_text(head: bytes, delimiter: bytes) -> bool:
 
 FORMATS: tuple[Format, ...] = (
     Format("aedat4", "AEDAT 4.0 (DV, dv-processing)", (".aedat4",), lambda h: h.startswith(b"#!AER-DAT4.0") or h[8:12] == b"IOHE",
-           "evtools.formats.aedat4:Aedat4Reader", "evtools.formats.aedat4:Aedat4Writer"),
+           "evtools.formats.aedat4:Aedat4Reader", "evtools.formats.aedat4:Aedat4Writer",
+           compressions=("none", "lz4", "lz4-high", "zstd", "zstd-high")),
     Format("prophesee_dat", "Prophesee DAT (Metavision, version 2)", (), _is_prophesee_dat,
            "evtools.formats.prophesee:PropheseeDatReader", None),
     Format("aedat2", "AEDAT 2.0 (jAER)", (".aedat", ".dat"), lambda h: h.startswith(b"#!AER-DAT2"),
@@ -101,7 +104,8 @@ FORMATS: tuple[Format, ...] = (
     Format("aedat3", "AEDAT 3.1 (cAER, libcaer)", (".aedat3",), lambda h: h.startswith(b"#!AER-DAT3"),
            "evtools.formats.aedat3:Aedat3Reader", None),
     Format("hdf5", "HDF5 (DSEC, event_utils, v2e, evtools)", (".h5", ".hdf5", ".hdf"), _is_hdf5,
-           "evtools.formats.hdf5:Hdf5Reader", "evtools.formats.hdf5:Hdf5Writer", writer_needs_seek=True),
+           "evtools.formats.hdf5:Hdf5Reader", "evtools.formats.hdf5:Hdf5Writer", writer_needs_seek=True,
+           compressions=("zstd", "none", "gzip", "lzf")),
     Format("prophesee", "Prophesee EVT 2.0 / 3.0 RAW (written as EVT 2.0)", (".raw",), _is_prophesee,
            "evtools.formats.prophesee:ProphesseeRawReader", "evtools.formats.prophesee:Evt2Writer"),
     Format("csv", "CSV with a header (t,x,y,p)", (".csv",), lambda h: _is_text(h, b","),

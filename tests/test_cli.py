@@ -174,6 +174,64 @@ def test_usage_errors_exit_2(sample):
     assert run("info", path, "--sensor-size", "0x3", check=False).returncode == 2
 
 
+STREAM_WRITERS = [  # every command that writes an event stream, with its arguments on the sample
+    ("convert", ["{sample}"]),
+    ("bafilter", ["{sample}", "--preset", "dv"]),
+    ("correct", ["{sample}", "--thresholds", "{thresholds}"]),
+    ("simulate", ["{sample}", "--shot-noise-rate-hz", "2", "--seed", "3"]),
+]
+
+
+def _stream_arguments(arguments, sample_path: Path, tmp_path: Path) -> list[str]:
+    thresholds = tmp_path / "thresholds.h5"
+    if not thresholds.exists():
+        rng = np.random.default_rng(5)
+        with h5py.File(thresholds, "w") as h5:
+            for name in ("on", "off"):
+                h5[name] = rng.uniform(0.15, 0.35, (260, 346)).astype(np.float32)
+    return [argument.format(sample=sample_path, thresholds=thresholds) for argument in arguments]
+
+
+@pytest.mark.parametrize("compression", ["lz4", "zstd"])
+@pytest.mark.parametrize("command, arguments", STREAM_WRITERS)
+def test_every_stream_command_writes_the_compression_asked(sample, tmp_path, command, arguments, compression):
+    args = _stream_arguments(arguments, sample[0], tmp_path)
+    run(command, *args, "-o", tmp_path / "plain.aedat4")
+    run(command, *args, "-o", tmp_path / "packed.aedat4", "--compression", compression)
+    _, plain = read_all(tmp_path / "plain.aedat4")
+    info, packed = read_all(tmp_path / "packed.aedat4")
+    assert info.metadata["compression"] == compression.upper()
+    assert len(plain) > 100  # (the dv filter keeps 1 % of random events)
+    assert_same_events(packed, plain)
+    assert (tmp_path / "packed.aedat4").stat().st_size < (tmp_path / "plain.aedat4").stat().st_size
+
+
+@pytest.mark.parametrize("command, arguments", STREAM_WRITERS)
+def test_a_compression_the_output_format_lacks_is_a_usage_error(sample, tmp_path, command, arguments):
+    args = _stream_arguments(arguments, sample[0], tmp_path)
+    for name, compression, needle in (("out.csv", "lz4", "is written uncompressed"),
+                                      ("out.aedat4", "gzip", "none, lz4, lz4-high, zstd, zstd-high"),
+                                      ("out.h5", "lz4", "zstd, none, gzip, lzf")):
+        result = run(command, *args, "-o", tmp_path / name, "--compression", compression, check=False)
+        stderr = result.stderr.decode()
+        assert result.returncode == 2, stderr
+        assert "--compression" in stderr and name in stderr and needle in stderr and "Traceback" not in stderr
+        assert not (tmp_path / name).exists()
+
+
+def test_compression_names_agree_with_the_writers(tmp_path):
+    from evtools.formats import FormatError
+    from evtools.formats.aedat4 import COMPRESSION_CODES
+    from evtools.formats.registry import BY_NAME
+
+    assert set(BY_NAME["aedat4"].compressions) == set(COMPRESSION_CODES)
+    assert COMPRESSION_CODES[BY_NAME["aedat4"].compressions[0]] == 0  # the default is the header's "none"
+    with pytest.raises(FormatError, match="uncompressed"):  # the Python API refuses it too, before creating
+        with create_events(tmp_path / "x.csv", StreamInfo(8, 8), compression="zstd"):
+            pass
+    assert not (tmp_path / "x.csv").exists()
+
+
 @pytest.mark.parametrize("command, option, good", [
     (["simulate", "scene:flicker", "--size", "8x6", "-o", "{out}.aedat4"], "--duration", "0.25s"),
     (["simulate", "scene:flicker", "--size", "8x6", "-o", "{out}.aedat4"], "--period", "250ms"),
