@@ -27,7 +27,7 @@ from typing import BinaryIO, Iterator
 
 import numpy as np
 
-from evtools.events import EVENT_DTYPE, StreamInfo, join
+from evtools.events import EVENT_DTYPE, StreamInfo
 from evtools.formats import io as formats_io
 from evtools.formats.errors import FormatError
 from evtools.formats.io import Source
@@ -481,25 +481,32 @@ class Aedat4Writer:
                 self._flush()
 
     def _flush(self) -> None:
+        """The events held as one packet: its body (prefix, then the events, padding zeroed) built in one array, the
+        events copied into it once, then written or handed to the compressing pool (the codecs take the array as
+        it is: joining the pieces, copying to mask, ``tobytes`` and prepending the prefix were four copies)."""
         if not self.held:
             return
-        events = np.ascontiguousarray(self.pending[0] if len(self.pending) == 1 else join(self.pending), EVENT_DTYPE)
-        words = events.view("<u8").reshape(-1, 2).copy()
+        prefix = np.frombuffer(_packet_prefix(self.held), np.uint64)
+        body = np.empty(len(prefix) + 2 * self.held, np.uint64)
+        body[:len(prefix)] = prefix
+        words = body[len(prefix):].reshape(-1, 2)
+        at = 0
+        for piece in self.pending:
+            words[at:at + len(piece)] = np.ascontiguousarray(piece, EVENT_DTYPE).view("<u8").reshape(-1, 2)
+            at += len(piece)
         words[:, 1] &= PAYLOAD_MASK  # zero the 3 padding bytes (in place on the copy: 4x faster than a masked copy)
-        prefix = _packet_prefix(len(events))
         if self.compress is None:
-            self.stream.write(struct.pack("<iI", 0, len(prefix) + words.nbytes) + prefix)
-            self.stream.write(words)
+            self._write_body(body)
         else:
             if self.pool is None:
                 self.pool = ThreadPoolExecutor(ENCODE_THREADS, thread_name_prefix="evtools-encode")
-            self.encoding.append(self.pool.submit(self.compress, prefix + words.tobytes()))
+            self.encoding.append(self.pool.submit(self.compress, body))
             while len(self.encoding) > ENCODE_AHEAD:
                 self._write_body(self.encoding.popleft().result())
         self.pending, self.held = [], 0
 
-    def _write_body(self, body: bytes) -> None:
-        self.stream.write(struct.pack("<iI", 0, len(body)))
+    def _write_body(self, body) -> None:
+        self.stream.write(struct.pack("<iI", 0, memoryview(body).nbytes))
         self.stream.write(body)
 
     def _drain(self) -> None:

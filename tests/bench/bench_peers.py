@@ -9,7 +9,7 @@ in a row measured in turns), with its peak RSS from ``wait4``:
 - read into numpy: ``evtools.read``; ``aedat.Decoder`` (packets concatenated); dv-processing's
   ``MonoCameraRecording`` (batches' ``numpy()`` concatenated); faery's ``events_stream_from_file(...).to_array()``;
 - ``bafilter --preset dv`` file to file against dv-processing's read + ``BackgroundActivityNoiseFilter`` + write,
-  both writing uncompressed AEDAT 4.0 (evtools' default);
+  both writing the input's compression (``--compression lz4``: the LZ4 file filtered is stored as DV stores it);
 - ``estimate --method offe`` and ``correct`` (with offe's map) file to file, against issue 15's targets (30 Mev/s
   whole process, peak RSS under 100 MiB); ``correct`` also on the recording made 50 times denser (9.5 Mev/s: its
   reorder buffer holds 0.9 s of output);
@@ -188,9 +188,10 @@ def main() -> None:
                 task = f"bafilter --preset dv file to file, {events // 1_000_000}M {compression}"
                 out = folder / "out.aedat4"
                 contenders = [(_timed_command, [EVTOOLS, "-q", "bafilter", path, "--method", "baf", "--preset", "dv",
-                                                 "-o", out])]
-                if "dv_processing" in peers:  # evtools writes uncompressed: so does dv
-                    contenders.append((measure_child, "bench_peers", "filter", path, folder / "dv.aedat4", "none"))
+                                                 "-o", out, "--compression", compression])]
+                if "dv_processing" in peers:  # both write the input's compression (DV records LZ4)
+                    contenders.append((measure_child, "bench_peers", "filter", path, folder / "dv.aedat4",
+                                       compression))
                 results = fastest_each(args.repeat, contenders, key="wall_seconds")
                 _row(task, "evtools", results[0], events, None)
                 if len(results) > 1:
