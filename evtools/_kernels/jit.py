@@ -10,8 +10,9 @@ as ``nogil`` did. numba is
 imported only when an object is missing or stale, or for a call the wrapper cannot express (see
 :func:`_describe`); either way the result is numba's, bit for bit (the wrapper calls the same compiled kernel).
 
-- ``@kernel`` replaces ``@njit(cache=True, nogil=True)`` (``@kernel(inline=True)``: numba's ``inline="always"``);
-  kernel modules never import numba at module level.
+- ``@kernel`` replaces ``@njit(cache=True, nogil=True)`` (``@kernel(inline=True)``: numba's ``inline="always"``,
+  the helper's body compiled into its callers); numba's cache is stamped with every kernel source, as the store is
+  (:func:`_kernels_cache`); kernel modules never import numba at module level.
 - ``deferred(build)`` holds a numba extension (an intrinsic, an overload) made by ``build()`` when numba is first
   imported: :func:`numba_module` builds every one of them before anything is compiled.
 
@@ -81,14 +82,22 @@ class Kernel:
         self._calls: dict[tuple, object] = {}
 
     @property
+    def targetoptions(self) -> dict:
+        """The options numba's inlining pass reads from a callee (as from its own dispatchers): without them an
+        ``inline=True`` kernel called from another kernel was compiled as a separate function and called."""
+        return {"inline": "always"} if self.inline else {}
+
+    @property
     def dispatcher(self):
         """numba's dispatcher of this kernel (imports numba)."""
         if self._dispatcher is None:  # no lock: numba may ask for it while compiling (under its own lock), and
             # two threads making it at once make equal dispatchers
-            options = {"cache": True, "nogil": True}
+            options = {"nogil": True}
             if self.inline:
                 options["inline"] = "always"
-            self._dispatcher = numba_module().njit(**options)(self.py_func)
+            dispatcher = numba_module().njit(**options)(self.py_func)
+            dispatcher._cache = _kernels_cache(self)  # numba's enable_caching(), with the stamp of every source
+            self._dispatcher = dispatcher
         return self._dispatcher
 
     def __call__(self, *args):
@@ -137,6 +146,32 @@ def numba_module():
                             setattr(module, name, value.build())
             _NUMBA = numba
     return _NUMBA
+
+
+def _kernels_cache(kernel: Kernel):
+    """numba's on-disk cache of ``kernel`` (``cache=True``), stamped with the digest of every kernel source
+    (:func:`_sources`) instead of the kernel's own file alone: a kernel inlines helpers and reads constants of other
+    kernel modules (``mlpf`` inlines ``bafilter``'s), and numba's own stamp would keep their old code after they
+    change (then stored in the object store too, whose key does cover every source)."""
+    from numba.core import caching
+
+    class Stamped:
+        def get_source_stamp(self):
+            return _sources(kernel)
+
+    class InTree(Stamped, caching.InTreeCacheLocator):  # __pycache__ beside the source
+        pass
+
+    class UserWide(Stamped, caching.UserWideCacheLocator):  # a read-only installation: the user's cache folder
+        pass
+
+    class Impl(caching.CompileResultCacheImpl):
+        _locator_classes = [InTree, UserWide]
+
+    class Cache(caching.FunctionCache):
+        _impl_class = Impl
+
+    return Cache(kernel.py_func)
 
 
 # ---- argument descriptions ----
