@@ -169,7 +169,7 @@ def check_compression(fmt, compression: str | None, target: str) -> None:
     if compression is None or compression.lower() in fmt.compressions:
         return
     if not fmt.compressions:
-        raise FormatError(f"{target}: {fmt.description} is written uncompressed, --compression {compression} does "
+        raise FormatError(f"{target}: {fmt.description} is written uncompressed, compression {compression!r} does "
                           f"not apply (it does to {', '.join(f.name for f in FORMATS if f.compressions)})")
     raise FormatError(f"{target}: unknown {fmt.description.split(' (')[0]} compression {compression!r}; choose one of "
                       f"{', '.join(fmt.compressions)}")
