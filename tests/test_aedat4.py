@@ -177,6 +177,29 @@ def test_small_packets_read_the_same_in_any_chunks(tmp_path, packet_events, chun
         assert_same_events(stream.read_all(), events)
 
 
+@pytest.mark.parametrize("guess", [1.0, 2.0, 64.0])
+@pytest.mark.parametrize("compression", ["lz4", "zstd"])
+def test_a_group_sized_by_a_wrong_guess_decodes_the_same(tmp_path, guess, compression):
+    """A group's array is sized by the compression ratio seen so far and grown when that is short: a first guess
+    far too small (grown, packet after packet) or far too large gives the same events."""
+    from evtools.formats import aedat4
+
+    events = random_events(30_000, seed=4)
+    events["t"] = 20 * np.arange(len(events))  # regular times, few pixels: compresses well
+    events["x"] %= 4
+    events["y"] %= 2
+    path = tmp_path / "packets.aedat4"
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(aedat4, "PACKET_EVENTS", 700)
+        _write(path, events, compression=compression)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(aedat4, "GUESSED_RATIO", guess)
+        _, back = read_all(path, chunk_events=8192)
+    assert_same_events(back, events)
+    # the data compress 1.8x or more: a guess of 1 (1.125 with the margin) sizes the first group's array short
+    assert 16 * len(events) / path.stat().st_size > 1.5
+
+
 def test_groups_stay_about_a_chunk_after_empty_packets(tmp_path):
     """A run of empty event packets decodes to nothing: the next groups are still sized by the bytes of about a
     chunk, not grown to the rest of the file."""
@@ -200,7 +223,8 @@ def test_groups_stay_about_a_chunk_after_empty_packets(tmp_path):
     decode_group = aedat4.Aedat4Reader._decode_group
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(aedat4.Aedat4Reader, "_decode_group",
-                      lambda self, group: sizes.append(sum(len(body) for body, _ in group)) or decode_group(self, group))
+                      lambda self, group, ratio: sizes.append(sum(len(body) for body, _ in group))
+                      or decode_group(self, group, ratio))
         _, back = read_all(path, chunk_events=4096)
     assert_same_events(back, events)
     assert len(sizes) > 5 and max(sizes) <= 16 * 4096 + max(len(empty), 16 * 500)
@@ -228,7 +252,7 @@ def test_a_pipe_groups_the_packets_that_have_arrived(tmp_path):
     decode_group = aedat4.Aedat4Reader._decode_group
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(aedat4.Aedat4Reader, "_decode_group",
-                      lambda self, group: groups.append(len(group)) or decode_group(self, group))
+                      lambda self, group, ratio: groups.append(len(group)) or decode_group(self, group, ratio))
         with open_events(str(fifo)) as stream:
             back = join(list(stream))
     feeder.join()
