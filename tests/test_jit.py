@@ -244,3 +244,11 @@ def test_numbas_cache_of_a_kernel_goes_stale_when_any_kernel_source_changes(monk
     assert before == jit._sources(kernel_)
     monkeypatch.setattr(jit, "_SOURCES", b"another kernel module changed")
     assert locator.get_source_stamp() != before
+
+
+def test_numbas_cache_of_a_kernel_goes_where_numba_cache_dir_says(tmp_path, monkeypatch):
+    numba = jit.numba_module()
+    monkeypatch.setattr(numba.config, "CACHE_DIR", str(tmp_path))
+    locator = jit._kernels_cache(jit.kernel(scale_and_count))._impl.locator
+    assert locator.get_cache_path().startswith(str(tmp_path))
+    assert locator.get_source_stamp() == jit._sources(jit.kernel(scale_and_count))

@@ -96,7 +96,10 @@ class Kernel:
             if self.inline:
                 options["inline"] = "always"
             dispatcher = numba_module().njit(**options)(self.py_func)
-            dispatcher._cache = _kernels_cache(self)  # numba's enable_caching(), with the stamp of every source
+            try:  # numba's enable_caching(), with the stamp of every source
+                dispatcher._cache = _kernels_cache(self)
+            except RuntimeError:  # no writable place for a cache: compiled in every process (numba's own
+                pass  # cache=True would refuse the kernel)
             self._dispatcher = dispatcher
         return self._dispatcher
 
@@ -159,6 +162,9 @@ def _kernels_cache(kernel: Kernel):
         def get_source_stamp(self):
             return _sources(kernel)
 
+    class UserProvided(Stamped, caching.UserProvidedCacheLocator):  # NUMBA_CACHE_DIR, when set
+        pass
+
     class InTree(Stamped, caching.InTreeCacheLocator):  # __pycache__ beside the source
         pass
 
@@ -166,7 +172,7 @@ def _kernels_cache(kernel: Kernel):
         pass
 
     class Impl(caching.CompileResultCacheImpl):
-        _locator_classes = [InTree, UserWide]
+        _locator_classes = [UserProvided, InTree, UserWide]  # numba's own order
 
     class Cache(caching.FunctionCache):
         _impl_class = Impl
