@@ -143,10 +143,9 @@ def bafilter(inputs, input_format, sensor_size, aedat2_layout, output, jobs, sch
         raise click.UsageError("--threshold and --weights need --method mlpf")
     if save_hot_pixels == STDIO and output in (None, STDIO):
         raise click.UsageError("--save-hot-pixels - and the events cannot both go to stdout; give -o FILE")
-    pairs = plan(inputs, output, ".aedat4")
+    pairs = plan(inputs, output, ".aedat4", check=lambda pairs: check_compression(compression, pairs))
     if save_hot_pixels and len(pairs) > 1:
         raise click.UsageError("--save-hot-pixels writes one file: give one input")
-    check_compression(compression, pairs)
     options = dict(input_format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout, methods=methods,
                    preset=preset, dt_us=dt_us, k=k, radius=radius, polarity=polarity, window=window,
                    distance=distance, learn_us=learn_us, hot_ratio=hot_ratio, hot_rate_hz=hot_rate_hz,

@@ -68,7 +68,7 @@ def _names_folder(output: str | None) -> bool:
 
 
 def plan(inputs: tuple[str, ...], output: str | None, suffix: str,
-         second_is_output: bool = True) -> list[tuple[str, str]]:
+         second_is_output: bool = True, check: Callable[[list], None] | None = None) -> list[tuple[str, str]]:
     """The (input, output) pairs the positional names and ``-o`` ask for.
 
     No input: stdin. One input: ``-o`` or stdout (``-o`` naming a folder: into it, as for several). Two names and
@@ -76,6 +76,7 @@ def plan(inputs: tuple[str, ...], output: str | None, suffix: str,
     meant as an input, and the command refuses rather than overwrite it. More: ``-o`` must name a folder (made if missing); outputs are named after their inputs
     with ``suffix`` (the output format's extension), and two inputs may not give one output name. A command whose
     output is not a stream (``estimate``) never takes a second name as its output (``second_is_output``).
+    ``check(pairs)`` may refuse the pairs (a usage error) before the folder is made.
     """
     inputs = tuple(inputs) or (STDIO,)
     if output is None and len(inputs) == 2 and second_is_output:
@@ -84,9 +85,9 @@ def plan(inputs: tuple[str, ...], output: str | None, suffix: str,
             raise click.UsageError(
                 f"{second} exists: to process both files give -o FOLDER; to write into it, name it with -o "
                 "(a second name is taken as the output only when it does not exist yet)")
-        return [(first, second)]
+        return _checked([(first, second)], check)
     if len(inputs) == 1 and not _names_folder(output):
-        return [(inputs[0], output if output is not None else STDIO)]
+        return _checked([(inputs[0], output if output is not None else STDIO)], check)
     if len(inputs) == 1 and inputs[0] == STDIO:
         raise click.UsageError(f"-o {output} is a folder: name the output file of stdin")
     if output is None or output == STDIO:
@@ -103,7 +104,14 @@ def plan(inputs: tuple[str, ...], output: str | None, suffix: str,
             raise click.UsageError(f"{seen[target]} and {name} would both be written to {target}")
         seen[target] = name
         pairs.append((name, str(target)))
+    _checked(pairs, check)
     folder.mkdir(parents=True, exist_ok=True)
+    return pairs
+
+
+def _checked(pairs: list[tuple[str, str]], check) -> list[tuple[str, str]]:
+    if check is not None:
+        check(pairs)
     return pairs
 
 

@@ -49,8 +49,7 @@ def convert(inputs, input_format, sensor_size, aedat2_layout, output, jobs, sche
     if output and output.startswith("tcp://") and output_format not in (None, "aedat4"):
         raise click.UsageError(f"-o {output}: a network output carries AEDAT 4.0, not --format {output_format}")
     suffix = by_name(output_format or "aedat4").extensions[0]
-    pairs = plan(inputs, output, suffix)
-    check_compression(compression, pairs, output_format)
+    pairs = plan(inputs, output, suffix, check=lambda pairs: check_compression(compression, pairs, output_format))
     options = dict(input_format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout,
                    output_format=output_format, compression=compression, speed=speed or 1.0 if realtime else None,
                    slicing=slicing)

@@ -71,8 +71,7 @@ def correct(inputs, input_format, sensor_size, aedat2_layout, output, jobs, sche
     evtools correct step.aedat4 --thresholds step.truth.h5 --mode foh | evtools info -
     evtools correct drifting.aedat4 --thresholds series.h5 --target 0.2 -o corrected.aedat4  # estimate --online
     """
-    pairs = plan(inputs, output, ".aedat4")
-    check_compression(compression, pairs)
+    pairs = plan(inputs, output, ".aedat4", check=lambda pairs: check_compression(compression, pairs))
     options = dict(input_format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout,
                    thresholds_path=thresholds_path, target=target, mode=mode, hold_us=hold_us,
                    max_gap_us=max_gap_us, tau_us=tau_us, start_us=start_us, compression=compression, slicing=slicing)
