@@ -51,8 +51,9 @@ demo: $(VENV)/.installed
 	@echo "pictures: $(OUT)/flicker.png (events), $(OUT)/thresholds.png (estimated, true, error maps)," \
 	  "$(OUT)/edges.png (per-pixel reconstructions of an edge, before and after)"
 
+# the slowest tests are listed at the end: the whole run is to stay under 10 minutes on 2 cores
 test: $(VENV)/.installed-test
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q --durations=15
 
 # the readers against 2,000 mutants of every format, each format in a child under a memory and time limit
 fuzz: $(VENV)/.installed-test
