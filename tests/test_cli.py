@@ -223,10 +223,9 @@ def test_a_compression_the_output_format_lacks_is_a_usage_error(sample, tmp_path
 def test_a_wrong_compression_into_a_folder_leaves_no_folder(sample, tmp_path, command):
     """Several inputs into -o FOLDER/: the compression is checked before the folder is made."""
     args = _stream_arguments(dict(STREAM_WRITERS)[command], sample[0], tmp_path)
-    args.insert(1, str(sample[0]))  # the sample twice, under two names
     second = tmp_path / "again.aedat4"
     second.write_bytes(sample[0].read_bytes())
-    args[1] = str(second)
+    args.insert(1, str(second))  # two inputs: the sample under two names
     result = run(command, *args, "-o", f"{tmp_path / 'out'}{os.sep}", "--compression", "gzip", check=False)
     assert result.returncode == 2, result.stderr.decode()
     assert "gzip" in result.stderr.decode() and not (tmp_path / "out").exists()
