@@ -501,12 +501,10 @@ class Aedat4Writer:
         prefix = np.frombuffer(_packet_prefix(self.held), np.uint64)
         body = np.empty(len(prefix) + 2 * self.held, np.uint64)
         body[:len(prefix)] = prefix
-        words = body[len(prefix):].reshape(-1, 2)
-        at = 0
+        events, at = body[len(prefix):].view(EVENT_DTYPE), 0
         for piece in self.pending:
-            words[at:at + len(piece)] = np.ascontiguousarray(piece, EVENT_DTYPE).view("<u8").reshape(-1, 2)
+            _copy_records(events[at:at + len(piece)], np.ascontiguousarray(piece, EVENT_DTYPE))
             at += len(piece)
-        words[:, 1] &= PAYLOAD_MASK  # zero the 3 padding bytes (in place on the copy: 4x faster than a masked copy)
         if self.compress is None:
             self._write_body(body)
         else:
@@ -539,6 +537,5 @@ class Aedat4Writer:
         if self.pool is not None:
             self.pool.shutdown()
         prefix = _packet_prefix(0)
-        body = prefix if self.compress is None else self.compress(prefix)
-        self.stream.write(struct.pack("<iI", 0, len(body)) + body)
+        self._write_body(prefix if self.compress is None else self.compress(prefix))
         self.stream.flush()
