@@ -280,6 +280,7 @@ class ThresholdCorrector:
         self.latency_us = 3 * self.window_us if self.turns else 2 * self.window_us if self.curves else self.window_us
         self._lanes = [_Lane() for _ in range(LANES)]
         self._due_us = -NO_EVENT_US  # when waiting pixels are next checked (see split_rows)
+        self._earliest = (NO_EVENT_US, -1)  # the earliest segment start and a pixel where it is (see _bound)
         self._checks_us = np.empty(0, np.int64)
         self._pool = None
         self._started = False
@@ -387,8 +388,10 @@ class ThresholdCorrector:
         is created at or after the earliest segment start any pixel may still use (its latest event, or the start
         of the segment that waits for its next event; a tail starts at the latest event), and at most
         ``latency_us`` before ``t_now``."""
-        earliest = earliest_start(self._state, self._status) if self._any_use else t_now
-        return min(max(earliest, t_now - self.latency_us), t_now)
+        if not self._any_use:
+            return t_now
+        self._earliest = earliest_start(self._state, self._status, *self._earliest)
+        return min(max(self._earliest[0], t_now - self.latency_us), t_now)
 
     def flush(self) -> np.ndarray:
         """The segments still waiting for a next event, re-sampled with what is known, and everything held (the

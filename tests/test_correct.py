@@ -310,20 +310,32 @@ def test_a_dense_stream_is_released_in_parts():
     assert_same_events(rest, whole)
 
 
-@pytest.mark.parametrize("mode", MODES + ("exponential",))
-def test_earliest_start_against_numpy(mode):
-    from evtools._kernels.correct import FIRST, TURN, earliest_start
+@settings(max_examples=40, deadline=None)
+@given(mode=st.sampled_from(MODES + ("exponential",)), turns=st.booleans(), seed=st.integers(0, 2**32 - 1),
+       cuts=st.lists(st.integers(0, 3000), max_size=12), part=st.integers(1, 400))
+def test_earliest_start_against_numpy(mode, turns, seed, cuts, part):
+    # the corrector's bound keeps the earliest start and its pixel from part to part and skips the scan while
+    # that pixel's start stands: after every part its answer is the minimum over all pixels, as a full scan's
+    from evtools._kernels.correct import FIRST, NO_EVENT_US, TURN, earliest_start
 
-    on, off = thresholds(7)
-    corrector = ThresholdCorrector(W, H, on, off, target=0.2, mode=mode, max_gap_us=500, hold_us=300)
-    for chunk in cut(random_events(3000, W, H, seed=7), range(250, 3000, 250)):
-        corrector.process(chunk)
-        state, status = corrector._state, corrector._status
-        waiting = np.isin(np.abs(status), [TURN, FIRST])
-        starts = state["last_us"] - np.where(waiting, state["pending_us"], 0)
-        assert earliest_start(state, status) == starts.min()
-        if mode != "foh":
-            assert earliest_start(state, status) < int(chunk["t"][-1])
+    on, off = thresholds(seed % 1000)
+    events = random_events(3000, W, H, seed=seed)
+    events["t"] //= 1 + seed % 4  # ties, and gaps on both sides of the hold and the window
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr("evtools.correction.PART", part)
+        corrector = ThresholdCorrector(W, H, on, off, target=0.2, mode=mode, max_gap_us=500, hold_us=300,
+                                       turns=turns)
+        for chunk in cut(events, sorted(cuts)):
+            corrector.process(chunk)
+            state, status = corrector._state, corrector._status
+            waiting = np.isin(np.abs(status), [TURN, FIRST])
+            starts = state["last_us"] - np.where(waiting, state["pending_us"], 0)
+            answers = [earliest_start(state, status, NO_EVENT_US, -1)] + [corrector._earliest] * (len(chunk) > 0)
+            for earliest_us, pixel in answers:
+                assert earliest_us == starts.min()
+                assert starts[pixel] == earliest_us if earliest_us != NO_EVENT_US else pixel == -1
+            if mode != "foh" and len(chunk):
+                assert starts.min() < int(chunk["t"][-1])
 
 
 @pytest.mark.parametrize("mode, latency_us", [("foh", 500), ("highpass", 1500), ("exponential", 1500)])
