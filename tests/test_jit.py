@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from evtools._kernels import jit
 from evtools.events import EVENT_DTYPE
@@ -111,6 +113,39 @@ def test_stored_code_gives_numbas_and_pythons_results(store, seed):
     np.testing.assert_allclose(native[1], by_python[1])
     assert native[4] == pytest.approx(by_python[4])
     assert isinstance(native[2][1], bool) and isinstance(native[4], float)
+
+
+def test_views_and_empty_arrays_reach_the_stored_code_at_their_own_addresses(store):
+    # writeable contiguous arrays pass their address through the buffer protocol: views that start inside
+    # another array, empty ones, and the same array read-only (passed the other way) give Python's results
+    scale, mean = jit.kernel(scale_and_count), jit.kernel(mean_of)
+    values = np.random.default_rng(5).normal(size=40)
+    out = np.full(60, np.nan)
+    for begin, end in [(0, 40), (7, 40), (13, 21), (40, 40)]:
+        view, target = values[begin:end], out[begin + 10:end + 10]
+        assert scale(view, np.float32(2.0), 0.5, target) == int(np.sum(view * np.float32(2.0) > 0.5))
+        np.testing.assert_array_equal(target, view * np.float32(2.0))
+    assert np.isnan(out[:10]).all() and np.isnan(out[50:]).all()  # nothing written outside the views
+    matrix = np.arange(24.0).reshape(4, 6)
+    assert mean(matrix[1:3]) == matrix[1:3].mean()
+    matrix.flags.writeable = False
+    assert mean(matrix[2:]) == matrix[2:].mean()
+
+
+@settings(max_examples=200, deadline=None)
+@given(dtype=st.sampled_from(["i1", "<i8", ">i4", "f4", "<f8", "?", "m8[us]", PAIR, EVENT_DTYPE]),
+       shape=st.lists(st.integers(0, 4), max_size=3), step=st.integers(-3, 3).filter(bool),
+       writeable=st.booleans(), field=st.booleans())
+def test_an_array_is_described_as_without_the_lookup(dtype, shape, step, writeable, field):
+    # the kinds looked up by dtype, dimensions, flags and stride are those described from scratch
+    array = np.zeros(shape, dtype)
+    if array.ndim:
+        array = array[::step]
+    if field and array.dtype.names:
+        array = array[array.dtype.names[0]]
+    array.flags.writeable = writeable
+    assert jit._describe(array) == jit._describe_array(array)
+    assert jit._describe(array) == jit._describe_array(array)  # and again, from the table
 
 
 def test_arguments_the_wrapper_cannot_pass_go_to_numba(store):
