@@ -20,8 +20,8 @@ most two (a pixel that has not fired yet counts as having fired at the stream's 
 the buffer are bounded by ``latency_us`` of output, whatever the gaps (a dense stream holds its rate times
 ``latency_us``: 8.6 M events at 9.5 Mev/s with the defaults). The events a part creates are sorted once, by a
 counting sort over their time span (coarser buckets, each put in order by insertion, when the span is large), into
-a run that stays in place until its events are released; a release merges the runs' released parts (a k-way merge
-in numba kernels), so an event is moved a few times however long it is held. When every
+a run laid after the lane's earlier runs in one buffer; a release merges the runs' parts before the bound (a k-way
+merge, one numba kernel for all of a lane's runs), so an event is moved a few times however long it is held. When every
 pixel's thresholds equal the target, each input event creates exactly itself, and the output is the input, bit
 for bit and in its order.
 
@@ -44,11 +44,12 @@ from evtools._kernels.correct import (
     MODE_STEP,
     NO_EVENT_US,
     PIXEL_DTYPE,
+    compact_runs,
     compact_waiting,
     correct_events,
     earliest_start,
-    merge_runs,
     merge_sorted,
+    release_runs,
     settle_waiting,
     sort_created,
     split_rows,
@@ -68,13 +69,9 @@ creation order): the output depends on neither the threads nor the chunks."""
 
 PART = 1 << 17
 """Events per part of a long chunk: each part is split into the lanes, re-sampled, sorted into a run, and released.
-The lanes' buffers are sized by it; smaller parts cost more per event (each has fixed costs: a scan of the pixels
-for the bound, two hand-overs to the lane thread, a release over every live run, and more runs to merge): on 4 M
-events of a DVXplorer recording the kernels took 117-120 ns an event with 2^16 against 108-114 with 2^17; with
-chunks of 2^16 too, ``correct`` on 10 M events peaked at 101 MiB instead of 128 but took 1.3x the time."""
-
-SPENT_RUNS = 2
-"""How many released runs' buffers a lane keeps for its next runs (fresh ones would be paged in again)."""
+The lanes' buffers are sized by it; smaller parts cost more per event (each has fixed costs: kernel calls, two
+hand-overs to the lane thread, and more runs to merge): on 3 M events of a DVXplorer recording, two threads,
+min of 5 runs, 62 ns an event with 2^15, 55 with 2^16, 53 with 2^17."""
 
 QUEUE_ENTRIES = 1 << 16
 """A lane's queue of waiting pixels starts with room for this many entries (it is compacted, then grown)."""
@@ -399,13 +396,13 @@ class ThresholdCorrector:
         of them all would need its merge buffers at that size)."""
         for lane in self._lanes:
             lane.hold(lane.settle_all(self))
-        runs = [run for lane in self._lanes for run in lane.runs]
         out = np.empty(self.held, EVENT_DTYPE)
-        if not runs:
+        spans = [lane.held_span_us() for lane in self._lanes if lane.runs]
+        if not spans:
             return out
         # bounds evenly spaced in time across what is held, one per PART events: as many releases as parts
-        first_us = min(int(times[start]) for times, _, start in runs)
-        span_us = max(int(times[-1]) for times, _, _ in runs) - first_us
+        first_us = min(first for first, _ in spans)
+        span_us = max(last for _, last in spans) - first_us
         steps = -(-len(out) // PART)
         filled = 0
         for step in range(1, steps + 1):
@@ -429,8 +426,13 @@ def _grown(buffers, capacity: int, keep: int) -> tuple[np.ndarray, ...]:
 class _Lane:
     """One lane's pixels (see :data:`LANES`): the queue of pixels that wait for their next event, the events the
     latest part created (creation order), and the reorder buffer: one run of created events per part, sorted by
-    time, from which every release takes the events before its bound (a run is dropped once it is all released),
-    so that an event is sorted once and merged once, however long it is held."""
+    time, laid end to end in one buffer (``held``), from which every release takes the events before its bound
+    (:func:`release_runs`; a run leaves the table once it is all released), so that an event is sorted once and
+    merged once, however long it is held. When a new run does not fit after the last, the runs still held move to
+    the front (:func:`compact_runs`), and the buffer is made 1.5 times what they and the new run need when they
+    do not fit (or fill less than a quarter of it): a held event is moved at most about twice on average, and the
+    buffer follows what is held (on a DVXplorer recording 177,000 events a lane for 83,000 held at most; the
+    runs in buffers of their own, with two spare, took 1.6 times the memory)."""
 
     def __init__(self):
         self.queue_pixel = np.empty(QUEUE_ENTRIES, dtype=np.int64)
@@ -438,15 +440,23 @@ class _Lane:
         self.head = self.tail = 0
         self.new = _buffers(1 << 16)
         self.counts = np.empty(0, dtype=np.int64)
-        self.runs: list[list] = []  # [times, second words, first event not yet released], oldest first
-        self.spent: list[tuple[np.ndarray, np.ndarray]] = []  # the buffers of released runs, for new runs
-        self.gathered = self.spare = self.out = _buffers(0)
+        self.held = _buffers(0)  # the runs' times and second words
+        self.filled = 0  # where the last run ends in ``held``
+        self.begins = np.empty(16, np.int64)  # run r: held[begins[r]:ends[r]] not yet released, oldest run first
+        self.ends = np.empty(16, np.int64)
+        self.runs = 0
+        self.spare = self.out = _buffers(0)
         self.input = np.empty((0, 2), np.int64)
 
     @property
     def n_held(self) -> int:
         """How many created events the runs hold."""
-        return sum(len(times) - start for times, _, start in self.runs)
+        return int(np.sum(self.ends[:self.runs] - self.begins[:self.runs]))
+
+    def held_span_us(self) -> tuple[int, int]:
+        """The earliest and the latest time held (the runs are sorted); only when something is held."""
+        times = self.held[0]
+        return int(times[self.begins[:self.runs]].min()), int(times[self.ends[:self.runs] - 1].max())
 
     def input_room(self, count: int) -> np.ndarray:
         """Room for ``count`` input events ((count, 2) int64) of a part, reused from part to part."""
@@ -502,46 +512,37 @@ class _Lane:
             self.queue_pixel, self.queue_us = pixels, times
 
     def hold(self, n: int) -> None:
-        """Sort the ``n`` events in ``self.new`` (creation order) into a new run."""
+        """Sort the ``n`` events in ``self.new`` (creation order) into a new run after the last."""
         if n == 0:
             return
         if len(self.counts) < 2 * n:  # buckets: two per event (a fixed number would cost a small part as a large)
             self.counts = np.empty(2 * n, dtype=np.int64)
-        room = next((k for k, (times, _) in enumerate(self.spent) if len(times) >= n), None)
-        buffers = self.spent.pop(room) if room is not None else _buffers(n + n // 4)
-        run = [buffers[0][:n], buffers[1][:n]]
-        sort_created(*self.new, n, self.counts[:2 * n], *run)
-        self.runs.append([*run, 0])
+        if self.filled + n > len(self.held[0]):
+            self.filled = compact_runs(*self.held, self.begins, self.ends, self.runs)
+            need = self.filled + n
+            if need > len(self.held[0]) or 4 * need < len(self.held[0]):
+                self.held = _grown(self.held, need + need // 2, self.filled)
+        if self.runs == len(self.begins):
+            self.begins, self.ends = _grown((self.begins, self.ends), 2 * self.runs, self.runs)
+        end = self.filled + n
+        sort_created(*self.new, n, self.counts[:2 * n], self.held[0][self.filled:end], self.held[1][self.filled:end])
+        self.begins[self.runs], self.ends[self.runs] = self.filled, end
+        self.runs += 1
+        self.filled = end
 
     def release(self, bound: int) -> tuple[np.ndarray, np.ndarray]:
-        """The held events before ``bound``, sorted by time, ties in creation order (times, second words): the
-        runs' parts before ``bound``, merged in the runs' order (:func:`merge_runs`); a single part is
-        returned as it is (a view of its run)."""
-        parts = []
-        for run in self.runs:
-            times, words, start = run
-            end = start + int(np.searchsorted(times[start:], bound, side="left"))
-            if end > start:
-                parts.append((times[start:end], words[start:end]))
-            run[2] = end
-        self.spent += [(run[0].base, run[1].base) for run in self.runs if run[2] == len(run[0])]
-        del self.spent[:-SPENT_RUNS]
-        self.runs = [run for run in self.runs if run[2] < len(run[0])]
-        if len(parts) <= 1:
-            return parts[0] if parts else _buffers(0)
-        total = sum(len(times) for times, _ in parts)
-        if len(self.out[0]) < total:
-            self.gathered, self.spare, self.out = (_buffers(total + total // 4) for _ in range(3))
-        out_t, out_w = self.out[0][:total], self.out[1][:total]
-        if len(parts) == 2:
-            merge_sorted(*parts[0], *parts[1], out_t, out_w)
-            return out_t, out_w
-        ends = np.cumsum([0] + [len(times) for times, _ in parts])
-        for (times, words), begin in zip(parts, ends):
-            self.gathered[0][begin:begin + len(times)] = times
-            self.gathered[1][begin:begin + len(times)] = words
-        merge_runs(*self.gathered, ends, *self.spare, out_t, out_w)
-        return out_t, out_w
+        """The held events before ``bound``, sorted by time, ties in creation order (times, second words; views of
+        the lane's output buffer, valid until its next release): the runs' parts before ``bound``, merged in the
+        runs' order (:func:`release_runs`)."""
+        while True:
+            count, runs = release_runs(*self.held, self.begins, self.ends, self.runs, bound, *self.spare, *self.out)
+            if runs >= 0:
+                break
+            self.spare, self.out = _buffers(count + count // 4), _buffers(count + count // 4)
+        self.runs = runs
+        if runs == 0:
+            self.filled = 0
+        return self.out[0][:count], self.out[1][:count]
 
 
 def _carried(values: np.ndarray, usable: np.ndarray) -> np.ndarray:

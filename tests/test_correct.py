@@ -216,24 +216,62 @@ def test_split_rows_and_merge_sorted_against_numpy():
     assert np.array_equal(out_t, np.r_[a_t, b_t][order]) and np.array_equal(out_w, np.r_[a_w, b_w][order])
 
 
-@settings(max_examples=60, deadline=None)
-@given(lengths=st.lists(st.integers(0, 40), min_size=1, max_size=19), span=st.integers(0, 60),
-       seed=st.integers(0, 2**32 - 1))
-def test_merge_runs_is_a_stable_merge(lengths, span, seed):
-    """The reorder buffer's k-way merge against numpy's stable sort of the runs laid end to end (ties: the
-    earlier run first, then the order within a run)."""
-    from evtools._kernels.correct import merge_runs
+def _runs_in_a_buffer(rng, lengths, span):
+    """Sorted runs of random times and words laid in one buffer in order, with gaps of junk between them."""
+    runs_t = [np.sort(rng.integers(-5, span + 1, n)).astype(np.int64) for n in lengths]
+    runs_w = [rng.integers(0, 1 << 40, n) for n in lengths]
+    gaps = rng.integers(0, 4, len(lengths) + 1)
+    held_t = np.full(int(sum(lengths) + gaps.sum()), -7, np.int64)
+    held_w = held_t.copy()
+    begins, ends, at = [], [], int(gaps[0])
+    for run_t, run_w, gap in zip(runs_t, runs_w, gaps[1:]):
+        held_t[at:at + len(run_t)], held_w[at:at + len(run_t)] = run_t, run_w
+        begins.append(at)
+        ends.append(at + len(run_t))
+        at += len(run_t) + int(gap)
+    return runs_t, runs_w, held_t, held_w, np.array(begins, np.int64), np.array(ends, np.int64)
+
+
+@settings(max_examples=80, deadline=None)
+@given(lengths=st.lists(st.integers(1, 40), max_size=19), span=st.integers(0, 60), bound=st.integers(-6, 62),
+       room=st.integers(0, 800), seed=st.integers(0, 2**32 - 1))
+def test_release_runs_is_a_stable_merge_of_what_lies_before_the_bound(lengths, span, bound, room, seed):
+    """The reorder buffer's k-way merge of the runs' parts before the bound, against numpy's stable sort of the
+    parts laid end to end (ties: the earlier run first, then the order within a run); the runs left keep what
+    lies at or after the bound; with too little room nothing changes."""
+    from evtools._kernels.correct import release_runs
 
     rng = np.random.default_rng(seed)
-    runs_t = [np.sort(rng.integers(-5, span + 1, n)) for n in lengths]
-    run_t = np.concatenate(runs_t).astype(np.int64)
-    run_w = rng.integers(0, 1 << 40, len(run_t))
-    ends = np.cumsum([0] + lengths).astype(np.int64)
-    expected = np.argsort(run_t, kind="stable")
-    spare_t, spare_w = np.empty_like(run_t), np.empty_like(run_w)
-    out_t, out_w = np.full_like(run_t, -99), np.full_like(run_w, -99)
-    assert merge_runs(run_t.copy(), run_w.copy(), ends, spare_t, spare_w, out_t, out_w) == len(run_t)
-    assert np.array_equal(out_t, run_t[expected]) and np.array_equal(out_w, run_w[expected])
+    runs_t, runs_w, held_t, held_w, begins, ends = _runs_in_a_buffer(rng, lengths, span)
+    parts_t = np.concatenate([t[t < bound] for t in runs_t] + [np.empty(0, np.int64)])
+    parts_w = np.concatenate([w[t < bound] for t, w in zip(runs_t, runs_w)] + [np.empty(0, np.int64)])
+    order = np.argsort(parts_t, kind="stable")
+    spare_t, spare_w, out_t, out_w = (np.full(room, -99, np.int64) for _ in range(4))
+    table = begins.copy(), ends.copy()
+    count, left = release_runs(held_t, held_w, begins, ends, len(lengths), bound, spare_t, spare_w, out_t, out_w)
+    assert count == len(parts_t)
+    if room < count:
+        assert left == -1 and np.array_equal(begins, table[0]) and np.array_equal(ends, table[1])
+        return
+    assert np.array_equal(out_t[:count], parts_t[order]) and np.array_equal(out_w[:count], parts_w[order])
+    rests = [(t[t >= bound], w[t >= bound]) for t, w in zip(runs_t, runs_w) if np.any(t >= bound)]
+    assert left == len(rests)
+    for (rest_t, rest_w), begin, end in zip(rests, begins[:left], ends[:left]):
+        assert np.array_equal(held_t[begin:end], rest_t) and np.array_equal(held_w[begin:end], rest_w)
+
+
+@settings(max_examples=60, deadline=None)
+@given(lengths=st.lists(st.integers(0, 40), max_size=19), seed=st.integers(0, 2**32 - 1))
+def test_compact_runs_lays_the_runs_end_to_end_at_the_front(lengths, seed):
+    from evtools._kernels.correct import compact_runs
+
+    rng = np.random.default_rng(seed)
+    runs_t, runs_w, held_t, held_w, begins, ends = _runs_in_a_buffer(rng, lengths, 100)
+    filled = compact_runs(held_t, held_w, begins, ends, len(lengths))
+    assert filled == sum(lengths) and np.array_equal(begins, np.cumsum([0] + lengths)[:-1])
+    assert np.array_equal(ends, np.cumsum(lengths))
+    assert np.array_equal(held_t[:filled], np.concatenate(runs_t + [np.empty(0, np.int64)]))
+    assert np.array_equal(held_w[:filled], np.concatenate(runs_w + [np.empty(0, np.int64)]))
 
 
 @settings(max_examples=60, deadline=None)
@@ -304,7 +342,7 @@ def test_a_dense_stream_is_released_in_parts():
         corrector = ThresholdCorrector(W + 1, H, on, off, **options)
         released = [corrector.process(chunk) for chunk in cut(events, range(0, 6000, 500))]
         assert sum(map(len, released)) == 0 and corrector.held > 5000  # all held until the end
-        assert sum(len(lane.runs) for lane in corrector._lanes) >= 20
+        assert sum(lane.runs for lane in corrector._lanes) >= 20
         rest = corrector.flush()
         assert max(len(lane.out[0]) for lane in corrector._lanes) < 2000
     assert_same_events(rest, whole)
@@ -348,7 +386,7 @@ def test_output_is_sorted_and_held_events_are_bounded(mode, latency_us):
     for chunk in cut(events, range(0, 20000, 997)):
         released.append(corrector.process(chunk))
         if len(chunk):  # nothing held is older than the latency bound before the newest input
-            oldest_us = min((times[start] for lane in corrector._lanes for times, _, start in lane.runs), default=None)
+            oldest_us = min((lane.held_span_us()[0] for lane in corrector._lanes if lane.runs), default=None)
             assert corrector.held == 0 or oldest_us >= chunk["t"][-1] - latency_us
     out = join(released + [corrector.flush()])
     assert out.dtype == EVENT_DTYPE and np.all(np.diff(out["t"]) >= 0)

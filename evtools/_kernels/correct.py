@@ -542,28 +542,96 @@ def sort_created(new_t, new_w, n, counts, sorted_t, sorted_w):  # pragma: no cov
 
 
 @kernel
-def merge_runs(run_t, run_w, ends, spare_t, spare_w, out_t, out_w):  # pragma: no cover - compiled
-    """Merge the time-sorted runs ``run[ends[k]:ends[k + 1]]`` into ``out``, ties in the runs' order (a stable
-    k-way merge): adjacent runs merged pairwise, the earlier first on ties, pass after pass through ``spare``
-    (both buffers are overwritten, and ``ends``) until two remain, merged into ``out``. Each event is moved
-    ``ceil(log2(runs))`` times. Returns the count."""
-    runs = ends.shape[0] - 1
-    a_t, a_w, b_t, b_w = run_t, run_w, spare_t, spare_w
-    while runs > 2:
-        merged = 0
-        for r in range(0, runs, 2):
-            low = ends[r]
-            middle = ends[r + 1]
-            high = ends[r + 2] if r + 2 <= runs else middle
+def release_runs(held_t, held_w, begins, ends, runs, bound, spare_t, spare_w, out_t,
+                 out_w):  # pragma: no cover - compiled
+    """Take from each of the ``runs`` time-sorted runs ``held[begins[r]:ends[r]]`` (oldest first) its events before
+    ``bound`` and merge them into ``out``, ties in the runs' order: a stable k-way merge, the parts merged pairwise
+    (the earlier first on ties) pass after pass between ``spare`` and ``out``, the first pass reading the runs where
+    they are and writing the buffer that makes the last pass write ``out``; each event moves ceil(log2(parts))
+    times, once at least. The runs taken whole leave the table (``begins``, ``ends`` updated in place, in order).
+
+    Returns (count, runs left), or (count, -1) and nothing changed when ``out`` or ``spare`` holds fewer than
+    ``count`` events."""
+    cut = np.empty(runs, np.int64)
+    total = 0
+    for r in range(runs):
+        low = begins[r]
+        high = ends[r]
+        while low < high:  # the run's first event at or after the bound
+            middle = (low + high) >> 1
+            if held_t[middle] < bound:
+                low = middle + 1
+            else:
+                high = middle
+        cut[r] = low
+        total += low - begins[r]
+    if total > out_t.shape[0] or total > spare_t.shape[0]:
+        return total, -1
+    part_begin = np.empty(runs, np.int64)
+    part_end = np.empty(runs, np.int64)
+    parts = 0
+    for r in range(runs):
+        if cut[r] > begins[r]:
+            part_begin[parts] = begins[r]
+            part_end[parts] = cut[r]
+            parts += 1
+    passes = 0
+    remaining = parts
+    while remaining > 1:
+        remaining = (remaining + 1) >> 1
+        passes += 1
+    a_t, a_w, b_t, b_w = out_t, out_w, spare_t, spare_w  # first written: out after an odd number of passes
+    if passes % 2 == 0 and passes > 0:
+        a_t, a_w, b_t, b_w = spare_t, spare_w, out_t, out_w
+    merged_ends = np.empty(parts + 1, np.int64)
+    merged_ends[0] = 0
+    filled = 0
+    merged = 0
+    for k in range(0, parts, 2):  # the first pass: the runs' parts, read where they are
+        if k + 1 < parts:
+            filled = _merge(held_t, held_w, part_begin[k], part_end[k], held_t, held_w, part_begin[k + 1],
+                            part_end[k + 1], a_t, a_w, filled)
+        else:
+            filled = _merge(held_t, held_w, part_begin[k], part_end[k], held_t, held_w, 0, 0, a_t, a_w, filled)
+        merged += 1
+        merged_ends[merged] = filled
+    while merged > 1:  # adjacent ranges merged pairwise, between the two buffers
+        count = 0
+        for k in range(0, merged, 2):
+            low = merged_ends[k]
+            middle = merged_ends[k + 1]
+            high = merged_ends[k + 2] if k + 2 <= merged else middle
             _merge(a_t, a_w, low, middle, a_t, a_w, middle, high, b_t, b_w, low)
-            ends[merged + 1] = high  # (ends[merged] is low: index merged <= r was written or is ends[0])
-            merged += 1
-        runs = merged
+            merged_ends[count + 1] = high
+            count += 1
+        merged = count
         a_t, b_t = b_t, a_t
         a_w, b_w = b_w, a_w
-    middle = ends[1]
-    high = ends[2] if runs == 2 else middle
-    return _merge(a_t, a_w, ends[0], middle, a_t, a_w, middle, high, out_t, out_w, 0)
+    left = 0
+    for r in range(runs):
+        if cut[r] < ends[r]:
+            begins[left] = cut[r]
+            ends[left] = ends[r]
+            left += 1
+    return total, left
+
+
+@kernel
+def compact_runs(held_t, held_w, begins, ends, runs):  # pragma: no cover - compiled
+    """Move the runs ``held[begins[r]:ends[r]]`` (in buffer order) to the front of the buffer, end to end, in
+    order, updating ``begins`` and ``ends``; returns where the last one ends."""
+    filled = 0
+    for r in range(runs):
+        begin = begins[r]
+        count = ends[r] - begin
+        if begin != filled:
+            for k in range(count):  # forward: the destination never passes the source
+                held_t[filled + k] = held_t[begin + k]
+                held_w[filled + k] = held_w[begin + k]
+        begins[r] = filled
+        filled += count
+        ends[r] = filled
+    return filled
 
 
 @kernel
