@@ -274,6 +274,36 @@ def test_compact_runs_lays_the_runs_end_to_end_at_the_front(lengths, seed):
     assert np.array_equal(held_w[:filled], np.concatenate(runs_w + [np.empty(0, np.int64)]))
 
 
+@settings(max_examples=30, deadline=None)
+@given(sizes=st.lists(st.tuples(st.integers(1, 60), st.integers(0, 70)), min_size=1, max_size=40),
+       seed=st.integers(0, 2**32 - 1))
+def test_a_lanes_buffer_of_runs_releases_what_a_list_of_runs_would(sizes, seed):
+    """A lane's runs laid end to end in its buffer (moved to the front, the buffer grown and shrunk) against runs
+    kept as a plain list: after every hold and release the same events are held and released."""
+    from evtools.correction import _Lane
+
+    rng = np.random.default_rng(seed)
+    lane, reference, now = _Lane(), [], 0
+    for created, advance in sizes:
+        times = now + rng.integers(-50, 20, created)
+        words = rng.integers(0, 1 << 40, created)
+        lane.new = (np.r_[times, np.zeros(5, np.int64)], np.r_[words, np.zeros(5, np.int64)])
+        lane.hold(created)
+        order = np.argsort(times, kind="stable")
+        reference.append((times[order], words[order]))
+        now += advance
+        bound = now - 30
+        got_t, got_w = lane.release(bound)
+        parts = [(t[t < bound], w[t < bound]) for t, w in reference]
+        reference = [(t[t >= bound], w[t >= bound]) for t, w in reference if np.any(t >= bound)]
+        want_t = np.concatenate([t for t, _ in parts])
+        want_w = np.concatenate([w for _, w in parts])
+        order = np.argsort(want_t, kind="stable")
+        assert np.array_equal(got_t, want_t[order]) and np.array_equal(got_w, want_w[order])
+        assert lane.runs == len(reference) and lane.n_held == sum(len(t) for t, _ in reference)
+        assert lane.runs == 0 or lane.filled == lane.ends[lane.runs - 1] <= len(lane.held[0])
+
+
 @settings(max_examples=60, deadline=None)
 @given(n=st.integers(0, 300), span=st.integers(0, 10**7), buckets=st.integers(1, 64), seed=st.integers(0, 2**32 - 1))
 def test_sort_created_is_a_stable_sort(n, span, buckets, seed):
