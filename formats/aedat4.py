@@ -162,8 +162,10 @@ order). On 2 cores, `convert` of 10M events, 3 alternating runs each: to zstd 1.
 0.67-0.81 -> 0.54-0.63 s, for 5 MiB more."""
 ENCODE_AHEAD = 4
 """Packets being compressed at most (4 x 512 KiB)."""
-DECODE_AHEAD = 2
-"""Groups of compressed packets (:meth:`Aedat4Reader._decode_group`) in flight at most, each about a chunk."""
+DECODE_AHEAD = DECODE_THREADS
+"""Groups of compressed packets (:meth:`Aedat4Reader._decode_group`) waiting or being decoded beyond the one being
+placed, each about a chunk: one a decoding thread. On 2 cores 1 (was 2): `correct` on 10M LZ4 events peaked 4-6 MiB
+lower, `bafilter` on 50M 4 MiB, at the same speed (3 alternating runs each)."""
 GUESSED_RATIO = 2.0
 """Decoded bytes per compressed byte assumed for the first group (LZ4 on a DVXplorer recording: 2.0, zstd 2.9);
 later groups are sized by the ratio of the group before, kept within 1 (a group of empty packets would otherwise
