@@ -338,8 +338,9 @@ class ThresholdCorrector:
         for begin in range(0, len(words), PART):
             part = words[begin:begin + PART]
             even, odd = self._lanes[0].input_room(len(part)), self._lanes[1].input_room(len(part))
-            if len(self._checks_us) < len(part):
-                self._checks_us = np.empty(max(len(part), PART), np.int64)
+            checks = min(len(part), int(part[-1, 0] - part[0, 0]) // self.window_us + 1)  # a window apart at least
+            if len(self._checks_us) < checks:
+                self._checks_us = np.empty(checks, np.int64)
             n_even, n_odd, n_checks, self._due_us = split_rows(part, even, odd, self._due_us, self.window_us,
                                                                self._checks_us)
             checks_us = self._checks_us[:n_checks]
@@ -470,8 +471,8 @@ class _Lane:
         """Write every event that the input ``words`` ((n, 2) int64, this lane's pixels) and the checks of waiting
         pixels at ``checks_us`` (the part's, see :func:`split_rows`) create into ``self.new``, in creation order;
         returns their number."""
-        if len(self.new[0]) < 2 * len(words):
-            self.new = _buffers(2 * len(words))
+        if len(self.new[0]) < len(words) + len(words) // 4:  # grown below when a part creates more
+            self.new = _buffers(len(words) + len(words) // 4)
         self._make_queue_room(len(words), corrector._state)
         c = corrector
         start, n, checked = 0, 0, 0
