@@ -534,7 +534,6 @@ class _NativeCall:
     def __init__(self, function, kinds: tuple, results: list[str], is_tuple: bool, origin: str):
         self.function = function
         self.origin = origin  # "store" (loaded) or "compiled" (in this process)
-        self.kinds = kinds
         self.ways = tuple(_SCALAR if kind[0] == "scalar" else _BUFFER if kind[3] and kind[4] == 1 else _ARRAY
                           for kind in kinds)
         self.result_ctypes = [_SCALAR_CTYPES[_numba_code(name)] for name in results]
