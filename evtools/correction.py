@@ -67,11 +67,13 @@ evenly), each with its own queue of waiting pixels and its own reorder buffer (:
 of a long part run on two threads. The lanes' outputs are merged, the even rows' first on ties (each lane's ties in
 creation order): the output depends on neither the threads nor the chunks."""
 
-PART = 1 << 17
+PART = 1 << 16
 """Events per part of a long chunk: each part is split into the lanes, re-sampled, sorted into a run, and released.
 The lanes' buffers are sized by it; smaller parts cost more per event (each has fixed costs: kernel calls, two
 hand-overs to the lane thread, and more runs to merge): on 3 M events of a DVXplorer recording, two threads,
-min of 5 runs, 62 ns an event with 2^15, 55 with 2^16, 53 with 2^17."""
+min of 5 runs, 62 ns an event with 2^15, 55 with 2^16, 53 with 2^17. 2^16 (was 2^17): `correct` on 50M LZ4
+events peaks 9-11 MiB lower (93 MiB against 102-104), for a time within this machine's noise (10M events, 8
+alternating runs: mean 1.08 s against 1.05)."""
 
 QUEUE_ENTRIES = 1 << 16
 """A lane's queue of waiting pixels starts with room for this many entries (it is compacted, then grown)."""
