@@ -10,7 +10,9 @@ Layout (FORMATS.md, after Prophesee's format pages): the header is ASCII lines `
 - EVT 3.0, 16-bit, vectorised and stateful: decoded by the numba kernel :func:`evtools._kernels.evt3.decode_evt3`.
 
 Decoding is spec-literal: events before the first time-high word are dropped, and a time-high field that falls
-by more than half its range is a wrap of the time base (2^34 us for EVT 2.0, 2^24 us for EVT 3.0).
+by more than half its range is a wrap of the time base (2^34 us for EVT 2.0, 2^24 us for EVT 3.0). A ``% t0 US``
+header line (faery writes one, with the times made relative to it, ``% T0`` in DAT files) is added to every time:
+the absolute times come back, as faery reads them (Metavision ignores the line).
 
 References
 ----------
@@ -27,7 +29,7 @@ import numpy as np
 
 from evtools._kernels.evt3 import (DROPPED_NO_TIME, DROPPED_NO_Y, MAX_EVENTS_PER_WORD, OTHER_WORDS, TRIGGERS,
                                    decode_evt3, new_evt3_state)
-from evtools.events import EVENT_DTYPE, StreamInfo
+from evtools.events import EVENT_DTYPE, MAX_TIME_US, StreamInfo
 from evtools.formats.errors import FormatError
 from evtools.formats.io import Source, resolve_sensor_size
 from evtools.formats.registry import ReadOptions, WriteOptions
@@ -51,6 +53,18 @@ def parse_header(lines: list[str]) -> dict[str, str]:
         key, _, value = body.partition(" ")
         header.setdefault(key.lower(), value.strip())
     return header
+
+
+def header_t0(header: dict[str, str], name: str) -> int:
+    """The ``% t0`` offset (us) of a header parsed by :func:`parse_header`; 0 without one."""
+    value = header.get("t0", "0").strip()
+    try:
+        t0_us = int(value)
+    except ValueError:
+        raise FormatError(f"{name}: the header's t0 ({value!r}) is not a whole number of microseconds") from None
+    if abs(t0_us) > MAX_TIME_US:
+        raise FormatError(f"{name}: the header's t0 ({t0_us} us) lies outside the +-2^62 us that evtools supports")
+    return t0_us
 
 
 def evt_version(header: dict[str, str]) -> str | None:
@@ -95,8 +109,9 @@ class ProphesseeRawReader:
 
     Notes
     -----
-    ``info.metadata`` holds ``evt`` (the version), ``header`` (the ``%`` lines as a dict) and, complete once
-    the stream is read, ``dropped_events`` (before the first time base), ``triggers`` and ``other_words``.
+    ``info.metadata`` holds ``evt`` (the version), ``header`` (the ``%`` lines as a dict), ``t0_us`` (the header's
+    ``% t0``, added to every time; 0 without one) and, complete once the stream is read, ``dropped_events``
+    (before the first time base), ``triggers`` and ``other_words``.
     """
 
     def __init__(self, source: Source, options: ReadOptions) -> None:
@@ -118,10 +133,12 @@ class ProphesseeRawReader:
         except ValueError:
             raise FormatError(f"{self.name}: the header's sensor size is not a number "
                               f"(% format {header.get('format', '')})") from None
+        self.t0_us = header_t0(header, self.name)
         width, height = resolve_sensor_size(source, stated, options.sensor_size, scan=self._scan)
         self.info = StreamInfo(
             width, height, "prophesee",
-            metadata={"evt": version, "header": header, "dropped_events": 0, "triggers": 0, "other_words": 0},
+            metadata={"evt": version, "header": header, "t0_us": self.t0_us, "dropped_events": 0, "triggers": 0,
+                      "other_words": 0},
         )
 
     def _read_header(self) -> tuple[list[str], int, bytes]:
@@ -185,7 +202,7 @@ class ProphesseeRawReader:
                 start += consumed
                 if n:
                     out = np.empty(n, dtype=EVENT_DTYPE)
-                    out["t"], out["x"], out["y"], out["p"] = t_us[:n], x[:n], y[:n], p[:n]
+                    out["t"], out["x"], out["y"], out["p"] = t_us[:n] + self.t0_us, x[:n], y[:n], p[:n]
                     yield out
             counts["dropped_events"] = int(state[DROPPED_NO_TIME] + state[DROPPED_NO_Y])
             counts["triggers"] = int(state[TRIGGERS])
@@ -214,7 +231,7 @@ class ProphesseeRawReader:
             counts["other_words"] += int(np.count_nonzero(~is_cd & ~is_time_high & (kind != 0xA)))
             cd = words[known]
             out = np.empty(len(cd), dtype=EVENT_DTYPE)
-            out["t"] = (time_high[known] << 6) | ((cd >> 22) & 0x3F).astype(np.int64)
+            out["t"] = ((time_high[known] << 6) | ((cd >> 22) & 0x3F).astype(np.int64)) + self.t0_us
             out["x"] = (cd >> 11) & 0x7FF
             out["y"] = cd & 0x7FF
             out["p"] = (cd >> 28) == 1
@@ -242,19 +259,27 @@ class Evt2Writer:
     """Write events as a Prophesee RAW file in EVT 2.0 (what Metavision's tools read): the header ``% evt 2.0``,
     ``% format EVT2;height=H;width=W``, ``% geometry WxH``, ``% end``, then for each event a CD word, preceded by
     an EVT_TIME_HIGH word whenever ``t >> 6`` changes. Times are stored modulo 2^34 us (4.8 hours) as the format
-    does: a stream that starts later (DV's times are Unix times) reads back shifted by a multiple of 2^34 us (a
-    warning says by how much); readers unwrap a fall by more than half the range, so consecutive events must lie
-    less than about 2^33 us (2.4 hours) apart. Times must not be negative and the sensor must fit the 11-bit
-    coordinates (2048 x 2048)."""
+    does; a stream that starts later (DV's times are Unix times) gets a ``% t0`` line, the multiple of 2^34 us
+    below its first time, which evtools and faery add back (exact), and Metavision, which ignores it, does not (a
+    warning says so). Readers unwrap a fall by more than half the range, so consecutive events must lie less than
+    about 2^33 us (2.4 hours) apart. Times must not be negative and the sensor must fit the 11-bit coordinates
+    (2048 x 2048). The header is written with the first events (or at the end, for a stream without any)."""
 
     def __init__(self, stream: BinaryIO, info: StreamInfo, options: WriteOptions) -> None:
         if info.width > 2048 or info.height > 2048:
             raise FormatError(f"EVT 2.0 cannot hold a {info.width}x{info.height} sensor (11-bit x and y: 2048 at "
                               "most); write another format")
-        self.stream = stream
-        stream.write(f"% evt 2.0\n% format EVT2;height={info.height};width={info.width}\n"
-                     f"% geometry {info.width}x{info.height}\n% end\n".encode("ascii"))
+        self.stream, self.info = stream, info
+        self._headed = False  # the header is written
         self._last_high = -1  # t >> 6 of the last time-high word written
+
+    def _write_header(self, t0_us: int) -> None:
+        lines = f"% evt 2.0\n% format EVT2;height={self.info.height};width={self.info.width}\n" \
+                f"% geometry {self.info.width}x{self.info.height}\n"
+        if t0_us:
+            lines += f"% t0 {t0_us}\n"
+        self.stream.write(f"{lines}% end\n".encode("ascii"))
+        self._headed = True
 
     def write(self, chunk: np.ndarray) -> None:
         """Append a chunk of ``EVENT_DTYPE`` events."""
@@ -263,11 +288,13 @@ class Evt2Writer:
         t = chunk["t"]
         if t[0] < 0:
             raise FormatError(f"EVT 2.0 cannot store negative timestamps ({int(t[0])} us)")
-        if self._last_high < 0 and t[0] >= 1 << 34:
-            shift = int(t[0]) >> 34 << 34
-            logging.getLogger("evtools").warning(
-                f"EVT 2.0 keeps times modulo 2^34 us (4.8 hours): the file's times read back {shift:,} us earlier "
-                f"(the first event at {int(t[0]) - shift:,} us)")
+        if not self._headed:
+            t0_us = int(t[0]) >> 34 << 34
+            if t0_us:
+                logging.getLogger("evtools").warning(
+                    f"EVT 2.0 keeps times modulo 2^34 us (4.8 hours): the file's '% t0 {t0_us}' line holds the rest "
+                    f"(evtools and faery add it back; Metavision reads the times {t0_us:,} us earlier)")
+            self._write_header(t0_us)
         high = t >> 6
         before = np.concatenate(([self._last_high], high[:-1]))
         steps = high[1:] - high[:-1] if self._last_high < 0 else high - before
@@ -283,7 +310,10 @@ class Evt2Writer:
         self._last_high = int(high[-1])
 
     def close(self) -> None:
-        """Finish the file (EVT 2.0 has no trailer); does not close the stream."""
+        """Finish the file (EVT 2.0 has no trailer; the header of a stream without events); does not close the
+        stream."""
+        if not self._headed:
+            self._write_header(0)
 
 
 DAT_RECORD = np.dtype([("t", "<u4"), ("w", "<u4")])
@@ -293,7 +323,8 @@ DAT_RECORD = np.dtype([("t", "<u4"), ("w", "<u4")])
 class PropheseeDatReader:
     """Read a Prophesee DAT file (Metavision's older recording format): ``%`` header lines (``% Version 2``,
     ``% Width W``, ``% Height H``, ``% Date ...``), one byte of event type and one of event size (8), then 8-byte
-    records (:data:`DAT_RECORD`). The 32-bit times are unwrapped (a fall of more than half the range is a wrap).
+    records (:data:`DAT_RECORD`). The 32-bit times are unwrapped (a fall of more than half the range is a wrap) and
+    offset by a ``% T0`` line's time (faery's).
     Only the version-2 layout is read; another version is refused, not guessed."""
 
     def __init__(self, source: Source, options: ReadOptions) -> None:
@@ -318,11 +349,12 @@ class PropheseeDatReader:
         if size[0] != DAT_RECORD.itemsize:
             raise FormatError(f"{self.name}: Prophesee DAT events of {size[0]} bytes; evtools reads 8-byte events")
         self.event_type = kind_and_size[0]
+        self.t0_us = header_t0(header, self.name)  # faery writes "% T0" with the times relative to it
         stated = None
         if header.get("width", "").isdigit() and header.get("height", "").isdigit():
             stated = int(header["width"]), int(header["height"])
         width, height = resolve_sensor_size(source, stated, options.sensor_size, scan=self._scan)
-        self.info = StreamInfo(width, height, "prophesee_dat", metadata={"header": header,
+        self.info = StreamInfo(width, height, "prophesee_dat", metadata={"header": header, "t0_us": self.t0_us,
                                                                          "event_type": self.event_type})
 
     def _records(self) -> Iterator[np.ndarray]:
@@ -349,7 +381,7 @@ class PropheseeDatReader:
             last, loops = int(t[-1]), int(wraps[-1])
             out = np.empty(len(records), dtype=EVENT_DTYPE)
             w = records["w"]
-            out["t"] = t + (wraps << 32)
+            out["t"] = t + (wraps << 32) + self.t0_us
             out["x"] = w & 0x3FFF
             out["y"] = (w >> 14) & 0x3FFF
             out["p"] = (w >> 28) != 0

@@ -118,6 +118,66 @@ def test_reads_evt2_with_time_high_and_its_wrap(tmp_path):
         assert (info.metadata["dropped_events"], info.metadata["triggers"]) == (1, 1)
 
 
+@settings(max_examples=40, deadline=None)
+@given(st.integers(-(1 << 50), 1 << 62), st.sampled_from(["2.0", "3.0", "dat"]), st.integers(1, 4))
+def test_a_t0_header_line_is_added_to_every_time(tmp_path_factory, t0_us, kind, chunk_events):
+    """faery writes EVT and DAT files with times relative to the first event and its time in a ``% t0`` line (``% T0``
+    in DAT): every time read is offset by it, as faery reads them; the words' own times are the spec's."""
+    folder = tmp_path_factory.mktemp("t0")
+    if kind == "2.0":
+        path = _evt2_file(folder, f"% evt 2.0\n% geometry 640x480\n% t0 {t0_us}\n".encode(),
+                          [8 << 28 | 100, _cd(1, 3, 10, 20), _cd(0, 63, 639, 479), 8 << 28 | 101, _cd(1, 0, 2, 3)])
+        relative = [100 << 6 | 3, 100 << 6 | 63, 101 << 6]
+    elif kind == "3.0":  # EVT_ADDR_Y, EVT_TIME_HIGH, EVT_TIME_LOW, EVT_ADDR_X (polarity bit 11)
+        words = [0x0 << 12 | 20, 0x8 << 12 | 1, 0x6 << 12 | 5, 0x2 << 12 | 1 << 11 | 10, 0x2 << 12 | 639]
+        path = folder / "evt3.raw"
+        path.write_bytes(f"% evt 3.0\n% geometry 640x480\n% t0 {t0_us}\n".encode()
+                         + np.array(words, "<u2").tobytes())
+        relative = [1 << 12 | 5, 1 << 12 | 5]
+    else:
+        path = folder / "rec.dat"
+        records = [(7, 10, 20, 1), (4_294_967_290, 639, 479, 0), (5, 2, 3, 1)]  # the last: a 32-bit wrap
+        path.write_bytes(_dat(records).replace(b"% Height", f"% T0 {t0_us}\n% Height".encode()))
+        relative = [7, 4_294_967_290, (1 << 32) + 5]
+    if t0_us + max(relative) > 1 << 62:
+        with pytest.raises(FormatError, match=r"outside the \+-2\^62 us"):
+            read_all(path, chunk_events=chunk_events)
+        return
+    info, events = read_all(path, chunk_events=chunk_events)
+    assert events["t"].tolist() == [t0_us + t for t in relative]
+    assert info.metadata["t0_us"] == t0_us
+
+
+def test_a_t0_that_is_not_a_time_is_refused_naming_the_file(tmp_path):
+    for line, needle in ((b"% t0 12.5\n", "t0 \\('12.5'\\) is not a whole number"),
+                         (b"% t0 " + str(1 << 63).encode() + b"\n", f"t0 \\({1 << 63} us\\) lies outside")):
+        path = _evt2_file(tmp_path, b"% evt 2.0\n% geometry 64x48\n" + line, [8 << 28 | 1, _cd(1, 0, 9, 9)])
+        with pytest.raises(FormatError, match=r"evt2\.raw: the header's " + needle):
+            read_all(path)
+
+
+def test_faery_files_read_with_their_absolute_times(tmp_path):
+    """The DVXplorer recording written by faery (the peer) as EVT 2.0, EVT 3.0 and DAT, each with a ``t0`` line:
+    evtools reads the recording's own events, times included (before ``t0`` was read they started at 0); faery
+    reads evtools' EVT 2.0 of it with the same times (its ``% t0`` line)."""
+    faery = pytest.importorskip("faery", reason="faery (a peer, installed by make bench) is not installed")
+    from tests.helpers import run
+
+    recording = data_file("dvxplorer_sample.aedat4")
+    _, expected = read_all(recording)
+    for name, options in (("evt2.raw", {"version": "evt2"}), ("evt3.raw", {"version": "evt3"}), ("f.dat", {})):
+        path = tmp_path / name
+        faery.events_stream_from_file(recording).to_file(path, **options)
+        assert b"t0 " in path.read_bytes()[:400].lower()
+        info, events = read_all(path)
+        assert_same_events(events, expected)
+        assert info.metadata["t0_us"] == expected["t"][0]
+    ours = tmp_path / "ours.raw"  # and the other way: evtools' EVT 2.0 of the Unix-time recording, read by faery
+    run("convert", recording, "-o", ours)
+    back = faery.events_stream_from_file(ours).to_array()
+    assert np.array_equal(back["t"], expected["t"]) and np.array_equal(back["on"], expected["p"])
+
+
 def test_sensor_size_from_the_header():
     assert header_size(parse_header(["% format EVT3;height=720;width=1280"])) == (1280, 720)
     assert header_size(parse_header(["% geometry 640x480"])) == (640, 480)
@@ -197,8 +257,8 @@ def _stream(draw):
 @given(_stream(), st.lists(st.integers(0, 60), max_size=4))
 def test_evt2_writer_round_trips_through_the_naive_decoder(tmp_path_factory, stream, cuts):
     """evtools writes Prophesee RAW as EVT 2.0: decoded word by word by the specification (tests/naive), the file
-    holds the events (times modulo 2^34 us) and the sensor size, whatever the chunks they were written in; evtools
-    reads them back."""
+    holds the events (times modulo 2^34 us, the rest of a late start in a ``% t0`` line) and the sensor size,
+    whatever the chunks they were written in; evtools reads them back exactly."""
     from evtools.events import StreamInfo
     from evtools.formats import create_events
 
@@ -210,12 +270,12 @@ def test_evt2_writer_round_trips_through_the_naive_decoder(tmp_path_factory, str
             writer.write(events[begin:end])
     header, decoded = evt2_decode_naive(path.read_bytes())
     assert header["evt"] == "2.0" and header["geometry"] == f"{width}x{height}"
-    shift = rows[0][0] >> 34 << 34 if rows else 0  # times are kept modulo 2^34 us: a late start reads back earlier
+    shift = rows[0][0] >> 34 << 34 if rows else 0  # times are kept modulo 2^34 us, a late start's rest in "% t0"
     assert decoded == [(t - shift, x, y, p) for t, x, y, p in rows]
-    if rows:
-        events["t"] -= shift
-        assert_same_events(read_all(path)[1], events)
-        assert read_all(path)[0].width == width
+    assert header.get("t0") == (str(shift) if shift else None)
+    info, back = read_all(path)
+    assert_same_events(back, events)  # t0 added back: exact
+    assert (info.width, info.height) == (width, height) or not rows  # no events: the sensor size is not read
 
 
 def test_evt2_writer_refuses_what_the_format_cannot_hold(tmp_path):
