@@ -173,7 +173,7 @@ def filter_one(input, output, *, input_format, sensor_size, aedat2_layout, metho
         ba = BAFilter(info.width, info.height, methods, preset=preset, dt_us=dt_us, k=k, radius=radius,
                       polarity=polarity, window=window, distance=distance, learn_us=learn_us, hot_ratio=hot_ratio,
                       hot_rate_hz=hot_rate_hz, hot_min_events=hot_min_events, hot_map=hot_map, threshold=threshold,
-                      weights=weights, polarity_maps=polarity_maps)
+                      weights=weights, polarity_maps=polarity_maps, check=False)  # checked by the reader
         with create_events(output, info, compression=compression, inputs=(input,)) as writer:
             process_stream(stream, ba, writer, f"filtering {stream.name}")
             if save_hot_pixels:  # inside the output's block: when the list cannot be written, no output is left

@@ -92,7 +92,7 @@ def correct_one(input, output, *, input_format, sensor_size, aedat2_layout, thre
             corrector = ThresholdCorrector(
                 stream.info.width, stream.info.height, thresholds.on, thresholds.off, thresholds.valid,
                 target=target, mode=mode, hold_us=hold_us, max_gap_us=max_gap_us, tau_us=tau_us, start_us=start_us,
-                t_us=thresholds.t_us,
+                t_us=thresholds.t_us, check=False,  # the reader has checked the events
             )
         except CorrectionError as error:
             raise CorrectionError(f"{thresholds_path}: {error}") from None

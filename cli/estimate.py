@@ -167,7 +167,7 @@ def estimate_one(input, output, *, input_format, sensor_size, aedat2_layout, par
     with open_events(input, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as opened:
         stream = sliced(opened, slicing)
         try:
-            estimator = ThresholdEstimator(stream.info.width, stream.info.height, **parameters)
+            estimator = ThresholdEstimator(stream.info.width, stream.info.height, check=False, **parameters)
             for chunk in with_progress(stream, stream, f"estimating from {stream.name}"):
                 estimator.process(chunk)
             result = estimator.result()

@@ -146,7 +146,7 @@ def _settings(ctx, param, values):
 def _score_filter(noisy: str, labels: np.ndarray, methods: str, preset: str, params: dict):
     matcher = DenoiseMatcher()
     with open_events(noisy) as stream:
-        ba = BAFilter(stream.info.width, stream.info.height, methods, preset=preset, **params)
+        ba = BAFilter(stream.info.width, stream.info.height, methods, preset=preset, check=False, **params)
         for chunk in stream:
             matcher.add_input(chunk, labels[matcher.inputs_seen:matcher.inputs_seen + len(chunk)])
             matcher.add_output(ba.process(chunk))

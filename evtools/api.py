@@ -30,7 +30,7 @@ from typing import Any, Iterable, Iterator
 import numpy as np
 
 from evtools.errors import EvtoolsError
-from evtools.events import EVENT_DTYPE, StreamInfo, empty_events, make_events
+from evtools.events import EVENT_DTYPE, StreamChecker, StreamInfo, empty_events, make_events
 
 __all__ = [
     "bafilter", "correct", "estimate", "from_columns", "from_dv", "from_tonic", "inject_noise", "open", "read",
@@ -126,7 +126,18 @@ def writer(path: str | os.PathLike | None, info: StreamInfo, **options) -> Itera
     from evtools.formats import create_events
 
     with create_events(path, info, **options) as sink:
-        yield sink
+        yield _CheckedSink(sink, info)
+
+
+class _CheckedSink:
+    """A writer's sink whose chunks are checked first (on the sensor, in time order; :class:`StreamChecker`), so
+    that no file is written with events its readers would refuse."""
+
+    def __init__(self, sink, info: StreamInfo) -> None:
+        self.sink, self.checker = sink, StreamChecker(info, "events", hint="")
+
+    def write(self, chunk) -> None:
+        self.sink.write(self.checker.check(chunk))
 
 
 def bafilter(events: np.ndarray, info: StreamInfo, method: str = "baf", **params) -> np.ndarray:

@@ -55,7 +55,7 @@ from evtools._kernels.correct import (
     split_rows,
 )
 from evtools.errors import EvtoolsError
-from evtools.events import EVENT_DTYPE, check_sensor_size, empty_events, join
+from evtools.events import EVENT_DTYPE, StreamChecker, StreamInfo, as_chunk, check_sensor_size, empty_events, join
 
 MAX_EVENTS_PER_EVENT = 100
 """A target this many times smaller than the largest pixel threshold is refused: each input event would create about
@@ -190,6 +190,10 @@ class ThresholdCorrector:
         A time series of maps (``estimate --online``): ``on``, ``off``, ``valid`` are (maps, height, width) and
         map k is used for the events from ``t_us[k]`` on (the first map before its time too: it is the earliest
         estimate); ``target="median"`` is the median over all maps.
+    check : bool, optional
+        Check every chunk as a reader does (default): events on the sensor and in time order, in EVENT_DTYPE or its
+        fields in another layout (converted); bad input raises :class:`evtools.InvalidEventsError` (the kernels
+        index per-pixel state by the coordinates). The command line passes False: its readers have checked.
 
     References
     ----------
@@ -200,9 +204,10 @@ class ThresholdCorrector:
                  mode: str = CORRECT_DEFAULTS["mode"], hold_us: int = CORRECT_DEFAULTS["hold_us"],
                  max_gap_us: int = CORRECT_DEFAULTS["max_gap_us"], tau_us: float = CORRECT_DEFAULTS["tau_us"],
                  turns: bool | None = None, curves: bool | None = None, start_us: int | None = None,
-                 t_us=None):
+                 t_us=None, check: bool = True):
         check_sensor_size(width, height)
         self.width, self.height = int(width), int(height)
+        self._checker = StreamChecker(StreamInfo(self.width, self.height), "events", hint="") if check else None
         on = np.asarray(on, dtype=np.float32)
         off = np.asarray(off, dtype=np.float32)
         maps = 1 if t_us is None else len(np.atleast_1d(t_us))
@@ -306,10 +311,9 @@ class ThresholdCorrector:
 
         A chunk is taken in parts of at most :data:`PART` events; each part is split into the lanes (:data:`LANES`),
         which are re-sampled and released side by side. The output is the same whatever the chunks and threads."""
+        chunk = self._checker.check(chunk) if self._checker else as_chunk(chunk)
         if len(chunk) == 0:
             return empty_events()
-        if chunk.dtype != EVENT_DTYPE:
-            raise CorrectionError(f"chunk has dtype {chunk.dtype}, expected EVENT_DTYPE")
         if not self._started:
             self._start(int(chunk["t"][0]))
         if self._series is not None:

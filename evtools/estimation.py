@@ -67,7 +67,7 @@ from evtools._kernels.estimate import (
 )
 from evtools._kernels.pixel import LIN_LOG_KNEE, LIN_LOG_SLOPE
 from evtools.errors import EvtoolsError
-from evtools.events import check_sensor_size, empty_events
+from evtools.events import StreamChecker, StreamInfo, check_sensor_size, empty_events
 
 __all__ = [
     "METHODS",
@@ -311,6 +311,10 @@ class ThresholdEstimator:
         the disagreement with the natural estimate.
     radius_px : int
         natural: the neighbourhood's half-width (:data:`DEFAULT_RADIUS_PX`).
+    check : bool, optional
+        Check every chunk as a reader does (default): events on the sensor and in time order, in EVENT_DTYPE or its
+        fields in another layout (converted); bad input raises :class:`evtools.InvalidEventsError` (the kernels
+        index per-pixel state by the coordinates). The command line passes False: its readers have checked.
 
     References
     ----------
@@ -335,8 +339,10 @@ class ThresholdEstimator:
         radius_px: int = DEFAULT_RADIUS_PX,
         interval_us: int | None = None,
         forget_us: float | None = None,
+        check: bool = True,
     ) -> None:
         check_sensor_size(width, height)
+        self._checker = StreamChecker(StreamInfo(int(width), int(height)), "events", hint="") if check else None
         if method not in METHODS:
             raise EstimationError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
         if not nominal > 0 or not math.isfinite(nominal):
@@ -430,6 +436,8 @@ class ThresholdEstimator:
         """Accumulate ``chunk`` (time-sorted, continuing the stream); the estimator consumes: returns no events."""
         if self._finished:
             raise EstimationError("the estimate is already finished; make a new estimator for another stream")
+        if self._checker:
+            chunk = self._checker.check(chunk)
         if not len(chunk):
             return empty_events()
         if self.interval_us is not None:  # online: a map at every interval boundary, then the sums forget

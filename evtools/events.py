@@ -141,16 +141,28 @@ def concatenate(chunks: Iterable[np.ndarray], expected: int | None = None) -> np
     return out
 
 
-def as_chunk(chunk) -> np.ndarray:
-    """``chunk`` as a 1-D array of :data:`EVENT_DTYPE` (an array with the same fields in another layout is
-    converted); anything else raises :class:`InvalidEventsError`. The check every processor's ``process`` makes."""
+def as_chunk(chunk, name: str = "chunk") -> np.ndarray:
+    """``chunk`` as a 1-D array of :data:`EVENT_DTYPE`. An array with its fields in another layout (tonic's x, y, t,
+    p int64, say) is converted field by field, by name (``p > 0`` is ON), and refused when a value would change
+    (a fractional time, a coordinate beyond int16); anything else raises :class:`InvalidEventsError` saying how to
+    convert it."""
     chunk = np.asarray(chunk)
     if chunk.dtype != EVENT_DTYPE:
         if chunk.dtype.names is None or set(chunk.dtype.names) != set(EVENT_DTYPE.names):
-            raise InvalidEventsError(f"chunk has dtype {chunk.dtype}, expected EVENT_DTYPE")
-        chunk = chunk.astype(EVENT_DTYPE)
+            raise InvalidEventsError(
+                f"{name} has dtype {chunk.dtype}, expected EVENT_DTYPE (fields t, x, y, p: evtools.from_columns, "
+                "from_tonic and from_dv convert other layouts)")
+        converted = np.empty(chunk.shape, EVENT_DTYPE)
+        for column in ("t", "x", "y"):  # by name: numpy's astype between structured types goes by position
+            values = chunk[column]
+            converted[column] = values
+            if values.dtype != EVENT_DTYPE[column] and np.any(converted[column] != values):
+                kind = "a whole number of microseconds" if column == "t" else "an int16 coordinate"
+                raise InvalidEventsError(f"{name}: field {column} ({values.dtype}) holds a value that is not {kind}")
+        converted["p"] = chunk["p"] > 0
+        chunk = converted
     if chunk.ndim != 1:
-        raise InvalidEventsError(f"a chunk is a 1-D array of events, got shape {chunk.shape}")
+        raise InvalidEventsError(f"{name}: a chunk is a 1-D array of events, got shape {chunk.shape}")
     return chunk
 
 
@@ -165,9 +177,9 @@ def join(chunks: list[np.ndarray]) -> np.ndarray:
 
 
 def _records(chunk: np.ndarray) -> np.ndarray:
-    """``chunk`` as raw 16-byte records (:data:`_RECORD`), converted to :data:`EVENT_DTYPE` first when its fields
-    are laid out otherwise."""
-    return (chunk if chunk.dtype == EVENT_DTYPE else chunk.astype(EVENT_DTYPE)).view(_RECORD)
+    """``chunk`` as raw 16-byte records (:data:`_RECORD`), converted to :data:`EVENT_DTYPE` first (by
+    :func:`as_chunk`) when its fields are laid out otherwise."""
+    return (chunk if chunk.dtype == EVENT_DTYPE else as_chunk(chunk)).view(_RECORD)
 
 
 def rechunk(chunks: Iterable[np.ndarray], size: int) -> Iterator[np.ndarray]:
@@ -188,22 +200,23 @@ def rechunk(chunks: Iterable[np.ndarray], size: int) -> Iterator[np.ndarray]:
 
 
 class StreamChecker:
-    """Checks chunk after chunk that events lie on the sensor and that time never goes backwards.
+    """Checks chunk after chunk that events lie on the sensor and that time never goes backwards (and converts an
+    array with EVENT_DTYPE's fields in another layout, see :func:`as_chunk`).
 
-    The first offending event is reported by its index in the whole stream, so the user can find it.
+    The first offending event is reported by its index in the whole stream, so the user can find it; ``hint`` ends
+    the message of an event outside the sensor (a reader's: give the right ``--sensor-size``).
     """
 
-    def __init__(self, info: StreamInfo, name: str = "stream") -> None:
+    def __init__(self, info: StreamInfo, name: str = "stream", hint: str = " (give the right --sensor-size)") -> None:
         self.info = info
         self.name = name
+        self.hint = hint
         self.events_seen = 0
         self.last_t: int | None = None
 
     def check(self, chunk: np.ndarray) -> np.ndarray:
-        if chunk.dtype != EVENT_DTYPE and chunk.dtype.names == EVENT_DTYPE.names:
-            chunk = chunk.astype(EVENT_DTYPE)  # same fields, other padding (e.g. after np.concatenate)
-        if chunk.dtype != EVENT_DTYPE:
-            raise InvalidEventsError(f"{self.name}: chunk has dtype {chunk.dtype}, expected EVENT_DTYPE")
+        if not (isinstance(chunk, np.ndarray) and chunk.dtype == EVENT_DTYPE and chunk.ndim == 1):
+            chunk = as_chunk(chunk, self.name)
         if len(chunk):
             t = chunk["t"]
             # negative int16 coordinates become large as uint16: one maximum per axis finds any bad event
@@ -212,7 +225,7 @@ class StreamChecker:
                 i = int(np.argmax((x >= self.info.width) | (y >= self.info.height)))
                 raise InvalidEventsError(
                     f"{self.name}: event {self.events_seen + i} at (x={chunk['x'][i]}, y={chunk['y'][i]}) lies "
-                    f"outside the {self.info.width}x{self.info.height} sensor (give the right --sensor-size)"
+                    f"outside the {self.info.width}x{self.info.height} sensor{self.hint}"
                 )
             if t[0] < -MAX_TIME_US or t[-1] > MAX_TIME_US:  # sorted (checked below): the ends bound the rest
                 i = 0 if t[0] < -MAX_TIME_US else int(np.argmax(t > MAX_TIME_US))

@@ -39,7 +39,7 @@ import numpy as np
 from evtools._kernels import bafilter as kernels
 from evtools._kernels import mlpf as mlpf_kernels
 from evtools.errors import EvtoolsError
-from evtools.events import EVENT_DTYPE, as_chunk, check_sensor_size, empty_events, join
+from evtools.events import EVENT_DTYPE, StreamChecker, StreamInfo, as_chunk, check_sensor_size, empty_events, join
 from evtools.mlpf import MlpfError, Weights, load_weights
 
 __all__ = ["METHODS", "PRESETS", "BAFilter", "BAFilterError", "ba_filter", "learn_hot_pixels"]
@@ -293,6 +293,10 @@ class BAFilter:
         (at most :data:`MAX_LEARN_EVENTS`) and released filtered once the hot pixels are known.
     hot_map : ndarray of bool (height, width), optional
         hotpixel: the hot pixels to drop (no learning).
+    check : bool, optional
+        Check every chunk as a reader does (default): events on the sensor and in time order, in EVENT_DTYPE or its
+        fields in another layout (converted); bad input raises :class:`evtools.InvalidEventsError` (the kernels
+        index per-pixel state by the coordinates). The command line passes False: its readers have checked.
 
     Attributes
     ----------
@@ -301,9 +305,11 @@ class BAFilter:
     events_in, events_out : int
     """
 
-    def __init__(self, width: int, height: int, methods="baf", *, preset: str = "evtools", **params) -> None:
+    def __init__(self, width: int, height: int, methods="baf", *, preset: str = "evtools", check: bool = True,
+                 **params) -> None:
         check_sensor_size(width, height)
         self.width, self.height = int(width), int(height)
+        self._checker = StreamChecker(StreamInfo(self.width, self.height), "events", hint="") if check else None
         if preset not in PRESETS:
             raise BAFilterError(f"unknown preset {preset!r}; choose among {', '.join(PRESETS)}")
         self.preset = preset
@@ -385,7 +391,7 @@ class BAFilter:
         """The events of ``chunk`` that every stage keeps (those a learning stage holds come later)."""
         if self._flushed:
             raise BAFilterError("BAFilter: process() after flush(); make a new filter for a new stream")
-        chunk = as_chunk(chunk)
+        chunk = self._checker.check(chunk) if self._checker else as_chunk(chunk)
         self.events_in += len(chunk)
         out = self._run(chunk, 0)
         self.events_out += len(out)

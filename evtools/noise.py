@@ -27,8 +27,7 @@ from typing import Any, Iterator
 import numpy as np
 
 from evtools._kernels.pixel import LABEL_HOT, LABEL_LEAK, LABEL_SHOT, LABEL_SIGNAL
-from evtools.errors import InvalidEventsError
-from evtools.events import CHUNK_EVENTS, EVENT_DTYPE, as_chunk, check_sensor_size, empty_events, join
+from evtools.events import CHUNK_EVENTS, EVENT_DTYPE, StreamChecker, StreamInfo, check_sensor_size, empty_events, join
 from evtools.simulation import SimulationError, _check_fraction, _check_nonnegative
 
 __all__ = ["BLOCK_US", "NOISE_DEFAULTS", "NoiseInjector", "inject_noise"]
@@ -131,6 +130,7 @@ class NoiseInjector:
             "block_us": self.block_us,
         }
         self._draw_maps()
+        self._checker = StreamChecker(StreamInfo(self.width, self.height), "events", hint="")
         self._t_first: int | None = None  # time of the first input event
         self._t_last: int | None = None  # time of the latest input event
         self._next_block: int | None = None  # first block whose noise is not drawn yet
@@ -230,16 +230,7 @@ class NoiseInjector:
     def _check(self, chunk: np.ndarray) -> np.ndarray:
         if self._flushed:
             raise SimulationError("NoiseInjector: process() after flush(); make a new injector for a new stream")
-        chunk = as_chunk(chunk)
-        if len(chunk):
-            t = chunk["t"]
-            if self._t_last is not None and t[0] < self._t_last:
-                raise InvalidEventsError(f"time goes backwards: event at {t[0]} us after one at {self._t_last} us")
-            backwards = t[1:] < t[:-1]
-            if backwards.any():
-                i = int(np.argmax(backwards)) + 1
-                raise InvalidEventsError(f"time goes backwards: event at {t[i]} us after one at {t[i - 1]} us")
-        return chunk
+        return self._checker.check(chunk)
 
     def _merge(self, events: np.ndarray, n_noise: int) -> tuple[np.ndarray, np.ndarray]:
         """``events`` with the first ``n_noise`` held noise events merged in (input first on equal times)."""

@@ -23,6 +23,7 @@ import numpy as np
 
 from evtools._kernels.reconstruction import integrate_events
 from evtools.errors import EvtoolsError
+from evtools.events import StreamChecker, StreamInfo
 
 __all__ = ["HighPassReconstructor", "ReconstructionError", "reconstruction_errors", "ssim"]
 
@@ -64,6 +65,7 @@ class HighPassReconstructor:
         self.level = np.zeros(self.width * self.height)  # 0 until a pixel's first event: no decay to start from
         self.last_us = np.zeros(self.width * self.height, dtype=np.int64)
         self.frames: list[np.ndarray] = []
+        self._checker = StreamChecker(StreamInfo(self.width, self.height), "events", hint=" (the frames' size)")
 
     def _snapshot(self, t_us: int) -> None:
         decay = np.exp(-self.rate_per_us * (t_us - self.last_us)) if self.rate_per_us > 0 else 1.0
@@ -71,10 +73,9 @@ class HighPassReconstructor:
 
     def process(self, chunk: np.ndarray) -> None:
         """Integrate ``chunk`` (time-sorted, after the previous ones), taking the snapshots it passes."""
+        chunk = self._checker.check(chunk)  # on the frames (the kernel indexes by the coordinates), in time order
         if len(chunk) == 0:
             return
-        if int(chunk["x"].max()) >= self.width or int(chunk["y"].max()) >= self.height:
-            raise ReconstructionError(f"an event lies outside the {self.width}x{self.height} frames")
         t = chunk["t"]
         start = 0
         while len(self.frames) < len(self.frame_times_us):
