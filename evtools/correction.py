@@ -191,9 +191,8 @@ class ThresholdCorrector:
         map k is used for the events from ``t_us[k]`` on (the first map before its time too: it is the earliest
         estimate); ``target="median"`` is the median over all maps.
     check : bool, optional
-        Check every chunk as a reader does (default): events on the sensor and in time order, in EVENT_DTYPE or its
-        fields in another layout (converted); bad input raises :class:`evtools.InvalidEventsError` (the kernels
-        index per-pixel state by the coordinates). The command line passes False: its readers have checked.
+        Check every chunk as a reader does (default; see :class:`evtools.filters.BAFilter`); the command line
+        passes False, its readers having checked.
 
     References
     ----------

@@ -312,9 +312,8 @@ class ThresholdEstimator:
     radius_px : int
         natural: the neighbourhood's half-width (:data:`DEFAULT_RADIUS_PX`).
     check : bool, optional
-        Check every chunk as a reader does (default): events on the sensor and in time order, in EVENT_DTYPE or its
-        fields in another layout (converted); bad input raises :class:`evtools.InvalidEventsError` (the kernels
-        index per-pixel state by the coordinates). The command line passes False: its readers have checked.
+        Check every chunk as a reader does (default; see :class:`evtools.filters.BAFilter`); the command line
+        passes False, its readers having checked.
 
     References
     ----------
