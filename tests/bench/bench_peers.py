@@ -16,7 +16,7 @@ in a row measured in turns), with its peak RSS from ``wait4``:
 - start-up: 1,000 events read.
 
 Ratios are peer time / evtools time (> 1: evtools is faster). Peers missing from the environment are installed
-into it with pip first (``aedat``, ``faery``; dv-processing comes with the test extra).
+into it with pip first (``aedat``; dv-processing and faery come with the test extra).
 
 Run: ``python -m tests.bench.bench_peers [--events 10000000,50000000] [--repeat 3]``.
 """
