@@ -134,7 +134,7 @@ class _CheckedSink:
     that no file is written with events its readers would refuse."""
 
     def __init__(self, sink, info: StreamInfo) -> None:
-        self.sink, self.checker = sink, StreamChecker(info, "events", hint="")
+        self.sink, self.checker = sink, StreamChecker(info)
 
     def write(self, chunk) -> None:
         self.sink.write(self.checker.check(chunk))

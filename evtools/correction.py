@@ -206,7 +206,7 @@ class ThresholdCorrector:
                  t_us=None, check: bool = True):
         check_sensor_size(width, height)
         self.width, self.height = int(width), int(height)
-        self._checker = StreamChecker(StreamInfo(self.width, self.height), "events", hint="") if check else None
+        self._checker = StreamChecker(StreamInfo(self.width, self.height)) if check else None
         on = np.asarray(on, dtype=np.float32)
         off = np.asarray(off, dtype=np.float32)
         maps = 1 if t_us is None else len(np.atleast_1d(t_us))

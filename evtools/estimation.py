@@ -341,7 +341,7 @@ class ThresholdEstimator:
         check: bool = True,
     ) -> None:
         check_sensor_size(width, height)
-        self._checker = StreamChecker(StreamInfo(int(width), int(height)), "events", hint="") if check else None
+        self._checker = StreamChecker(StreamInfo(int(width), int(height))) if check else None
         if method not in METHODS:
             raise EstimationError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
         if not nominal > 0 or not math.isfinite(nominal):

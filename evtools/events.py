@@ -203,11 +203,12 @@ class StreamChecker:
     """Checks chunk after chunk that events lie on the sensor and that time never goes backwards (and converts an
     array with EVENT_DTYPE's fields in another layout, see :func:`as_chunk`).
 
-    The first offending event is reported by its index in the whole stream, so the user can find it; ``hint`` ends
-    the message of an event outside the sensor (a reader's: give the right ``--sensor-size``).
+    The first offending event is reported by its index in the whole stream, so the user can find it; ``name``
+    starts every message (a reader's: the file) and ``hint`` ends that of an event outside the sensor (a reader's:
+    give the right ``--sensor-size``).
     """
 
-    def __init__(self, info: StreamInfo, name: str = "stream", hint: str = " (give the right --sensor-size)") -> None:
+    def __init__(self, info: StreamInfo, name: str = "events", hint: str = "") -> None:
         self.info = info
         self.name = name
         self.hint = hint
@@ -215,8 +216,7 @@ class StreamChecker:
         self.last_t: int | None = None
 
     def check(self, chunk: np.ndarray) -> np.ndarray:
-        if not (isinstance(chunk, np.ndarray) and chunk.dtype == EVENT_DTYPE and chunk.ndim == 1):
-            chunk = as_chunk(chunk, self.name)
+        chunk = as_chunk(chunk, self.name)
         if len(chunk):
             t = chunk["t"]
             # negative int16 coordinates become large as uint16: one maximum per axis finds any bad event

@@ -309,7 +309,7 @@ class BAFilter:
                  **params) -> None:
         check_sensor_size(width, height)
         self.width, self.height = int(width), int(height)
-        self._checker = StreamChecker(StreamInfo(self.width, self.height), "events", hint="") if check else None
+        self._checker = StreamChecker(StreamInfo(self.width, self.height)) if check else None
         if preset not in PRESETS:
             raise BAFilterError(f"unknown preset {preset!r}; choose among {', '.join(PRESETS)}")
         self.preset = preset

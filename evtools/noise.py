@@ -130,7 +130,7 @@ class NoiseInjector:
             "block_us": self.block_us,
         }
         self._draw_maps()
-        self._checker = StreamChecker(StreamInfo(self.width, self.height), "events", hint="")
+        self._checker = StreamChecker(StreamInfo(self.width, self.height))
         self._t_first: int | None = None  # time of the first input event
         self._t_last: int | None = None  # time of the latest input event
         self._next_block: int | None = None  # first block whose noise is not drawn yet

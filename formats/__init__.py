@@ -47,7 +47,7 @@ class EventStream:
         self.reader = reader
         self.info: StreamInfo = reader.info
         self.info.format = format_name
-        self.checker = StreamChecker(self.info, self.name) if check else None
+        self.checker = StreamChecker(self.info, self.name, " (give the right --sensor-size)") if check else None
         self.cut: FormatError | None = None  # a network stream's error, raised on closing (see _chunks)
         self.closed = False
 

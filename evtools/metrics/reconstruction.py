@@ -65,7 +65,7 @@ class HighPassReconstructor:
         self.level = np.zeros(self.width * self.height)  # 0 until a pixel's first event: no decay to start from
         self.last_us = np.zeros(self.width * self.height, dtype=np.int64)
         self.frames: list[np.ndarray] = []
-        self._checker = StreamChecker(StreamInfo(self.width, self.height), "events", hint=" (the frames' size)")
+        self._checker = StreamChecker(StreamInfo(self.width, self.height), hint=" (the frames' size)")
 
     def _snapshot(self, t_us: int) -> None:
         decay = np.exp(-self.rate_per_us * (t_us - self.last_us)) if self.rate_per_us > 0 else 1.0
