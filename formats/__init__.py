@@ -74,7 +74,8 @@ class EventStream:
         the file (16 bytes an event: an upper bound; pages not reached cost nothing), each page touched once and no
         copy (10M events: 0.33 -> 0.25 s); a compressed one is copied into a result sized by
         :data:`COMPRESSED_RATIO_BOUND` chunk by chunk as they are decoded, so the reader reuses each chunk's memory
-        (10M LZ4 events in DV's packets, in-process: 0.32 -> 0.20 s); other streams are joined chunk by chunk, each
+        (10M LZ4 events in DV's packets, in-process: 0.32 -> 0.20 s); so is a stream whose reader tells how many
+        events to expect (``expected_events()``: Prophesee RAW); other streams are joined chunk by chunk, each
         chunk released as it is copied."""
         if self.info.format == "aedat4" and self.source.seekable and self.source.path:
             bound = os.path.getsize(self.source.path) // 16 + 1
@@ -83,7 +84,8 @@ class EventStream:
                                                           chunk_events=max(self.reader.options.chunk_events, bound))
             else:
                 return concatenate(self, expected=bound * COMPRESSED_RATIO_BOUND)
-        return concatenate(self)
+        expected = getattr(self.reader, "expected_events", None)
+        return concatenate(self, expected=expected() if expected else None)
 
     def close(self) -> None:
         self.closed = True

@@ -6,8 +6,11 @@ Layout (FORMATS.md, after Prophesee's format pages): the header is ASCII lines `
 
 - EVT 2.0, 32-bit: type ``w >> 28`` (0 CD OFF, 1 CD ON, 8 EVT_TIME_HIGH, 0xA trigger); a CD word holds
   ``t_low = (w >> 22) & 0x3F``, ``x = (w >> 11) & 0x7FF``, ``y = w & 0x7FF``; EVT_TIME_HIGH holds ``t >> 6``
-  in bits 0-27. Decoded here in numpy (the time base is a forward fill).
-- EVT 3.0, 16-bit, vectorised and stateful: decoded by the numba kernel :func:`evtools._kernels.evt3.decode_evt3`.
+  in bits 0-27.
+- EVT 3.0, 16-bit, vectorised and stateful.
+
+Both are decoded by numba kernels (:mod:`evtools._kernels.prophesee`) straight into the chunks' records, chunks
+whose memory is reused once the consumer lets them go (:class:`evtools.formats.io.Recycled`).
 
 Decoding is spec-literal: events before the first time-high word are dropped, and a time-high field that falls
 by more than half its range is a wrap of the time base (2^34 us for EVT 2.0, 2^24 us for EVT 3.0). A ``% t0 US``
@@ -22,19 +25,21 @@ Prophesee, "EVT 2.0 Format" and "EVT 3.0 Format", https://docs.prophesee.ai/stab
 from __future__ import annotations
 
 import logging
+import os
 import re
 from typing import BinaryIO, Iterator
 
 import numpy as np
 
-from evtools._kernels.evt3 import (DROPPED_NO_TIME, DROPPED_NO_Y, MAX_EVENTS_PER_WORD, OTHER_WORDS, TRIGGERS,
-                                   decode_evt3, new_evt3_state)
+from evtools._kernels.prophesee import (DROPPED_NO_TIME, DROPPED_NO_Y, EVT2_DROPPED, EVT2_OTHER_WORDS,
+                                        EVT2_TIME_HIGH_BITS, EVT2_TRIGGERS, MAX_EVENTS_PER_WORD, OTHER_WORDS,
+                                        TRIGGERS, decode_evt2, decode_evt3, new_evt2_state, new_evt3_state,
+                                        record_words)
 from evtools.events import EVENT_DTYPE, MAX_TIME_US, StreamInfo
 from evtools.formats.errors import FormatError
-from evtools.formats.io import Source, resolve_sensor_size
+from evtools.formats.io import Recycled, Source, resolve_sensor_size
 from evtools.formats.registry import ReadOptions, WriteOptions
 
-EVT2_TIME_HIGH_BITS = 28
 GENERATION_SIZES = (("genx320", (320, 320)), ("imx636", (1280, 720)), ("gen4", (1280, 720)), ("gen3", (640, 480)))
 """Sensor size by camera generation, matched in ``plugin_name`` (``hal_plugin_gen41_evk3``) and the like."""
 SENSOR_GENERATION_SIZES = {"3": (640, 480), "3.0": (640, 480), "3.1": (640, 480), "4": (1280, 720),
@@ -189,53 +194,36 @@ class ProphesseeRawReader:
         return self._events_evt2(counts)
 
     def _events_evt3(self, counts: dict[str, int]) -> Iterator[np.ndarray]:
-        state = new_evt3_state()
+        state, recycled = new_evt3_state(), Recycled()
         capacity = self.chunk_events + MAX_EVENTS_PER_WORD
-        t_us = np.empty(capacity, dtype=np.int64)
-        x = np.empty(capacity, dtype=np.int16)
-        y = np.empty(capacity, dtype=np.int16)
-        p = np.empty(capacity, dtype=np.uint8)
         for words in self._words():
             start = 0
             while start < len(words):
-                consumed, n = decode_evt3(words[start:], state, t_us, x, y, p)
+                chunk = recycled.take(capacity)
+                consumed, n = decode_evt3(words[start:], state, self.t0_us, record_words(chunk))
                 start += consumed
                 if n:
-                    out = np.empty(n, dtype=EVENT_DTYPE)
-                    out["t"], out["x"], out["y"], out["p"] = t_us[:n] + self.t0_us, x[:n], y[:n], p[:n]
-                    yield out
+                    yield chunk[:n]
             counts["dropped_events"] = int(state[DROPPED_NO_TIME] + state[DROPPED_NO_Y])
             counts["triggers"] = int(state[TRIGGERS])
             counts["other_words"] = int(state[OTHER_WORDS])
 
     def _events_evt2(self, counts: dict[str, int]) -> Iterator[np.ndarray]:
-        last_raw = -1  # last EVT_TIME_HIGH payload (t >> 6 modulo 2^28), -1 before the first
-        loops = 0  # wraps of the 28-bit payload so far
+        state, recycled = new_evt2_state(), Recycled()
         for words in self._words():
-            kind = words >> 28
-            is_time_high = kind == 0x8
-            raw = (words[is_time_high] & ((1 << EVT2_TIME_HIGH_BITS) - 1)).astype(np.int64)
-            # time_high[k]: unwrapped t >> 6 after the k-th time-high word of this block; [0] is the carried one
-            time_high = np.empty(len(raw) + 1, dtype=np.int64)
-            time_high[0] = -1 if last_raw < 0 else last_raw + (loops << EVT2_TIME_HIGH_BITS)
-            if len(raw):
-                before = np.concatenate(([raw[0] if last_raw < 0 else last_raw], raw[:-1]))
-                wraps = loops + np.cumsum(before - raw > (1 << (EVT2_TIME_HIGH_BITS - 1)))
-                time_high[1:] = raw + (wraps << EVT2_TIME_HIGH_BITS)
-                last_raw, loops = int(raw[-1]), int(wraps[-1])
-            time_high = time_high[np.cumsum(is_time_high)]
-            is_cd = kind <= 1
-            known = is_cd & (time_high >= 0)
-            counts["dropped_events"] += int(np.count_nonzero(is_cd)) - int(np.count_nonzero(known))
-            counts["triggers"] += int(np.count_nonzero(kind == 0xA))
-            counts["other_words"] += int(np.count_nonzero(~is_cd & ~is_time_high & (kind != 0xA)))
-            cd = words[known]
-            out = np.empty(len(cd), dtype=EVENT_DTYPE)
-            out["t"] = ((time_high[known] << 6) | ((cd >> 22) & 0x3F).astype(np.int64)) + self.t0_us
-            out["x"] = (cd >> 11) & 0x7FF
-            out["y"] = cd & 0x7FF
-            out["p"] = (cd >> 28) == 1
-            yield out
+            chunk = recycled.take(len(words))
+            n = decode_evt2(words, state, self.t0_us, record_words(chunk))
+            counts["dropped_events"] = int(state[EVT2_DROPPED])
+            counts["triggers"] = int(state[EVT2_TRIGGERS])
+            counts["other_words"] = int(state[EVT2_OTHER_WORDS])
+            yield chunk[:n]
+
+    def expected_events(self) -> int | None:
+        """About how many events the file holds at most (one a word; EVT 3.0 vectors may hold more), for a
+        whole-file read's result (see :func:`evtools.events.concatenate`); None for a pipe."""
+        if not (self.source.seekable and self.source.path):
+            return None
+        return max(0, os.path.getsize(self.source.path) - self.header_bytes) // self.word_bytes + 1
 
     def _scan(self) -> tuple[int, int]:
         """(max x + 1, max y + 1) over the whole file; leaves the stream where it was."""
@@ -349,6 +337,7 @@ class PropheseeDatReader:
         if size[0] != DAT_RECORD.itemsize:
             raise FormatError(f"{self.name}: Prophesee DAT events of {size[0]} bytes; evtools reads 8-byte events")
         self.event_type = kind_and_size[0]
+        self.body_start = stream.tell() if source.seekable else 0  # bytes before the first record
         self.t0_us = header_t0(header, self.name)  # faery writes "% T0" with the times relative to it
         stated = None
         if header.get("width", "").isdigit() and header.get("height", "").isdigit():
@@ -373,19 +362,24 @@ class PropheseeDatReader:
             raise FormatError(f"{self.name}: truncated Prophesee DAT event at the end ({len(pending)} of 8 bytes)")
 
     def _events(self) -> Iterator[np.ndarray]:
-        last, loops = -1, 0
+        last, loops, recycled = -1, 0, Recycled()
         for records in self._records():
             t = records["t"].astype(np.int64)
             previous = np.concatenate(([t[0] if last < 0 else last], t[:-1]))
             wraps = loops + np.cumsum(previous - t > (1 << 31))
             last, loops = int(t[-1]), int(wraps[-1])
-            out = np.empty(len(records), dtype=EVENT_DTYPE)
-            w = records["w"]
-            out["t"] = t + (wraps << 32) + self.t0_us
-            out["x"] = w & 0x3FFF
-            out["y"] = (w >> 14) & 0x3FFF
-            out["p"] = (w >> 28) != 0
-            yield out
+            chunk = recycled.take(len(records))
+            out = record_words(chunk)  # each record's two words at once (the padding zero)
+            out[:, 0] = t + (wraps << 32) + self.t0_us
+            w = records["w"].astype(np.int64)
+            out[:, 1] = (w & 0x3FFF) | (((w >> 14) & 0x3FFF) << 16) | ((w >> 28 != 0).astype(np.int64) << 32)
+            yield chunk
+
+    def expected_events(self) -> int | None:
+        """How many events the file holds (8 bytes each), for a whole-file read; None for a pipe."""
+        if not (self.source.seekable and self.source.path):
+            return None
+        return max(0, os.path.getsize(self.source.path) - self.body_start) // DAT_RECORD.itemsize + 1
 
     def _scan(self) -> tuple[int, int]:
         stream = self.source.stream

@@ -5,8 +5,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from evtools._kernels.evt3 import MAX_EVENTS_PER_WORD, decode_evt3, new_evt3_state
-from evtools.events import make_events
+from evtools._kernels.prophesee import (EVT2_DROPPED, EVT2_OTHER_WORDS, EVT2_TRIGGERS, MAX_EVENTS_PER_WORD,
+                                        decode_evt2, decode_evt3, new_evt2_state, new_evt3_state, record_words)
+import evtools
+from evtools.events import EVENT_DTYPE, make_events
 from evtools.formats import FormatError
 from evtools.formats.prophesee import header_size, parse_header
 from tests.conftest import data_file
@@ -35,16 +37,25 @@ def _random_words(seed: int, n: int) -> np.ndarray:
 def _kernel_decode(words: np.ndarray, cuts=(), capacity: int = 1 << 16) -> list[tuple]:
     """The kernel fed the words in pieces cut at ``cuts``, with outputs of ``capacity`` events."""
     state = new_evt3_state()
-    t_us, x, y = np.empty(capacity, np.int64), np.empty(capacity, np.int16), np.empty(capacity, np.int16)
-    p = np.empty(capacity, np.uint8)
+    out = np.empty(capacity, EVENT_DTYPE)
     events = []
     for piece in np.split(words, sorted(set(int(c) % (len(words) + 1) for c in cuts))):
         start = 0
         while start < len(piece):
-            consumed, n = decode_evt3(piece[start:], state, t_us, x, y, p)
+            out.view(np.uint8)[:] = 0xAB  # the padding must be written
+            consumed, n = decode_evt3(piece[start:], state, 0, record_words(out))
             start += consumed
-            events += zip(t_us[:n].tolist(), x[:n].tolist(), y[:n].tolist(), p[:n].tolist())
+            events += _tuples(out[:n])
     return events
+
+
+def _tuples(records: np.ndarray) -> list[tuple]:
+    """(t, x, y, p) of every record, after checking that its padding bytes are zero and p is 0 or 1."""
+    raw = records.view(np.uint8).reshape(-1, 16)
+    assert not raw[:, 13:].any(), "padding bytes left unwritten"
+    assert np.isin(raw[:, 12], (0, 1)).all()
+    return list(zip(records["t"].tolist(), records["x"].tolist(), records["y"].tolist(),
+                    records["p"].astype(int).tolist()))
 
 
 def test_kernel_matches_the_naive_decoder_on_the_real_file():
@@ -72,6 +83,46 @@ def test_kernel_matches_the_naive_decoder_on_random_words_cut_anywhere(seed, n, 
     assert naive.events == evt3_decode_naive(words)
 
 
+EVT2_KINDS = np.array([0x0, 0x1, 0x8, 0xA, 0xE, 0x2, 0xF])
+EVT2_WEIGHTS = np.array([35, 35, 20, 3, 3, 2, 2], dtype=float)
+
+
+def _random_evt2_words(seed: int, n: int) -> np.ndarray:
+    """Random EVT 2.0 words, mostly CD and time-high words, their time-high payloads near a wrap now and then."""
+    rng = np.random.default_rng(seed)
+    kinds = rng.choice(EVT2_KINDS, size=n, p=EVT2_WEIGHTS / EVT2_WEIGHTS.sum()).astype(np.uint32)
+    payloads = rng.integers(0, 1 << 28, n, dtype=np.uint32)
+    near_ends = rng.random(n) < 0.3
+    payloads[near_ends] = rng.choice(np.array([0, 1, 5, (1 << 27) - 1, 1 << 27, (1 << 28) - 3, (1 << 28) - 1],
+                                              dtype=np.uint32), int(near_ends.sum()))
+    return (kinds << 28) | payloads
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(0, 3000), cuts=st.lists(st.integers(0, 10_000), max_size=8),
+       t0_us=st.sampled_from([0, 1 << 34, -(1 << 40), 1_605_527_494_721_536]), chunk_events=st.integers(1, 5000))
+def test_evt2_kernel_and_reader_match_the_naive_decoder_on_random_words_cut_anywhere(tmp_path_factory, seed, n, cuts,
+                                                                                   t0_us, chunk_events):
+    words = _random_evt2_words(seed, n)
+    _, expected = evt2_decode_naive(words.astype("<u4").tobytes())
+    state, events = new_evt2_state(), []
+    for piece in np.split(words, sorted(set(c % (n + 1) for c in cuts))):
+        out = np.empty(len(piece) + 1, EVENT_DTYPE)
+        out.view(np.uint8)[:] = 0xAB  # the padding must be written
+        events += _tuples(out[:decode_evt2(piece, state, t0_us, record_words(out))])
+    assert events == [(t + t0_us, x, y, p) for t, x, y, p in expected]
+    kinds = words >> 28
+    first_high = int(np.argmax(kinds == 8)) if (kinds == 8).any() else n
+    counts = [int(np.count_nonzero(kinds[:first_high] <= 1)), int(np.count_nonzero(kinds == 0xA)),
+              int(np.count_nonzero((kinds > 1) & (kinds != 8) & (kinds != 0xA)))]
+    assert state[[EVT2_DROPPED, EVT2_TRIGGERS, EVT2_OTHER_WORDS]].tolist() == counts
+    path = _evt2_file(tmp_path_factory.mktemp("evt2"), b"% evt 2.0\n% format EVT2;width=2048;height=2048\n"
+                      + (f"% t0 {t0_us}\n".encode() if t0_us else b"") + b"% end\n", words)
+    info, read = read_all(path, chunk_events=chunk_events, check=False)  # random words go back in time
+    assert _tuples(read) == events
+    assert [info.metadata[key] for key in ("dropped_events", "triggers", "other_words")] == counts
+
+
 def test_reads_the_real_gen41_evt3_file():
     path = data_file("gen41_sample.evt3.raw")
     info, events = read_all(path)
@@ -84,6 +135,21 @@ def test_reads_the_real_gen41_evt3_file():
     assert_same_events(events, make_events(*expected.T))
     _, small_chunks = read_all(path, chunk_events=777)
     assert_same_events(small_chunks, events)
+
+
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(0, 2000), dense=st.booleans())
+def test_a_whole_file_read_is_the_chunked_read(tmp_path_factory, seed, n, dense):
+    """``evtools.read`` sizes its result by the file (one event a word) and grows it when vectors hold more: the
+    events are the naive decoder's either way (dense: most words are 12-event vectors)."""
+    words = _random_words(seed, n)
+    if dense:
+        words[np.random.default_rng(seed).random(n) < 0.8] = 0x4FFF  # VECT_12, all 12 columns
+    words = np.concatenate([np.array([0x8000, 0x0000, 0x3000], np.uint16), words])  # time, row 0, column 0 first
+    path = tmp_path_factory.mktemp("evt3") / "dense.raw"
+    path.write_bytes(b"% evt 3.0\n% format EVT3;width=2048;height=2048\n% end\n" + words.astype("<u2").tobytes())
+    events, _ = evtools.read(path, check=False)  # random words go back in time and past the columns
+    assert _tuples(events) == [tuple(e) for e in evt3_decode_naive(words)]
 
 
 def _evt2_file(tmp_path, header: bytes, words) -> str:

@@ -13,10 +13,13 @@ in a row measured in turns), with its peak RSS from ``wait4``:
 - ``estimate --method offe`` and ``correct`` (with offe's map) file to file, against issue 15's targets (30 Mev/s
   whole process, peak RSS under 100 MiB); ``correct`` also on the recording made 50 times denser (9.5 Mev/s: its
   reorder buffer holds 0.9 s of output);
-- start-up: 1,000 events read.
+- start-up: 1,000 events read;
+- Prophesee RAW read into numpy: the real Gen4.1 recording (EVT 3.0, 219,596 events in 8.8 ms) repeated in time to
+  the same sizes, written by faery as EVT 3.0 (vectorised, as Metavision writes Gen4 recordings) and by evtools as
+  EVT 2.0 (Gen3's format), against faery and evlib (``load_events(...).collect()``, its columns as numpy).
 
 Ratios are peer time / evtools time (> 1: evtools is faster). Peers missing from the environment are installed
-into it with pip first (``aedat``; dv-processing and faery come with the test extra).
+into it with pip first (``aedat``, ``evlib``; dv-processing and faery come with the test extra).
 
 Run: ``python -m tests.bench.bench_peers [--events 10000000,50000000] [--repeat 3]``.
 """
@@ -38,7 +41,8 @@ from tests.bench.common import fastest, fastest_each, measure_child, measure_com
 
 EVTOOLS = str(Path(sys.executable).with_name("evtools"))
 RECORDING = Path(__file__).resolve().parents[3] / "shared" / "data" / "dvxplorer_sample.aedat4"
-PEERS = {"aedat": "aedat", "faery": "faery", "dv_processing": "dv-processing"}
+GEN4_RECORDING = RECORDING.with_name("gen41_sample.evt3.raw")
+PEERS = {"aedat": "aedat", "faery": "faery", "dv_processing": "dv-processing", "evlib": "evlib"}
 
 
 def ensure_peers() -> list[str]:
@@ -127,9 +131,34 @@ def child_read(tool: str, path: str) -> dict:
         import faery
 
         n = len(faery.events_stream_from_file(path).to_array())
+    elif tool == "evlib":
+        import evlib
+
+        frame = evlib.load_events(path).collect()
+        n = len([frame[column].to_numpy() for column in frame.columns][0])
     else:
         raise SystemExit(f"unknown tool {tool}")
     return {"events": n}
+
+
+def make_prophesee(path: Path, events: int, version: str) -> None:
+    """``events`` events of the Gen4.1 recording repeated in time, as a Prophesee RAW file: EVT 3.0 written by
+    faery (vectorised, as Metavision writes), EVT 2.0 by evtools."""
+    import evtools
+
+    recording, info = evtools.read(GEN4_RECORDING)
+    span_us = int(recording["t"][-1] - recording["t"][0]) + 1
+    copies = -(-events // len(recording))
+    tiled = np.tile(recording, copies)[:events]
+    tiled["t"] += (np.arange(len(tiled)) // len(recording)) * span_us
+    if version == "evt2":
+        evtools.write(path, tiled, info)
+        return
+    import faery
+
+    array = np.empty(len(tiled), faery.EVENTS_DTYPE)
+    array["t"], array["x"], array["y"], array["on"] = tiled["t"], tiled["x"], tiled["y"], tiled["p"]
+    faery.events_stream_from_array(array, (info.width, info.height)).to_file(str(path), version="evt3")
 
 
 def child_dv_filter(path: str, out: str, compression: str) -> dict:
@@ -180,7 +209,7 @@ def main() -> None:
                 path = folder / f"in_{events}_{compression}.aedat4"
                 make_file(path, events, compression)
                 task = f"read into numpy, {events // 1_000_000}M {compression}"
-                tools = ["evtools", *(p for p in ("dv_processing", "aedat", "faery") if p in peers)]
+                tools = ["evtools", *(p for p in ("dv_processing", "aedat", "faery", "evlib") if p in peers)]
                 results = fastest_each(args.repeat, [(measure_child, "bench_peers", "read", tool, path)
                                                      for tool in tools], key="wall_seconds")
                 for tool, result in zip(tools, results):
@@ -216,6 +245,17 @@ def main() -> None:
                     ours["wall_seconds"] = ours["seconds"]
                     _row(task, "evtools", ours, events, None)
                     path.unlink()
+        for events in sizes:
+            for version in ("evt3", "evt2") if "faery" in peers else ("evt2",):
+                path = folder / f"in_{events}_{version}.raw"
+                make_prophesee(path, events, version)
+                task = f"read into numpy, {events // 1_000_000}M {version.upper()} (Gen4)"
+                tools = ["evtools", *(p for p in ("faery", "evlib") if p in peers)]
+                results = fastest_each(args.repeat, [(measure_child, "bench_peers", "read", tool, path)
+                                                     for tool in tools], key="wall_seconds")
+                for tool, result in zip(tools, results):
+                    _row(task, tool, result, events, results[0] if tool != "evtools" else None)
+                path.unlink()
         task = "start-up: read 1,000 events"
         tools = ["evtools", *(p for p in ("dv_processing", "aedat", "faery") if p in peers)]
         results = fastest_each(args.repeat, [(measure_child, "bench_peers", "read", tool, tiny) for tool in tools],
