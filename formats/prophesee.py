@@ -35,7 +35,7 @@ from evtools._kernels.prophesee import (DROPPED_NO_TIME, DROPPED_NO_Y, EVT2_DROP
                                         EVT2_TIME_HIGH_BITS, EVT2_TRIGGERS, MAX_EVENTS_PER_WORD, OTHER_WORDS,
                                         TRIGGERS, decode_evt2, decode_evt3, new_evt2_state, new_evt3_state,
                                         record_words)
-from evtools.events import EVENT_DTYPE, MAX_TIME_US, StreamInfo
+from evtools.events import MAX_TIME_US, StreamInfo
 from evtools.formats.errors import FormatError
 from evtools.formats.io import Recycled, Source, resolve_sensor_size
 from evtools.formats.registry import ReadOptions, WriteOptions
