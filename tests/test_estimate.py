@@ -844,3 +844,45 @@ def test_a_zstd_compressed_map_is_read_and_a_plain_one_needs_no_plugin(tmp_path)
     both = subprocess.run([sys.executable, "-c", probe, str(tmp_path / "z.h5"), str(plain)], capture_output=True,
                           text=True, check=True).stdout.split()
     assert both == ["0.0", "True"]
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), pixels=st.integers(1, 60), samples=st.integers(3, 400),
+       huge=st.floats(0.0, 1.0))
+def test_offe_fit_is_the_exact_fit(seed, pixels, samples, huge):
+    """offE's line fit from the sums equals the exact rational arithmetic (Fractions, rounded once), bit for bit,
+    whichever path a pixel takes: int64 (small sums) or Python integers (sums whose products overflow int64)."""
+    from fractions import Fraction
+
+    from evtools._kernels.estimate import SUM_E, SUM_EE, SUM_EP, SUM_P, SUM_PP
+    from evtools.estimation import RCOND_LIMIT, offe_fit
+
+    rng = np.random.default_rng(seed)
+    sums = np.zeros((5, pixels), np.int64)
+    k = samples
+    for i in range(pixels):
+        if rng.random() < huge:  # any sums up to 2^40-2^62: the products overflow int64
+            sums[:, i] = [int(rng.integers(-(2**40), 2**40)), int(rng.integers(-(2**40), 2**40)),
+                          int(rng.integers(0, 2**62)), int(rng.integers(-(2**61), 2**61)), int(rng.integers(0, 2**62))]
+            continue
+        if rng.random() < 0.5:  # sums whose products lie about 2^50-2^62: beyond a float's 53 bits, within int64
+            sums[:, i] = [int(rng.integers(-(2**12), 2**12)), int(rng.integers(-(2**12), 2**12)),
+                          int(rng.integers(0, 2**22)), int(rng.integers(-(2**21), 2**21)), int(rng.integers(0, 2**22))]
+            continue
+        e = rng.integers(0, int(rng.choice([2, 50, 5000])), samples).tolist()  # a pixel's samples (E, P)
+        slope = float(rng.normal(0, 2))
+        p = [int(round(slope * v + rng.normal(0, rng.choice([0.0, 1.0, 30.0])))) for v in e]
+        if rng.random() < 0.2:
+            e = [e[0]] * samples  # one value: a singular fit
+        sums[[SUM_E, SUM_P, SUM_EE, SUM_EP, SUM_PP], i] = [sum(e), sum(p), sum(v * v for v in e),
+                                                          sum(a * b for a, b in zip(e, p)), sum(v * v for v in p)]
+    m, r, fitted = offe_fit(sums, float(k))
+    for i in range(pixels):
+        s_e, s_p, s_ee, s_ep, s_pp = (int(sums[j, i]) for j in (SUM_E, SUM_P, SUM_EE, SUM_EP, SUM_PP))
+        det, cov, var_p = k * s_ee - s_e * s_e, k * s_ep - s_e * s_p, k * s_pp - s_p * s_p
+        norm1 = float(max(s_ee + abs(s_e), k + abs(s_e)))
+        ok = float(det) > RCOND_LIMIT * norm1 * norm1
+        assert fitted[i] == ok
+        assert m[i] == (float(Fraction(cov, det)) if ok else 0.0)
+        mse = float(Fraction(var_p * det - cov * cov, det * k * k)) if ok else 0.0
+        assert r[i] == math.sqrt(max(mse, 0.0))

@@ -27,6 +27,13 @@ import numpy as np
 
 from evtools._kernels.jit import kernel
 from evtools._kernels.pixel import LIN_LOG_KNEE, LIN_LOG_SLOPE
+from evtools._kernels.prefetch import prefetch
+
+AHEAD = 16
+"""offE prefetches the state rows of the pixel of the event this many events ahead: on a large sensor (Gen4's
+921,600 pixels: 88 MB of rows) nearly every event's rows are cache misses. 10M events in-process, chunks of 2^17:
+the Gen4 recording tiled 0.73 -> 0.21 s, the DVXplorer recording tiled (76,800 pixels) 0.18 -> 0.13 s (8 and 32
+ahead: no better)."""
 
 # offE scalar state (int64 array): the segment clock
 OFFE_ORIGIN = 0  # time of the first event (segments start there)
@@ -86,7 +93,13 @@ def offe_accumulate(t, x, y, p, width, segment_us, pixels, state, block_us, coun
     billion updates per 50M events. Each event also goes to the natural method's ``counts`` (:func:`_count`, blocks of
     ``block_us``: offE's fit compares with that estimate), in the same pass.
     """
-    for k in range(t.shape[0]):
+    flat_pixels, flat_counts = pixels.reshape(pixels.size), counts.reshape(counts.size)
+    n = t.shape[0]
+    for k in range(n):
+        if k + AHEAD < n:
+            ahead = np.int64(y[k + AHEAD]) * width + x[k + AHEAD]
+            prefetch(flat_pixels, ahead * OFFE_ROW)
+            prefetch(flat_counts, ahead * COUNT_SIZE)
         tk = t[k]
         if state[OFFE_STARTED] == 0:
             state[OFFE_STARTED] = 1
