@@ -10,7 +10,8 @@ Layout (FORMATS.md, after Prophesee's format pages): the header is ASCII lines `
 - EVT 3.0, 16-bit, vectorised and stateful.
 
 Both are decoded by numba kernels (:mod:`evtools._kernels.prophesee`) straight into the chunks' records, chunks
-whose memory is reused once the consumer lets them go (:class:`evtools.formats.io.Recycled`).
+whose memory is reused once the consumer lets them go (:class:`evtools.formats.io.Recycled`); EVT 2.0 is written by
+one too (10M events of a Gen4 recording converted from EVT 3.0: 0.74 -> 0.25 s whole process, the same bytes).
 
 Decoding is spec-literal: events before the first time-high word are dropped, and a time-high field that falls
 by more than half its range is a wrap of the time base (2^34 us for EVT 2.0, 2^24 us for EVT 3.0). A ``% t0 US``
@@ -31,10 +32,9 @@ from typing import BinaryIO, Iterator
 
 import numpy as np
 
-from evtools._kernels.prophesee import (DROPPED_NO_TIME, DROPPED_NO_Y, EVT2_DROPPED, EVT2_OTHER_WORDS,
-                                        EVT2_TIME_HIGH_BITS, EVT2_TRIGGERS, MAX_EVENTS_PER_WORD, OTHER_WORDS,
-                                        TRIGGERS, decode_evt2, decode_evt3, new_evt2_state, new_evt3_state,
-                                        record_words)
+from evtools._kernels.prophesee import (DROPPED_NO_TIME, DROPPED_NO_Y, EVT2_DROPPED, EVT2_OTHER_WORDS, EVT2_TRIGGERS,
+                                        MAX_EVENTS_PER_WORD, OTHER_WORDS, TRIGGERS, decode_evt2, decode_evt3,
+                                        encode_evt2, new_evt2_state, new_evt3_state, record_words)
 from evtools.events import MAX_TIME_US, StreamInfo
 from evtools.formats.errors import FormatError
 from evtools.formats.io import Recycled, Source, resolve_sensor_size
@@ -283,19 +283,12 @@ class Evt2Writer:
                     f"EVT 2.0 keeps times modulo 2^34 us (4.8 hours): the file's '% t0 {t0_us}' line holds the rest "
                     f"(evtools and faery add it back; Metavision reads the times {t0_us:,} us earlier)")
             self._write_header(t0_us)
-        high = t >> 6
-        before = np.concatenate(([self._last_high], high[:-1]))
-        steps = high[1:] - high[:-1] if self._last_high < 0 else high - before
-        if len(steps) and steps.max() >= 1 << (EVT2_TIME_HIGH_BITS - 1):
+        words = np.empty(2 * len(chunk), dtype="<u4")
+        count, last_high = encode_evt2(record_words(np.ascontiguousarray(chunk)), self._last_high, words)
+        if count < 0:
             raise FormatError("EVT 2.0 cannot store two consecutive events about 2^33 us (2.4 hours) or more apart")
-        new_high = high != before
-        at = np.arange(len(chunk)) + np.cumsum(new_high)  # each event's word, after the time-high words so far
-        words = np.empty(len(chunk) + int(np.count_nonzero(new_high)), dtype="<u4")
-        words[at[new_high] - 1] = (0x8 << 28) | (high[new_high] & ((1 << EVT2_TIME_HIGH_BITS) - 1))
-        words[at] = ((chunk["p"].astype(np.uint32) << 28) | ((t & 0x3F).astype(np.uint32) << 22)
-                     | (chunk["x"].astype(np.uint32) << 11) | chunk["y"].astype(np.uint32))
-        self.stream.write(memoryview(words).cast("B"))
-        self._last_high = int(high[-1])
+        self.stream.write(memoryview(words[:count]).cast("B"))
+        self._last_high = last_high
 
     def close(self) -> None:
         """Finish the file (EVT 2.0 has no trailer; the header of a stream without events); does not close the

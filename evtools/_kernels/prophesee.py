@@ -132,6 +132,47 @@ def decode_evt2(words, state, t0_us, out):  # pragma: no cover - compiled
     return n
 
 
+@kernel
+def encode_evt2(records, last_high, words):  # pragma: no cover - compiled
+    """Encode events as EVT 2.0 words: a CD word each, preceded by an EVT_TIME_HIGH word whenever ``t >> 6``
+    changes.
+
+    Parameters
+    ----------
+    records : ndarray of int64, shape (n, 2)
+        The events' records (:func:`record_words`), time-sorted, times not negative.
+    last_high : int
+        ``t >> 6`` of the last time-high word written before, -1 at the start of a file.
+    words : ndarray of uint32, shape (>= 2 n,)
+        Room for the words.
+
+    Returns
+    -------
+    n_words : int
+        Words written; -1 (nothing usable written) when two consecutive events lie 2^27 time-high steps (about
+        2^33 us) or more apart, which a reader would take for a wrap.
+    last_high : int
+        ``t >> 6`` of the last time-high word now.
+    """
+    n = 0
+    for k in range(records.shape[0]):
+        t = records[k, 0]
+        second = records[k, 1]
+        high = t >> 6
+        if high != last_high:
+            if last_high >= 0 and high - last_high >= (1 << (EVT2_TIME_HIGH_BITS - 1)):
+                return -1, last_high
+            words[n] = (0x8 << 28) | (high & ((1 << EVT2_TIME_HIGH_BITS) - 1))
+            n += 1
+            last_high = high
+        x = second & 0xFFFF
+        y = (second >> 16) & 0xFFFF
+        on = (second >> 32) & 0xFF
+        words[n] = ((1 if on != 0 else 0) << 28) | ((t & 0x3F) << 22) | (x << 11) | y
+        n += 1
+    return n, last_high
+
+
 @kernel(inline=True)
 def _emit(state, out, n, time_high, t_us, column, row, polarity):  # pragma: no cover - compiled
     """Write one CD event's record at ``n`` and return the new count; without a time (``time_high`` < 0) or a row
