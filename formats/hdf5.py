@@ -18,9 +18,9 @@ from typing import BinaryIO, Iterator
 
 import numpy as np
 
-from evtools.events import EVENT_DTYPE, StreamInfo
+from evtools.events import EVENT_DTYPE, StreamInfo, record_words
 from evtools.formats.errors import FormatError
-from evtools.formats.io import Source, resolve_sensor_size
+from evtools.formats.io import Recycled, Source, resolve_sensor_size
 from evtools.formats.registry import BY_NAME, ReadOptions, WriteOptions
 
 ECF_FILTER_ID = 36559
@@ -89,6 +89,7 @@ class Hdf5Reader:
         self.source = source
         self.name = source.name
         self.chunk_events = max(1, int(options.chunk_events))
+        self._recycled = Recycled()
         try:
             self.file = h5py.File(source.spooled(), "r")
         except (OSError, ValueError, RuntimeError, KeyError, TypeError, OverflowError) as error:  # h5py's, damaged
@@ -180,30 +181,31 @@ class Hdf5Reader:
         return ", ".join(names) if names else "nothing (an empty file)"
 
     def _read(self, start: int, stop: int) -> np.ndarray:
-        out = np.empty(stop - start, dtype=EVENT_DTYPE)
         if self.layout == "v2e":
             rows = self.columns[0][start:stop]
             t, x, y, p = rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3]
-            out["p"] = p == 1  # v2e writes OFF as 0 (older versions -1)
+            on = p == 1  # v2e writes OFF as 0 (older versions -1)
         else:
             t, x, y, p = (column[start:stop] for column in self.columns)
-            out["p"] = p > 0
+            on = p > 0
         if t.dtype.kind == "f" and not np.isfinite(t).all():
             raise FormatError(f"{self.name}: event times that are not numbers between events {start} and {stop} "
                               "(a damaged file?)")
-        if self.layout == "event_utils" or t.dtype.kind == "f":
-            scale = 1e6 if self.layout == "event_utils" and t.dtype.kind == "f" else 1.0
-            out["t"] = np.rint(t * scale).astype(np.int64)
-        else:
-            out["t"] = t.astype(np.int64)
-        if self.t_offset_us:
-            out["t"] += self.t_offset_us
         for field, values in (("x", x), ("y", y)):
             if len(values) and (np.min(values) < 0 or np.max(values) > 32767 or
                                 (values.dtype.kind == "f" and not np.isfinite(values).all())):
                 raise FormatError(f"{self.name}: event {field} coordinates outside 0..32767 between events {start} "
                                   f"and {stop} (a damaged file?)")
-            out[field] = values
+        out = self._recycled.take(stop - start)
+        words = record_words(out)  # each record's two words at once: the padding of a reused chunk zeroed
+        if self.layout == "event_utils" or t.dtype.kind == "f":
+            scale = 1e6 if self.layout == "event_utils" and t.dtype.kind == "f" else 1.0
+            words[:, 0] = np.rint(t * scale)
+        else:
+            words[:, 0] = t
+        if self.t_offset_us:
+            words[:, 0] += self.t_offset_us
+        words[:, 1] = x.astype(np.int64) | (y.astype(np.int64) << 16) | (on.astype(np.int64) << 32)
         return out
 
     def _scan_size(self) -> tuple[int, int]:
@@ -213,6 +215,10 @@ class Hdf5Reader:
             width = max(width, int(chunk["x"].max()) + 1)
             height = max(height, int(chunk["y"].max()) + 1)
         return width, height
+
+    def expected_events(self) -> int:
+        """How many events the file holds (a whole-file read's result is made that size at once)."""
+        return self.n_events
 
     def __iter__(self) -> Iterator[np.ndarray]:
         for start in range(0, self.n_events, self.chunk_events):

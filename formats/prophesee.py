@@ -34,8 +34,8 @@ import numpy as np
 
 from evtools._kernels.prophesee import (DROPPED_NO_TIME, DROPPED_NO_Y, EVT2_DROPPED, EVT2_OTHER_WORDS, EVT2_TRIGGERS,
                                         MAX_EVENTS_PER_WORD, OTHER_WORDS, TRIGGERS, decode_evt2, decode_evt3,
-                                        encode_evt2, new_evt2_state, new_evt3_state, record_words)
-from evtools.events import MAX_TIME_US, StreamInfo
+                                        encode_evt2, new_evt2_state, new_evt3_state)
+from evtools.events import MAX_TIME_US, StreamInfo, record_words
 from evtools.formats.errors import FormatError
 from evtools.formats.io import Recycled, Source, resolve_sensor_size
 from evtools.formats.registry import ReadOptions, WriteOptions

@@ -6,9 +6,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from evtools._kernels.prophesee import (EVT2_DROPPED, EVT2_OTHER_WORDS, EVT2_TRIGGERS, MAX_EVENTS_PER_WORD,
-                                        decode_evt2, decode_evt3, new_evt2_state, new_evt3_state, record_words)
+                                        decode_evt2, decode_evt3, new_evt2_state, new_evt3_state)
 import evtools
-from evtools.events import EVENT_DTYPE, make_events
+from evtools.events import EVENT_DTYPE, make_events, record_words
 from evtools.formats import FormatError
 from evtools.formats.prophesee import header_size, parse_header
 from tests.conftest import data_file
@@ -357,3 +357,38 @@ def test_evt2_writer_refuses_what_the_format_cannot_hold(tmp_path):
     assert_clean_error(run("convert", gap, "--sensor-size", "4x4", "-o", tmp_path / "gap.raw", check=False),
                        "gap.raw", "2^33 us (2.4 hours) or more apart")
     assert not (tmp_path / "gap.raw").exists() and not (tmp_path / "big.raw").exists()
+
+
+@pytest.mark.parametrize("suffix", [".raw", ".evt3", ".dat", ".h5"])
+def test_readers_write_every_byte_of_the_chunks_they_reuse(tmp_path, monkeypatch, suffix):
+    """The readers that reuse chunk memory (Prophesee RAW and DAT, HDF5) write each record whole: a reused chunk
+    full of another's bytes comes back as the file's events with zero padding, in any chunk size."""
+    import evtools
+    from evtools.formats import io as formats_io
+    from tests.helpers import random_events
+
+    events = random_events(3000, 640, 480, seed=3)
+    path = tmp_path / f"events{suffix}"
+    if suffix == ".dat":
+        path.write_bytes(_dat([tuple(int(v) for v in e) for e in events.tolist()]))
+    elif suffix == ".evt3":  # faery's EVT 3.0 (faery is a test dependency)
+        import faery
+
+        array = np.empty(len(events), faery.EVENTS_DTYPE)
+        array["t"], array["x"], array["y"], array["on"] = events["t"], events["x"], events["y"], events["p"]
+        path = tmp_path / "events.raw"
+        faery.events_stream_from_array(array, (640, 480)).to_file(str(path), version="evt3")
+    else:
+        evtools.write(path, events, evtools.StreamInfo(640, 480))
+    take = formats_io.Recycled.take
+
+    def dirty(self, n):
+        chunk = take(self, n)
+        chunk.view(np.uint8)[:] = 0xAB
+        return chunk
+
+    monkeypatch.setattr(formats_io.Recycled, "take", dirty)
+    for chunk_events in (1, 777, 1 << 17):
+        _, read = read_all(path, chunk_events=chunk_events)
+        assert not read.view(np.uint8).reshape(-1, 16)[:, 13:].any()
+        assert_same_events(read, events)

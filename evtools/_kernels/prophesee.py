@@ -1,5 +1,5 @@
 """Prophesee EVT 2.0 and EVT 3.0 decoder kernels: sequential state machines over the words, compiled with numba,
-writing each event's record straight into a chunk (its two 64-bit words, see :func:`record_words`): no column
+writing each event's record straight into a chunk (its two 64-bit words, see :func:`evtools.events.record_words`): no column
 arrays, no field-by-field copy. ``evtools.read`` of 10M events (the DVXplorer recording tiled, written by faery),
 in-process, fastest of 5: EVT 3.0 0.29 -> 0.098 s (faery 0.30 s), EVT 2.0, which was decoded in numpy with a dozen
 temporaries a block, 0.27 -> 0.056 s (faery 0.24 s).
@@ -62,12 +62,6 @@ EVT2_STATE_SIZE = 5
 EVT2_TIME_HIGH_BITS = 28
 
 
-def record_words(chunk: np.ndarray) -> np.ndarray:
-    """The records of an ``EVENT_DTYPE`` chunk as (n, 2) int64 words, as the decoders write them: the time, then
-    ``x | y << 16 | p << 32`` (little-endian: x at byte 8, y at 10, p at 12, the padding zero)."""
-    return chunk.view(np.int64).reshape(-1, 2)
-
-
 def new_evt2_state() -> np.ndarray:
     """An EVT 2.0 decoder state for the start of a stream."""
     state = np.zeros(EVT2_STATE_SIZE, dtype=np.int64)
@@ -96,7 +90,7 @@ def decode_evt2(words, state, t0_us, out):  # pragma: no cover - compiled
     t0_us : int
         Added to every time (the header's ``% t0``).
     out : ndarray of int64, shape (>= len(words), 2)
-        Records (:func:`record_words`); a word is at most one event.
+        Records (:func:`evtools.events.record_words`); a word is at most one event.
 
     Returns
     -------
@@ -140,7 +134,7 @@ def encode_evt2(records, last_high, words):  # pragma: no cover - compiled
     Parameters
     ----------
     records : ndarray of int64, shape (n, 2)
-        The events' records (:func:`record_words`), time-sorted, times not negative.
+        The events' records (:func:`evtools.events.record_words`), time-sorted, times not negative.
     last_high : int
         ``t >> 6`` of the last time-high word written before, -1 at the start of a file.
     words : ndarray of uint32, shape (>= 2 n,)
@@ -201,7 +195,7 @@ def decode_evt3(words, state, t0_us, out):  # pragma: no cover - compiled
     t0_us : int
         Added to every time (the header's ``% t0``).
     out : ndarray of int64, shape (capacity, 2)
-        Records (:func:`record_words`). Decoding stops before a word that might not fit (a word yields at most
+        Records (:func:`evtools.events.record_words`). Decoding stops before a word that might not fit (a word yields at most
         12 events).
 
     Returns
