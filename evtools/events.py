@@ -114,7 +114,7 @@ def concatenate(chunks: Iterable[np.ndarray], expected: int | None = None) -> np
     exceeded), so a reader can reuse the chunk's memory at once; without it the chunks are gathered first and
     copied into a result of their exact size."""
     if expected is not None:
-        out, filled = np.empty(max(int(expected), 1), EVENT_DTYPE), 0
+        out, filled = _room(max(int(expected), 1)), 0
         for chunk in chunks:
             chunk = np.asarray(chunk)
             if filled + len(chunk) > len(out):
@@ -139,6 +139,19 @@ def concatenate(chunks: Iterable[np.ndarray], expected: int | None = None) -> np
         filled += len(part)
         del part  # the last reference: its memory goes back before the next chunk is copied
     return out
+
+
+def _room(events: int) -> np.ndarray:
+    """An uninitialised array of ``events`` events, or of a quarter as many, down to a million, while the system
+    refuses to reserve that much (an upper bound taken from a file's size can exceed what the events need; the
+    result grows when they do not fit)."""
+    while True:
+        try:
+            return np.empty(events, EVENT_DTYPE)
+        except MemoryError:
+            if events <= 1 << 20:
+                raise
+            events = max(events // 4, 1 << 20)
 
 
 def as_chunk(chunk, name: str = "chunk") -> np.ndarray:

@@ -94,3 +94,24 @@ def test_checker_refuses_times_outside_the_supported_range():
     with pytest.raises(InvalidEventsError, match=r"event 0 has time -4611686018427387905 us"):
         StreamChecker(info, "s").check(early)
     assert len(StreamChecker(info, "s").check(chunk[:2])) == 2
+
+
+def test_a_whole_read_sized_beyond_what_the_system_reserves_still_reads(monkeypatch):
+    """``concatenate``'s ``expected`` is an upper bound from a file's size; when the system refuses to reserve that
+    much, a quarter is tried (down to a million events) and the result grows as needed: the events, not an error."""
+    from evtools.events import concatenate
+
+    real_empty = np.empty
+
+    def refusing(shape, *args, **kwargs):
+        if isinstance(shape, int) and shape > 3_000_000:
+            raise MemoryError(f"cannot reserve {shape} events")
+        return real_empty(shape, *args, **kwargs)
+
+    chunks = [random_events(1000, seed=k) for k in range(5)]
+    monkeypatch.setattr(np, "empty", refusing)
+    out = concatenate(iter(chunks), expected=10**9)
+    monkeypatch.undo()
+    expected = np.concatenate(chunks)
+    assert len(out) == len(expected)
+    assert all(np.array_equal(out[field], expected[field]) for field in ("t", "x", "y", "p"))
