@@ -149,7 +149,8 @@ def main() -> None:
         written = {}
         for fmt, compression, ext in [("aedat4", None, "aedat4"), ("aedat4", "lz4", "lz4.aedat4"),
                                       ("aedat4", "zstd", "zstd.aedat4"), ("aedat2", None, "aedat"),
-                                      ("hdf5", "none", "h5"), ("hdf5", "zstd", "zstd.h5"), ("csv", None, "csv")]:
+                                      ("hdf5", "none", "h5"), ("hdf5", "zstd", "zstd.h5"), ("prophesee", None, "raw"),
+                                      ("csv", None, "csv")]:
             path = base if ext == "aedat4" else scratch / f"events.{ext}"
             written[ext] = path
             result = measure("write", path, fmt, compression, n)
