@@ -75,8 +75,8 @@ class EventStream:
         copy (10M events: 0.33 -> 0.25 s); a compressed one is copied into a result sized by
         :data:`COMPRESSED_RATIO_BOUND` chunk by chunk as they are decoded, so the reader reuses each chunk's memory
         (10M LZ4 events in DV's packets, in-process: 0.32 -> 0.20 s); so is a stream whose reader tells how many
-        events to expect (``expected_events()``: Prophesee RAW and DAT, HDF5); other streams are joined chunk by chunk, each
-        chunk released as it is copied."""
+        events to expect (``expected_events()``: Prophesee RAW and DAT, HDF5); other streams are joined chunk by
+        chunk, each chunk released as it is copied."""
         if self.info.format == "aedat4" and self.source.seekable and self.source.path:
             bound = os.path.getsize(self.source.path) // 16 + 1
             if str(self.info.metadata.get("compression")).upper() == "NONE":

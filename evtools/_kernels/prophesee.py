@@ -1,8 +1,9 @@
-"""Prophesee EVT 2.0 and EVT 3.0 decoder kernels: sequential state machines over the words, compiled with numba,
-writing each event's record straight into a chunk (its two 64-bit words, see :func:`evtools.events.record_words`): no column
-arrays, no field-by-field copy. ``evtools.read`` of 10M events (the DVXplorer recording tiled, written by faery),
-in-process, fastest of 5: EVT 3.0 0.29 -> 0.098 s (faery 0.30 s), EVT 2.0, which was decoded in numpy with a dozen
-temporaries a block, 0.27 -> 0.056 s (faery 0.24 s).
+"""Prophesee EVT 2.0 and EVT 3.0 kernels: the decoders, sequential state machines over the words, compiled with
+numba, write each event's record straight into a chunk (its two 64-bit words, see
+:func:`evtools.events.record_words`): no column arrays, no field-by-field copy. ``evtools.read`` of 10M events (the
+DVXplorer recording tiled, written by faery), in-process, fastest of 5: EVT 3.0 0.29 -> 0.098 s (faery 0.30 s),
+EVT 2.0, which was decoded in numpy with a dozen temporaries a block, 0.27 -> 0.056 s (faery 0.24 s). The EVT 2.0
+encoder writes the words straight from the records.
 
 EVT 3.0 sends a coordinate, polarity or time field only when it changes, and EVT 2.0 a time's upper bits only when
 they change, so every word is read against the state left by the words before it; that state lives in one int64
@@ -195,8 +196,8 @@ def decode_evt3(words, state, t0_us, out):  # pragma: no cover - compiled
     t0_us : int
         Added to every time (the header's ``% t0``).
     out : ndarray of int64, shape (capacity, 2)
-        Records (:func:`evtools.events.record_words`). Decoding stops before a word that might not fit (a word yields at most
-        12 events).
+        Records (:func:`evtools.events.record_words`). Decoding stops before a word that might not fit (a word
+        yields at most 12 events).
 
     Returns
     -------
