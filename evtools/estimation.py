@@ -625,14 +625,17 @@ class ThresholdEstimator:
         max_fit = self.max_fit if max_fit is None else max_fit
         # (the sums, minima and means over the two halves and two polarities are written out: numpy's reductions
         # over an axis of 2 cost 10x an addition, 0.2 s on a Gen4 sensor's 921,600 pixels; same floats)
-        counts = self._counts[:, :6].reshape(self.height, self.width, 2, 3).astype(np.float64)  # [y, x, half, k]
-        whole = counts[:, :, 0] + counts[:, :, 1]
+        # (float64 one half at a time: the counts are float32, exact; a Gen4 sensor's both halves are 44 MB)
+        counts = self._counts[:, :6].reshape(self.height, self.width, 2, 3)  # [y, x, half, k]
+        whole = counts[:, :, 0].astype(np.float64) + counts[:, :, 1]
         enough = (whole[..., 0] >= self.min_events) & (whole[..., 1] >= self.min_events)
         relative, neighbours = _relative_to_neighbours(_effective_inverse(whole), enough, self.radius_px)
         halves = []
         for h in (0, 1):
-            usable = enough & (counts[:, :, h, 0] > 0) & (counts[:, :, h, 1] > 0)
-            halves.append(_relative_to_neighbours(_effective_inverse(counts[:, :, h]), usable, self.radius_px)[0])
+            half = counts[:, :, h].astype(np.float64)
+            usable = enough & (half[..., 0] > 0) & (half[..., 1] > 0)
+            halves.append(_relative_to_neighbours(_effective_inverse(half), usable, self.radius_px)[0])
+            del half
         with np.errstate(divide="ignore", invalid="ignore"):
             squares = ((halves[0] - halves[1]) / (halves[0] + halves[1]))**2
             # the halves of a pixel with few events can agree by chance: the counting error 1 / sqrt(N) of its
