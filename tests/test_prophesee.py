@@ -5,9 +5,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+import evtools
 from evtools._kernels.prophesee import (EVT2_DROPPED, EVT2_OTHER_WORDS, EVT2_TRIGGERS, MAX_EVENTS_PER_WORD,
                                         decode_evt2, decode_evt3, new_evt2_state, new_evt3_state)
-import evtools
 from evtools.events import EVENT_DTYPE, make_events, record_words
 from evtools.formats import FormatError
 from evtools.formats.prophesee import header_size, parse_header
@@ -150,6 +150,16 @@ def test_a_whole_file_read_is_the_chunked_read(tmp_path_factory, seed, n, dense)
     path.write_bytes(b"% evt 3.0\n% format EVT3;width=2048;height=2048\n% end\n" + words.astype("<u2").tobytes())
     events, _ = evtools.read(path, check=False)  # random words go back in time and past the columns
     assert _tuples(events) == [tuple(e) for e in evt3_decode_naive(words)]
+
+
+def test_a_column_run_past_16_bits_wraps_in_its_field_and_leaves_the_row_alone():
+    """A damaged stream of vectors without a new base runs the column past 65,535: it wraps as an int16 does (the
+    reader's check then refuses it as off the sensor), and the row and polarity stay the words' own."""
+    words = np.array([0x8000, 0x0005, 0x3800] + [0x4FFF] * 6000, np.uint16)  # time, row 5, ON from column 0
+    events = _kernel_decode(words)
+    assert len(events) == 72_000
+    assert all(y == 5 and p == 1 for _, _, y, p in events)
+    assert [x for _, x, _, _ in events] == np.arange(72_000).astype(np.int16).tolist()
 
 
 def _evt2_file(tmp_path, header: bytes, words) -> str:

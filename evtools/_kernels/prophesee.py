@@ -179,7 +179,9 @@ def _emit(state, out, n, time_high, t_us, column, row, polarity):  # pragma: no 
         state[DROPPED_NO_Y] += 1
         return n
     out[n, 0] = t_us
-    out[n, 1] = column | (row << 16) | (polarity << 32)
+    # a damaged stream's vectors can run the column past 16 bits: it wraps in its field, as an int16 store would,
+    # and never reaches the row's
+    out[n, 1] = (column & 0xFFFF) | (row << 16) | (polarity << 32)
     return n + 1
 
 
