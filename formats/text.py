@@ -18,10 +18,14 @@ from typing import BinaryIO, Iterator
 
 import numpy as np
 
+from evtools._kernels.text import PARSED, WRONG_COUNT, parse_text
 from evtools.events import EVENT_DTYPE, MAX_SENSOR_SIDE, MAX_TIME_US, StreamInfo
 from evtools.formats.errors import FormatError
 from evtools.formats.io import Source, resolve_sensor_size
 from evtools.formats.registry import ReadOptions, WriteOptions
+
+_POWERS_OF_TEN_FLOAT = 10.0 ** np.arange(23)
+"""10^0..10^22, each an exact double."""
 
 BLOCK_BYTES = 16 << 20
 """Bytes parsed at once (at most)."""
@@ -165,7 +169,31 @@ class TextReader:
             line_no += block.count(b"\n")
 
     def _parse(self, block: bytes, line_no: int) -> np.ndarray:
-        """Events of one block of whole lines (the first numbered ``line_no``)."""
+        """Events of one block of whole lines (the first numbered ``line_no``): read by the kernel
+        (:func:`evtools._kernels.text.parse_text`), or by numpy when a field is more than a plain decimal."""
+        lines = block.count(b"\n") + 1  # (+ 1: room for a last line without its newline, were there one)
+        mantissas, decimals = np.empty((lines, self.ncols), np.int64), np.empty((lines, self.ncols), np.int64)
+        rows = np.empty(lines, np.int64)
+        status, n, line, fields, point = parse_text(np.frombuffer(block, np.uint8), self.ncols, self.csv,
+                                                    mantissas, decimals, rows)
+        if status == WRONG_COUNT:
+            self._wrong_count(line_no + line, fields)
+        if status == PARSED:
+            if self.csv and not point:  # numpy's integer parser reads such a block: the exact integers
+                values = mantissas[:n]
+            else:
+                values = mantissas[:n].astype(np.float64) / _POWERS_OF_TEN_FLOAT[decimals[:n]]
+            return self._events(values, rows[:n], line_no)
+        return self._parse_numpy(block, line_no)
+
+    def _wrong_count(self, line_no: int, fields: int) -> None:
+        raise FormatError(
+            f"{self.name}: line {line_no}: {fields} columns, expected {self.ncols} "
+            f"({'' if self.csv else 'whitespace-separated '}{','.join(self.names)})"
+        )
+
+    def _parse_numpy(self, block: bytes, line_no: int) -> np.ndarray:
+        """:meth:`_parse` by numpy's parser (exponents, ``true``/``false``, long mantissas), and the errors."""
         raw = np.frombuffer(block, np.uint8)
         ends = np.flatnonzero(raw == 10)
         starts = np.concatenate(([0], ends[:-1] + 1))
@@ -185,10 +213,7 @@ class TextReader:
         wrong = (fields != self.ncols) & ~blank
         if wrong.any():
             i = int(np.argmax(wrong))
-            raise FormatError(
-                f"{self.name}: line {line_no + i}: {fields[i]} columns, expected {self.ncols} "
-                f"({'' if self.csv else 'whitespace-separated '}{','.join(self.names)})"
-            )
+            self._wrong_count(line_no + i, int(fields[i]))
         rows = np.flatnonzero(~blank)  # line index (in the block) of each row
         values = self._numbers(block, len(rows) * self.ncols, line_no)
         if values is None:

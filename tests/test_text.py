@@ -9,11 +9,11 @@ from unittest import mock
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, assume, example, given, settings
 from hypothesis import strategies as st
 
 import evtools.formats.text
-from evtools.events import StreamInfo, make_events
+from evtools.events import StreamInfo, concatenate, make_events
 from evtools.formats import FormatError, create_events, open_events
 from evtools.formats.text import CsvWriter, TxtWriter
 from tests.conftest import data_file
@@ -226,3 +226,99 @@ def test_times_beyond_the_supported_range_are_refused_by_name(tmp_path, t, fits)
     else:
         with pytest.raises(FormatError, match=r"r\.csv: line \d: t is outside the \+-2\^62 us"):
             read_text(tmp_path, text, "r.csv", sensor_size=(4, 4))
+
+
+@st.composite
+def _text_file(draw):
+    """Lines of t x y p in the syntaxes files have (CSV or whitespace, CR LF, blank lines, tabs, a 5th label
+    column), times increasing."""
+    csv = draw(st.booleans())
+    floats = not csv or draw(st.booleans())
+    lines, t = [], 0
+    for _ in range(draw(st.integers(0, 40))):
+        if draw(st.integers(0, 9)) == 0:
+            lines.append(draw(st.sampled_from(["", "\r"] if csv else ["", "  ", "\t\r"])))
+            continue
+        t += draw(st.integers(0, 10**draw(st.sampled_from([1, 6, 12]))))
+        if floats and not csv:
+            t_text = draw(st.sampled_from([f"{t / 1e6:.6f}", f"{t / 1e6:.9f}", repr(t / 1e6), f"{t / 1e6:.3f}"]))
+        else:
+            t_text = str(t) + (draw(st.sampled_from(["", ".0", ".000", ".5"])) if floats else "")
+        x, y = draw(st.integers(0, 2047)), draw(st.integers(0, 2047))
+        p = draw(st.sampled_from(["0", "1", "-1", "+1"] if csv else ["0", "1", "-1"]))
+        fields = [t_text, str(x).zfill(draw(st.integers(1, 4))), str(y), p]
+        separator = "," if csv else draw(st.sampled_from([" ", "\t", "  "]))
+        line = separator.join(fields) + (draw(st.sampled_from(["", " ", "\r"])) if not csv else draw(
+            st.sampled_from(["", "\r"])))
+        lines.append(line)
+    return csv, lines
+
+
+@settings(max_examples=150, deadline=None)
+@given(_text_file(), st.integers(16, 4096))
+def test_text_files_read_as_the_naive_parser_reads_them(tmp_path_factory, case, block_bytes):
+    """Random text files (both syntaxes, any block size): the events are Python's own parse of each line, whether
+    the kernel or numpy's parser read a block."""
+    from evtools.formats.text import TextReader
+    from tests.naive.text import naive_text_events
+
+    csv, lines = case
+    path = tmp_path_factory.mktemp("text") / ("events.csv" if csv else "events.txt")
+    path.write_bytes(("".join(line + "\n" for line in lines)).encode())
+    expected = naive_text_events(lines, csv)
+    assume(expected)  # a file of no events is refused as empty (tested elsewhere)
+    if csv and expected and len({("." in line) for line in lines if line.strip()}) > 1:
+        block_bytes = 1 << 20  # a CSV file mixing integer and decimal times is read as floats block by block
+    with open_events(path, sensor_size=(2048, 2048), check=False) as stream:
+        assert isinstance(stream.reader, TextReader)
+        stream.reader.block_bytes = block_bytes
+        events = concatenate(stream)
+    assert list(zip(events["t"].tolist(), events["x"].tolist(), events["y"].tolist(),
+                    events["p"].astype(int).tolist())) == expected
+
+
+@st.composite
+def _token(draw):
+    """A decimal number as files write them: sign, leading zeros, decimals with trailing zeros, up to 22
+    significant digits, now and then an exponent (which the kernel leaves to numpy)."""
+    count = draw(st.sampled_from([1, 3, 6, 12, 15, 16, 17, 18, 19, 22]))
+    digits = "0" * draw(st.sampled_from([0, 0, 1, 25])) + "".join(
+        draw(st.lists(st.sampled_from("0123456789"), min_size=count, max_size=count)))
+    text = draw(st.sampled_from(["", "-", "+"])) + digits
+    if draw(st.booleans()):
+        cut = draw(st.integers(0, len(digits)))
+        text = text[:len(text) - len(digits)] + digits[:cut] + "." + digits[cut:] + "0" * draw(st.integers(0, 4))
+    if draw(st.integers(0, 19)) == 0:
+        text += draw(st.sampled_from(["e3", "E-2", "e+0"]))
+    return text
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.lists(_token(), min_size=4, max_size=4), min_size=1, max_size=30), st.booleans())
+@example([["0." + "0" * 21 + "1", "-0.0", "900719925474099.1", "1"]], False)  # 22 decimals; 2^53 - 1: read
+@example([["0." + "0" * 22 + "1", "2", "3", "4"]], True)  # 23 decimals: numpy's
+@example([["900719925474099.2", "2", "3", "4"]], False)  # a mantissa of 2^53: numpy's
+def test_the_kernel_reads_each_number_as_pythons_float_bit_for_bit(rows, csv):
+    """Every number the kernel reads is ``float(token)`` exactly (the correctly rounded double, which numpy's parser
+    gives too); a plain decimal of up to 15 significant digits and 22 decimals is always read by the kernel, never
+    left to numpy."""
+    from evtools._kernels.text import OTHER_SYNTAX, PARSED, parse_text
+    from evtools.formats.text import _POWERS_OF_TEN_FLOAT
+
+    block = "".join((", " if csv else " \t").join(row) + "\n" for row in rows).encode()
+    mantissas, decimals = np.empty((len(rows), 4), np.int64), np.empty((len(rows), 4), np.int64)
+    lines = np.empty(len(rows), np.int64)
+    status, n, _, _, point = parse_text(np.frombuffer(block, np.uint8), 4, csv, mantissas, decimals, lines)
+    tokens = [token for row in rows for token in row]
+    plain = all("e" not in token.lower() and len(token.lstrip("+-").replace(".", "").lstrip("0")) <= 15
+                and len(token.partition(".")[2].rstrip("0")) <= 22 for token in tokens)
+    if plain:
+        assert status == PARSED
+    if status == PARSED:
+        assert n == len(rows) and lines[:n].tolist() == list(range(n))
+        assert point == any("." in token for token in tokens)
+        values = mantissas[:n].astype(np.float64) / _POWERS_OF_TEN_FLOAT[decimals[:n]]
+        expected = np.array([[float(token) for token in row] for row in rows])
+        assert values.tobytes() == np.where(expected == 0, 0.0, expected).tobytes()  # -0 is read as 0
+    else:
+        assert status == OTHER_SYNTAX and not plain
