@@ -1,7 +1,9 @@
 """Text event files: CSV with a header, and whitespace-separated rpg ``events.txt`` (also v2e's text output).
 
-Reading parses blocks of about 16 MB at a time with numpy (no Python loop per line); only when a block is bad
-are its lines looked at one by one, to name the offending line. Writing formats whole chunks with numpy too.
+Reading parses blocks of whole lines at a time: a numba kernel splits the fields and reads plain decimals
+(:mod:`evtools._kernels.text`, exactly as numpy's parser); a block with anything else (exponents, ``true``) is read
+by numpy's parser, and only when a block is bad are its lines looked at one by one, to name the offending line.
+Writing formats whole chunks with numpy.
 
 - CSV: an optional header naming the columns in any order (``t,x,y,p``; also ``timestamp``, ``polarity``,
   ``on``, ... and faery's ``t,x@W,y@H,on``, whose ``@W``/``@H`` give the sensor size); without a header the
