@@ -55,7 +55,8 @@ from evtools._kernels.correct import (
     split_rows,
 )
 from evtools.errors import EvtoolsError
-from evtools.events import EVENT_DTYPE, StreamChecker, StreamInfo, as_chunk, check_sensor_size, empty_events, join
+from evtools.events import (EVENT_DTYPE, StreamChecker, StreamInfo, as_chunk, check_sensor_size, empty_events, join,
+                            record_words)
 
 MAX_EVENTS_PER_EVENT = 100
 """A target this many times smaller than the largest pixel threshold is refused: each input event would create about
@@ -338,7 +339,7 @@ class ThresholdCorrector:
     def _process(self, chunk: np.ndarray) -> np.ndarray:
         if not self._any_use:  # every pixel at the target: the input, bit for bit and in its order
             return chunk.copy()
-        words = np.ascontiguousarray(chunk).view(np.int64).reshape(-1, 2)
+        words = record_words(np.ascontiguousarray(chunk))
         pieces = []
         for begin in range(0, len(words), PART):
             part = words[begin:begin + PART]
@@ -377,7 +378,7 @@ class ThresholdCorrector:
         ``filled`` on, the first lane's first on ties (every byte of a record written); returns the new end."""
         (first_t, first_w), (second_t, second_w) = released
         end = filled + len(first_t) + len(second_t)
-        words = out.view(np.int64).reshape(-1, 2)[filled:end]
+        words = record_words(out)[filled:end]
         merge_sorted(first_t, first_w, second_t, second_w, words[:, 0], words[:, 1])
         return end
 

@@ -190,6 +190,12 @@ def record_words(chunk: np.ndarray) -> np.ndarray:
     return chunk.view(np.int64).reshape(-1, 2)
 
 
+def second_words(x: np.ndarray, y: np.ndarray, on: np.ndarray) -> np.ndarray:
+    """The second words of :func:`record_words` (int64) for columns x, y (non-negative, below 2^16) and on
+    (bool)."""
+    return x.astype(np.int64) | (y.astype(np.int64) << 16) | (on.astype(np.int64) << 32)
+
+
 def join(chunks: list[np.ndarray]) -> np.ndarray:
     """The chunks one after the other, as one :data:`EVENT_DTYPE` array (other layouts of the same fields are
     converted); the records are copied as raw bytes."""

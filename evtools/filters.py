@@ -39,7 +39,8 @@ import numpy as np
 from evtools._kernels import bafilter as kernels
 from evtools._kernels import mlpf as mlpf_kernels
 from evtools.errors import EvtoolsError
-from evtools.events import EVENT_DTYPE, StreamChecker, StreamInfo, as_chunk, check_sensor_size, empty_events, join
+from evtools.events import (EVENT_DTYPE, StreamChecker, StreamInfo, as_chunk, check_sensor_size, empty_events, join,
+                            record_words)
 from evtools.mlpf import MlpfError, Weights, load_weights
 
 __all__ = ["METHODS", "PRESETS", "BAFilter", "BAFilterError", "ba_filter", "learn_hot_pixels"]
@@ -180,7 +181,7 @@ class _Stage:
         """The events of ``chunk`` this stage keeps (state updated)."""
         if not len(chunk):
             return chunk
-        words = np.ascontiguousarray(chunk).view(np.int64).reshape(-1, 2)
+        words = record_words(np.ascontiguousarray(chunk))
         out = np.empty_like(words)
         q = self.params
         if self.method == "baf":

@@ -23,6 +23,7 @@ import numpy as np
 
 from evtools._kernels import mlpf as kernels
 from evtools.errors import EvtoolsError
+from evtools.events import record_words
 
 DEFAULT_WEIGHTS = Path(__file__).parent / "data" / "mlpf.npz"
 """The weights shipped with evtools (trained as the README says)."""
@@ -98,7 +99,7 @@ class FeatureMaker:
 
     def features(self, chunk: np.ndarray, take: np.ndarray) -> np.ndarray:
         """(number taken, inputs) float32: the features of the events of ``chunk`` where ``take``."""
-        words = np.ascontiguousarray(chunk).view(np.int64).reshape(-1, 2)
+        words = record_words(np.ascontiguousarray(chunk))
         rows = np.empty((int(take.sum()), self.inputs), np.float32)
         kernels.mlpf_features(words, self.maps, self.radius, self.tau_us, np.ascontiguousarray(take, np.bool_), rows)
         return rows

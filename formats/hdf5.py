@@ -18,7 +18,7 @@ from typing import BinaryIO, Iterator
 
 import numpy as np
 
-from evtools.events import EVENT_DTYPE, StreamInfo, record_words
+from evtools.events import EVENT_DTYPE, StreamInfo, record_words, second_words
 from evtools.formats.errors import FormatError
 from evtools.formats.io import Recycled, Source, resolve_sensor_size
 from evtools.formats.registry import BY_NAME, ReadOptions, WriteOptions
@@ -205,7 +205,7 @@ class Hdf5Reader:
             words[:, 0] = t
         if self.t_offset_us:
             words[:, 0] += self.t_offset_us
-        words[:, 1] = x.astype(np.int64) | (y.astype(np.int64) << 16) | (on.astype(np.int64) << 32)
+        words[:, 1] = second_words(x, y, on)
         return out
 
     def _scan_size(self) -> tuple[int, int]:

@@ -35,7 +35,7 @@ import numpy as np
 from evtools._kernels.prophesee import (DROPPED_NO_TIME, DROPPED_NO_Y, EVT2_DROPPED, EVT2_OTHER_WORDS, EVT2_TRIGGERS,
                                         MAX_EVENTS_PER_WORD, OTHER_WORDS, TRIGGERS, decode_evt2, decode_evt3,
                                         encode_evt2, new_evt2_state, new_evt3_state)
-from evtools.events import MAX_TIME_US, StreamInfo, record_words
+from evtools.events import MAX_TIME_US, StreamInfo, record_words, second_words
 from evtools.formats.errors import FormatError
 from evtools.formats.io import Recycled, Source, resolve_sensor_size
 from evtools.formats.registry import ReadOptions, WriteOptions
@@ -364,8 +364,8 @@ class PropheseeDatReader:
             chunk = recycled.take(len(records))
             out = record_words(chunk)  # each record's two words at once (the padding zero)
             out[:, 0] = t + (wraps << 32) + self.t0_us
-            w = records["w"].astype(np.int64)
-            out[:, 1] = (w & 0x3FFF) | (((w >> 14) & 0x3FFF) << 16) | ((w >> 28 != 0).astype(np.int64) << 32)
+            w = records["w"]
+            out[:, 1] = second_words(w & 0x3FFF, (w >> 14) & 0x3FFF, w >> 28 != 0)
             yield chunk
 
     def expected_events(self) -> int | None:
