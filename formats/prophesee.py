@@ -1,4 +1,4 @@
-"""Prophesee RAW files (Metavision): ``%`` header lines, then an EVT 2.0 or EVT 3.0 word stream.
+"""Prophesee RAW files (Metavision): ``%`` header lines, then an EVT 2.0, EVT 2.1 or EVT 3.0 word stream.
 
 Layout (FORMATS.md, after Prophesee's format pages): the header is ASCII lines ``% key value`` (``% evt 3.0``,
 ``% format EVT3;width=1280;height=720``, ``% geometry 1280x720``, ``% plugin_name ...``), optionally closed by
@@ -7,20 +7,24 @@ Layout (FORMATS.md, after Prophesee's format pages): the header is ASCII lines `
 - EVT 2.0, 32-bit: type ``w >> 28`` (0 CD OFF, 1 CD ON, 8 EVT_TIME_HIGH, 0xA trigger); a CD word holds
   ``t_low = (w >> 22) & 0x3F``, ``x = (w >> 11) & 0x7FF``, ``y = w & 0x7FF``; EVT_TIME_HIGH holds ``t >> 6``
   in bits 0-27.
+- EVT 2.1, 64-bit (GenX320's default, IMX636's alternative): EVT 2.0's upper word with a 32-bit mask below it, an
+  event at column ``x + k`` for each bit k; IMX636 sensors store the two 32-bit halves the other way round, said
+  by ``endianness=legacy`` in ``% format`` (as OpenEB's decoder reads them).
 - EVT 3.0, 16-bit, vectorised and stateful.
 
-Both are decoded by numba kernels (:mod:`evtools._kernels.prophesee`) straight into the chunks' records, chunks
+All are decoded by numba kernels (:mod:`evtools._kernels.prophesee`) straight into the chunks' records, chunks
 whose memory is reused once the consumer lets them go (:class:`evtools.formats.io.Recycled`); EVT 2.0 is written by
 one too (10M events of a Gen4 recording converted from EVT 3.0: 0.74 -> 0.25 s whole process, the same bytes).
 
 Decoding is spec-literal: events before the first time-high word are dropped, and a time-high field that falls
-by more than half its range is a wrap of the time base (2^34 us for EVT 2.0, 2^24 us for EVT 3.0). A ``% t0 US``
-header line (faery writes one, with the times made relative to it, ``% T0`` in DAT files) is added to every time:
-the absolute times come back, as faery reads them (Metavision ignores the line).
+by more than half its range is a wrap of the time base (2^34 us for EVT 2.0 and 2.1, 2^24 us for EVT 3.0). A
+``% t0 US`` header line (faery writes one, with the times made relative to it, ``% T0`` in DAT files) is added to
+every time: the absolute times come back, as faery reads them (Metavision ignores the line).
 
 References
 ----------
-Prophesee, "EVT 2.0 Format" and "EVT 3.0 Format", https://docs.prophesee.ai/stable/data/encoding_formats/
+Prophesee, "EVT 2.0 Format", "EVT 2.1 Format" and "EVT 3.0 Format",
+https://docs.prophesee.ai/stable/data/encoding_formats/
 """
 
 from __future__ import annotations
@@ -33,8 +37,8 @@ from typing import BinaryIO, Iterator
 import numpy as np
 
 from evtools._kernels.prophesee import (DROPPED_NO_TIME, DROPPED_NO_Y, EVT2_DROPPED, EVT2_OTHER_WORDS, EVT2_TRIGGERS,
-                                        MAX_EVENTS_PER_WORD, OTHER_WORDS, TRIGGERS, decode_evt2, decode_evt3,
-                                        encode_evt2, new_evt2_state, new_evt3_state)
+                                        EVT21_EVENTS_PER_WORD, MAX_EVENTS_PER_WORD, OTHER_WORDS, TRIGGERS, decode_evt2,
+                                        decode_evt3, decode_evt21, encode_evt2, new_evt2_state, new_evt3_state)
 from evtools.events import MAX_TIME_US, StreamInfo, record_words, second_words
 from evtools.formats.errors import FormatError
 from evtools.formats.io import Recycled, Source, resolve_sensor_size
@@ -45,6 +49,8 @@ GENERATION_SIZES = (("genx320", (320, 320)), ("imx636", (1280, 720)), ("gen4", (
 SENSOR_GENERATION_SIZES = {"3": (640, 480), "3.0": (640, 480), "3.1": (640, 480), "4": (1280, 720),
                            "4.0": (1280, 720), "4.1": (1280, 720), "4.2": (1280, 720), "320": (320, 320)}
 """Sensor size by the ``% sensor_generation`` value."""
+WORD_BYTES = {"2.0": 4, "2.1": 8, "3.0": 2}
+"""Bytes of a word, by the EVT versions read."""
 _GEOMETRY = re.compile(r"^\s*(\d+)\s*x\s*(\d+)\s*$")
 
 
@@ -82,9 +88,15 @@ def evt_version(header: dict[str, str]) -> str | None:
     return None
 
 
+def format_fields(header: dict[str, str]) -> dict[str, str]:
+    """The ``key=value`` fields of ``% format EVT21;width=W;height=H;endianness=legacy`` (keys lower-cased)."""
+    return {key.strip().lower(): value.strip() for key, _, value in
+            (part.partition("=") for part in header.get("format", "").split(";") if "=" in part)}
+
+
 def header_size(header: dict[str, str]) -> tuple[int, int] | None:
     """(width, height) from ``% format ...;width=W;height=H``, ``% geometry WxH`` or the camera generation."""
-    fields = dict(part.split("=", 1) for part in header.get("format", "").split(";") if "=" in part)
+    fields = format_fields(header)
     if "width" in fields and "height" in fields:
         return int(fields["width"]), int(fields["height"])
     match = _GEOMETRY.match(header.get("geometry", ""))
@@ -103,7 +115,7 @@ def header_size(header: dict[str, str]) -> tuple[int, int] | None:
 
 
 class ProphesseeRawReader:
-    """Read the CD events of a Prophesee EVT 2.0 or EVT 3.0 RAW file chunk by chunk.
+    """Read the CD events of a Prophesee EVT 2.0, 2.1 or 3.0 RAW file chunk by chunk.
 
     Parameters
     ----------
@@ -114,7 +126,8 @@ class ProphesseeRawReader:
 
     Notes
     -----
-    ``info.metadata`` holds ``evt`` (the version), ``header`` (the ``%`` lines as a dict), ``t0_us`` (the header's
+    ``info.metadata`` holds ``evt`` (the version), ``endianness`` (``"legacy"``: an IMX636's EVT 2.1, the words'
+    halves swapped), ``header`` (the ``%`` lines as a dict), ``t0_us`` (the header's
     ``% t0``, added to every time; 0 without one) and, complete once the stream is read, ``dropped_events``
     (before the first time base), ``triggers`` and ``other_words``.
     """
@@ -128,11 +141,12 @@ class ProphesseeRawReader:
             raise FormatError(f"{self.name}: not a Prophesee RAW file (no '%' header lines)")
         header = parse_header(lines)
         version = evt_version(header)
-        if version not in ("2.0", "3.0"):
+        if version not in WORD_BYTES:
             said = f"EVT {version}" if version else "an unstated EVT version (no '% evt' or '% format' line)"
-            raise FormatError(f"{self.name}: Prophesee RAW with {said}; evtools reads EVT 2.0 and EVT 3.0")
+            raise FormatError(f"{self.name}: Prophesee RAW with {said}; evtools reads EVT 2.0, 2.1 and 3.0")
         self.version = version
-        self.word_bytes = 4 if version == "2.0" else 2
+        self.word_bytes = WORD_BYTES[version]
+        self.legacy = version == "2.1" and format_fields(header).get("endianness", "").lower() == "legacy"
         try:
             stated = header_size(header)
         except ValueError:
@@ -143,7 +157,7 @@ class ProphesseeRawReader:
         self.info = StreamInfo(
             width, height, "prophesee",
             metadata={"evt": version, "header": header, "t0_us": self.t0_us, "dropped_events": 0, "triggers": 0,
-                      "other_words": 0},
+                      "other_words": 0, **({"endianness": "legacy"} if self.legacy else {})},
         )
 
     def _read_header(self) -> tuple[list[str], int, bytes]:
@@ -170,7 +184,7 @@ class ProphesseeRawReader:
         pending = self._first
         words_read = 0
         block_bytes = self.chunk_events * self.word_bytes
-        dtype = "<u4" if self.word_bytes == 4 else "<u2"
+        dtype = {2: "<u2", 4: "<u4", 8: "<i8"}[self.word_bytes]
         while True:
             data = stream.read(block_bytes - len(pending))
             buffer = pending + data if pending else data
@@ -191,6 +205,8 @@ class ProphesseeRawReader:
     def _events(self, counts: dict[str, int]) -> Iterator[np.ndarray]:
         if self.version == "3.0":
             return self._events_evt3(counts)
+        if self.version == "2.1":
+            return self._events_evt21(counts)
         return self._events_evt2(counts)
 
     def _events_evt3(self, counts: dict[str, int]) -> Iterator[np.ndarray]:
@@ -208,6 +224,21 @@ class ProphesseeRawReader:
             counts["triggers"] = int(state[TRIGGERS])
             counts["other_words"] = int(state[OTHER_WORDS])
 
+    def _events_evt21(self, counts: dict[str, int]) -> Iterator[np.ndarray]:
+        state, recycled = new_evt2_state(), Recycled()
+        capacity = self.chunk_events + EVT21_EVENTS_PER_WORD
+        for words in self._words():
+            start = 0
+            while start < len(words):
+                chunk = recycled.take(capacity)
+                consumed, n = decode_evt21(words[start:], state, self.t0_us, self.legacy, record_words(chunk))
+                start += consumed
+                if n:
+                    yield chunk[:n]
+            counts["dropped_events"] = int(state[EVT2_DROPPED])
+            counts["triggers"] = int(state[EVT2_TRIGGERS])
+            counts["other_words"] = int(state[EVT2_OTHER_WORDS])
+
     def _events_evt2(self, counts: dict[str, int]) -> Iterator[np.ndarray]:
         state, recycled = new_evt2_state(), Recycled()
         for words in self._words():
@@ -219,7 +250,7 @@ class ProphesseeRawReader:
             yield chunk[:n]
 
     def expected_events(self) -> int | None:
-        """About how many events the file holds at most (one a word; EVT 3.0 vectors may hold more), for a
+        """About how many events the file holds at most (one a word; EVT 2.1 and 3.0 vectors may hold more), for a
         whole-file read's result (see :func:`evtools.events.concatenate`); None for a pipe."""
         if not (self.source.seekable and self.source.path):
             return None

@@ -28,7 +28,7 @@ DATA = ROOT.parent / "shared" / "data"
 SEED_EVENTS = 3000
 MEMORY_LIMIT_BYTES = 1 << 30  # beyond what the interpreter has when the fuzzing starts
 TIME_LIMIT_S = 20
-FORMATS = ("aedat4", "aedat4-lz4", "aedat4-zstd", "aedat2", "aedat3", "hdf5", "csv", "txt", "evt3", "evt2", "dat")
+FORMATS = ("aedat4", "aedat4-lz4", "aedat4-zstd", "aedat2", "aedat3", "hdf5", "csv", "txt", "evt3", "evt2", "evt21", "dat")
 
 
 def _events():
@@ -65,6 +65,13 @@ def seed(name: str, folder: Path) -> Path:
                 words.append((8 << 28) | high)
             words.append((int(p) << 28) | ((t & 0x3F) << 22) | (x << 11) | y)
         path.write_bytes(b"% evt 2.0\n% geometry 320x240\n% end\n" + struct.pack(f"<{len(words)}I", *words))
+    elif name == "evt21":  # IMX636's layout (the words' halves swapped), as the naive encoder writes it
+        from tests.naive import evt21_encode_naive
+
+        path = folder / "seed.raw"
+        path.write_bytes(evt21_encode_naive(list(zip((events["t"] - events["t"][0]).tolist(), events["x"].tolist(),
+                                                     events["y"].tolist(), events["p"].astype(int).tolist())),
+                                            320, 240, legacy=True, seed=0))
     elif name == "dat":
         path = folder / "seed.dat"
         records = np.empty(len(events), [("t", "<u4"), ("w", "<u4")])

@@ -1,4 +1,4 @@
-"""Prophesee RAW: the EVT 3.0 kernel against the naive decoder, the real Gen4.1 file, EVT 2.0, bad input."""
+"""Prophesee RAW: the EVT 3.0 kernel against the naive decoder, the real Gen4.1 file, EVT 2.0 and 2.1, bad input."""
 
 import numpy as np
 import pytest
@@ -6,14 +6,16 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import evtools
-from evtools._kernels.prophesee import (EVT2_DROPPED, EVT2_OTHER_WORDS, EVT2_TRIGGERS, MAX_EVENTS_PER_WORD,
-                                        decode_evt2, decode_evt3, new_evt2_state, new_evt3_state)
+from evtools._kernels.prophesee import (EVT2_DROPPED, EVT2_OTHER_WORDS, EVT2_TRIGGERS, EVT21_EVENTS_PER_WORD,
+                                        MAX_EVENTS_PER_WORD, decode_evt2, decode_evt3, decode_evt21, new_evt2_state,
+                                        new_evt3_state)
 from evtools.events import EVENT_DTYPE, make_events, record_words
 from evtools.formats import FormatError
 from evtools.formats.prophesee import header_size, parse_header
 from tests.conftest import data_file
 from tests.helpers import assert_same_events, read_all
-from tests.naive import NaiveEvt3Decoder, evt2_decode_naive, evt3_decode_naive
+from tests.naive import (NaiveEvt3Decoder, evt2_decode_naive, evt3_decode_naive, evt21_decode_naive,
+                         evt21_encode_naive)
 
 KINDS = np.array([0x0, 0x2, 0x3, 0x4, 0x5, 0x6, 0x8, 0x7, 0xA, 0xE, 0xF, 0x1])
 WEIGHTS = np.array([20, 30, 8, 8, 8, 10, 5, 2, 2, 2, 2, 3], dtype=float)
@@ -123,6 +125,97 @@ def test_evt2_kernel_and_reader_match_the_naive_decoder_on_random_words_cut_anyw
     assert [info.metadata[key] for key in ("dropped_events", "triggers", "other_words")] == counts
 
 
+def _random_evt21_words(seed: int, n: int, legacy: bool) -> np.ndarray:
+    """Random EVT 2.1 words as the file holds them (int64 of 8 little-endian bytes): mostly CD and time-high words,
+    masks from empty to full, time highs near a wrap now and then, every other type too."""
+    rng = np.random.default_rng(seed)
+    kinds = rng.choice(EVT2_KINDS, size=n, p=EVT2_WEIGHTS / EVT2_WEIGHTS.sum()).astype(np.uint64)
+    typed = (kinds << np.uint64(28)) | rng.integers(0, 1 << 28, n, dtype=np.uint64)
+    near_ends = (kinds == 8) & (rng.random(n) < 0.3)
+    typed[near_ends] = (8 << 28) | rng.choice(np.array([0, 1, (1 << 27) - 1, 1 << 27, (1 << 28) - 1], np.uint64),
+                                              int(near_ends.sum()))
+    masks = rng.integers(0, 1 << 32, n, dtype=np.uint64)
+    masks[rng.random(n) < 0.2] = 0xFFFFFFFF
+    masks[rng.random(n) < 0.1] = 0
+    words = (masks << np.uint64(32)) | typed if legacy else (typed << np.uint64(32)) | masks
+    return words.astype("<u8").view("<i8")
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(0, 1500), cuts=st.lists(st.integers(0, 10_000), max_size=8),
+       legacy=st.booleans(), t0_us=st.sampled_from([0, 1 << 34, -(1 << 40)]),
+       capacity=st.integers(EVT21_EVENTS_PER_WORD, 300))
+def test_evt21_kernel_matches_the_naive_decoder_on_random_words_cut_anywhere(seed, n, cuts, legacy, t0_us,
+                                                                             capacity):
+    words = _random_evt21_words(seed, n, legacy)
+    fmt = b"% format EVT21;width=2048;height=2048" + (b";endianness=legacy" if legacy else b"") + b"\n% end\n"
+    _, expected = evt21_decode_naive(fmt + words.tobytes())
+    state, events = new_evt2_state(), []
+    out = np.empty(capacity, EVENT_DTYPE)
+    for piece in np.split(words, sorted(set(c % (n + 1) for c in cuts))):
+        start = 0
+        while start < len(piece):
+            out.view(np.uint8)[:] = 0xAB  # the padding must be written
+            consumed, count = decode_evt21(piece[start:], state, t0_us, legacy, record_words(out))
+            assert consumed > 0
+            start += consumed
+            events += _tuples(out[:count])
+    assert events == [(t + t0_us, x, y, p) for t, x, y, p in expected]
+    typed = (words.view("<u8") >> np.uint64(0 if legacy else 32)) & np.uint64(0xFFFFFFFF)
+    kinds = (typed >> np.uint64(28)).astype(np.int64)
+    masks = (words.view("<u8") >> np.uint64(32 if legacy else 0)) & np.uint64(0xFFFFFFFF)
+    first_high = int(np.argmax(kinds == 8)) if (kinds == 8).any() else n
+    dropped = sum(bin(int(m)).count("1") for m, k in zip(masks[:first_high], kinds[:first_high]) if k <= 1)
+    counts = [dropped, int(np.count_nonzero(kinds == 0xA)), int(np.count_nonzero((kinds > 1) & (kinds != 8)
+                                                                                 & (kinds != 0xA)))]
+    assert state[[EVT2_DROPPED, EVT2_TRIGGERS, EVT2_OTHER_WORDS]].tolist() == counts
+
+
+@st.composite
+def _evt21_recording(draw):
+    """Time-ordered events of a sensor up to 2048 x 2048, bursts sharing a time and row as a sensor's vectors do,
+    gaps from none to hours (times past the 2^34 us wrap)."""
+    width, height = draw(st.integers(1, 2048)), draw(st.integers(1, 2048))
+    n = draw(st.integers(0, 400))
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
+    start = draw(st.sampled_from([0, 5, (1 << 34) - 3000, (1 << 33) + 17]))  # (a file's times start below 2^34)
+    gaps = rng.choice([0, 0, 0, 1, 7, 64, 1000, 1 << 20, 1 << 31], size=n)
+    t = start + np.cumsum(gaps) - (gaps[0] if n else 0)
+    y = np.where(rng.random(n) < 0.7, rng.integers(0, height) if n else 0, rng.integers(0, height, n))
+    x = rng.integers(0, width, n)
+    p = np.where(rng.random(n) < 0.8, 1, rng.integers(0, 2, n))
+    return width, height, list(zip(t.tolist(), x.tolist(), y.tolist(), p.tolist()))
+
+
+@settings(max_examples=60, deadline=None)
+@given(_evt21_recording(), st.booleans(), st.integers(0, 2**32 - 1), st.integers(1, 500))
+def test_evt21_files_are_read_as_written(tmp_path_factory, recording, legacy, seed, chunk_events):
+    """An EVT 2.1 file made by the naive encoder (vectors of up to 32 columns, aligned or not, triggers and OTHERS
+    words among them, both byte orders) reads back as its events, in order, in any chunk size."""
+    width, height, events = recording
+    path = tmp_path_factory.mktemp("evt21") / "events.raw"
+    path.write_bytes(evt21_encode_naive(events, width, height, legacy, seed))
+    assert evt21_decode_naive(path.read_bytes())[1] == events  # the encoder and the naive decoder agree
+    info, read = read_all(path, chunk_events=chunk_events)
+    assert (info.width, info.height, info.metadata["evt"]) == (width, height, "2.1")
+    assert info.metadata.get("endianness") == ("legacy" if legacy else None)
+    assert _tuples(read) == events
+    assert info.metadata["dropped_events"] == 0
+    assert _tuples(evtools.read(path)[0]) == events  # a whole read grows past one event a word
+
+
+def test_evt21_legacy_is_told_by_the_format_line_alone(tmp_path):
+    """The same words read under the two byte orders give different events: the header's format decides, and a
+    GenX320's plain EVT21 is not taken for an IMX636's legacy one."""
+    events = [(64, 3, 4, 1), (64, 9, 4, 1), (130, 300, 200, 0)]
+    data = evt21_encode_naive(events, 320, 320, legacy=True, seed=1)
+    path = tmp_path / "imx636.raw"
+    path.write_bytes(data)
+    assert _tuples(read_all(path)[1]) == events
+    path.write_bytes(data.replace(b";endianness=legacy", b""))
+    assert _tuples(read_all(path, check=False)[1]) != events
+
+
 def test_reads_the_real_gen41_evt3_file():
     path = data_file("gen41_sample.evt3.raw")
     info, events = read_all(path)
@@ -215,8 +308,8 @@ def test_a_t0_header_line_is_added_to_every_time(tmp_path_factory, t0_us, kind, 
         records = [(7, 10, 20, 1), (4_294_967_290, 639, 479, 0), (5, 2, 3, 1)]  # the last: a 32-bit wrap
         path.write_bytes(_dat(records).replace(b"% Height", f"% T0 {t0_us}\n% Height".encode()))
         relative = [7, 4_294_967_290, (1 << 32) + 5]
-    if t0_us + max(relative) > 1 << 62:
-        with pytest.raises(FormatError, match=r"outside the \+-2\^62 us"):
+    if t0_us + max(relative) > 1 << 62:  # (the reader's FormatError, or the stream check's InvalidEventsError)
+        with pytest.raises(evtools.EvtoolsError, match=r"outside the \+-2\^62 us"):
             read_all(path, chunk_events=chunk_events)
         return
     info, events = read_all(path, chunk_events=chunk_events)
@@ -274,8 +367,11 @@ def test_bad_input_names_the_file(tmp_path):
     path.write_bytes(b"% evt 3.0\n% geometry 1280x720\n" + bytes(5))
     with pytest.raises(FormatError, match=r"bad\.raw.*truncated EVT 3\.0 word at byte offset 34"):
         read_all(path)
-    path.write_bytes(b"% evt 2.1\n% geometry 1280x720\n" + bytes(8))
-    with pytest.raises(FormatError, match=r"bad\.raw.*EVT 2\.1"):
+    path.write_bytes(b"% evt 2.1\n% geometry 1280x720\n" + bytes(13))
+    with pytest.raises(FormatError, match=r"bad\.raw.*truncated EVT 2\.1 word at byte offset 38 \(5 of 8 bytes\)"):
+        read_all(path)
+    path.write_bytes(b"% evt 4.0\n% geometry 1280x720\n" + bytes(8))
+    with pytest.raises(FormatError, match=r"bad\.raw.*EVT 4\.0; evtools reads EVT 2\.0, 2\.1 and 3\.0"):
         read_all(path)
     path.write_bytes(b"% camera prophesee\n" + bytes(8))
     with pytest.raises(FormatError, match=r"bad\.raw.*EVT version"):
@@ -369,9 +465,9 @@ def test_evt2_writer_refuses_what_the_format_cannot_hold(tmp_path):
     assert not (tmp_path / "gap.raw").exists() and not (tmp_path / "big.raw").exists()
 
 
-@pytest.mark.parametrize("suffix", [".raw", ".evt3", ".dat", ".h5"])
+@pytest.mark.parametrize("suffix", [".raw", ".evt3", ".evt21", ".dat", ".h5"])
 def test_readers_write_every_byte_of_the_chunks_they_reuse(tmp_path, monkeypatch, suffix):
-    """The readers that reuse chunk memory (Prophesee RAW and DAT, HDF5) write each record whole: a reused chunk
+    """The readers that reuse chunk memory (Prophesee RAW, DAT, HDF5) write each record whole: a reused chunk
     full of another's bytes comes back as the file's events with zero padding, in any chunk size."""
     import evtools
     from evtools.formats import io as formats_io
@@ -381,6 +477,10 @@ def test_readers_write_every_byte_of_the_chunks_they_reuse(tmp_path, monkeypatch
     path = tmp_path / f"events{suffix}"
     if suffix == ".dat":
         path.write_bytes(_dat([tuple(int(v) for v in e) for e in events.tolist()]))
+    elif suffix == ".evt21":
+        path = tmp_path / "events.raw"
+        path.write_bytes(evt21_encode_naive([tuple(int(v) for v in e) for e in events[["t", "x", "y", "p"]].tolist()],
+                                            640, 480, legacy=True, seed=5))
     elif suffix == ".evt3":  # faery's EVT 3.0 (faery is a test dependency)
         import faery
 

@@ -143,7 +143,7 @@ def child_read(tool: str, path: str) -> dict:
 
 def make_prophesee(path: Path, events: int, version: str) -> None:
     """``events`` events of the Gen4.1 recording repeated in time, as a Prophesee RAW file: EVT 3.0 written by
-    faery (vectorised, as Metavision writes), EVT 2.0 by evtools."""
+    faery (vectorised, as Metavision writes), EVT 2.0 by evtools, EVT 2.1 by :func:`write_evt21`."""
     import evtools
 
     recording, info = evtools.read(GEN4_RECORDING)
@@ -154,11 +154,36 @@ def make_prophesee(path: Path, events: int, version: str) -> None:
     if version == "evt2":
         evtools.write(path, tiled, info)
         return
+    if version == "evt21":
+        write_evt21(path, tiled, info.width, info.height)
+        return
     import faery
 
     array = np.empty(len(tiled), faery.EVENTS_DTYPE)
     array["t"], array["x"], array["y"], array["on"] = tiled["t"], tiled["x"], tiled["y"], tiled["p"]
     faery.events_stream_from_array(array, (info.width, info.height)).to_file(str(path), version="evt3")
+
+
+def write_evt21(path: Path, events: np.ndarray, width: int, height: int) -> None:
+    """``events`` (times from 0, below 2^34 us) as a GenX320-style EVT 2.1 RAW file, as a sensor groups them: the
+    consecutive events of one time, row and polarity in one 32-column group, columns rising, share a word (its
+    mask); a time-high word before each word whose ``t >> 6`` differs from the word before's. (evtools reads EVT 2.1
+    but does not write it: a numpy encoder for the benchmark alone; ``tests/naive`` holds the tests' encoder.)"""
+    t, x, y, p = (events[k].astype(np.int64) for k in ("t", "x", "y", "p"))
+    starts = np.flatnonzero(np.concatenate([[True], (t[1:] != t[:-1]) | (y[1:] != y[:-1]) | (p[1:] != p[:-1])
+                                            | (x[1:] >> 5 != x[:-1] >> 5) | (x[1:] <= x[:-1])])) if len(t) else []
+    masks = np.bitwise_or.reduceat(np.left_shift(1, x & 31), starts) if len(t) else np.zeros(0, np.int64)
+    t, x, y, p = t[starts], x[starts] & ~31, y[starts], p[starts]
+    typed = (p << 28) | ((t & 63) << 22) | (x << 11) | y
+    high = t >> 6
+    new_high = np.concatenate([[True], high[1:] != high[:-1]]) if len(t) else np.zeros(0, bool)
+    position = np.arange(len(t)) + np.cumsum(new_high)
+    words = np.zeros(len(t) + int(new_high.sum()), np.uint64)
+    words[position] = (typed.astype(np.uint64) << np.uint64(32)) | masks.astype(np.uint64)
+    words[position[new_high] - 1] = ((8 << 28) | (high[new_high] & ((1 << 28) - 1))).astype(np.uint64) << np.uint64(32)
+    with open(path, "wb") as file:
+        file.write(f"% evt 2.1\n% format EVT21;width={width};height={height}\n% end\n".encode())
+        file.write(words.astype("<u8").tobytes())
 
 
 def child_dv_filter(path: str, out: str, compression: str) -> dict:
@@ -246,11 +271,12 @@ def main() -> None:
                     _row(task, "evtools", ours, events, None)
                     path.unlink()
         for events in sizes:
-            for version in ("evt3", "evt2") if "faery" in peers else ("evt2",):
+            for version in ("evt3", "evt2", "evt21") if "faery" in peers else ("evt2", "evt21"):
                 path = folder / f"in_{events}_{version}.raw"
                 make_prophesee(path, events, version)
                 task = f"read into numpy, {events // 1_000_000}M {version.upper()} (Gen4)"
-                tools = ["evtools", *(p for p in ("faery", "evlib") if p in peers)]
+                readers = ("faery", "evlib") if version != "evt21" else ("evlib",)  # (faery reads no EVT 2.1)
+                tools = ["evtools", *(p for p in readers if p in peers)]
                 results = fastest_each(args.repeat, [(measure_child, "bench_peers", "read", tool, path)
                                                      for tool in tools], key="wall_seconds")
                 for tool, result in zip(tools, results):

@@ -5,6 +5,8 @@ Each reference follows its paper or format specification line by line, in plain 
 
 from __future__ import annotations
 
+import random
+
 
 class NaiveEvt3Decoder:
     """Prophesee EVT 3.0, word by word, as the specification's tables read.
@@ -271,3 +273,85 @@ def evt2_decode_naive(data: bytes) -> tuple[dict[str, str], list[tuple[int, int,
             t_low, x, y = (word >> 22) & 63, (word >> 11) & 2047, word & 2047
             events.append((time_high * 64 + t_low, x, y, kind))
     return header, events
+
+
+def evt21_decode_naive(data: bytes) -> tuple[dict[str, str], list[tuple[int, int, int, int]]]:
+    """A Prophesee EVT 2.1 RAW file read as the specification and OpenEB's structures lay it out: the ``%`` header
+    lines as ``{key: value}``, then ``(t_us, x, y, p)`` of every event. Each 8-byte word is two little-endian
+    32-bit halves: the first is the mask and the second the typed half, or the other way round when the header's
+    format says ``endianness=legacy`` (IMX636). The typed half is read as an EVT 2.0 word (type in bits 28-31;
+    CD: time low 22-27, x 11-21, y 0-10; EVT_TIME_HIGH: t >> 6 in 0-27, unwrapped when it falls by more than half
+    its range); mask bit k is an event at column x + k, the bits in increasing order.
+
+    References
+    ----------
+    Prophesee, "EVT 2.1 Format", https://docs.prophesee.ai/stable/data/encoding_formats/evt21.html; OpenEB,
+    hal/cpp/include/metavision/hal/decoders/evt21/evt21_event_types.h (Evt21Raw, Evt21LegacyRaw)
+    """
+    header, position = {}, 0
+    while data[position:position + 1] == b"%":
+        end = data.index(b"\n", position)
+        key, _, value = data[position + 1:end].decode("ascii").strip().partition(" ")
+        header[key] = value
+        position = end + 1
+        if key == "end":
+            break
+    legacy = "endianness=legacy" in header.get("format", "").replace(" ", "").lower()
+    events, time_high, previous, wraps = [], None, None, 0
+    for i in range(position, len(data) - 7, 8):
+        first = int.from_bytes(data[i:i + 4], "little")
+        second = int.from_bytes(data[i + 4:i + 8], "little")
+        typed, mask = (first, second) if legacy else (second, first)
+        kind = typed >> 28
+        if kind == 8:
+            field = typed & ((1 << 28) - 1)
+            if previous is not None and previous - field > 1 << 27:
+                wraps += 1
+            previous = field
+            time_high = field + (wraps << 28)
+        elif kind in (0, 1) and time_high is not None:
+            t_us = time_high * 64 + ((typed >> 22) & 63)
+            x, y = (typed >> 11) & 2047, typed & 2047
+            events += [(t_us, x + k, y, kind) for k in range(32) if mask >> k & 1]
+    return header, events
+
+
+def evt21_encode_naive(events, width: int, height: int, legacy: bool, seed: int) -> bytes:
+    """``events`` (``(t_us, x, y, p)`` in time order, times from 0 and below 2^34, x below 2048 and y below 2048)
+    as an EVT 2.1 RAW file a sensor could have sent: a time-high word whenever ``t >> 6`` changes (and now and then
+    again for nothing), and consecutive events of one time, row and polarity whose columns rise within 32 of the
+    word's first column (or of the 32-column group it lies in, chosen at random) in one word; trigger and OTHERS
+    words between them at random."""
+    rng = random.Random(seed)
+    fmt = f"EVT21;width={width};height={height}" + (";endianness=legacy" if legacy else "")
+    out = bytearray(f"% evt 2.1\n% format {fmt}\n% end\n".encode("ascii"))
+
+    def word(typed: int, mask: int) -> None:
+        halves = (typed, mask) if legacy else (mask, typed)
+        out.extend(halves[0].to_bytes(4, "little") + halves[1].to_bytes(4, "little"))
+
+    high = None
+    open_word = None  # [t_us, base_x, y, p, mask, last_x]
+    for t_us, x, y, p in list(events) + [(None, None, None, None)]:
+        joins = (open_word is not None and t_us is not None and (t_us, y, p) == tuple(open_word[i] for i in (0, 2, 3))
+                 and open_word[5] < x < open_word[1] + 32)
+        if joins:
+            open_word[4] |= 1 << (x - open_word[1])
+            open_word[5] = x
+            continue
+        if open_word is not None:
+            t_open, base, row, polarity, mask, _ = open_word
+            word((polarity << 28) | ((t_open & 63) << 22) | (base << 11) | row, mask)
+            open_word = None
+            if rng.random() < 0.05:
+                word((0xA << 28) | ((t_open & 63) << 22) | rng.getrandbits(22), rng.getrandbits(32))
+            if rng.random() < 0.05:
+                word((0xE << 28) | ((t_open & 63) << 22) | rng.getrandbits(22), rng.getrandbits(32))
+        if t_us is None:
+            break
+        if high != t_us >> 6 or rng.random() < 0.02:
+            high = t_us >> 6
+            word((0x8 << 28) | (high & ((1 << 28) - 1)), rng.getrandbits(32))
+        base = x - x % 32 if rng.random() < 0.5 else x
+        open_word = [t_us, base, y, p, 1 << (x - base), x]
+    return bytes(out)
