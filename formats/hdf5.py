@@ -1,4 +1,4 @@
-"""HDF5 event files: DSEC, event_utils (E2VID), v2e and evtools' own layout.
+"""HDF5 event files: DSEC, event_utils (E2VID), v2e, Prophesee's (Metavision) and evtools' own layout.
 
 Layouts read (see FORMATS.md):
 
@@ -6,9 +6,12 @@ Layouts read (see FORMATS.md):
 - evtools: the DSEC layout plus root attributes ``width``, ``height`` and ``format = "evtools"``;
 - event_utils: ``events/{xs,ys,ts,ps}`` with ``ts`` in float seconds (rounded to microseconds; integer ``ts`` are
   taken as microseconds) and ``sensor_resolution = (H, W)``;
-- v2e: one dataset ``events`` of shape (N, 4), columns ``t_us, x, y, p``.
-
-Prophesee's HDF5 files need the ECF codec, which hdf5plugin does not ship: they are refused with a message.
+- v2e: one dataset ``events`` of shape (N, 4), columns ``t_us, x, y, p``;
+- Prophesee (Metavision's HDF5 event files): ``CD/events``, a compound dataset ``x, y`` (uint16), ``p`` (int16),
+  ``t`` (int64 us), in chunks of 16,384 events compressed by Prophesee's ECF codec (filter 0x8ECF), which no
+  plugin shipped with h5py or hdf5plugin decodes: evtools reads each chunk's stored bytes and decodes them itself
+  (:mod:`evtools._kernels.ecf`); the sensor size comes from the root attributes (``format EVT3;width=W;height=H``,
+  as a RAW header's).
 """
 
 from __future__ import annotations
@@ -18,13 +21,20 @@ from typing import BinaryIO, Iterator
 
 import numpy as np
 
+from evtools._kernels.ecf import MAX_BLOCK_EVENTS, decode_ecf
 from evtools.events import EVENT_DTYPE, StreamInfo, record_words, second_words
 from evtools.formats.errors import FormatError
 from evtools.formats.io import Recycled, Source, resolve_sensor_size
+from evtools.formats.prophesee import header_size
 from evtools.formats.registry import BY_NAME, ReadOptions, WriteOptions
 
 ECF_FILTER_ID = 36559
-"""HDF5 filter id of Prophesee's ECF codec."""
+"""HDF5 filter id of Prophesee's ECF codec (0x8ECF)."""
+PROPHESEE_FIELDS = ("x", "y", "p", "t")
+"""The fields of Metavision's CD event records (``CD/events``)."""
+ECF_ERRORS = {-1: "ends before its events do", -2: "has a run that overruns its event count",
+              -3: "holds more events than the dataset's chunk"}
+"""What :func:`evtools._kernels.ecf.decode_ecf`'s error codes say of a chunk."""
 
 WRITE_BLOCK_EVENTS = 1 << 20
 """The writer appends events in blocks of exactly this many (the last one shorter): output bytes never depend
@@ -115,9 +125,13 @@ class Hdf5Reader:
     def _open_layout(self, options: ReadOptions) -> None:
         h5py = _h5py()
         f = self.file
-        self._refuse_prophesee()
         group = f.get("events")
         self.t_offset_us = 0
+        cd = f.get("CD")
+        if isinstance(cd, h5py.Group) and isinstance(cd.get("events"), h5py.Dataset):
+            self._open_prophesee(cd["events"], options)
+            return
+        self._refuse_ecf()
         if isinstance(group, h5py.Group) and all(k in group for k in ("x", "y", "t", "p")):
             self.layout = "evtools" if _text(f.attrs.get("format")) == "evtools" else "dsec"
             self.columns = [group[k] for k in ("t", "x", "y", "p")]
@@ -152,22 +166,43 @@ class Hdf5Reader:
             metadata["t_offset_us"] = self.t_offset_us
         self.info = StreamInfo(width, height, "hdf5", metadata)
 
-    def _refuse_prophesee(self) -> None:
-        f = self.file
-        found = "CD" in f and hasattr(f["CD"], "keys") and "events" in f["CD"]
-        if not found:
-            h5py = _h5py()
+    def _open_prophesee(self, dataset, options: ReadOptions) -> None:
+        """Metavision's layout: ``CD/events`` records, ECF chunks decoded here (see the module's notes)."""
+        names = dataset.dtype.names or ()
+        if dataset.ndim != 1 or not all(name in names for name in PROPHESEE_FIELDS):
+            raise FormatError(f"{self.name}: CD/events has shape {dataset.shape} and fields {names}; expected the "
+                              f"1-D records {', '.join(PROPHESEE_FIELDS)} of a Prophesee HDF5 event file")
+        filters = _filter_ids(dataset)
+        self.ecf = ECF_FILTER_ID in filters
+        if self.ecf and filters != [ECF_FILTER_ID]:
+            raise FormatError(f"{self.name}: CD/events is filtered by {filters}: evtools decodes the ECF codec "
+                              f"({ECF_FILTER_ID}) alone, not combined with other filters")
+        if self.ecf and not 0 < dataset.chunks[0] <= MAX_BLOCK_EVENTS:
+            raise FormatError(f"{self.name}: CD/events is stored in chunks of {dataset.chunks[0]:,} events; an ECF "
+                              f"chunk holds at most {MAX_BLOCK_EVENTS:,} (a damaged file?)")
+        self.layout, self.dataset, self.n_events = "prophesee", dataset, len(dataset)
+        self.columns = [dataset]
+        header = {str(key).lower(): _text(value) for key, value in self.file.attrs.items()}
+        try:
+            stated = header_size(header)
+        except ValueError:
+            raise FormatError(f"{self.name}: the sensor size in the file's attributes is not a number "
+                              f"(format {header.get('format', '')})") from None
+        width, height = resolve_sensor_size(self.source, stated, options.sensor_size, self._scan_size)
+        self.info = StreamInfo(width, height, "hdf5", {"layout": self.layout, "events": self.n_events,
+                                                       "ecf": self.ecf, "header": header})
 
-            def visit(name, node):
-                return True if isinstance(node, h5py.Dataset) and ECF_FILTER_ID in _filter_ids(node) else None
+    def _refuse_ecf(self) -> None:
+        """An ECF-compressed dataset anywhere but in Metavision's CD/events cannot be read: say so."""
+        h5py = _h5py()
 
-            found = bool(f.visititems(visit))
+        def visit(name, node):
+            return name if isinstance(node, h5py.Dataset) and ECF_FILTER_ID in _filter_ids(node) else None
+
+        found = self.file.visititems(visit)
         if found:
-            raise FormatError(
-                f"{self.name}: Prophesee HDF5 (CD/events, ECF codec id {ECF_FILTER_ID}) cannot be decoded: "
-                "hdf5plugin does not ship Prophesee's ECF codec; convert it with Metavision "
-                "(e.g. metavision_file_to_dat/..._to_csv or to EVT RAW) first"
-            )
+            raise FormatError(f"{self.name}: dataset {found} is compressed by Prophesee's ECF codec (id "
+                              f"{ECF_FILTER_ID}), which evtools decodes only in a Prophesee event file's CD/events")
 
     def _listing(self, limit: int = 20) -> str:
         names: list[str] = []
@@ -181,6 +216,8 @@ class Hdf5Reader:
         return ", ".join(names) if names else "nothing (an empty file)"
 
     def _read(self, start: int, stop: int) -> np.ndarray:
+        if self.layout == "prophesee":
+            return self._read_prophesee(start, stop)
         if self.layout == "v2e":
             rows = self.columns[0][start:stop]
             t, x, y, p = rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3]
@@ -208,10 +245,55 @@ class Hdf5Reader:
         words[:, 1] = second_words(x, y, on)
         return out
 
+    def _read_prophesee(self, start: int, stop: int) -> np.ndarray:
+        """Events ``start:stop`` of ``CD/events``; with ECF, ``start`` on a chunk boundary: whole chunks are
+        decoded, each straight into its part of the result."""
+        out = self._recycled.take(stop - start)
+        if not self.ecf:
+            self._put_records(self.dataset[start:stop], out, start)
+            return out
+        length = self.dataset.chunks[0]
+        for offset in range(start, stop, length):
+            target = out[offset - start:min(offset + length, stop) - start]
+            mask, stored = self.dataset.id.read_direct_chunk((offset,))
+            if mask & 1:  # the optional filter was skipped when this chunk was written: the records as they are
+                records = np.frombuffer(stored, self.dataset.dtype, count=min(len(target), len(stored) //
+                                                                             self.dataset.dtype.itemsize))
+                if len(records) < len(target):
+                    raise FormatError(f"{self.name}: the chunk of CD/events at event {offset} holds "
+                                      f"{len(records)} of its {len(target)} events")
+                self._put_records(records, target, offset)
+                continue
+            n = decode_ecf(np.frombuffer(stored, np.uint8), record_words(target))
+            if n < 0:
+                raise FormatError(f"{self.name}: the ECF chunk of CD/events at event {offset} {ECF_ERRORS[n]} "
+                                  "(a damaged file?)")
+            if n != len(target):
+                raise FormatError(f"{self.name}: the ECF chunk of CD/events at event {offset} holds {n} events, "
+                                  f"the dataset {len(target)}")
+        return out
+
+    def _put_records(self, records: np.ndarray, out: np.ndarray, start: int) -> None:
+        """Metavision's records (x, y, p, t) as evtools' events in ``out``."""
+        x, y = records["x"], records["y"]
+        if len(records) and (max(int(x.max()), int(y.max())) > 32767):
+            raise FormatError(f"{self.name}: event coordinates beyond 32767 from event {start} (a damaged file?)")
+        words = record_words(out)
+        words[:, 0] = records["t"]
+        words[:, 1] = second_words(x, y, records["p"] > 0)
+
+    def _step(self) -> int:
+        """Events read at a time: ``chunk_events``, or whole ECF chunks (at least one)."""
+        if self.layout == "prophesee" and self.ecf:
+            length = self.dataset.chunks[0]
+            return max(1, self.chunk_events // length) * length
+        return self.chunk_events
+
     def _scan_size(self) -> tuple[int, int]:
         width = height = 0
-        for start in range(0, self.n_events, self.chunk_events):
-            chunk = self._read(start, min(start + self.chunk_events, self.n_events))
+        step = self._step()
+        for start in range(0, self.n_events, step):
+            chunk = self._read(start, min(start + step, self.n_events))
             width = max(width, int(chunk["x"].max()) + 1)
             height = max(height, int(chunk["y"].max()) + 1)
         return width, height
@@ -221,10 +303,12 @@ class Hdf5Reader:
         return self.n_events
 
     def __iter__(self) -> Iterator[np.ndarray]:
-        for start in range(0, self.n_events, self.chunk_events):
+        step = self._step()
+        for start in range(0, self.n_events, step):
             with self._corruption():
-                chunk = self._read(start, min(start + self.chunk_events, self.n_events))
-            yield chunk
+                chunk = self._read(start, min(start + step, self.n_events))
+            for piece in range(0, len(chunk), self.chunk_events):
+                yield chunk[piece:piece + self.chunk_events]
 
     def close(self) -> None:
         self.file.close()

@@ -28,7 +28,8 @@ DATA = ROOT.parent / "shared" / "data"
 SEED_EVENTS = 3000
 MEMORY_LIMIT_BYTES = 1 << 30  # beyond what the interpreter has when the fuzzing starts
 TIME_LIMIT_S = 20
-FORMATS = ("aedat4", "aedat4-lz4", "aedat4-zstd", "aedat2", "aedat3", "hdf5", "csv", "txt", "evt3", "evt2", "evt21", "dat")
+FORMATS = ("aedat4", "aedat4-lz4", "aedat4-zstd", "aedat2", "aedat3", "hdf5", "hdf5-ecf", "csv", "txt", "evt3", "evt2",
+           "evt21", "dat")
 
 
 def _events():
@@ -72,6 +73,12 @@ def seed(name: str, folder: Path) -> Path:
         path.write_bytes(evt21_encode_naive(list(zip((events["t"] - events["t"][0]).tolist(), events["x"].tolist(),
                                                      events["y"].tolist(), events["p"].astype(int).tolist())),
                                             320, 240, legacy=True, seed=0))
+    elif name == "hdf5-ecf":  # Metavision's layout, ECF chunks of 500 events in every mode
+        from tests.naive import write_metavision_h5
+
+        path = folder / "seed.hdf5"
+        write_metavision_h5(path, list(zip(events["t"].tolist(), events["x"].tolist(), events["y"].tolist(),
+                                           events["p"].astype(int).tolist())), 320, 240, seed=0, chunk=500)
     elif name == "dat":
         path = folder / "seed.dat"
         records = np.empty(len(events), [("t", "<u4"), ("w", "<u4")])

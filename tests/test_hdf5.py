@@ -154,11 +154,21 @@ def test_file_without_events_names_the_file_and_what_it_holds(tmp_path):
         open_events(path)
 
 
-def test_prophesee_hdf5_is_refused_with_advice(tmp_path):
+def test_prophesee_layouts_evtools_cannot_decode_are_refused_saying_why(tmp_path):
+    """(Metavision's own files are read: tests/test_ecf.py.) CD/events of other records, and ECF data elsewhere."""
     path = tmp_path / "prophesee.h5"
     with h5py.File(path, "w") as f:
         f.create_dataset("CD/events", data=np.zeros(3, np.int64))
-    with pytest.raises(FormatError, match=r"prophesee\.h5.*ECF.*Metavision"):
+    with pytest.raises(FormatError, match=r"prophesee\.h5: CD/events has shape \(3,\) and fields \(\); expected the "
+                                          r"1-D records x, y, p, t"):
+        open_events(path)
+    path = tmp_path / "elsewhere.h5"
+    with h5py.File(path, "w") as f:
+        dcpl = h5py.h5p.create(h5py.h5p.DATASET_CREATE)
+        dcpl.set_chunk((4,))
+        dcpl.set_filter(0x8ECF, h5py.h5z.FLAG_OPTIONAL, ())
+        h5py.h5d.create(f.id, b"tracks", h5py.h5t.NATIVE_INT64, h5py.h5s.create_simple((4,)), dcpl=dcpl)
+    with pytest.raises(FormatError, match=r"elsewhere\.h5: dataset tracks is compressed by Prophesee's ECF codec"):
         open_events(path)
 
 

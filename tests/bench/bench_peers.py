@@ -143,7 +143,8 @@ def child_read(tool: str, path: str) -> dict:
 
 def make_prophesee(path: Path, events: int, version: str) -> None:
     """``events`` events of the Gen4.1 recording repeated in time, as a Prophesee RAW file: EVT 3.0 written by
-    faery (vectorised, as Metavision writes), EVT 2.0 by evtools, EVT 2.1 by :func:`write_evt21`."""
+    faery (vectorised, as Metavision writes), EVT 2.0 by evtools, EVT 2.1 by :func:`write_evt21`; or a Metavision
+    HDF5 event file (``hdf5-ecf``) by :func:`write_metavision_hdf5`."""
     import evtools
 
     recording, info = evtools.read(GEN4_RECORDING)
@@ -156,6 +157,9 @@ def make_prophesee(path: Path, events: int, version: str) -> None:
         return
     if version == "evt21":
         write_evt21(path, tiled, info.width, info.height)
+        return
+    if version == "hdf5-ecf":
+        write_metavision_hdf5(path, tiled, info.width, info.height)
         return
     import faery
 
@@ -184,6 +188,57 @@ def write_evt21(path: Path, events: np.ndarray, width: int, height: int) -> None
     with open(path, "wb") as file:
         file.write(f"% evt 2.1\n% format EVT21;width={width};height={height}\n% end\n".encode())
         file.write(words.astype("<u8").tobytes())
+
+
+def _ecf_block(t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray) -> bytes:
+    """One ECF block in the codec's "y, x and p packed" mode (what Metavision's encoder picks for busy sensors),
+    numpy-vectorised: the times as runs of equal times, a step of 15 us or more spelled in 4-bit pieces first."""
+    n = len(t)
+    starts = np.flatnonzero(np.concatenate([[True], t[1:] != t[:-1]]))
+    runs = np.diff(np.append(starts, n))
+    steps = np.diff(t[starts], prepend=t[0])
+    long_step = steps >= 15
+    pieces = np.where(long_step, (np.floor(np.log2(np.maximum(steps, 1))).astype(np.int64) >> 2) + 1, 0)
+    long_run = runs >= 15
+    sizes = pieces + 1 + 2 * long_run
+    ends = np.cumsum(sizes)
+    times = np.zeros(int(ends[-1]), np.uint8)
+    first = ends - sizes
+    piece_run = np.repeat(np.arange(len(runs)), pieces)
+    piece_index = np.arange(len(piece_run)) - np.repeat(np.cumsum(pieces) - pieces, pieces)
+    times[first[piece_run] + piece_index] = 0xF0 | ((steps[piece_run] >> (4 * piece_index)) & 15)
+    head = first + pieces
+    times[head] = (np.where(long_step, 0, steps) << 4) | np.where(long_run, 15, runs)
+    times[head[long_run] + 1] = runs[long_run] & 0xFF
+    times[head[long_run] + 2] = runs[long_run] >> 8
+    values = np.zeros(-(-n // 4) * 4, np.int64)
+    values[:n] = (y << 12) | (x << 1) | p
+    v0, v1, v2, v3 = (values[j::4] for j in range(4))
+    words = np.stack([(v0 << 8) | (v1 & 0xFF), ((v1 >> 8) << 16) | (v2 & 0xFFFF), ((v2 >> 16) << 24) | v3], axis=1)
+    header = np.array([(n << 2) | 2], "<u4").tobytes() + np.array([t[0]], "<i8").tobytes()
+    return header + times.tobytes() + words.astype("<u4").tobytes()
+
+
+def write_metavision_hdf5(path: Path, events: np.ndarray, width: int, height: int, chunk: int = 16384) -> None:
+    """``events`` as a Metavision HDF5 event file (``CD/events`` in ECF chunks of 16,384 events, the sensor size in
+    the root's ``format`` attribute), for the benchmark (``tests/naive`` holds the tests' encoder)."""
+    import h5py
+
+    record = np.dtype({"names": ["x", "y", "p", "t"], "formats": ["<u2", "<u2", "<i2", "<i8"],
+                       "offsets": [0, 2, 4, 8], "itemsize": 16})
+    t, x, y, p = (events[k].astype(np.int64) for k in ("t", "x", "y", "p"))
+    with h5py.File(path, "w") as f:
+        f.attrs["version"] = "1.0"
+        f.attrs["format"] = f"EVT3;height={height};width={width}"
+        group = f.create_group("CD")
+        dcpl = h5py.h5p.create(h5py.h5p.DATASET_CREATE)
+        dcpl.set_chunk((chunk,))
+        dcpl.set_filter(0x8ECF, h5py.h5z.FLAG_OPTIONAL, ())
+        space = h5py.h5s.create_simple((len(t),), (h5py.h5s.UNLIMITED,))
+        dataset = h5py.h5d.create(group.id, b"events", h5py.h5t.py_create(record), space, dcpl=dcpl)
+        for start in range(0, len(t), chunk):
+            part = slice(start, start + chunk)
+            dataset.write_direct_chunk((start,), _ecf_block(t[part], x[part], y[part], p[part]), 0)
 
 
 def child_dv_filter(path: str, out: str, compression: str) -> dict:
@@ -271,11 +326,13 @@ def main() -> None:
                     _row(task, "evtools", ours, events, None)
                     path.unlink()
         for events in sizes:
-            for version in ("evt3", "evt2", "evt21") if "faery" in peers else ("evt2", "evt21"):
-                path = folder / f"in_{events}_{version}.raw"
+            for version in ("evt3", "evt2", "evt21", "hdf5-ecf") if "faery" in peers else ("evt2", "evt21", "hdf5-ecf"):
+                path = folder / f"in_{events}_{version}.{'hdf5' if version == 'hdf5-ecf' else 'raw'}"
                 make_prophesee(path, events, version)
                 task = f"read into numpy, {events // 1_000_000}M {version.upper()} (Gen4)"
-                readers = ("faery", "evlib") if version != "evt21" else ("evlib",)  # (faery reads no EVT 2.1)
+                # (faery reads neither EVT 2.1 nor Metavision's HDF5; evlib reads HDF5 ECF only with Prophesee's
+                # plugin installed, which the bench does not)
+                readers = {"evt21": ("evlib",), "hdf5-ecf": ()}.get(version, ("faery", "evlib"))
                 tools = ["evtools", *(p for p in readers if p in peers)]
                 results = fastest_each(args.repeat, [(measure_child, "bench_peers", "read", tool, path)
                                                      for tool in tools], key="wall_seconds")

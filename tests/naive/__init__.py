@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import random
 
+import numpy as np
+
 
 class NaiveEvt3Decoder:
     """Prophesee EVT 3.0, word by word, as the specification's tables read.
@@ -355,3 +357,205 @@ def evt21_encode_naive(events, width: int, height: int, legacy: bool, seed: int)
         base = x - x % 32 if rng.random() < 0.5 else x
         open_word = [t_us, base, y, p, 1 << (x - base), x]
     return bytes(out)
+
+
+def ecf_decode_naive(block: bytes) -> list[tuple[int, int, int, int]]:
+    """One ECF block (Prophesee's HDF5 codec) as ``(t_us, x, y, p)``, reading the fields as the codec's layout
+    describes them: a 32-bit header (count << 2 | yxp-packed << 1 | xp-packed), the times (a 64-bit origin, then
+    bytes of a 4-bit step and a 4-bit run length, 15 meaning a 16-bit length follows; bytes whose upper half is 15
+    spell a larger step 4 bits at a time, least significant first), then rows, columns and polarities (runs, masks
+    or packed groups of four). Raises ValueError where the block is cut short or a run overshoots the count.
+
+    References
+    ----------
+    Prophesee, hdf5_ecf (github.com/prophesee-ai/hdf5_ecf): the codec this layout is read from.
+    """
+    position = 0
+
+    def take(n_bytes: int) -> int:
+        nonlocal position
+        if position + n_bytes > len(block):
+            raise ValueError("truncated")
+        value = int.from_bytes(block[position:position + n_bytes], "little")
+        position += n_bytes
+        return value
+
+    header = take(4)
+    count = header >> 2
+    ts: list[int] = []
+    now = take(8)
+    now -= (now >> 63) << 64  # two's complement
+    while len(ts) < count:
+        byte = take(1)
+        if byte >> 4 == 15:
+            nibbles = []
+            while byte >> 4 == 15:
+                nibbles.append(byte & 15)
+                byte = take(1)
+            position -= 1  # the byte that ended the advance starts the next run
+            now += sum(nibble << (4 * j) for j, nibble in enumerate(nibbles[:16]))
+            continue
+        now += byte >> 4
+        run = byte & 15
+        if run == 15:
+            run = take(2)
+        ts += [now] * run
+    if len(ts) != count:
+        raise ValueError("inconsistent")
+    xs: list[int] = []
+    ys: list[int] = []
+    ps: list[int] = []
+
+    def groups_of_four(word_bytes: int, bits: int) -> list[int]:
+        """Four values of ``bits`` in three words: each word holds the rest of one value above the low
+        ``s``, ``2 s``, ``3 s`` bits of the next (``s`` = word bits - value bits)."""
+        s = 8 * word_bytes - bits
+        values = []
+        while len(values) < count:
+            w0, w1, w2 = (take(word_bytes) for _ in range(3))
+            values += [w0 >> s, (w0 & ((1 << s) - 1)) | (w1 >> (2 * s)) << s,
+                       (w1 & ((1 << 2 * s) - 1)) | (w2 >> (3 * s)) << (2 * s), w2 & ((1 << 3 * s) - 1)]
+        return values[:count]
+
+    if header >> 1 & 1:
+        for value in groups_of_four(4, 24):
+            ys.append(value >> 12 & 2047)
+            xs.append(value >> 1 & 2047)
+            ps.append(value & 1)
+    else:
+        while len(ys) < count:
+            value = take(2)
+            run = value & 31
+            if run == 31:
+                run = take(2)
+            ys += [value >> 5] * run
+        if len(ys) != count:
+            raise ValueError("inconsistent")
+        if header & 1:
+            for value in groups_of_four(2, 12):
+                xs.append(value >> 1)
+                ps.append(value & 1)
+        else:
+            while len(xs) < count:
+                value = take(2)
+                xs.append(value >> 5)
+                xs += [(value >> 5) + 1 + j for j in range(5) if value >> (4 - j) & 1]
+            xs = xs[:count]
+            while len(ps) < count:
+                value = take(1)
+                run = value & 127
+                if run == 127:
+                    run = take(2)
+                ps += [value >> 7] * run
+            if len(ps) != count:
+                raise ValueError("inconsistent")
+    return list(zip(ts, xs, ys, ps))
+
+
+def ecf_encode_naive(events, mode: int) -> bytes:
+    """``events`` (``(t_us, x, y, p)``, times not decreasing, x and y below 2048) as one ECF block, in ``mode`` 0
+    (row runs, column masks, polarity runs), 1 (row runs, x and p packed) or 2 (y, x and p packed); times by the
+    codec's rule: a step of 15 or more is spelled in 4-bit pieces first."""
+    out = bytearray()
+    count = len(events)
+    out += ((count << 2) | (2 if mode == 2 else 0) | (1 if mode == 1 else 0)).to_bytes(4, "little")
+    ts, xs, ys, ps = ([e[k] for e in events] for k in range(4))
+    now = ts[0] if events else 0
+    out += (now % (1 << 64)).to_bytes(8, "little")
+
+    def runs(values):
+        i = 0
+        while i < len(values):
+            j = i
+            while j < len(values) and values[j] == values[i]:
+                j += 1
+            yield values[i], j - i
+            i = j
+
+    for t_us, run in runs(ts):
+        step = t_us - now
+        if step >= 15:
+            while step:
+                out.append(0xF0 | (step & 15))
+                step >>= 4
+            step = 0
+        now = t_us
+        while run:  # (a run past 65535 is split: the codec's blocks never hold one)
+            piece = min(run, 65535)
+            out += bytes([step << 4 | 15]) + piece.to_bytes(2, "little") if piece >= 15 else bytes([step << 4 | piece])
+            run -= piece
+            step = 0
+    if mode == 2:
+        out += _four_in_three([(y << 12) | (x << 1) | p for x, y, p in zip(xs, ys, ps)], 4, 24)
+        return bytes(out)
+    for y, run in runs(ys):
+        out += ((y << 5) | 31).to_bytes(2, "little") + run.to_bytes(2, "little") if run >= 31 else \
+            ((y << 5) | run).to_bytes(2, "little")
+    if mode == 1:
+        out += _four_in_three([(x << 1) | p for x, p in zip(xs, ps)], 2, 12)
+        return bytes(out)
+    i = 0
+    while i < count:
+        x, mask = xs[i], 0
+        i += 1
+        for j in range(5):
+            if i < count and xs[i] == x + j + 1:
+                mask |= 1 << (4 - j)
+                i += 1
+        out += ((x << 5) | mask).to_bytes(2, "little")
+    for p, run in runs(ps):
+        out += bytes([p << 7 | 127]) + run.to_bytes(2, "little") if run >= 127 else bytes([p << 7 | run])
+    return bytes(out)
+
+
+def _four_in_three(values: list[int], word_bytes: int, bits: int) -> bytes:
+    """Values of ``bits`` four to three words (see ``ecf_decode_naive``), the last group padded with zeros."""
+    s = 8 * word_bytes - bits
+    values = values + [0] * (-len(values) % 4)
+    out = b""
+    for v0, v1, v2, v3 in zip(*(values[j::4] for j in range(4))):
+        words = (v0 << s | (v1 & ((1 << s) - 1)), (v1 >> s) << (2 * s) | (v2 & ((1 << 2 * s) - 1)),
+                 (v2 >> (2 * s)) << (3 * s) | v3)
+        out += b"".join(word.to_bytes(word_bytes, "little") for word in words)
+    return out
+
+
+METAVISION_CD_DTYPE = {"names": ["x", "y", "p", "t"], "formats": ["<u2", "<u2", "<i2", "<i8"], "offsets": [0, 2, 4, 8],
+                       "itemsize": 16}
+"""Metavision's CD event record (HDF5 ``CD/events``)."""
+
+
+def write_metavision_h5(path, events, width: int, height: int, seed: int, chunk: int = 16384,
+                        raw_chunks: float = 0.0) -> None:
+    """``events`` (``(t_us, x, y, p)``) as a Metavision HDF5 event file: root attributes ``version`` and ``format``
+    (``EVT3;height=H;width=W``), ``CD/events`` records chunked by ``chunk`` with the ECF filter (0x8ECF, optional),
+    each chunk one ECF block of :func:`ecf_encode_naive` in a random mode, stored as is; a fraction ``raw_chunks``
+    of the chunks stored unfiltered (the records themselves, filter mask 1), as HDF5 does when an optional filter
+    fails; ``CD/indexes`` and ``EXT_TRIGGER`` as Metavision creates them (empty)."""
+    import h5py
+
+    rng = random.Random(seed)
+    record = np.dtype(METAVISION_CD_DTYPE)
+    with h5py.File(path, "w") as f:
+        f.attrs["version"] = "1.0"
+        f.attrs["format"] = f"EVT3;height={height};width={width}"
+        group = f.create_group("CD")
+        dcpl = h5py.h5p.create(h5py.h5p.DATASET_CREATE)
+        dcpl.set_chunk((chunk,))
+        dcpl.set_filter(0x8ECF, h5py.h5z.FLAG_OPTIONAL, ())
+        space = h5py.h5s.create_simple((len(events),), (h5py.h5s.UNLIMITED,))
+        dataset = h5py.Dataset(h5py.h5d.create(group.id, b"events", h5py.h5t.py_create(record), space, dcpl=dcpl))
+        for start in range(0, len(events), chunk):
+            part = events[start:start + chunk]
+            if rng.random() < raw_chunks:
+                records = np.zeros(chunk, record)
+                for k, name in enumerate(("t", "x", "y", "p")):
+                    records[name][:len(part)] = [e[k] for e in part]
+                dataset.id.write_direct_chunk((start,), records.tobytes(), 1)
+            else:
+                dataset.id.write_direct_chunk((start,), ecf_encode_naive(part, rng.randrange(3)), 0)
+        group.create_dataset("indexes", (0,), [("id", "<u8"), ("ts", "<i8")], maxshape=(None,), chunks=(chunk,))
+        triggers = f.create_group("EXT_TRIGGER")
+        triggers.create_dataset("events", (0,), {"names": ["p", "t", "id"], "formats": ["<i2", "<i8", "<i2"],
+                                                 "offsets": [0, 8, 16], "itemsize": 24}, maxshape=(None,),
+                                chunks=(chunk,))
