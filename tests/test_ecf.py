@@ -77,12 +77,13 @@ def test_the_kernel_reads_garbage_as_the_naive_decoder_or_refuses_it(count, mode
 
 @settings(max_examples=40, deadline=None)
 @given(_events(max_size=3000), st.integers(0, 2**32 - 1), st.sampled_from([16384, 1000, 7]),
-       st.sampled_from([0.0, 0.3]), st.integers(1, 5000))
-def test_metavision_files_read_as_written(tmp_path_factory, events, seed, chunk, raw_chunks, chunk_events):
+       st.sampled_from([0.0, 0.3]), st.booleans(), st.integers(1, 5000))
+def test_metavision_files_read_as_written(tmp_path_factory, events, seed, chunk, raw_chunks, pad_last, chunk_events):
     """A file laid out as Metavision writes one (ECF chunks in every mode, some chunks stored unfiltered, the last
-    one partial) reads back as its events, in any chunk size and whole, with the sensor size of its attributes."""
+    one partial, or whole and padded as HDF5's filter writes it) reads back as its events, in any chunk size and
+    whole, with the sensor size of its attributes."""
     path = tmp_path_factory.mktemp("ecf") / "recording.hdf5"
-    write_metavision_h5(path, events, 2048, 2048, seed, chunk=chunk, raw_chunks=raw_chunks)
+    write_metavision_h5(path, events, 2048, 2048, seed, chunk=chunk, raw_chunks=raw_chunks, pad_last=pad_last)
     info, read = read_all(path, chunk_events=chunk_events, check=False)  # (times from 0 to 2^50 + 2^40 steps)
     assert (info.width, info.height, info.metadata["layout"], info.metadata["ecf"]) == (2048, 2048, "prophesee",
                                                                                        True)

@@ -526,12 +526,14 @@ METAVISION_CD_DTYPE = {"names": ["x", "y", "p", "t"], "formats": ["<u2", "<u2", 
 
 
 def write_metavision_h5(path, events, width: int, height: int, seed: int, chunk: int = 16384,
-                        raw_chunks: float = 0.0) -> None:
+                        raw_chunks: float = 0.0, pad_last: bool = False) -> None:
     """``events`` (``(t_us, x, y, p)``) as a Metavision HDF5 event file: root attributes ``version`` and ``format``
     (``EVT3;height=H;width=W``), ``CD/events`` records chunked by ``chunk`` with the ECF filter (0x8ECF, optional),
     each chunk one ECF block of :func:`ecf_encode_naive` in a random mode, stored as is; a fraction ``raw_chunks``
     of the chunks stored unfiltered (the records themselves, filter mask 1), as HDF5 does when an optional filter
-    fails; ``CD/indexes`` and ``EXT_TRIGGER`` as Metavision creates them (empty)."""
+    fails; ``pad_last``: a partial last chunk encoded whole, padded with zero events (HDF5's own filter path does
+    that; Metavision's writer encodes only the events); ``CD/indexes`` and ``EXT_TRIGGER`` as Metavision creates
+    them (empty)."""
     import h5py
 
     rng = random.Random(seed)
@@ -553,6 +555,8 @@ def write_metavision_h5(path, events, width: int, height: int, seed: int, chunk:
                     records[name][:len(part)] = [e[k] for e in part]
                 dataset.id.write_direct_chunk((start,), records.tobytes(), 1)
             else:
+                if pad_last and len(part) < chunk:
+                    part = part + [(part[-1][0], 0, 0, 0)] * (chunk - len(part))
                 dataset.id.write_direct_chunk((start,), ecf_encode_naive(part, rng.randrange(3)), 0)
         group.create_dataset("indexes", (0,), [("id", "<u8"), ("ts", "<i8")], maxshape=(None,), chunks=(chunk,))
         triggers = f.create_group("EXT_TRIGGER")
