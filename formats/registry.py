@@ -109,9 +109,9 @@ FORMATS: tuple[Format, ...] = (
     Format("prophesee", "Prophesee EVT 2.0 / 3.0 RAW (written as EVT 2.0)", (".raw",), _is_prophesee,
            "evtools.formats.prophesee:ProphesseeRawReader", "evtools.formats.prophesee:Evt2Writer"),
     Format("csv", "CSV with a header (t,x,y,p)", (".csv",), lambda h: _is_text(h, b","),
-           "evtools.formats.text:TextReader", "evtools.formats.text:CsvWriter"),
+           "evtools.formats.text:CsvReader", "evtools.formats.text:CsvWriter"),
     Format("txt", "text t x y p, t in seconds (rpg events.txt, v2e)", (".txt",), lambda h: _is_text(h, b" "),
-           "evtools.formats.text:TextReader", "evtools.formats.text:TxtWriter"),
+           "evtools.formats.text:TxtReader", "evtools.formats.text:TxtWriter"),
 )
 
 BY_NAME = {f.name: f for f in FORMATS}
@@ -128,12 +128,19 @@ def by_name(name: str) -> Format:
         raise FormatError(f"unknown format {name!r}; known: {', '.join(BY_NAME)}") from None
 
 
+TEXT_FORMATS = ("csv", "txt")
+"""Formats recognised by their content's look rather than by magic bytes: the extension comes first for them (a
+``.csv`` of space-separated numbers is CSV, with microseconds, not rpg text in seconds)."""
+
+
 def detect(head: bytes, path: str | None) -> Format | None:
-    """The format of a file from its first bytes; then from its extension; None if neither tells."""
+    """The format of a file from its magic bytes; then from its extension; then from the look of its text; None if
+    nothing tells."""
     for fmt in FORMATS:
-        if fmt.sniff(head):
+        if fmt.name not in TEXT_FORMATS and fmt.sniff(head):
             return fmt
-    return from_extension(path)
+    return from_extension(path) or next((fmt for fmt in FORMATS if fmt.name in TEXT_FORMATS and fmt.sniff(head)),
+                                        None)
 
 
 def from_extension(path: str | None) -> Format | None:

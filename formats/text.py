@@ -7,10 +7,12 @@ Writing formats whole chunks with numpy.
 
 - CSV: an optional header naming the columns in any order (``t,x,y,p``; also ``timestamp``, ``polarity``,
   ``on``, ... and faery's ``t,x@W,y@H,on``, whose ``@W``/``@H`` give the sensor size); without a header the
-  columns are ``t,x,y,p``. t in integer microseconds; p is 1/0 or +1/-1 (ON if > 0).
+  columns are ``t,x,y,p``. t in integer microseconds; p is 1/0 or +1/-1 (ON if > 0). Fields are separated by
+  commas, or, where the first line has none, by semicolons or whitespace (faery writes any separator): a file read
+  as CSV (by its ``.csv`` extension or ``--input-format csv``) keeps microseconds whatever its separator.
 - txt: ``t x y p`` with t in seconds, optional first line ``width height``, ``#`` comment lines at the top,
   an optional 5th column (v2e's label, ignored). Seconds are rounded to microseconds, exactly for any t below
-  2**51 us (the year 2041 as Unix time).
+  2**51 us (the year 2041 as Unix time). A file of another format whose first line has commas is read as CSV.
 """
 
 from __future__ import annotations
@@ -46,7 +48,8 @@ _NUMBER = re.compile(rb"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
 
 
 class TextReader:
-    """Reads CSV (when the first data line has commas) or whitespace-separated text, block by block.
+    """Reads CSV or rpg text, block by block: CSV (t in microseconds) when the file was opened as CSV or its first
+    data line has commas, else text (t in seconds); see the module's notes for the separators.
 
     Parameters
     ----------
@@ -64,21 +67,27 @@ class TextReader:
         self.block_bytes = int(min(BLOCK_BYTES, max(1 << 16, self.chunk_events * 32)))
         size_from_file = self._read_header()
         width, height = resolve_sensor_size(source, size_from_file, options.sensor_size, self._scan_size)
-        self.info = StreamInfo(width, height, "csv" if self.csv else "txt", {"columns": ",".join(self.names)})
+        self.info = StreamInfo(width, height, "txt" if self.seconds else "csv", {"columns": ",".join(self.names)})
+
+    DECLARED: str | None = None
+    """The format the file was opened as (``csv``, ``txt``; None: by its content alone)."""
 
     # -- header ---------------------------------------------------------------------------------------------
     def _read_header(self) -> tuple[int, int] | None:
         """Consume comments and header lines; leave the first data line in ``self.pending``."""
         self.line_no = 1  # of the next line to read
         self.pending = b""
-        self.csv = False
+        self.csv = self.semicolons = False  # fields separated by commas (semicolons: made commas block by block)
+        self.seconds = self.DECLARED != "csv"
         line = self._next_content_line()
         if not line:
             self._set_columns(["t", "x", "y", "p"])  # an empty stream
             return None
         text = line.strip()
-        self.csv = b"," in text
-        if self.csv:
+        self.semicolons = b"," not in text and self.DECLARED == "csv" and b";" in text
+        self.csv = b"," in text or self.semicolons
+        if self.csv or self.DECLARED == "csv":
+            self.seconds = False
             if re.search(rb"[A-Za-z_@]", text):
                 size = self._parse_csv_header(text.decode("utf-8", "replace"))
                 self._consumed()
@@ -118,7 +127,7 @@ class TextReader:
 
     def _parse_csv_header(self, text: str) -> tuple[int, int] | None:
         names, sizes = [], {}
-        for raw in text.split(","):
+        for raw in text.split(";" if self.semicolons else "," if self.csv else None):
             base, _, size = raw.strip().strip('"').lower().partition("@")
             field = COLUMN_ALIASES.get(base.strip(), base.strip() or "?")
             if field in names and field in ("t", "x", "y", "p"):
@@ -173,6 +182,8 @@ class TextReader:
     def _parse(self, block: bytes, line_no: int) -> np.ndarray:
         """Events of one block of whole lines (the first numbered ``line_no``): read by the kernel
         (:func:`evtools._kernels.text.parse_text`), or by numpy when a field is more than a plain decimal."""
+        if self.semicolons:
+            block = block.replace(b",", b" ").replace(b";", b",")  # (a comma inside a field is no separator)
         lines = block.count(b"\n") + 1  # (+ 1: room for a last line without its newline, were there one)
         mantissas, decimals = np.empty((lines, self.ncols), np.int64), np.empty((lines, self.ncols), np.int64)
         rows = np.empty(lines, np.int64)
@@ -181,7 +192,7 @@ class TextReader:
         if status == WRONG_COUNT:
             self._wrong_count(line_no + line, fields)
         if status == PARSED:
-            if self.csv and not point:  # numpy's integer parser reads such a block: the exact integers
+            if not self.seconds and not point:  # numpy's integer parser reads such a block: the exact integers
                 values = mantissas[:n]
             else:
                 values = mantissas[:n].astype(np.float64) / _POWERS_OF_TEN_FLOAT[decimals[:n]]
@@ -191,8 +202,11 @@ class TextReader:
     def _wrong_count(self, line_no: int, fields: int) -> None:
         raise FormatError(
             f"{self.name}: line {line_no}: {fields} columns, expected {self.ncols} "
-            f"({'' if self.csv else 'whitespace-separated '}{','.join(self.names)})"
+            f"({self._separated()}{','.join(self.names)})"
         )
+
+    def _separated(self) -> str:
+        return "semicolon-separated " if self.semicolons else "" if self.csv else "whitespace-separated "
 
     def _parse_numpy(self, block: bytes, line_no: int) -> np.ndarray:
         """:meth:`_parse` by numpy's parser (exponents, ``true``/``false``, long mantissas), and the errors."""
@@ -225,12 +239,12 @@ class TextReader:
 
     def _numbers(self, block: bytes, expected: int, line_no: int) -> np.ndarray | None:
         text = block.replace(b",", b" ") if self.csv else block
-        attempts = (np.int64, np.float64) if self.csv else (np.float64,)
+        attempts = (np.float64,) if self.seconds else (np.int64, np.float64)
         for dtype in attempts:
             try:
                 values = np.fromstring(text, dtype=dtype, sep=" ")
             except ValueError:
-                if self.csv and dtype is np.int64 and re.search(rb"(?i)true|false", text):
+                if dtype is np.int64 and re.search(rb"(?i)true|false", text):
                     text = re.sub(rb"(?i)true", b"1", re.sub(rb"(?i)false", b"0", text))
                     try:
                         values = np.fromstring(text, dtype=dtype, sep=" ")
@@ -249,7 +263,7 @@ class TextReader:
                 continue
             for field in fields:
                 field = field.strip()
-                if not _NUMBER.match(field) and not (self.csv and field.lower() in (b"true", b"false")):
+                if not _NUMBER.match(field) and not (not self.seconds and field.lower() in (b"true", b"false")):
                     shown = field.decode("utf-8", "replace")[:40]
                     raise FormatError(f"{self.name}: line {line_no + i}: {shown!r} is not a number")
         last = line_no + block.count(b"\n") - 1
@@ -259,7 +273,7 @@ class TextReader:
         t, x, y, p = (values[:, self.index[field]] for field in ("t", "x", "y", "p"))
         if values.dtype.kind == "f":
             self._check(~np.isfinite(t), rows, line_no, "t is not a finite number")
-            t = np.rint(t * 1e6 if not self.csv else t)
+            t = np.rint(t * 1e6 if self.seconds else t)
             self._check((x != np.floor(x)) | (y != np.floor(y)) | ~np.isfinite(p), rows, line_no,
                         "x and y must be integers, p a number")
         # the integer parser saturates at +-(2^63 - 1): such a value, and any beyond the supported range, is refused
@@ -296,6 +310,18 @@ class TextReader:
             events = self._parse(block, line_no)
             for start in range(0, len(events), self.chunk_events):
                 yield events[start : start + self.chunk_events]
+
+
+class CsvReader(TextReader):
+    """:class:`TextReader` of a file opened as CSV (by extension or ``--input-format csv``): t in microseconds."""
+
+    DECLARED = "csv"
+
+
+class TxtReader(TextReader):
+    """:class:`TextReader` of a file opened as text: t in seconds unless the first line has commas."""
+
+    DECLARED = "txt"
 
 
 # -- writing ------------------------------------------------------------------------------------------------

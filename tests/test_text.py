@@ -322,3 +322,31 @@ def test_the_kernel_reads_each_number_as_pythons_float_bit_for_bit(rows, csv):
         assert values.tobytes() == np.where(expected == 0, 0.0, expected).tobytes()  # -0 is read as 0
     else:
         assert status == OTHER_SYNTAX and not plain
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(event_arrays(), st.sampled_from([",", ";", " ", "\t", "  "]), st.sampled_from(["none", "plain", "faery"]),
+       st.sampled_from(["extension", "option"]))
+def test_a_csv_keeps_microseconds_whatever_its_separator(tmp_path_factory, case, separator, header, declared):
+    """A file read as CSV (its .csv extension, or --input-format csv on another name) has t in microseconds with
+    commas, semicolons, spaces or tabs between its fields (faery writes any separator), a header or none: never
+    taken for rpg text with t in seconds (a factor 10^6, silently, before)."""
+    events, info, _ = case
+    assume(len(events) > 0)
+    names = {"none": None, "plain": ["t", "x", "y", "p"], "faery": ["t", f"x@{info.width}", f"y@{info.height}", "on"]}
+    lines = ([separator.join(names[header])] if names[header] else []) + [
+        separator.join(str(int(v)) for v in row) for row in zip(events["t"], events["x"], events["y"], events["p"])]
+    path = tmp_path_factory.mktemp("sep") / ("events.csv" if declared == "extension" else "events.data")
+    path.write_text("\n".join(lines) + "\n")
+    options = {"format": "csv"} if declared == "option" else {}
+    read_info, read = read_all(path, sensor_size=(info.width, info.height), **options)
+    assert read_info.format == "csv"
+    assert np.array_equal(read, events)
+
+
+def test_a_space_separated_txt_keeps_seconds_and_commas_anywhere_mean_csv(tmp_path):
+    """The .txt convention is unchanged: whitespace-separated t in seconds; a first line with commas is CSV."""
+    events, info = read_text(tmp_path, "0.5 1 2 1\n1.25 3 4 0\n", name="events.txt", sensor_size=(8, 8))
+    assert (info.format, events["t"].tolist()) == ("txt", [500_000, 1_250_000])
+    events, info = read_text(tmp_path, "t,x,y,p\n5,1,2,1\n", name="events.txt", sensor_size=(8, 8))
+    assert events["t"].tolist() == [5]
