@@ -30,7 +30,7 @@ from typing import Any, Iterable, Iterator
 import numpy as np
 
 from evtools.errors import EvtoolsError
-from evtools.events import EVENT_DTYPE, StreamChecker, StreamInfo, empty_events, make_events
+from evtools.events import EVENT_DTYPE, StreamChecker, StreamInfo, empty_events, event_fields, make_events
 
 __all__ = [
     "bafilter", "correct", "estimate", "from_columns", "from_dv", "from_tonic", "inject_noise", "open", "read",
@@ -369,7 +369,8 @@ def to_tonic(events: np.ndarray) -> np.ndarray:
 
 
 def from_tonic(array: np.ndarray) -> np.ndarray:
-    """Events from a tonic structured array (fields x, y, t and p, any integer or bool types; p > 0 is ON).
+    """Events from a tonic structured array (fields x, y, t and p, any integer or bool types; p > 0 is ON; the
+    polarity may be named ``on``, as tonic's ``read_aedat4``, faery and aedat name it).
 
     tonic's times are microseconds for its event-camera datasets; the order of the array is kept (equal times
     included) and must be by time.
@@ -382,11 +383,12 @@ def from_tonic(array: np.ndarray) -> np.ndarray:
     >>> evtools.from_tonic(array)["p"].tolist()
     [True, False]
     """
-    names = array.dtype.names or ()
-    missing = [name for name in ("x", "y", "t", "p") if name not in names]
-    if missing:
+    keys = event_fields(array.dtype)
+    if keys is None:
+        fields = array.dtype.fields or {}
+        missing = [name for name in ("x", "y", "t", "p") if name not in fields and not (name == "p" and "on" in fields)]
         raise EvtoolsError(f"a tonic event array has fields x, y, t, p; this one lacks {', '.join(missing)}")
-    return from_columns(array["t"], array["x"], array["y"], array["p"])
+    return from_columns(array[keys["t"]], array[keys["x"]], array[keys["y"]], array[keys["p"]])
 
 
 def to_dv(events: np.ndarray, info: StreamInfo):

@@ -156,27 +156,40 @@ def _room(events: int) -> np.ndarray:
 
 def as_chunk(chunk, name: str = "chunk") -> np.ndarray:
     """``chunk`` as a 1-D array of :data:`EVENT_DTYPE`. An array with its fields in another layout (tonic's x, y, t,
-    p int64, say) is converted field by field, by name (``p > 0`` is ON), and refused when a value would change
+    p int64, faery's t, x, y, on: see :func:`event_fields`) is converted field by field, by name (``p > 0`` is ON),
+    other fields ignored, and refused when a value would change
     (a fractional time, a coordinate beyond int16); anything else raises :class:`InvalidEventsError` saying how to
     convert it."""
     chunk = np.asarray(chunk)
     if chunk.dtype != EVENT_DTYPE:
-        if chunk.dtype.names is None or set(chunk.dtype.names) != set(EVENT_DTYPE.names):
+        keys = event_fields(chunk.dtype)
+        if keys is None:
             raise InvalidEventsError(
                 f"{name} has dtype {chunk.dtype}, expected EVENT_DTYPE (fields t, x, y, p: evtools.from_columns, "
                 "from_tonic and from_dv convert other layouts)")
         converted = np.empty(chunk.shape, EVENT_DTYPE)
         for column in ("t", "x", "y"):  # by name: numpy's astype between structured types goes by position
-            values = chunk[column]
+            values = chunk[keys[column]]
             converted[column] = values
             if values.dtype != EVENT_DTYPE[column] and np.any(converted[column] != values):
                 kind = "a whole number of microseconds" if column == "t" else "an int16 coordinate"
                 raise InvalidEventsError(f"{name}: field {column} ({values.dtype}) holds a value that is not {kind}")
-        converted["p"] = chunk["p"] > 0
+        converted["p"] = chunk[keys["p"]] > 0
         chunk = converted
     if chunk.ndim != 1:
         raise InvalidEventsError(f"{name}: a chunk is a 1-D array of events, got shape {chunk.shape}")
     return chunk
+
+
+def event_fields(dtype: np.dtype) -> dict[str, str] | None:
+    """The fields of a structured ``dtype`` that hold t, x, y and p, by name or title (faery's, aedat's and tonic's
+    ``read_aedat4`` arrays call the polarity ``on``, titled ``p``; ``on`` alone is taken too); None if one lacks.
+    Other fields are ignored."""
+    fields = dtype.fields or {}
+    keys = {column: column for column in ("t", "x", "y", "p") if column in fields}
+    if "p" not in keys and "on" in fields:
+        keys["p"] = "on"
+    return keys if len(keys) == 4 else None
 
 
 _RECORD = np.dtype((np.void, EVENT_DTYPE.itemsize))

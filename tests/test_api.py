@@ -171,6 +171,33 @@ def test_arrays_that_do_not_convert_exactly_are_refused():
     array["x"][0] = 1 << 16  # would wrap to 0
     with pytest.raises(evtools.InvalidEventsError, match=r"field x \(int64\) holds a value that is not an int16"):
         as_chunk(array)
-    faery_like = np.zeros(1, dtype=[("t", "<u8"), ("x", "<u2"), ("y", "<u2"), ("on", "?")])
+    no_polarity = np.zeros(1, dtype=[("t", "<u8"), ("x", "<u2"), ("y", "<u2"), ("label", "?")])
     with pytest.raises(evtools.InvalidEventsError, match="from_columns, from_tonic and from_dv convert"):
-        evtools.bafilter(faery_like, evtools.StreamInfo(4, 4))
+        evtools.bafilter(no_polarity, evtools.StreamInfo(4, 4))
+    with pytest.raises(evtools.EvtoolsError, match="this one lacks p"):
+        evtools.from_tonic(no_polarity)
+
+
+def test_the_peers_arrays_are_taken_as_their_events(tmp_path):
+    """faery's arrays (and aedat's, and tonic's read_aedat4: the same dtype) call the polarity ``on`` with the
+    title ``p``, times uint64: taken at every door as the events they hold (refused before)."""
+    import faery
+
+    from tests.conftest import data_file
+
+    path = data_file("dvxplorer_sample.aedat4")
+    events, info = evtools.read(path)
+    array = faery.events_stream_from_file(path).to_array()
+    assert array.dtype.names == ("t", "x", "y", "on") and array.dtype.fields["p"][2] == "p"
+    assert np.array_equal(evtools.from_tonic(array), events)
+    untitled = np.zeros(len(events), [("t", "<u8"), ("x", "<u2"), ("y", "<u2"), ("on", "?")])
+    for name in ("t", "x", "y", "on"):
+        untitled[name] = array[name]
+    for door in _doors(tmp_path).values():
+        expected = _outcome(door, events, info)
+        for peer in (array, untitled):
+            got = _outcome(door, peer, info)
+            if isinstance(expected, tuple) or expected is None:  # (an error, or the write door's None)
+                assert got == expected
+            else:
+                assert np.array_equal(got, expected, equal_nan=expected.dtype.kind == "f")
