@@ -10,8 +10,10 @@ with ``#`` (CRLF in files jAER writes, LF in some others) and ends at the first 
   numbering), polarity bit 11 (1 = ON); bit 31 marks APS/IMU samples, bit 10 external input (both skipped).
 
 In evtools' image convention both become ``x = W-1-raw_x``, ``y = H-1-raw_y``. Timestamps are 32-bit
-microsecond counters that wrap every 2^32 us (71.6 min); the reader unwraps them into int64 and the writer
-stores ``t mod 2^32``.
+microsecond counters that wrap every 2^32 us (71.6 min); the reader unwraps them into int64 (a fall by more than
+half the range is a wrap) and the writer stores ``t mod 2^32``, with the multiple of 2^32 us below the first time
+in a ``# evtools-t0-us: N`` header line that evtools adds back (jAER ignores it), and refuses a gap between
+consecutive events that the reader would unwrap otherwise (any below 2^31 us, 35.8 min, fits).
 
 References
 ----------
@@ -28,7 +30,7 @@ from typing import BinaryIO, Iterator
 import numpy as np
 
 import evtools
-from evtools.events import EVENT_DTYPE, StreamInfo
+from evtools.events import EVENT_DTYPE, MAX_TIME_US, StreamInfo
 from evtools.formats.errors import FormatError
 from evtools.formats.io import Source, resolve_sensor_size
 from evtools.formats.registry import ReadOptions, WriteOptions
@@ -53,10 +55,14 @@ CHIP_CLASSES = {
 }
 """jAER's Java class written in ``# AEChip:`` for each layout."""
 SIZE_LINE = "# evtools-sensor-size:"
+T0_LINE = "# evtools-t0-us:"
+"""Header line of the time (us) added to every timestamp: the 32-bit counter's multiple of 2^32 us that the
+writer could not store (jAER ignores the line and reads the times that much earlier)."""
 """Extra header line the writer adds when the stream is smaller than its layout (jAER ignores it)."""
 
 _AECHIP = re.compile(r"^#\s*AEChip:\s*(\S+)")
 _SIZE = re.compile(r"^#\s*evtools-sensor-size:\s*(\d+)\s*x\s*(\d+)", re.IGNORECASE)
+_T0 = re.compile(r"^#\s*evtools-t0-us:\s*(-?\d+)\s*$", re.IGNORECASE)
 
 
 def layout_of_chip(chip_class: str) -> str | None:
@@ -128,6 +134,10 @@ class Aedat2Reader:
         text = [line.decode("latin-1").rstrip("\r\n") for line in lines]
         chip = next((m.group(1) for m in map(_AECHIP.match, text) if m), None)
         stored = next(((int(m.group(1)), int(m.group(2))) for m in map(_SIZE.match, text) if m), None)
+        self.t0_us = next((int(m.group(1)) for m in map(_T0.match, text) if m), 0)
+        if abs(self.t0_us) > MAX_TIME_US:
+            raise FormatError(f"{self.name}: the header's t0 ({self.t0_us} us) lies outside the +-2^62 us that "
+                              "evtools supports")
 
         layout = layout_of_chip(chip) if chip else None
         if layout is not None:
@@ -152,7 +162,7 @@ class Aedat2Reader:
         self.skipped = {"special": 0, "aps_imu": 0, "external_input": 0}
         self.info = StreamInfo(
             width, height, "aedat2",
-            metadata={"aechip": chip, "aedat2_layout": layout, "skipped_words": self.skipped},
+            metadata={"aechip": chip, "aedat2_layout": layout, "skipped_words": self.skipped, "t0_us": self.t0_us},
         )
         self._last_raw_t: int | None = None
         self._wraps = 0
@@ -218,7 +228,7 @@ class Aedat2Reader:
         wraps = np.cumsum((raw_t - previous) < -HALF_WRAP_US) + self._wraps
         self._last_raw_t = int(raw_t[-1])
         self._wraps = int(wraps[-1])
-        return raw_t + wraps * WRAP_US
+        return raw_t + wraps * WRAP_US + self.t0_us
 
 
 class Aedat2Writer:
@@ -235,8 +245,12 @@ class Aedat2Writer:
 
     Notes
     -----
-    Timestamps are stored modulo 2^32 (jAER's 32-bit counter; the reader unwraps). Leading events whose first
-    byte would be ``#`` (DAVIS raw y 140..143) are dropped with a warning: they would read as header.
+    Timestamps are stored modulo 2^32 (jAER's 32-bit counter; the reader unwraps); a stream that starts later (DV's
+    times are Unix times) gets a ``# evtools-t0-us:`` line, the multiple of 2^32 us below its first time, with a
+    warning (jAER reads the times that much earlier); a gap the reader would unwrap otherwise is refused (one of
+    2^31 us or more across a wrap, of 2^32 us or more anywhere).
+    Times must not be negative. Leading events whose first byte would be ``#`` (DAVIS raw y 140..143) are dropped
+    with a warning: they would read as header. The header is written with the first events (or at the end).
     """
 
     def __init__(self, stream: BinaryIO, info: StreamInfo, options: WriteOptions) -> None:
@@ -261,7 +275,7 @@ class Aedat2Writer:
             raise FormatError(
                 f"AEDAT 2.0 layout {layout} ({self.width}x{self.height}) cannot hold a {width}x{height} sensor"
             )
-        lines = [
+        self.lines = [
             "#!AER-DAT2.0",
             f"# This is a raw AE data file created by evtools {evtools.__version__} - do not edit",
             "# Data format is int32 address, int32 timestamp (8 bytes total), repeated for each event",
@@ -269,10 +283,16 @@ class Aedat2Writer:
             f"# AEChip: {CHIP_CLASSES[layout]}",
         ]
         if (width, height) != (self.width, self.height):
-            lines.append(f"{SIZE_LINE} {width}x{height}")
-        stream.write("".join(line + "\r\n" for line in lines).encode("ascii"))
+            self.lines.append(f"{SIZE_LINE} {width}x{height}")
+        self._headed = False
+        self._last_t: int | None = None
         self._started = False
         self.dropped = 0
+
+    def _write_header(self, t0_us: int) -> None:
+        lines = self.lines + ([f"{T0_LINE} {t0_us}"] if t0_us else [])
+        self.stream.write("".join(line + "\r\n" for line in lines).encode("ascii"))
+        self._headed = True
 
     def write(self, chunk: np.ndarray) -> None:
         """Append a chunk of ``EVENT_DTYPE`` events."""
@@ -281,6 +301,21 @@ class Aedat2Writer:
         t, x, y = chunk["t"], chunk["x"].astype(np.int64), chunk["y"].astype(np.int64)
         if t.min() < 0:
             raise FormatError(f"AEDAT 2.0 cannot store negative timestamps ({int(t.min())} us)")
+        gaps = np.diff(t, prepend=t[0] if self._last_t is None else self._last_t)
+        stored = np.diff(t & (WRAP_US - 1), prepend=(t[0] if self._last_t is None else self._last_t) & (WRAP_US - 1))
+        read_back = np.where(stored < -HALF_WRAP_US, stored + WRAP_US, stored)  # as the reader unwraps them
+        if np.any(read_back != gaps):
+            gap = int(gaps[np.argmax(read_back != gaps)])
+            raise FormatError(f"AEDAT 2.0 cannot store two consecutive events {gap:,} us apart here: its 32-bit "
+                              "timestamps wrap every 2^32 us and a reader could not tell how many wraps lie between "
+                              "them (gaps below 2^31 us, 35.8 minutes, always fit)")
+        self._last_t = int(t[-1])
+        if not self._headed:
+            t0_us = int(t[0]) >> 32 << 32
+            if t0_us:
+                log.warning(f"AEDAT 2.0 keeps times modulo 2^32 us (71.6 minutes): the file's '{T0_LINE} {t0_us}' "
+                            f"line holds the rest (evtools adds it back; jAER reads the times {t0_us:,} us earlier)")
+            self._write_header(t0_us)
         if x.min() < 0 or y.min() < 0 or x.max() >= self.width or y.max() >= self.height:
             raise FormatError(f"AEDAT 2.0 layout {self.layout}: event outside {self.width}x{self.height}")
         raw_x = (self.width - 1) - x
@@ -310,6 +345,9 @@ class Aedat2Writer:
         )
 
     def close(self) -> None:
-        """Finish the file (AEDAT 2.0 has no trailer); does not close the stream."""
+        """Finish the file (AEDAT 2.0 has no trailer; the header of a stream without events); does not close the
+        stream."""
+        if not self._headed:
+            self._write_header(0)
         if self.dropped and not self._started:
             self._warn()

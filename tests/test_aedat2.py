@@ -9,6 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+import evtools
 from evtools.events import StreamInfo, make_events
 from evtools.formats import FormatError, create_events
 from evtools.formats.aedat2 import LAYOUT_SIZES, Aedat2Writer
@@ -205,3 +206,33 @@ def test_reads_from_a_pipe(monkeypatch):
     monkeypatch.setattr(sys, "stdin", io.TextIOWrapper(io.BufferedReader(io.BytesIO(raw))))
     info, events = read_all("-")
     assert (info.width, info.height, len(events)) == (346, 260, 111_954)
+
+
+@settings(max_examples=60, deadline=None)
+@given(start=st.sampled_from([0, 5, 2**32 - 3, 1_605_537_493_718_345, 1_700_000_000_000_000]),
+       gaps=st.lists(st.sampled_from([0, 1, 1000, 2**31 - 1, 2**31, 2**32 - 1, 2**32, 2**33 + 5]), min_size=1,
+                     max_size=12),
+       cuts=st.lists(st.integers(0, 12), max_size=4))
+def test_times_come_back_exact_or_the_write_is_refused(tmp_path_factory, start, gaps, cuts):
+    """Absolute times (DV's Unix microseconds) come back through the header's t0 line; a gap the 32-bit counter
+    cannot carry is refused naming the gap, never written to read back wrong (before: t0 dropped silently, a
+    2^32 us gap read as none, a 2^32 - 1 us gap as time going backwards); the outcome does not depend on the
+    chunks."""
+    t = start + np.cumsum([0] + gaps)
+    events = make_events(t, np.zeros(len(t)), np.zeros(len(t)), np.ones(len(t)))
+    stored = t % 2**32
+    fits = all((b - a if b - a >= -2**31 else b - a + 2**32) == g for a, b, g in zip(stored[:-1], stored[1:], gaps))
+    folder = tmp_path_factory.mktemp("gaps")
+    path = folder / "events.aedat"
+    if not fits:
+        with pytest.raises(FormatError, match=r"events\.aedat: AEDAT 2\.0 cannot store two consecutive events "
+                                              r"[\d,]+ us apart here"):
+            evtools.write(path, events, StreamInfo(128, 128))
+        assert not path.exists()
+        return
+    with create_events(path, StreamInfo(128, 128)) as writer:
+        for chunk in cut(events, cuts):
+            writer.write(chunk)
+    info, back = read_all(path)
+    assert_same_events(back, events)
+    assert info.metadata["t0_us"] == start >> 32 << 32
