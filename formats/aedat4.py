@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 import os
+import re
 import struct
 import threading
 import time
@@ -424,8 +425,14 @@ def _ioheader(compression: int, description: str) -> bytes:
     return buffer + b"\0" * (-len(buffer) % 4)
 
 
+_NOT_XML = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\ud800-\udfff\ufffe\uffff]")
+"""Characters XML 1.0 forbids in a document even when escaped (C0 controls but tab and line ends, surrogates,
+U+FFFE and U+FFFF): a source name holding one is written with U+FFFD in its place, else no reader (evtools, DV,
+aedat, faery) would parse the stream description."""
+
+
 def _description(info: StreamInfo, compression: int) -> str:
-    source = escape(str(info.metadata.get("source") or "evtools"), quote=False)
+    source = escape(_NOT_XML.sub("\ufffd", str(info.metadata.get("source") or "evtools")), quote=False)
     return (
         '<dv version="2.0">\n'
         '    <node name="outInfo" path="/mainloop/Recorder/outInfo/">\n'

@@ -5,9 +5,10 @@ import struct
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
+import evtools
 from evtools.events import StreamInfo, join, make_events
 from evtools.formats import FormatError, create_events, open_events
 from evtools.formats.aedat4 import Aedat4Writer
@@ -426,3 +427,23 @@ def test_a_given_sensor_size_that_differs_from_the_files_is_warned(tmp_path):
         writer.write(random_events(100, 32, 24, seed=1))
     result = run("info", path, "--sensor-size", "64x64")
     assert b"file says 32x24, using --sensor-size 64x64" in result.stderr
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.text(max_size=30))
+@example("cam\x01x")  # (the interop session's: evtools, aedat and faery refused the file evtools wrote)
+@example("\ud800<&>\ufffe\r\n\t")
+def test_any_source_name_gives_a_file_every_reader_parses(tmp_path_factory, source):
+    """A source name of any characters (a file name with a control character, say) is written so that the stream
+    description stays XML: characters XML forbids become U+FFFD, the rest come back (line ends as XML reads them)."""
+    import faery
+
+    path = tmp_path_factory.mktemp("source") / "events.aedat4"
+    events = make_events([1, 2], [0, 1], [0, 1], [1, 0])
+    evtools.write(path, events, StreamInfo(4, 4, metadata={"source": source}))
+    read, info = evtools.read(path)
+    assert_same_events(read, events)
+    kept = "".join("\ufffd" if (ord(c) < 32 and c not in "\t\n\r") or 0xD800 <= ord(c) <= 0xDFFF
+                   or c in "\ufffe\uffff" else c for c in (source or "evtools"))
+    assert info.metadata["source"] == kept.replace("\r\n", "\n").replace("\r", "\n")
+    assert len(faery.events_stream_from_file(path).to_array()) == 2
