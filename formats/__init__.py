@@ -22,7 +22,8 @@ from evtools.formats.io import (
     read_ahead,
     same_file,
 )
-from evtools.formats.registry import FORMATS, PIPE_FORMAT, ReadOptions, WriteOptions, by_name, detect, from_extension
+from evtools.formats.registry import (FORMATS, NOT_READ, PIPE_FORMAT, ReadOptions, WriteOptions, by_name, detect,
+                                      from_extension)
 
 COMPRESSED_RATIO_BOUND = 3
 """A whole compressed AEDAT 4.0 file is read into a result sized for this many decoded bytes per file byte (LZ4 on
@@ -127,6 +128,9 @@ def open_events(
             fmt = by_name(format)
         else:
             fmt = detect(source.head, source.path)
+            unread = next((said for magic, said in NOT_READ.items() if source.head.startswith(magic)), None)
+            if fmt is None and unread:
+                raise FormatError(f"{source.name}: {unread}: evtools does not read this format")
             if fmt is None:
                 raise FormatError(f"{source.name}: unknown format (no known magic bytes or extension); give "
                                   "--input-format")

@@ -152,6 +152,11 @@ class ProphesseeRawReader:
         except ValueError:
             raise FormatError(f"{self.name}: the header's sensor size is not a number "
                               f"(% format {header.get('format', '')})") from None
+        if stated and max(stated) > 2048:
+            logging.getLogger("evtools").warning(
+                f"{self.name}: the header's sensor size {stated[0]}x{stated[1]} exceeds the 2048 x 2048 that EVT "
+                f"{version} addresses (11-bit x and y): columns and rows beyond 2047 cannot be told apart in this "
+                "file (its writer wrapped them?)")
         self.t0_us = header_t0(header, self.name)
         width, height = resolve_sensor_size(source, stated, options.sensor_size, scan=self._scan)
         self.info = StreamInfo(

@@ -128,6 +128,13 @@ def by_name(name: str) -> Format:
         raise FormatError(f"unknown format {name!r}; known: {', '.join(BY_NAME)}") from None
 
 
+NOT_READ = {
+    b"Event Stream": "Event Stream (.es: faery, neuromorphic_drivers); convert it with faery, e.g. "
+                     "'faery input file x.es output file x.aedat4'",
+    b"#ROSBAG V2.0": "a ROS 1 bag (rpg_dvs_ros); extract the events with the rosbag tools (e.g. to an rpg events.txt)",
+}
+"""Magic bytes of formats evtools recognises but does not read, and what to do instead."""
+
 TEXT_FORMATS = ("csv", "txt")
 """Formats recognised by their content's look rather than by magic bytes: the extension comes first for them (a
 ``.csv`` of space-separated numbers is CSV, with microseconds, not rpg text in seconds)."""

@@ -502,3 +502,27 @@ def test_readers_write_every_byte_of_the_chunks_they_reuse(tmp_path, monkeypatch
         _, read = read_all(path, chunk_events=chunk_events)
         assert not read.view(np.uint8).reshape(-1, 16)[:, 13:].any()
         assert_same_events(read, events)
+
+
+def test_a_header_wider_than_the_words_address_is_warned_about(tmp_path, caplog):
+    """faery writes EVT 3.0 files whose header says 4096 columns, which the 11-bit x cannot address: read, with a
+    warning that columns past 2047 cannot be told apart."""
+    path = tmp_path / "wide.raw"
+    path.write_bytes(b"% evt 3.0\n% format EVT3;width=4096;height=16\n% end\n"
+                     + np.array([0x0 << 12 | 3, 0x8 << 12 | 1, 0x2 << 12 | 2047], "<u2").tobytes())
+    with caplog.at_level("WARNING", logger="evtools"):
+        info, events = read_all(path)
+    assert (info.width, info.height, events["x"].tolist()) == (4096, 16, [2047])
+    assert "4096x16 exceeds the 2048 x 2048 that EVT 3.0 addresses" in caplog.text
+
+
+def test_formats_evtools_does_not_read_are_named(tmp_path):
+    from tests.helpers import assert_clean_error, run
+
+    path = tmp_path / "recording.es"
+    path.write_bytes(b"Event Stream\x02\x00\x00\x01" + bytes(32))
+    assert_clean_error(run("info", path, check=False), "recording.es",
+                       "Event Stream (.es: faery, neuromorphic_drivers); convert it with faery")
+    path = tmp_path / "recording.bag"
+    path.write_bytes(b"#ROSBAG V2.0\n" + bytes(64))
+    assert_clean_error(run("info", path, check=False), "recording.bag", "a ROS 1 bag")
