@@ -7,8 +7,8 @@ from __future__ import annotations
 
 def naive_text_events(lines: list[str], csv: bool) -> list[tuple[int, int, int, int]]:
     """(t_us, x, y, p) of every non-blank line: t in seconds rounded to the nearest microsecond (ties to even, as
-    ``round`` does) for whitespace-separated text, whole microseconds for CSV (a CSV block with any decimal point
-    is read as floats, rounded likewise); p is 1 when positive."""
+    ``round`` does) for whitespace-separated text, whole microseconds for CSV (a CSV time with a fraction is
+    refused: the generators write none); p is 1 when positive."""
     rows = []
     for line in lines:
         fields = [field.strip() for field in line.split(",")] if csv else line.split()
