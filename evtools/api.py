@@ -29,8 +29,8 @@ from typing import Any, Iterable, Iterator
 
 import numpy as np
 
-from evtools.errors import EvtoolsError
-from evtools.events import EVENT_DTYPE, StreamChecker, StreamInfo, empty_events, event_fields, make_events
+from evtools.errors import EvtoolsError, InvalidEventsError
+from evtools.events import EVENT_DTYPE, StreamChecker, StreamInfo, as_chunk, empty_events, event_fields
 
 __all__ = [
     "bafilter", "correct", "estimate", "from_columns", "from_dv", "from_tonic", "inject_noise", "open", "read",
@@ -125,8 +125,17 @@ def writer(path: str | os.PathLike | None, info: StreamInfo, **options) -> Itera
     """
     from evtools.formats import create_events
 
+    info = _stream_info(info)
     with create_events(path, info, **options) as sink:
         yield _CheckedSink(sink, info)
+
+
+def _stream_info(info) -> StreamInfo:
+    """``info`` if it is a :class:`StreamInfo` (a sensor size given otherwise is refused saying how to give it)."""
+    if not isinstance(info, StreamInfo):
+        raise EvtoolsError(f"info must be an evtools.StreamInfo (e.g. evtools.StreamInfo(width, height)), got "
+                           f"{type(info).__name__} {info!r:.40}")
+    return info
 
 
 class _CheckedSink:
@@ -162,6 +171,7 @@ def bafilter(events: np.ndarray, info: StreamInfo, method: str = "baf", **params
     """
     from evtools.filters import ba_filter
 
+    info = _stream_info(info)
     return ba_filter(events, info.width, info.height, method, **params)
 
 
@@ -194,6 +204,7 @@ def estimate(events: np.ndarray, info: StreamInfo, method: str = "offe", **param
 
     if method == "stimulus":
         params.setdefault("stimulus", Stimulus())
+    info = _stream_info(info)
     return estimate_thresholds(events, info.width, info.height, method, **params)
 
 
@@ -240,10 +251,15 @@ def correct(events: np.ndarray, info: StreamInfo, thresholds, **params) -> np.nd
     elif getattr(thresholds, "series", None) is not None:  # an online ThresholdEstimate
         series = thresholds.series
         on, off, valid, params["t_us"] = series.on, series.off, series.valid, series.t_us
-    else:
+    elif all(hasattr(thresholds, name) for name in ("on", "off", "valid")):
         on, off, valid = thresholds.on, thresholds.off, thresholds.valid
         if getattr(thresholds, "t_us", None) is not None:
             params["t_us"] = thresholds.t_us
+    else:
+        raise EvtoolsError(f"thresholds must be an estimate (evtools.estimate), a thresholds map, a thresholds or "
+                           f"truth file's path, or simulate()'s truth; got {type(thresholds).__name__} "
+                           f"(a target threshold is the target= parameter)")
+    info = _stream_info(info)
     return correct_thresholds(events, info.width, info.height, on, off, valid, **params)
 
 
@@ -315,6 +331,7 @@ def inject_noise(events: np.ndarray, info: StreamInfo, **parameters) -> tuple[np
     """
     from evtools.noise import inject_noise as inject
 
+    info = _stream_info(info)
     return inject(events, info.width, info.height, **parameters)
 
 
@@ -342,8 +359,27 @@ def from_columns(t, x, y, p) -> np.ndarray:
     >>> import evtools
     >>> evtools.from_columns([0, 2], [5, 6], [1, 1], [1, -1])["p"].tolist()
     [True, False]
+
+    A value the events cannot hold as given is refused (:class:`InvalidEventsError`), never rounded or wrapped: a
+    fractional time or coordinate, a time beyond int64, a coordinate beyond int16, a polarity other than a bool,
+    0/1 or -1/+1, columns of different lengths.
     """
-    return make_events(t, x, y, np.asarray(p) > 0)
+    columns = {name: np.asarray(values) for name, values in (("t", t), ("x", x), ("y", y), ("p", p))}
+    lengths = {name: column.shape for name, column in columns.items()}
+    if any(len(shape) != 1 for shape in lengths.values()) or len(set(lengths.values())) != 1:
+        said = ", ".join(f"{name} {shape}" for name, shape in lengths.items())
+        raise InvalidEventsError(f"columns: four 1-D columns of one length are needed, got shapes {said}")
+    polarity = columns["p"]
+    if polarity.dtype != bool and not np.isin(polarity, (0, 1, -1)).all():
+        bad = polarity[~np.isin(polarity, (0, 1, -1))][0].item()
+        raise InvalidEventsError(f"columns: p holds {bad!r}; a polarity is a bool, 0/1 or -1/+1")
+    for name, column in columns.items():
+        if column.dtype.kind not in "biuf":
+            raise InvalidEventsError(f"columns: {name} holds {column.dtype} values, not numbers")
+    array = np.empty(len(polarity), [(name, column.dtype) for name, column in columns.items()])
+    for name, column in columns.items():
+        array[name] = column
+    return as_chunk(array, "columns")
 
 
 TONIC_DTYPE = np.dtype([("x", "<i8"), ("y", "<i8"), ("t", "<i8"), ("p", "<i8")])

@@ -67,6 +67,8 @@ def check_sensor_size(width: int, height: int) -> None:
     """Raise :class:`InvalidEventsError` unless ``1 <= width, height <= 32767`` and the sensor has at most
     :data:`MAX_SENSOR_PIXELS` pixels (per-pixel maps of a larger one would take tens of gigabytes)."""
     for name, value in (("width", width), ("height", height)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+            raise InvalidEventsError(f"sensor {name} {value!r} is not a whole number of pixels")
         if not 1 <= int(value) <= MAX_SENSOR_SIDE:
             raise InvalidEventsError(f"sensor {name} {value} is not in 1..{MAX_SENSOR_SIDE}")
     pixels = int(width) * int(height)
@@ -172,7 +174,7 @@ def as_chunk(chunk, name: str = "chunk") -> np.ndarray:
             values = chunk[keys[column]]
             converted[column] = values
             if values.dtype != EVENT_DTYPE[column] and np.any(converted[column] != values):
-                kind = "a whole number of microseconds" if column == "t" else "an int16 coordinate"
+                kind = "a whole number of microseconds in int64" if column == "t" else "an int16 coordinate"
                 raise InvalidEventsError(f"{name}: field {column} ({values.dtype}) holds a value that is not {kind}")
         converted["p"] = chunk[keys["p"]] > 0
         chunk = converted

@@ -201,3 +201,35 @@ def test_the_peers_arrays_are_taken_as_their_events(tmp_path):
                 assert got == expected
             else:
                 assert np.array_equal(got, expected, equal_nan=expected.dtype.kind == "f")
+
+
+@pytest.mark.parametrize("columns, message", [
+    (([1.5, 2], [1, 2], [1, 2], [1, 0]), r"field t \(float64\) holds a value that is not a whole number"),
+    ((np.array([2**63 + 5], np.uint64), [1], [1], [1]), r"field t \(uint64\) holds a value that is not a whole"),
+    (([1], [1], [1], [2]), r"p holds 2; a polarity is a bool, 0/1 or -1/\+1"),
+    (([1], [1], [1], [0.5]), r"p holds 0.5"),
+    (([1], [1.5], [1], [1]), r"field x \(float64\) holds a value that is not an int16 coordinate"),
+    (([1], [70000], [1], [1]), r"field x \(int64\) holds a value that is not an int16 coordinate"),
+    (([1, 2], [1], [1], [1]), r"four 1-D columns of one length are needed, got shapes t \(2,\), x \(1,\)"),
+    (([1], [1], [1], ["a"]), r"p holds 'a'"),
+])
+def test_columns_the_events_cannot_hold_are_refused_not_rounded(columns, message):
+    """from_columns (and from_tonic, through it) refuse what would change: before, 1.5 us became 1, p = 2 or 0.5
+    became ON, 2^63 + 5 wrapped negative, and a coordinate of 70,000 or columns of two lengths raised numpy's own
+    errors."""
+    with pytest.raises(evtools.InvalidEventsError, match=message):
+        evtools.from_columns(*columns)
+    assert evtools.from_columns([0, 2.0], [5, 6], [1, 1], [True, False])["t"].tolist() == [0, 2]
+
+
+def test_the_doors_say_what_info_and_thresholds_must_be():
+    events = evtools.from_columns([0, 1], [1, 2], [1, 2], [1, 0])
+    for door in (lambda info: evtools.bafilter(events, info), lambda info: evtools.estimate(events, info),
+                 lambda info: evtools.inject_noise(events, info),
+                 lambda info: evtools.write("/tmp/x.aedat4", events, info)):
+        with pytest.raises(evtools.EvtoolsError, match=r"info must be an evtools.StreamInfo .* got tuple \(8, 6\)"):
+            door((8, 6))
+    with pytest.raises(evtools.EvtoolsError, match=r"thresholds must be an estimate .* got float \(a target"):
+        evtools.correct(events, evtools.StreamInfo(8, 6), 0.2)
+    with pytest.raises(evtools.InvalidEventsError, match=r"sensor width 8.5 is not a whole number of pixels"):
+        evtools.StreamInfo(8.5, 5)
