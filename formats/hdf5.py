@@ -52,7 +52,9 @@ DEFAULT_COMPRESSION = COMPRESSIONS[0]
 """Zstd level 1 (hdf5plugin's filter 32015, as DSEC publishes). Measured on 10 million random events (2 cores):
 zstd writes about 33 million events/s and reads 50-70 million/s at 3.8 bytes/event; none 30-50 / 110 million/s
 at 13 bytes/event; lzf 20 / 26 million/s; gzip 8 / 27 million/s. Zstd meets the 20 million/s write target with
-the smallest files but one (gzip), so it is the default."""
+the smallest files but one (gzip), so it is the default. The bytes written do not depend on how the events were
+chunked, except with lzf: liblzf's encoder leaves its hash table unset, so its output (not what it decodes to)
+varies from run to run."""
 
 
 def _h5py():

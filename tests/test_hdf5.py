@@ -94,7 +94,8 @@ def test_round_trip_and_bytes_independent_of_chunking(compression, case, tmp_pat
     with mock.patch.object(evtools.formats.hdf5, "WRITE_BLOCK_EVENTS", 16), mock.patch.object(evtools.formats.hdf5, "MS_BLOCK", 64):
         whole = write_bytes(Hdf5Writer, events, [], info, compression)
         chunked = write_bytes(Hdf5Writer, events, cuts, info, compression)
-    assert whole == chunked
+    if compression != "lzf":  # (liblzf's encoder leaves its hash table unset: its bytes vary from run to run, the
+        assert whole == chunked  # same cuts too; what they decode to is compared below)
     path = tmp_path_factory.mktemp("rt") / "events.h5"
     path.write_bytes(chunked)
     got_info, got = read_all(path, chunk_events=7)
