@@ -348,8 +348,21 @@ def output_stream(path: str | os.PathLike | None, *, binary_name: str, needs_see
     if path == STDIO:
         _check_stream_target(None, "a pipe", binary_name, needs_seek)
         sys.stdout.flush()
-        yield sys.stdout.buffer
-        sys.stdout.buffer.flush()
+        if isinstance(sys.stdout.buffer, io.BufferedWriter):
+            yield sys.stdout.buffer
+            sys.stdout.buffer.flush()
+            return
+        # python -u / PYTHONUNBUFFERED=1: stdout's binary layer is raw, and a raw write may write part of its bytes
+        # (a pipe whose reader went, a signal) and say so only in its count: a buffered writer of the same
+        # descriptor writes all or raises (the rest of a CSV went missing and the exit code was 0)
+        stream = open(sys.stdout.fileno(), "wb", buffering=1 << 20, closefd=False)
+        try:
+            yield stream
+        except BaseException:
+            with contextlib.suppress(OSError):  # (the body's error is the one to report)
+                stream.close()
+            raise
+        stream.close()
         return
     real = os.path.realpath(path)
     if os.path.exists(real) and not os.path.isfile(real) and not os.path.isdir(real):

@@ -353,3 +353,22 @@ def test_shell_completion_offers_subcommands_and_options():
     assert "plain,--polarity-maps" in complete("evtools bafilter --polarity", 2)
     assert "_evtools_completion" in subprocess.run([EVTOOLS], env={**os.environ, "_EVTOOLS_COMPLETE": "bash_source"},
                                                     capture_output=True, text=True, timeout=60).stdout
+
+
+@pytest.mark.parametrize("unbuffered", [False, True])
+def test_text_to_a_pipe_is_whole_or_ends_with_141(sample, tmp_path, unbuffered):
+    """A CSV larger than a pipe's buffer: a reader that takes it all gets the file's bytes; one that closes early
+    gets exit 141 from evtools. Under PYTHONUNBUFFERED=1 (python -u, common in containers) stdout's binary layer is
+    raw, and a raw write may write part of its bytes: the rest of the CSV went missing and the exit code was 0."""
+    path, _ = sample
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"} | (
+        {"PYTHONUNBUFFERED": "1"} if unbuffered else {})
+    run("convert", path, "-o", tmp_path / "file.csv")
+    piped = tmp_path / "piped.csv"
+    shell = f"'{EVTOOLS}' convert '{path}' --format csv -o - | cat > '{piped}'; echo ${{PIPESTATUS[0]}}"
+    result = subprocess.run(["bash", "-c", shell], capture_output=True, timeout=60, env=env)
+    assert result.stdout.strip() == b"0" and piped.read_bytes() == (tmp_path / "file.csv").read_bytes()
+    assert len(piped.read_bytes()) > 1 << 17  # (more than a pipe holds)
+    shell = f"'{EVTOOLS}' convert '{path}' --format csv -o - | head -c 100 > /dev/null; echo ${{PIPESTATUS[0]}}"
+    result = subprocess.run(["bash", "-c", shell], capture_output=True, timeout=60, env=env)
+    assert result.stdout.strip() == b"141" and result.stderr == b""
