@@ -10,9 +10,10 @@ import click
 import numpy as np
 
 from evtools.cli.batch import batch_options, plan, run
-from evtools.cli.options import check_compression, compression_option, slicing_options
+from evtools.cli.options import (COUNT, MICROSECONDS, FiniteRange, check_compression, compression_option,
+                                 slicing_options)
 from evtools.cli.progress import process_stream
-from evtools.filters import METHODS, PRESETS, BAFilter, BAFilterError, parse_methods
+from evtools.filters import DEFAULTS, METHODS, PRESETS, BAFilter, BAFilterError, parse_methods
 from evtools.errors import EvtoolsError
 from evtools.formats import create_events, open_events
 from evtools.formats.io import STDIO, atomic_path, same_file
@@ -82,7 +83,6 @@ def _methods(ctx, param, value):
         raise click.BadParameter(str(error)) from None
 
 
-positive = click.IntRange(min=1)
 
 
 @click.command()
@@ -92,30 +92,32 @@ positive = click.IntRange(min=1)
 @click.option("--preset", type=click.Choice(PRESETS), default="evtools", show_default=True,
               help="Semantics and defaults: evtools (maps start long ago), dv (dv-processing's "
                    "BackgroundActivityNoiseFilter, baf only), jaer (jAER's filters).")
-@click.option("--dt-us", type=positive, default=None,
+@click.option("--dt-us", type=MICROSECONDS, default=None,
               help="Correlation window (baf, stcf, orderN) or refractory period, us [evtools: 10000, refractory "
                    "100; dv: 2000; jaer: 25000].")
-@click.option("--k", type=positive, default=None, help="stcf: correlated neighbours needed [2]; dwf: events [1].")
+@click.option("--k", type=COUNT, default=None, help="stcf: correlated neighbours needed [2]; dwf: events [1].")
 @click.option("--radius", type=click.IntRange(1, 10), default=None, help="stcf neighbourhood radius [1].")
 @click.option("--polarity/--no-polarity", default=None, help="stcf: count same-polarity neighbours only [on].")
 @click.option("--polarity-maps", is_flag=True, default=None,
               help="stcf: a time map per polarity: a neighbour's last event of the event's polarity counts even if "
                    "one of the other polarity came after it.")
-@click.option("--window", type=positive, default=None, help="dwf: length of each FIFO window [36; jaer 256].")
-@click.option("--distance", type=positive, default=None, help="dwf: L1 distance, support when < this [9; jaer 5].")
-@click.option("--learn-us", type=positive, default=None, help="hotpixel: learning stretch, us [1000000].")
-@click.option("--hot-ratio", type=click.FloatRange(min=1.0), default=None,
+@click.option("--window", type=click.IntRange(1, 1 << 16), default=None,
+              help="dwf: length of each FIFO window [36; jaer 256].")
+@click.option("--distance", type=click.IntRange(1, 1 << 16), default=None,
+              help="dwf: L1 distance, support when < this [9; jaer 5].")
+@click.option("--learn-us", type=MICROSECONDS, default=None, help="hotpixel: learning stretch, us [1000000].")
+@click.option("--hot-ratio", type=FiniteRange(min=1.0), default=None,
               help="hotpixel: hot when >= this times its 4 neighbours' largest count [5].")
-@click.option("--hot-rate-hz", type=click.FloatRange(min=0.0), default=None,
+@click.option("--hot-rate-hz", type=FiniteRange(min=0.0), default=None,
               help="hotpixel: hot when its rate is at least this [10000].")
-@click.option("--hot-min-events", type=positive, default=None,
+@click.option("--hot-min-events", type=COUNT, default=None,
               help="hotpixel: a hot pixel has at least this many events in the stretch [20].")
 @click.option("--hot-pixels", "hot_pixels_path", type=click.Path(dir_okay=False), default=None,
               help="hotpixel: drop the pixels of this CSV list (`x,y` lines) instead of learning.")
 @click.option("--save-hot-pixels", "save_hot_pixels", type=click.Path(dir_okay=False), default=None,
               help="hotpixel: write the hot pixels (learned or given) to this CSV file, or draw them on the "
                    "learning stretch's rate map (.png, .svg, .pdf).")
-@click.option("--threshold", type=click.FloatRange(0.0, 1.0, min_open=True, max_open=True), default=None,
+@click.option("--threshold", type=FiniteRange(0.0, 1.0, min_open=True, max_open=True), default=None,
               help="mlpf: keep an event when its probability of being signal is above this [0.5].")
 @click.option("--weights", type=click.Path(exists=True, dir_okay=False), default=None,
               help="mlpf: weights from `evtools metrics train-denoiser` [the ones shipped with evtools].")
@@ -137,6 +139,21 @@ def bafilter(inputs, input_format, sensor_size, aedat2_layout, output, jobs, sch
     A stage sees only the events the stages before it kept; within a stage a rejected event still updates the
     time map. Prints `N in, K kept, R removed` on stderr (not with -q).
     """
+    missing = [method for method in methods if method not in DEFAULTS[preset]]
+    if missing:
+        raise click.UsageError(f"--preset {preset} has no method {', '.join(missing)} (it has "
+                               f"{', '.join(DEFAULTS[preset])}); use --preset evtools")
+    used = {name for method in methods for name in DEFAULTS[preset][method]}
+    unused = [flag for flag, name, value in (
+        ("--dt-us", "dt_us", dt_us), ("--k", "k", k), ("--radius", "radius", radius),
+        ("--polarity", "polarity", polarity),
+        ("--polarity-maps", "polarity_maps", polarity_maps), ("--window", "window", window),
+        ("--distance", "distance", distance), ("--learn-us", "learn_us", learn_us),
+        ("--hot-ratio", "hot_ratio", hot_ratio), ("--hot-rate-hz", "hot_rate_hz", hot_rate_hz),
+        ("--hot-min-events", "hot_min_events", hot_min_events)) if value is not None and name not in used]
+    if unused:  # (was ignored: `-m baf --k 3` ran baf as if --k were not there)
+        raise click.UsageError(f"{', '.join(unused)} do(es) not apply to --method {','.join(methods)} "
+                               f"(--preset {preset})")
     if (hot_pixels_path or save_hot_pixels) and "hotpixel" not in methods:
         raise click.UsageError("--hot-pixels and --save-hot-pixels need --method hotpixel")
     if (threshold is not None or weights) and "mlpf" not in methods:

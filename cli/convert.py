@@ -7,7 +7,7 @@ import logging
 import click
 
 from evtools.cli.batch import batch_options, plan, run
-from evtools.cli.options import check_compression, compression_option, slicing_options
+from evtools.cli.options import FiniteRange, check_compression, compression_option, slicing_options
 from evtools.cli.progress import with_progress
 from evtools.formats import create_events, open_events
 from evtools.formats.io import paced
@@ -28,8 +28,8 @@ log = logging.getLogger("evtools")
 @click.option("--realtime", is_flag=True,
               help="Replay at the recorded speed: events leave when their time has come (5 ms slices), so a "
                    "recording stands in for a camera.")
-@click.option("--speed", type=click.FloatRange(min=0, min_open=True), default=None, metavar="X",
-              help="With --realtime: X times the recorded speed (2: twice as fast).")
+@click.option("--speed", type=FiniteRange(min=1e-6, max=1e6), default=None, metavar="X",
+              help="With --realtime: X times the recorded speed (2: twice as fast; 1e-6 to 1e6).")
 @slicing_options
 def convert(inputs, input_format, sensor_size, aedat2_layout, output, jobs, scheduler, as_json, output_format,
             compression, realtime, speed, slicing):

@@ -8,7 +8,7 @@ from dataclasses import replace
 import click
 
 from evtools.cli.batch import batch_options, plan, run
-from evtools.cli.options import check_compression, compression_option, slicing_options
+from evtools.cli.options import FiniteRange, check_compression, compression_option, slicing_options
 from evtools.cli.progress import process_stream
 from evtools.correction import CORRECT_DEFAULTS, MAX_WINDOW_US, MODES, CorrectionError, ThresholdCorrector
 from evtools.formats import create_events, open_events
@@ -49,7 +49,7 @@ def _target(ctx, param, value):
               help="All but foh: a gap longer than this is a rest (held constant, no interpolation).")
 @click.option("--max-gap-us", type=click.IntRange(1, MAX_WINDOW_US), default=CORRECT_DEFAULTS["max_gap_us"],
               show_default=True, help="Interpolation never reaches further back than this: bounds latency/memory.")
-@click.option("--tau-us", type=click.FloatRange(min=0, min_open=True), default=CORRECT_DEFAULTS["tau_us"],
+@click.option("--tau-us", type=FiniteRange(min=0, min_open=True), default=CORRECT_DEFAULTS["tau_us"],
               show_default=True, help="highpass: time constant of the decay of the carried level over a rest.")
 @click.option("--start-us", type=int, default=None, metavar="T",
               help="exponential, turns, highpass: time the sensor started (every pixel at its reference); default: the first "

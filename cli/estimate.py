@@ -9,7 +9,7 @@ import click
 import numpy as np
 
 from evtools.cli.batch import batch_options, plan, run
-from evtools.cli.options import Duration, slicing_options
+from evtools.cli.options import COUNT, MICROSECONDS, Duration, FiniteRange, slicing_options
 from evtools.cli.progress import with_progress
 from evtools.transform import sliced
 from evtools.estimation import (
@@ -25,6 +25,7 @@ from evtools.estimation import (
     Stimulus,
     ThresholdEstimator,
 )
+from evtools.events import MAX_SENSOR_SIDE
 from evtools.formats import open_events
 from evtools.formats.io import STDIO, same_file
 from evtools.formats.thresholds import ThresholdMap, write_thresholds
@@ -75,12 +76,13 @@ def _stimulus(levels, period_us, profile, amplitude, speed, wavelength, rise) ->
               help="offe: Wang et al.'s events-only least squares (relative, scaled by --nominal); stimulus: the "
                    "known calibration stimulus (absolute, exact for an ideal pixel); natural: an ordinary moving "
                    "scene, each pixel's event counts against its neighbours' (relative, scaled by --nominal).")
-@click.option("--segment-us", type=click.IntRange(min=1), default=DEFAULT_SEGMENT_US, show_default=True,
+@click.option("--segment-us", type=MICROSECONDS, default=DEFAULT_SEGMENT_US, show_default=True,
               help="offe: segment length, microseconds.")
-@click.option("--nominal", type=click.FloatRange(min=0, min_open=True), default=DEFAULT_NOMINAL, show_default=True,
+@click.option("--nominal", type=FiniteRange(min=0, min_open=True), default=DEFAULT_NOMINAL, show_default=True,
               help="offe: the median pixel's threshold; natural: the mean of on and off (log units); events alone "
                    "do not give the scale.")
-@click.option("--radius", type=click.IntRange(min=1), default=DEFAULT_RADIUS_PX, show_default=True, metavar="PX",
+@click.option("--radius", type=click.IntRange(1, MAX_SENSOR_SIDE), default=DEFAULT_RADIUS_PX, show_default=True,
+              metavar="PX",
               help="natural: each pixel is compared with the pixels within PX of it.")
 @click.option("--online", is_flag=True,
               help="stimulus, natural: also write a map every --interval, each from the events so far with "
@@ -90,14 +92,14 @@ def _stimulus(levels, period_us, profile, amplitude, speed, wavelength, rise) ->
               help="--online: time between maps, with its unit (default 1s).")
 @click.option("--forget", type=Duration(), default=None, metavar="TIME",
               help="--online: time constant of the forgetting, with its unit (default 3 intervals).")
-@click.option("--min-events", type=click.IntRange(min=1), default=DEFAULT_MIN_EVENTS, show_default=True,
+@click.option("--min-events", type=COUNT, default=DEFAULT_MIN_EVENTS, show_default=True,
               help="Pixels with fewer events are marked invalid (and get the median).")
-@click.option("--max-fit", type=click.FloatRange(min=0, min_open=True), default=None, metavar="F",
+@click.option("--max-fit", type=FiniteRange(min=0, min_open=True, infinite=True), default=None, metavar="F",
               help=f"Pixels that fit worse are invalid (the fit map). stimulus: the RMS deviation of their level "
                    f"changes, in thresholds (default {DEFAULT_MAX_FIT}); natural: the relative disagreement of two "
                    f"halves of the stream; offe: the relative disagreement with the natural estimate (default "
                    f"{DEFAULT_MAX_ERROR}; inf: offE's reference exactly).")
-@click.option("--stimulus-amplitude", type=click.FloatRange(min=0, min_open=True), default=None, metavar="A",
+@click.option("--stimulus-amplitude", type=FiniteRange(min=0, min_open=True), default=None, metavar="A",
               help="stimulus: a triangle linear in log intensity, A log units peak to peak (the same as "
                    "--stimulus-profile log --stimulus-levels 0,A; the base level does not matter).")
 @click.option("--stimulus-levels", callback=_levels, default=None, metavar="LOW,HIGH",
@@ -107,16 +109,16 @@ def _stimulus(levels, period_us, profile, amplitude, speed, wavelength, rise) ->
               help="stimulus: time of one rise and fall, with its unit (flicker; simulate's --period).")
 @click.option("--stimulus-profile", type=click.Choice(["intensity", "log"]), default=None,
               help="stimulus: the triangle is linear in intensity (default; simulate's scenes) or in log intensity.")
-@click.option("--stimulus-rise", type=click.FloatRange(0, 1, min_open=True, max_open=True), default=0.5,
+@click.option("--stimulus-rise", type=FiniteRange(0, 1, min_open=True, max_open=True), default=0.5,
               show_default=True, metavar="FRACTION",
               help="stimulus: the fraction of a period spent rising (0.5 a symmetric triangle, 0.9 nearly a sawtooth).")
 @click.option("--stimulus-phase", type=click.Choice(PHASES), default="fit", show_default=True,
               help="stimulus: fit each pixel's phase to its own events (any delay, start time or moving pattern), "
                    "or take it as given: the low end at t = 0 (simulate's scenes; a gradient delayed by column).")
-@click.option("--stimulus-speed", type=click.FloatRange(min=0, min_open=True), default=None, metavar="PX/S",
+@click.option("--stimulus-speed", type=FiniteRange(min=0, min_open=True), default=None, metavar="PX/S",
               help="stimulus: a moving gradient's speed (simulate's --speed); with --stimulus-wavelength it "
                    "replaces --stimulus-period.")
-@click.option("--stimulus-wavelength", type=click.FloatRange(min=0, min_open=True), default=None, metavar="PX",
+@click.option("--stimulus-wavelength", type=FiniteRange(min=0, min_open=True), default=None, metavar="PX",
               help="stimulus: a moving gradient's rise-and-fall length (simulate's --wavelength).")
 @slicing_options
 def estimate(inputs, input_format, sensor_size, aedat2_layout, output, jobs, scheduler, as_json,

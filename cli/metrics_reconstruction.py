@@ -8,7 +8,7 @@ import math
 import click
 import numpy as np
 
-from evtools.cli.options import json_option, wants_json
+from evtools.cli.options import FINITE, json_option, wants_json
 from evtools.metrics.reconstruction import HighPassReconstructor, ReconstructionError, reconstruction_errors
 from evtools.formats import open_events
 from evtools.formats.io import output_stream
@@ -40,9 +40,9 @@ def read_true_frames(path: str) -> tuple[np.ndarray, np.ndarray]:
               help="`evtools simulate ... --truth TRUTH.h5` (with its true log frames, `--truth-frame-rate`).")
 @click.option("--thresholds", "thresholds_path", default=None, metavar="TH.h5", type=click.Path(dir_okay=False),
               help="Each pixel's contrast per event (`estimate`'s output or a truth file); default --contrast.")
-@click.option("--contrast", default=0.2, show_default=True, type=float,
+@click.option("--contrast", default=0.2, show_default=True, type=FINITE,
               help="What one event adds (log units) when no --thresholds: e.g. correct's --target.")
-@click.option("--cutoff-hz", default=DEFAULT_CUTOFF_HZ, show_default=True, type=float,
+@click.option("--cutoff-hz", default=DEFAULT_CUTOFF_HZ, show_default=True, type=FINITE,
               help="High-pass cut-off (alpha / 2 pi); 0: pure integration.")
 @click.option("--plot", "plot_path", default=None, metavar="FIG.png", type=click.Path(dir_okay=False),
               help="Also draw true (top) and reconstructed (bottom) log intensity at five frames.")

@@ -8,7 +8,7 @@ import os
 import click
 import numpy as np
 
-from evtools.cli.options import Duration, json_option, wants_json
+from evtools.cli.options import Duration, FiniteRange, json_option, wants_json
 from evtools.formats import open_events
 from evtools.formats.io import atomic_path, same_file
 from evtools.formats.thresholds import read_labels
@@ -52,7 +52,7 @@ def _features(noisy: str, truth: str, patch: int, tau_us: int, fraction: float, 
 @click.option("--seed", type=int, default=0, show_default=True, help="Sampling, initial weights, batch order.")
 @click.option("--max-events", type=click.IntRange(min=100), default=400_000, show_default=True,
               help="Labelled events sampled from all inputs together (each event alike likely).")
-@click.option("--held-out", type=click.FloatRange(0.05, 0.5), default=0.2, show_default=True,
+@click.option("--held-out", type=FiniteRange(0.05, 0.5), default=0.2, show_default=True,
               help="The last part of each stream kept for early stopping and the reported AUC.")
 @click.option("--epochs", type=click.IntRange(1, 1000), default=60, show_default=True, help="At most this many.")
 @json_option

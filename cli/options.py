@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import functools
+import math
 import re
 import sys
 
 import click
 
 from evtools.errors import EvtoolsError
-from evtools.events import parse_sensor_size
+from evtools.events import MAX_TIME_US, parse_sensor_size
 from evtools.formats.registry import BY_NAME
 
 
@@ -23,6 +24,32 @@ def _sensor_size(ctx, param, value):
 
 
 DURATION_UNITS_US = {"us": 1, "ms": 1_000, "s": 1_000_000, "min": 60_000_000}
+
+MICROSECONDS = click.IntRange(1, MAX_TIME_US)
+"""Options named with their unit (``--dt-us``): whole microseconds up to evtools' time range, 2^62 (a larger
+value reached the kernels as more than int64 holds: a traceback, or a window that overflowed)."""
+COUNT = click.IntRange(1, 2**31 - 1)
+"""Options that count (events, neighbours, windows): a positive int32."""
+
+
+class FiniteRange(click.FloatRange):
+    """click's FloatRange without ``nan``, which its comparisons let through (``--fps nan`` reached OpenCV,
+    ``simulate --speed nan`` made 2 events), and without ``inf`` unless ``infinite`` (``--max-fit inf``: no
+    limit). Without bounds: any finite number (:data:`FINITE`)."""
+
+    def __init__(self, *args, infinite: bool = False, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.infinite = infinite
+
+    def convert(self, value, param, ctx):
+        number = super().convert(value, param, ctx)
+        if math.isnan(number) or (math.isinf(number) and not self.infinite):
+            self.fail(f"{value!r} is not a finite number", param, ctx)
+        return number
+
+
+FINITE = FiniteRange()
+"""A finite float option."""
 DURATION_FORMS = "2s, 500ms, 250us, 1.5min"
 
 
@@ -48,6 +75,8 @@ class Duration(click.ParamType):
         if match.group(2) is None:
             self.fail(f"{value!r} has no unit; give one: {DURATION_FORMS}", param, ctx)
         value_us = round(float(match.group(1)) * DURATION_UNITS_US[match.group(2)])
+        if value_us > MAX_TIME_US:
+            self.fail(f"{value!r} is longer than evtools' time range (2^62 us, 146,000 years)", param, ctx)
         if value_us < self.minimum_us:
             least = "longer than 0 us" if self.minimum_us == 1 else f"at least {self.minimum_us} us"
             self.fail(f"{value!r} must be {least}", param, ctx)

@@ -10,7 +10,7 @@ import os
 import click
 import numpy as np
 
-from evtools.cli.options import TimeBound, figure_path, read_options
+from evtools.cli.options import FINITE, MICROSECONDS, FiniteRange, TimeBound, figure_path, read_options
 from evtools.cli.progress import with_progress
 from evtools.render import (
     BACKGROUNDS,
@@ -18,6 +18,7 @@ from evtools.render import (
     MODES,
     RenderError,
     auto_scale,
+    check_image_size,
     thresholds_picture,
     upscale,
 )
@@ -78,7 +79,7 @@ def _refuse(ctx: click.Context, names: dict[str, str], why: str) -> None:
 @read_options
 @click.option("-o", "--output", required=True, metavar="OUT", type=click.Path(dir_okay=False),
               help="OUT.png (or .jpg): one window; OUT.mp4 (or .avi): a video of the whole stream.")
-@click.option("--window-us", type=click.IntRange(min=1), default=DEFAULT_WINDOW_US, show_default=True,
+@click.option("--window-us", type=MICROSECONDS, default=DEFAULT_WINDOW_US, show_default=True,
               help="Time window accumulated into one frame, microseconds.")
 @click.option("--start", "start", type=TimeBound(), default=None, metavar="TIME",
               help="Start of the first window, from the stream's first event (2s, 500ms), or on the stream's clock "
@@ -88,13 +89,13 @@ def _refuse(ctx: click.Context, names: dict[str, str], why: str) -> None:
                    "to --end as one window.")
 @click.option("--scale", type=click.IntRange(1, 64), default=None, metavar="K",
               help="Enlarge K times, nearest neighbour (default: enough for about 480 pixels; maps: 256 per map).")
-@click.option("--fps", type=click.FloatRange(min=0, min_open=True, max=1000), default=DEFAULT_FPS,
+@click.option("--fps", type=FiniteRange(min=0.01, max=1000), default=DEFAULT_FPS,
               show_default=True, help="Video playback rate, frames per second (one frame per window).")
 @click.option("--background", type=click.Choice(sorted(BACKGROUNDS)), default="dark", show_default=True,
               help="Event frames: ON orange and OFF blue on dark, or vermillion and blue on white.")
 @click.option("--map", "map_path", type=click.Path(dir_okay=False), default=None, metavar="THRESHOLDS.h5",
               help="Draw the thresholds map of this HDF5 file (datasets on, off; optional valid) instead of events.")
-@click.option("--range", "value_range", type=float, nargs=2, default=None, metavar="LOW HIGH",
+@click.option("--range", "value_range", type=FINITE, nargs=2, default=None, metavar="LOW HIGH",
               help="--map: values at the ends of the colour scale (default: the maps' range without outliers).")
 @click.option("--mode", type=click.Choice(MODES), default="accumulate",
               show_default=True,
@@ -158,6 +159,10 @@ def render(ctx, input, input_format, sensor_size, aedat2_layout, output, window_
         stream = sliced(opened, {"end": end})  # events from --end on are neither drawn nor read
         info = stream.info
         scale = scale or auto_scale(info.width, info.height)
+        try:
+            check_image_size(info.width, info.height, scale)
+        except RenderError as error:
+            raise RenderError(f"{output}: {error}") from None
         chunks = iter(stream)
         first = next(chunks, None)  # its first event is where a relative --start counts from
         first_us = None if first is None else int(first["t"][0])

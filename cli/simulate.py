@@ -17,9 +17,10 @@ import click
 import numpy as np
 
 from evtools import interrupt
-from evtools.cli.options import Duration, aedat2_layout_option, check_compression, compression_option, input_format_option
+from evtools.cli.options import (FINITE, Duration, FiniteRange, aedat2_layout_option, check_compression,
+                                 compression_option, input_format_option)
 from evtools.cli.progress import with_progress
-from evtools.events import CHUNK_EVENTS, StreamInfo, join, parse_sensor_size
+from evtools.events import CHUNK_EVENTS, MAX_TIME_US, StreamInfo, join, parse_sensor_size
 from evtools.noise import NOISE_DEFAULTS, NoiseInjector
 from evtools.simulation import (
     DEFAULT_PARAMETERS,
@@ -350,7 +351,7 @@ def _attribute(value):
 
 def _float_option(name: str, help: str, low: float | None = 0.0, high: float | None = None):
     """A number option of the pixel model, refused by click (a usage error, exit 2) outside ``low``..``high``."""
-    return click.option(name, type=click.FloatRange(low, high), default=None, help=help)
+    return click.option(name, type=FiniteRange(low, high), default=None, help=help)
 
 
 @click.command()
@@ -367,7 +368,7 @@ def _float_option(name: str, help: str, low: float | None = 0.0, high: float | N
 @click.option("--truth", type=click.Path(dir_okay=False), default=None,
               help="Write the ground truth (per-event `label`, noise maps, parameters; the thresholds maps `on`, "
                    "`off` for frame sources) to this HDF5 file.")
-@click.option("--truth-frame-rate", "truth_frame_rate", type=click.FloatRange(min=0), default=None, metavar="HZ",
+@click.option("--truth-frame-rate", "truth_frame_rate", type=FiniteRange(min=0), default=None, metavar="HZ",
               help="Frame sources: also store the true log intensity (`log_frames`, `log_frame_t_us`) in --truth "
                    "at this rate, for `metrics reconstruction` [default: 100; 0: none].")
 @input_format_option
@@ -379,7 +380,8 @@ def _float_option(name: str, help: str, low: float | None = 0.0, high: float | N
                    "for an event stream that does not store it: its size.")
 @click.option("--duration", type=Duration(), metavar="TIME", default=None,
               help="Scene length with its unit: 2s, 500ms, 1.5min (default 1s).")
-@click.option("--fps", type=float, default=None, hidden=True, help="The same as --frame-rate (kept for older scripts).")
+@click.option("--fps", type=FINITE, default=None, hidden=True,
+              help="The same as --frame-rate (kept for older scripts).")
 @click.option("--timestamps", type=click.Path(dir_okay=False), default=None,
               help=f"Image folder: file of frame times, one per line in seconds (default: {TIMESTAMPS_FILE} "
                    "in the folder).")
@@ -389,7 +391,7 @@ def _float_option(name: str, help: str, low: float | None = 0.0, high: float | N
 @_float_option("--pos-thres", "Mean ON threshold, log units (default 0.2).", low=MIN_THRESHOLD)
 @_float_option("--neg-thres", "Mean OFF threshold, log units (default 0.2).", low=MIN_THRESHOLD)
 @_float_option("--sigma-thres", "Per-pixel threshold standard deviation (default 0.03).")
-@click.option("--thres-drift", "thres_drift", type=float, default=None, metavar="PERCENT_PER_S",
+@click.option("--thres-drift", "thres_drift", type=FINITE, default=None, metavar="PERCENT_PER_S",
               help="Every threshold drifts linearly by this percentage of its first value per second (default 0).")
 @_float_option("--correlated-sigma-thres", "Standard deviation of a spatially smooth threshold field (default 0).")
 @_float_option("--correlated-length-px", "Correlation length of that field, pixels (default 10).")
@@ -401,33 +403,33 @@ def _float_option(name: str, help: str, low: float | None = 0.0, high: float | N
                "Per-pixel spread of the leak rate, decades (default 0.1; 0.5 for an event stream).")
 @_float_option("--shot-noise-rate-hz",
                "Shot-noise rate per pixel in the dark (any intensity for an event stream), ON+OFF (default 0).")
-@click.option("--refractory-us", type=click.IntRange(min=0), default=None,
+@click.option("--refractory-us", type=click.IntRange(0, MAX_TIME_US), default=None,
               help="Refractory period, microseconds (default 0).")
 @_float_option("--hot-pixel-fraction", "Fraction of hot pixels (default 0).", high=1.0)
 @_float_option("--hot-pixel-rate-hz", "Event rate of a hot pixel (default 100).")
 @_float_option("--dead-pixel-fraction", "Fraction of dead pixels (default 0).", high=1.0)
 @click.option("--seed", type=click.IntRange(min=0), default=None,
               help="Seed of every random draw (default: a fresh one, recorded in --truth and the output's source).")
-@click.option("--frame-rate", type=float, default=None,
+@click.option("--frame-rate", type=FINITE, default=None,
               help="Frame rate, Hz: of a scene (default 1000), of an image folder without timestamps, or to "
                    "override a video's.")
 @click.option("--period", type=Duration(), default=None, metavar="TIME",
               help="flicker, step: period with its unit (default 500ms, 1s).")
 @click.option("--profile", type=click.Choice(FLICKER_PROFILES), default=None,
               help="flicker: the wave is linear in intensity (default) or in log intensity.")
-@click.option("--phase", type=float, default=None, help="flicker: the wave's phase at time 0, periods (0 = valley).")
-@click.option("--phase-spread", type=float, default=None, metavar="PERIODS",
+@click.option("--phase", type=FINITE, default=None, help="flicker: the wave's phase at time 0, periods (0 = valley).")
+@click.option("--phase-spread", type=FINITE, default=None, metavar="PERIODS",
               help="flicker: delay each pixel by its own random fraction of PERIODS periods (default 0).")
-@click.option("--speed", type=float, default=None,
+@click.option("--speed", type=FINITE, default=None,
               help="gradient, bars, texture: speed in pixels per second (default 50).")
 @click.option("--image", type=click.Path(dir_okay=False), default=None, metavar="FILE",
               help="texture: any image file (PNG, JPEG, ...) as the texture, in place of the built-in one.")
-@click.option("--wavelength", type=float, default=None, help="gradient: rise-and-fall length, pixels (default 64).")
-@click.option("--bar-width", type=float, default=None, help="bars: bar width, pixels (default 8).")
+@click.option("--wavelength", type=FINITE, default=None, help="gradient: rise-and-fall length, pixels (default 64).")
+@click.option("--bar-width", type=FINITE, default=None, help="bars: bar width, pixels (default 8).")
 @click.option("--orientation", type=click.Choice(["vertical", "horizontal"]), default=None, help="bars: direction.")
-@click.option("--min-level", type=float, default=None, help="Scene's darkest intensity, 0-255 (default 50).")
-@click.option("--max-level", type=float, default=None, help="Scene's brightest intensity, 0-255 (default 200).")
-@click.option("--level", type=float, default=None, help="static: intensity, 0-255 (default 128).")
+@click.option("--min-level", type=FINITE, default=None, help="Scene's darkest intensity, 0-255 (default 50).")
+@click.option("--max-level", type=FINITE, default=None, help="Scene's brightest intensity, 0-255 (default 200).")
+@click.option("--level", type=FINITE, default=None, help="static: intensity, 0-255 (default 128).")
 @compression_option
 @click.option("--json", "as_json", is_flag=True,
               help="Print the counts as JSON (on stdout when the events go to a file, else on stderr).")

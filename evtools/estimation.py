@@ -67,7 +67,7 @@ from evtools._kernels.estimate import (
 )
 from evtools._kernels.pixel import LIN_LOG_KNEE, LIN_LOG_SLOPE
 from evtools.errors import EvtoolsError
-from evtools.events import StreamChecker, StreamInfo, check_sensor_size, empty_events
+from evtools.events import MAX_TIME_US, StreamChecker, StreamInfo, check_sensor_size, empty_events
 
 __all__ = [
     "METHODS",
@@ -346,8 +346,9 @@ class ThresholdEstimator:
             raise EstimationError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
         if not nominal > 0 or not math.isfinite(nominal):
             raise EstimationError(f"nominal threshold must be positive, got {nominal}")
-        if int(segment_us) != segment_us or segment_us < 1:
-            raise EstimationError(f"segment length must be a whole number of microseconds >= 1, got {segment_us}")
+        if int(segment_us) != segment_us or not 1 <= segment_us <= MAX_TIME_US:
+            raise EstimationError(f"segment length must be a whole number of microseconds in 1..{MAX_TIME_US} "
+                                  f"(2^62), got {segment_us}")
         if int(min_events) != min_events or min_events < 1:
             raise EstimationError(f"min_events must be a whole number >= 1, got {min_events}")
         if max_fit is None:
@@ -356,6 +357,7 @@ class ThresholdEstimator:
             raise EstimationError(f"max_fit must be positive (inf: no limit), got {max_fit}")
         if int(radius_px) != radius_px or radius_px < 1:
             raise EstimationError(f"radius must be a whole number of pixels >= 1, got {radius_px}")
+        radius_px = min(int(radius_px), max(width, height))  # (a wider window holds the same pixels: the sensor)
         if phase not in PHASES:
             raise EstimationError(f"unknown phase {phase!r}; choose one of {', '.join(PHASES)}")
         if interval_us is not None:

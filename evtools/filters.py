@@ -39,8 +39,8 @@ import numpy as np
 from evtools._kernels import bafilter as kernels
 from evtools._kernels import mlpf as mlpf_kernels
 from evtools.errors import EvtoolsError
-from evtools.events import (EVENT_DTYPE, StreamChecker, StreamInfo, as_chunk, check_sensor_size, empty_events, join,
-                            record_words)
+from evtools.events import (EVENT_DTYPE, MAX_TIME_US, StreamChecker, StreamInfo, as_chunk, check_sensor_size,
+                            empty_events, join, record_words)
 from evtools.mlpf import MlpfError, Weights, load_weights
 
 __all__ = ["METHODS", "PRESETS", "BAFilter", "BAFilterError", "ba_filter", "learn_hot_pixels"]
@@ -338,12 +338,12 @@ class BAFilter:
         self._flushed = False
 
     def _check(self, q: dict[str, Any], method: str) -> dict[str, Any]:
-        if "dt_us" in q:
-            q["dt_us"] = _int_param("dt_us", q["dt_us"], 1)
+        if "dt_us" in q:  # (at most 2^62: a window beyond the event times' range overflowed their differences)
+            q["dt_us"] = _int_param("dt_us", q["dt_us"], 1, MAX_TIME_US)
         if "radius" in q:
             q["radius"] = _int_param("radius", q["radius"], 1, 10)
         if "k" in q:
-            high = (2 * q["radius"] + 1) ** 2 - 1 if method == "stcf" else None
+            high = (2 * q["radius"] + 1) ** 2 - 1 if method == "stcf" else 1 << 31
             q["k"] = _int_param("k", q["k"], 1, high)
         if "polarity" in q:
             q["polarity"] = bool(q["polarity"])
@@ -355,11 +355,11 @@ class BAFilter:
         if "window" in q:
             q["window"] = _int_param("window", q["window"], 1, 1 << 16)
         if "distance" in q:
-            q["distance"] = _int_param("distance", q["distance"], 1)
+            q["distance"] = _int_param("distance", q["distance"], 1, 1 << 16)
         if "learn_us" in q:
-            q["learn_us"] = _int_param("learn_us", q["learn_us"], 1)
+            q["learn_us"] = _int_param("learn_us", q["learn_us"], 1, MAX_TIME_US)
             q["hot_ratio"] = _float_param("hot_ratio", q["hot_ratio"], 1.0)
-            q["hot_min_events"] = _int_param("hot_min_events", q["hot_min_events"], 1)
+            q["hot_min_events"] = _int_param("hot_min_events", q["hot_min_events"], 1, 1 << 62)
             q["hot_rate_hz"] = _float_param("hot_rate_hz", q["hot_rate_hz"], 0.0)
         if "threshold" in q:
             threshold = q["threshold"]

@@ -336,6 +336,19 @@ def event_frames(
     return [*framer.process(events), *framer.flush()]
 
 
+MAX_IMAGE_PIXELS = 1 << 28
+"""The largest picture drawn (268 M pixels, 0.8 GB as RGB): a Gen4 sensor at --scale 64 would be 3.8 G pixels,
+and was killed for memory with no message."""
+
+
+def check_image_size(width: int, height: int, scale: int) -> None:
+    """Refuse a ``width x height`` picture enlarged ``scale`` times beyond :data:`MAX_IMAGE_PIXELS`."""
+    pixels = width * scale * height * scale
+    if pixels > MAX_IMAGE_PIXELS:
+        raise RenderError(f"a {width}x{height} picture at scale {scale} would be {width * scale}x{height * scale} "
+                          f"pixels ({pixels * 3 / 2**30:,.1f} GB): give a smaller --scale")
+
+
 def upscale(image: np.ndarray, factor: int) -> np.ndarray:
     """Enlarge an image ``factor`` times in each direction by repeating pixels (nearest neighbour, exact)."""
     factor = int(factor)
@@ -343,6 +356,7 @@ def upscale(image: np.ndarray, factor: int) -> np.ndarray:
         raise RenderError(f"scale must be a whole number >= 1, got {factor}")
     if factor == 1:
         return image
+    check_image_size(image.shape[1], image.shape[0], factor)
     import cv2
 
     height, width = image.shape[:2]
@@ -507,9 +521,10 @@ def thresholds_picture(
         raise RenderError(f"value range {low} .. {high} is not an increasing pair of finite numbers")
     colormap = cv2.COLORMAP_VIRIDIS if colormap is None else colormap_table(colormap)[:, ::-1].reshape(256, 1, 3).copy()
     height, width = on.shape
-    scale = max(1, math.ceil(256 / width)) if scale is None else int(scale)
+    scale = auto_scale(width, height, target_px=256) if scale is None else int(scale)
     if scale < 1:
         raise RenderError(f"scale must be a whole number >= 1, got {scale}")
+    check_image_size(width, height, scale)
     map_w, map_h = width * scale, height * scale
 
     font = cv2.FONT_HERSHEY_SIMPLEX

@@ -32,7 +32,7 @@ from evtools._kernels.pixel import (
     sort_events,
 )
 from evtools.errors import EvtoolsError
-from evtools.events import EVENT_DTYPE, check_sensor_size, empty_events, join
+from evtools.events import EVENT_DTYPE, MAX_TIME_US, check_sensor_size, empty_events, join
 
 __all__ = [
     "DEAD_PIXEL_THRESHOLD",
@@ -246,8 +246,9 @@ class DvsSimulator:
         if hot_pixel_fraction + dead_pixel_fraction > 1.0:
             raise SimulationError("hot_pixel_fraction + dead_pixel_fraction must not exceed 1")
         refractory = _check_nonnegative("refractory_us", refractory_us)
-        if refractory != int(refractory):
-            raise SimulationError(f"refractory_us must be a whole number of microseconds, got {refractory_us}")
+        if refractory != int(refractory) or refractory > MAX_TIME_US:
+            raise SimulationError(f"refractory_us must be a whole number of microseconds up to 2^62, got "
+                                  f"{refractory_us}")
         if seed is None:
             seed = int(np.random.SeedSequence().entropy % (1 << 63))
         if not isinstance(seed, (int, np.integer)) or seed < 0:

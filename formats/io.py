@@ -370,9 +370,17 @@ def output_stream(path: str | os.PathLike | None, *, binary_name: str, needs_see
             stream = open(real, "wb", buffering=1 << 20)
         except OSError as error:
             raise FormatError(f"{path}: cannot open for writing ({error.strerror})") from None
-        with stream:
+        try:
             _check_stream_target(stream, path, binary_name, needs_seek)
             yield stream
+        except BaseException:
+            with contextlib.suppress(OSError):  # (the body's error is the one to report)
+                stream.close()
+            raise
+        try:
+            stream.close()  # the last flush (/dev/full: "No space left on device" named, not alone)
+        except OSError as error:
+            raise FormatError(f"{path}: cannot write ({error.strerror or error})") from None
         return
     with atomic_path(real) as temporary:
         try:

@@ -44,6 +44,9 @@ COLUMN_ALIASES = {
 }
 """Header names (lower case, without ``@size``) and the event field they mean."""
 
+UTF8_BOM = b"\xef\xbb\xbf"
+"""The byte-order mark some programs (Excel) put before UTF-8 text."""
+
 _NUMBER = re.compile(rb"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
 
 
@@ -65,6 +68,8 @@ class TextReader:
         self.stream = source.stream
         self.chunk_events = max(1, int(options.chunk_events))
         self.block_bytes = int(min(BLOCK_BYTES, max(1 << 16, self.chunk_events * 32)))
+        if source.head.startswith(UTF8_BOM):  # (Excel's CSV): not part of the first field
+            self.stream.read(len(UTF8_BOM))
         size_from_file = self._read_header()
         width, height = resolve_sensor_size(source, size_from_file, options.sensor_size, self._scan_size)
         self.info = StreamInfo(width, height, "txt" if self.seconds else "csv", {"columns": ",".join(self.names)})

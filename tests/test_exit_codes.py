@@ -8,12 +8,15 @@ from __future__ import annotations
 from pathlib import Path
 
 import click
+import numpy as np
 import pytest
 from click.testing import CliRunner
 
 from evtools.cli.main import COMMANDS, cli
 from evtools.cli.metrics import metrics
 from evtools.cli.options import Duration, TimeBound
+from tests.conftest import data_file
+from tests.helpers import run
 
 SAMPLES = Path(__file__).resolve().parents[1] / "samples"
 STEP, TRUTH = SAMPLES / "step.aedat4", SAMPLES / "step.truth.h5"
@@ -114,3 +117,59 @@ def test_unknown_options_missing_inputs_and_help(tmp_path, name):
     assert not [p for p in tmp_path.iterdir()]  # nothing written
     text = runner.invoke(cli, [*name.split(), "--help"])
     assert text.exit_code == 0 and "-q, --quiet" in text.output and "-v, --verbose" in text.output
+
+
+@pytest.mark.parametrize("args, option", [
+    (["bafilter", "{S}", "-m", "baf", "--dt-us", "99999999999999999999", "-o", "{T}/o.aedat4"], "--dt-us"),
+    (["bafilter", "{S}", "-m", "baf", "--dt-us", "9223372036854775807", "-o", "{T}/o.aedat4"], "--dt-us"),
+    (["bafilter", "{S}", "-m", "dwf", "--distance", "99999999999999999999", "-o", "{T}/o.aedat4"], "--distance"),
+    (["estimate", "{S}", "--segment-us", "99999999999999999999", "-o", "{T}/e.h5"], "--segment-us"),
+    (["estimate", "{S}", "--method", "natural", "--radius", "99999999999999999999", "-o", "{T}/e.h5"], "--radius"),
+    (["simulate", "scene:bars", "--size", "8x8", "--refractory-us", "99999999999999999999", "-o", "{T}/s.aedat4"],
+     "--refractory-us"),
+    (["simulate", "scene:bars", "--size", "8x8", "--duration", "1e20s", "-o", "{T}/s.aedat4"], "--duration"),
+    (["simulate", "scene:bars", "--size", "8x8", "--speed", "nan", "-o", "{T}/s.aedat4"], "--speed"),
+    (["render", "{S}", "-o", "{T}/v.mp4", "--fps", "nan"], "--fps"),
+    (["convert", "{S}", "-o", "{T}/c.aedat4", "--realtime", "--speed", "1e-300"], "--speed"),
+])
+def test_values_beyond_what_the_kernels_hold_are_usage_errors(tmp_path, args, option):
+    """A number beyond int64 reached the numba kernels (a traceback), 2^63 - 1 us overflowed a window (every event
+    kept), nan passed click's ranges: each is now a usage error naming the option, and nothing is written."""
+    sample = data_file("dvxplorer_sample.aedat4")
+    result = run(*[a.replace("{S}", str(sample)).replace("{T}", str(tmp_path)) for a in args], check=False)
+    assert result.returncode == 2, result.stderr
+    assert f"Invalid value for '{option}'" in result.stderr.decode() and b"Traceback" not in result.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_radius_wider_than_the_sensor_is_the_sensor():
+    """(was "out of memory": a box-sum buffer of the radius's size) the same map as a radius of the sensor's side."""
+    import evtools
+
+    events, info = evtools.read(data_file("dvxplorer_sample.aedat4"))
+    wide = evtools.estimate(events, info, method="natural", radius_px=100_000, min_events=1)
+    side = evtools.estimate(events, info, method="natural", radius_px=320, min_events=1)
+    assert np.array_equal(wide.on, side.on, equal_nan=True) and wide.valid.any()
+
+
+@pytest.mark.parametrize("args, message", [
+    (["-m", "baf", "--k", "3"], "--k do(es) not apply to --method baf (--preset evtools)"),
+    (["-m", "stcf", "--window", "9", "--learn-us", "5"], "--window, --learn-us do(es) not apply to --method stcf"),
+    (["--preset", "dv", "-m", "orderN"], "--preset dv has no method orderN (it has baf)"),
+])
+def test_filter_options_no_chosen_method_uses_are_usage_errors(tmp_path, args, message):
+    """(`-m baf --k 3` ran baf as if --k were not given; a preset without the method was a data error)"""
+    result = run("bafilter", data_file("dvxplorer_sample.aedat4"), *args, "-o", tmp_path / "o.aedat4", check=False)
+    assert result.returncode == 2 and message in result.stderr.decode()
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_picture_too_large_and_a_full_device_are_named(tmp_path):
+    from tests.helpers import assert_clean_error
+
+    gen4 = data_file("gen41_sample.evt3.raw")
+    assert_clean_error(run("render", gen4, "-o", tmp_path / "g.png", "--scale", "64", check=False), "g.png",
+                       "a 1280x720 picture at scale 64 would be 81920x46080 pixels (10.5 GB): give a smaller --scale")
+    assert list(tmp_path.iterdir()) == []
+    assert_clean_error(run("convert", data_file("dvxplorer_sample.aedat4"), "-o", "/dev/full", check=False),
+                       "/dev/full: cannot write (No space left on device)")

@@ -363,3 +363,14 @@ def test_csv_times_that_are_not_whole_microseconds_are_refused(tmp_path, text, n
         read_text(tmp_path, text, name=name, sensor_size=(8, 8))
     events, _ = read_text(tmp_path, "t,x,y,p\n1e3,1,2,1\n2000.0,3,4,0\n", sensor_size=(8, 8))
     assert events["t"].tolist() == [1000, 2000]
+
+
+@pytest.mark.parametrize("text, name", [("t,x,y,p\n5,1,2,1\n", "events.csv"), ("5,1,2,1\n", "events.csv"),
+                                        ("0.000005 1 2 1\n", "events.txt")])
+def test_a_byte_order_mark_is_not_part_of_the_first_field(tmp_path, text, name):
+    """Excel writes UTF-8 CSV with a byte-order mark: it was read into the header's first name ("lacks column t")
+    or the first number."""
+    path = tmp_path / name
+    path.write_bytes(b"\xef\xbb\xbf" + text.encode())
+    _, events = read_all(path, sensor_size=(8, 8))
+    assert (events["t"].tolist(), events["x"].tolist()) == ([5], [1])
