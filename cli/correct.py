@@ -11,6 +11,7 @@ from evtools.cli.batch import batch_options, plan, run
 from evtools.cli.options import FiniteRange, check_compression, compression_option, slicing_options
 from evtools.cli.progress import process_stream
 from evtools.correction import CORRECT_DEFAULTS, MAX_WINDOW_US, MODES, CorrectionError, ThresholdCorrector
+from evtools.events import MAX_TIME_US
 from evtools.formats import create_events, open_events
 from evtools.formats.thresholds import read_thresholds
 from evtools.transform import on_sliced_sensor, sliced
@@ -51,9 +52,9 @@ def _target(ctx, param, value):
               show_default=True, help="Interpolation never reaches further back than this: bounds latency/memory.")
 @click.option("--tau-us", type=FiniteRange(min=0, min_open=True), default=CORRECT_DEFAULTS["tau_us"],
               show_default=True, help="highpass: time constant of the decay of the carried level over a rest.")
-@click.option("--start-us", type=int, default=None, metavar="T",
-              help="exponential, turns, highpass: time the sensor started (every pixel at its reference); default: the first "
-                   "event.")
+@click.option("--start-us", type=click.IntRange(-MAX_TIME_US, MAX_TIME_US), default=None, metavar="T",
+              help="exponential, turns, highpass: time the sensor started (every pixel at its reference), at or "
+                   "before the first event; default: the first event.")
 @compression_option
 @slicing_options
 def correct(inputs, input_format, sensor_size, aedat2_layout, output, jobs, scheduler, as_json, thresholds_path,

@@ -66,22 +66,25 @@ def uniformity(input, input_format, sensor_size, aedat2_layout, edges_at, refere
         raise UniformityError(f"{name}: {error}") from None
     result = {"file": name, **result}
     if plot:
-        _plot(plot, events, info.width, edges, plot_edge, before, options)
+        _plot(plot, events, info, edges, plot_edge, before, options)
     if wants_json(as_json):
         click.echo(json.dumps(result, indent=2))
     else:
         _print_table(result)
 
 
-def _plot(path, events, width, edges, index, before, options) -> None:
+def _plot(path, events, info, edges, index, before, options) -> None:
     from evtools.plots import edge_levels_figure, save
 
     if index >= len(edges):
         raise UniformityError(f"--plot-edge {index}: the stream has {len(edges)} edges")
-    edge = edges[index]
+    edge, width = edges[index], info.width
     panels = []
     if before is not None:
-        _, before_name, before_events = _read(before, **options)
+        before_info, before_name, before_events = _read(before, **options)
+        if before_info.size != info.size:  # (its pixels were drawn as the other sensor's, silently)
+            raise UniformityError(f"{before_name}: --before is {before_info.width}x{before_info.height} but the "
+                                  f"stream is {info.width}x{info.height}")
         panels.append((f"before: {before_name}", list(pixel_levels(before_events, width, edge).values())))
     panels.append(("after" if before is not None else "events", list(pixel_levels(events, width, edge).values())))
     save(edge_levels_figure(panels, edge.start_us, edge.end_us), path)

@@ -55,8 +55,8 @@ from evtools._kernels.correct import (
     split_rows,
 )
 from evtools.errors import EvtoolsError
-from evtools.events import (EVENT_DTYPE, StreamChecker, StreamInfo, as_chunk, check_sensor_size, empty_events, join,
-                            record_words)
+from evtools.events import (EVENT_DTYPE, MAX_TIME_US, StreamChecker, StreamInfo, as_chunk, check_sensor_size,
+                            empty_events, join, record_words)
 
 MAX_EVENTS_PER_EVENT = 100
 """A target this many times smaller than the largest pixel threshold is refused: each input event would create about
@@ -251,8 +251,9 @@ class ThresholdCorrector:
         if not np.isfinite(tau_us) or tau_us <= 0:
             raise CorrectionError(f"tau_us must be a positive number of microseconds, got {tau_us!r}")
         self.tau_us = tau_us
-        if start_us is not None and (isinstance(start_us, bool) or not isinstance(start_us, (int, np.integer))):
-            raise CorrectionError(f"start_us must be a whole number of microseconds, got {start_us!r}")
+        if start_us is not None and (isinstance(start_us, bool) or not isinstance(start_us, (int, np.integer))
+                                     or abs(start_us) > MAX_TIME_US):
+            raise CorrectionError(f"start_us must be a whole number of microseconds within +-2^62, got {start_us!r}")
         self.start_us = None if start_us is None else int(start_us)
         if t_us is None:
             on = np.where(usable, on, np.median(on[usable])).astype(np.float32)
@@ -302,8 +303,11 @@ class ThresholdCorrector:
     def _start(self, t_first: int) -> None:
         """The reconstruction of every pixel starts at level 0 at the stream's start (``turns``: anchored)."""
         self._started = True
+        if self.start_us is not None and self.start_us > t_first:  # (was taken as the first event's, silently)
+            raise CorrectionError(f"start_us ({self.start_us} us) is after the stream's first event ({t_first} us): "
+                                  "the sensor started before it; give an earlier time or none")
         if self.turns:
-            origin = t_first if self.start_us is None else min(self.start_us, t_first)
+            origin = t_first if self.start_us is None else self.start_us
             self._state["last_us"][self._use] = origin
 
     def process(self, chunk: np.ndarray) -> np.ndarray:

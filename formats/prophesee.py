@@ -255,11 +255,14 @@ class ProphesseeRawReader:
             yield chunk[:n]
 
     def expected_events(self) -> int | None:
-        """About how many events the file holds at most (one a word; EVT 2.1 and 3.0 vectors may hold more), for a
-        whole-file read's result (see :func:`evtools.events.concatenate`); None for a pipe."""
+        """About how many events the file holds at most, for a whole-file read's result (see
+        :func:`evtools.events.concatenate`: pages of an overestimate never reached cost nothing, a result grown
+        costs a copy); None for a pipe. One a word, two for EVT 2.1, whose 8-byte words are vectors of up to 32
+        (a Gen4 recording's 50M events in 47.5M words grew the result once: 1,490 MiB against 802 for EVT 3.0)."""
         if not (self.source.seekable and self.source.path):
             return None
-        return max(0, os.path.getsize(self.source.path) - self.header_bytes) // self.word_bytes + 1
+        words = max(0, os.path.getsize(self.source.path) - self.header_bytes) // self.word_bytes
+        return words * (2 if self.version == "2.1" else 1) + 1
 
     def _scan(self) -> tuple[int, int]:
         """(max x + 1, max y + 1) over the whole file; leaves the stream where it was."""

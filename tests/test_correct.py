@@ -656,3 +656,15 @@ def test_a_target_that_would_flood_the_output_is_refused(tmp_path):
                  "-o", tmp_path / "x.aedat4", check=False)
     assert_clean_error(result, "larger target")
     assert not (tmp_path / "x.aedat4").exists()
+
+
+def test_a_start_after_the_first_event_is_refused():
+    """start_us is when the sensor started, at or before its first event: a later one was taken as the first
+    event's time, silently; one beyond the time range is refused too."""
+    events = make_events([100, 200], [0, 1], [0, 0], [1, 1])
+    on = off = np.full((1, 2), 0.2, np.float32)
+    assert len(correct_thresholds(events, 2, 1, on, off, target=0.2, start_us=100)) == 2
+    with pytest.raises(CorrectionError, match=r"start_us \(101 us\) is after the stream's first event \(100 us\)"):
+        correct_thresholds(events, 2, 1, on, off, target=0.2, start_us=101)
+    with pytest.raises(CorrectionError, match=r"start_us must be a whole number of microseconds within"):
+        correct_thresholds(events, 2, 1, on, off, target=0.2, start_us=1 << 63)

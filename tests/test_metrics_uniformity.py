@@ -58,3 +58,16 @@ def test_cli_json_and_plot(tmp_path):
     empty = tmp_path / "empty.csv"
     empty.write_text("t,x,y,p\n")
     assert run("metrics", "uniformity", empty, "--sensor-size", "4x1", check=False).returncode == 1
+
+
+def test_a_before_stream_of_another_sensor_is_refused(tmp_path):
+    """--before's pixels were read with the other stream's width, so its panel drew other pixels, silently."""
+    from tests.helpers import assert_clean_error
+
+    after, before = tmp_path / "after.aedat4", tmp_path / "before.aedat4"
+    for path, size in ((after, (4, 1)), (before, (5, 1))):
+        with create_events(str(path), StreamInfo(*size)) as writer:
+            writer.write(two_edges(50))
+    assert_clean_error(run("metrics", "uniformity", after, "--plot", tmp_path / "p.png", "--before", before,
+                           check=False), "before.aedat4: --before is 5x1 but the stream is 4x1")
+    assert not (tmp_path / "p.png").exists()
