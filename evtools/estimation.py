@@ -109,6 +109,9 @@ FIT_MIN_CHANGES = 8
 changes agree by chance on a natural scene) and is invalid."""
 DEFAULT_RADIUS_PX = 3
 """natural: a pixel is compared with the pixels within 3 of it (a 7 x 7 window less itself: 48 neighbours)."""
+MAX_SERIES_BYTES = 1 << 31
+"""The most memory an online estimate's maps may take (2 GiB: about 1,100 maps of a 320x240 sensor, 93 of a
+1280x720 one); a shorter --interval is refused when it would go past it."""
 DEFAULT_MAX_ERROR = 0.25
 """natural: a pixel whose two halves' estimates differ by more than 25 % of their mean, or with fewer than 16
 events of either polarity (the fit map: about its relative error from counting, 0.08-0.09 at the median on 280
@@ -485,6 +488,12 @@ class ThresholdEstimator:
             on = off = fit = np.full(self.width * self.height, np.nan)
             valid = np.zeros(self.width * self.height, dtype=bool)
         shape = (self.height, self.width)
+        map_bytes = 25 * self.width * self.height  # on, off, fit as float64, valid as bool
+        if (len(self._series) + 1) * map_bytes > MAX_SERIES_BYTES:  # (was killed for memory, with no message)
+            raise EstimationError(
+                f"online maps every {self.interval_us:,} us: {len(self._series) + 1:,} maps of {self.width}x"
+                f"{self.height} would take more than {MAX_SERIES_BYTES / 2**30:.0f} GiB by {t_us:,} us; give a "
+                "longer --interval")
         self._series.append((t_us, np.where(valid, on, np.nan).reshape(shape),
                              np.where(valid, off, np.nan).reshape(shape), valid.reshape(shape), fit.reshape(shape)))
         keep = math.exp(-self.interval_us / self.forget_us)

@@ -889,3 +889,18 @@ def test_offe_fit_is_the_exact_fit(seed, pixels, samples, huge):
         assert m[i] == (float(Fraction(cov, det)) if ok else 0.0)
         mse = float(Fraction(var_p * det - cov * cov, det * k * k)) if ok else 0.0
         assert r[i] == math.sqrt(max(mse, 0.0))
+
+
+def test_online_maps_beyond_the_memory_bound_are_refused(monkeypatch):
+    """`--online --interval 1us` kept a map per microsecond without a bound (killed for memory on a 1 s stream):
+    the series is refused, saying why, once its maps would pass MAX_SERIES_BYTES."""
+    import evtools.estimation as estimation
+
+    monkeypatch.setattr(estimation, "MAX_SERIES_BYTES", 25 * 8 * 6 * 10)  # ten maps of 8 x 6
+    events = _spread_events(3, 20_000, 8, 6, 100_000)
+    within = estimation.ThresholdEstimator(8, 6, "natural", interval_us=10_000, min_events=1, max_fit=math.inf)
+    within.process(events)  # (maps at each interval's end as the stream passes it)
+    assert 5 <= len(within._series) <= 10
+    beyond = estimation.ThresholdEstimator(8, 6, "natural", interval_us=1_000, min_events=1, max_fit=math.inf)
+    with pytest.raises(EstimationError, match=r"online maps every 1,000 us: 11 maps of 8x6 would take more than"):
+        beyond.process(events)
