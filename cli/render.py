@@ -78,7 +78,7 @@ def _refuse(ctx: click.Context, names: dict[str, str], why: str) -> None:
 @click.command()
 @read_options
 @click.option("-o", "--output", required=True, metavar="OUT", type=click.Path(dir_okay=False),
-              help="OUT.png (or .jpg): one window; OUT.mp4 (or .avi): a video of the whole stream.")
+              help="OUT.png (or .jpg, .svg, .pdf): one window; OUT.mp4 (or .avi): a video of the whole stream.")
 @click.option("--window-us", type=MICROSECONDS, default=DEFAULT_WINDOW_US, show_default=True,
               help="Time window accumulated into one frame, microseconds.")
 @click.option("--start", "start", type=TimeBound(), default=None, metavar="TIME",
