@@ -189,6 +189,10 @@ def read_timestamps_us(path: str) -> np.ndarray:
         raise SimulationError(f"{path}: cannot read timestamps ({error.strerror})") from None
     except UnicodeDecodeError:
         raise SimulationError(f"{path}: not a text file of timestamps") from None
+    if len(times) > 1 and np.median(np.diff(times)) > 60:  # (microseconds read as seconds: days of leak noise)
+        log.warning(
+            f"{path}: the frames are {np.median(np.diff(times)):,.0f} s apart (median): timestamps are read as "
+            "seconds; if these are microseconds, divide them by 1e6")
     return np.round(np.asarray(times, dtype=np.float64) * 1e6).astype(np.int64)
 
 

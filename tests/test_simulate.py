@@ -536,6 +536,11 @@ def test_image_folder_with_timestamps(tmp_path):
     assert np.all(events["p"][events["t"] <= 30_000]) and not np.any(events["p"][events["t"] > 30_000])
     with h5py.File(truth, "r") as h5:
         assert len(h5["label"]) == len(events) and h5.attrs["source_images"] == 5
+    assert b"timestamps are read as seconds" not in run("simulate", folder, "--preset", "clean", "-o", out).stderr
+    # microseconds given where seconds are read: the frames would be 10,000 s apart (days of leak noise): warned
+    (folder / "timestamps.txt").write_text("\n".join(str(1_000_000 + 10_000 * i) for i in range(5)) + "\n")
+    warned = run("simulate", folder, "--preset", "clean", "-o", out, check=False).stderr
+    assert b"the frames are 10,000 s apart (median): timestamps are read as seconds" in warned
 
 
 def test_cli_bad_inputs_give_one_line_errors(tmp_path):
