@@ -348,8 +348,8 @@ def output_stream(path: str | os.PathLike | None, *, binary_name: str, needs_see
     if path == STDIO:
         _check_stream_target(None, "a pipe", binary_name, needs_seek)
         sys.stdout.flush()
-        if isinstance(sys.stdout.buffer, io.BufferedWriter):
-            yield sys.stdout.buffer
+        if isinstance(sys.stdout.buffer, io.BufferedWriter) or not _has_descriptor(sys.stdout):
+            yield sys.stdout.buffer  # (or a test runner's or notebook's stdout: no descriptor to write whole)
             sys.stdout.buffer.flush()
             return
         # python -u / PYTHONUNBUFFERED=1: stdout's binary layer is raw, and a raw write may write part of its bytes
@@ -397,6 +397,14 @@ def output_stream(path: str | os.PathLike | None, *, binary_name: str, needs_see
             stream.close()  # the last flush
         except OSError as error:
             raise FormatError(f"{path}: cannot write ({error.strerror or error})") from None
+
+
+def _has_descriptor(stream) -> bool:
+    try:
+        stream.fileno()
+    except (AttributeError, OSError, ValueError):  # (io.UnsupportedOperation is both an OSError and a ValueError)
+        return False
+    return True
 
 
 def _check_stream_target(stream, name: str, binary_name: str, needs_seek: bool) -> None:
