@@ -45,6 +45,20 @@ def _u32(data, k):  # pragma: no cover - compiled
     return _u16(data, k) | (_u16(data, k + 2) << 16)
 
 
+@kernel(inline=True)
+def _one_of_four(w0, w1, w2, j, spare):  # pragma: no cover - compiled
+    """Value ``j`` of four packed in three words whose width exceeds a value's by ``spare`` bits (8: 24-bit values
+    in 32-bit words; 4: 12-bit in 16-bit): a word holds the rest of one value above the low ``spare``, ``2 spare``
+    or ``3 spare`` bits of the next."""
+    if j == 0:
+        return w0 >> spare
+    if j == 1:
+        return (w0 & ((1 << spare) - 1)) | ((w1 >> (2 * spare)) << spare)
+    if j == 2:
+        return (w1 & ((1 << (2 * spare)) - 1)) | ((w2 >> (3 * spare)) << (2 * spare))
+    return w2 & ((1 << (3 * spare)) - 1)
+
+
 @kernel
 def decode_ecf(data, out):  # pragma: no cover - compiled
     """Decode one ECF block into records.
@@ -115,17 +129,9 @@ def decode_ecf(data, out):  # pragma: no cover - compiled
             w1 = _u32(data, k + 4)
             w2 = _u32(data, k + 8)
             k += 12
-            for j in range(4):
-                if g + j < n:
-                    if j == 0:
-                        v = w0 >> 8
-                    elif j == 1:
-                        v = (w0 & 0xFF) | ((w1 >> 16) << 8)
-                    elif j == 2:
-                        v = (w1 & 0xFFFF) | ((w2 >> 24) << 16)
-                    else:
-                        v = w2 & 0xFFFFFF
-                    out[g + j, 1] = ((v >> 1) & 0x7FF) | (((v >> 12) & 0x7FF) << 16) | ((v & 1) << 32)
+            for j in range(min(4, n - g)):
+                v = _one_of_four(w0, w1, w2, j, 8)
+                out[g + j, 1] = ((v >> 1) & 0x7FF) | (((v >> 12) & 0x7FF) << 16) | ((v & 1) << 32)
         return n
     i = 0
     while i < n:  # the rows
@@ -152,17 +158,9 @@ def decode_ecf(data, out):  # pragma: no cover - compiled
             w1 = _u16(data, k + 2)
             w2 = _u16(data, k + 4)
             k += 6
-            for j in range(4):
-                if g + j < n:
-                    if j == 0:
-                        v = w0 >> 4
-                    elif j == 1:
-                        v = (w0 & 0xF) | ((w1 >> 8) << 4)
-                    elif j == 2:
-                        v = (w1 & 0xFF) | ((w2 >> 12) << 8)
-                    else:
-                        v = w2 & 0xFFF
-                    out[g + j, 1] |= (v >> 1) | ((v & 1) << 32)
+            for j in range(min(4, n - g)):
+                v = _one_of_four(w0, w1, w2, j, 4)
+                out[g + j, 1] |= (v >> 1) | ((v & 1) << 32)
         return n
     i = 0
     while i < n:  # the columns: x, then x + 1 + j for each set bit 4 - j of the mask

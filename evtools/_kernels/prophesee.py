@@ -79,6 +79,21 @@ def new_evt3_state() -> np.ndarray:
     return state
 
 
+@kernel(inline=True)
+def _evt2_loops(last, value, loops):  # pragma: no cover - compiled
+    """The wrap count once an EVT_TIME_HIGH of ``value`` follows one of ``last`` (-1: none yet): a fall by more
+    than half the 28-bit range is a wrap of the 2^34 us time base (EVT 2.0 and 2.1)."""
+    if last >= 0 and last - value > (1 << (EVT2_TIME_HIGH_BITS - 1)):
+        return loops + 1
+    return loops
+
+
+@kernel(inline=True)
+def _evt2_base(loops, last, t0_us):  # pragma: no cover - compiled
+    """The time (us) of a CD word's zero low bits after the time-high ``last`` and ``loops`` wraps, plus ``t0_us``."""
+    return (((loops << EVT2_TIME_HIGH_BITS) + last) << 6) + t0_us
+
+
 @kernel
 def decode_evt2(words, state, t0_us, out):  # pragma: no cover - compiled
     """Decode EVT 2.0 words into CD events.
@@ -101,7 +116,7 @@ def decode_evt2(words, state, t0_us, out):  # pragma: no cover - compiled
     """
     last = state[EVT2_TIME_HIGH]
     loops = state[EVT2_LOOPS]
-    base = (((loops << EVT2_TIME_HIGH_BITS) + last) << 6) + t0_us
+    base = _evt2_base(loops, last, t0_us)
     n = 0
     for i in range(len(words)):
         word = np.int64(words[i])
@@ -115,10 +130,9 @@ def decode_evt2(words, state, t0_us, out):  # pragma: no cover - compiled
                 n += 1
         elif kind == 0x8:  # EVT_TIME_HIGH: bits 0-27 the time's upper bits
             value = word & ((1 << EVT2_TIME_HIGH_BITS) - 1)
-            if last >= 0 and last - value > (1 << (EVT2_TIME_HIGH_BITS - 1)):
-                loops += 1
+            loops = _evt2_loops(last, value, loops)
             last = value
-            base = (((loops << EVT2_TIME_HIGH_BITS) + last) << 6) + t0_us
+            base = _evt2_base(loops, last, t0_us)
         elif kind == 0xA:  # EXT_TRIGGER
             state[EVT2_TRIGGERS] += 1
         else:
@@ -174,7 +188,7 @@ def decode_evt21(words, state, t0_us, legacy, out):  # pragma: no cover - compil
     """
     last = state[EVT2_TIME_HIGH]
     loops = state[EVT2_LOOPS]
-    base = (((loops << EVT2_TIME_HIGH_BITS) + last) << 6) + t0_us
+    base = _evt2_base(loops, last, t0_us)
     capacity = out.shape[0]
     n = 0
     i = 0
@@ -200,12 +214,11 @@ def decode_evt21(words, state, t0_us, legacy, out):  # pragma: no cover - compil
                     out[n, 1] = second + _bits_below(low)
                     n += 1
                     mask ^= low
-        elif kind == 0x8:  # EVT_TIME_HIGH
+        elif kind == 0x8:  # EVT_TIME_HIGH: bits 32-59 the time's upper bits
             value = (word >> 32) & ((1 << EVT2_TIME_HIGH_BITS) - 1)
-            if last >= 0 and last - value > (1 << (EVT2_TIME_HIGH_BITS - 1)):
-                loops += 1
+            loops = _evt2_loops(last, value, loops)
             last = value
-            base = (((loops << EVT2_TIME_HIGH_BITS) + last) << 6) + t0_us
+            base = _evt2_base(loops, last, t0_us)
         elif kind == 0xA:  # EXT_TRIGGER
             state[EVT2_TRIGGERS] += 1
         else:
