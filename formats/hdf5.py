@@ -32,6 +32,10 @@ ECF_FILTER_ID = 36559
 """HDF5 filter id of Prophesee's ECF codec (0x8ECF)."""
 PROPHESEE_FIELDS = ("x", "y", "p", "t")
 """The fields of Metavision's CD event records (``CD/events``)."""
+ECF_MAX_BYTES_PER_EVENT = 32
+"""No ECF chunk takes more bytes an event than this (the widest: a 64-bit time step in 4-bit pieces and its run
+byte, 19, plus a row run, a column and a polarity run, 5), nor does an unfiltered record (16): a chunk whose stored
+size says more is damaged (HDF5 would allocate it before reading: a fuzzed size took 216 MB)."""
 ECF_ERRORS = {-1: "ends before its events do", -2: "has a run that overruns its event count",
               -3: "holds more events than the dataset's chunk"}
 """What :func:`evtools._kernels.ecf.decode_ecf`'s error codes say of a chunk."""
@@ -257,6 +261,10 @@ class Hdf5Reader:
         length = self.dataset.chunks[0]
         for offset in range(start, stop, length):
             target = out[offset - start:min(offset + length, stop) - start]
+            stored_bytes = self.dataset.id.get_chunk_info_by_coord((offset,)).size
+            if stored_bytes is None or stored_bytes > ECF_MAX_BYTES_PER_EVENT * length + 64:
+                raise FormatError(f"{self.name}: the chunk of CD/events at event {offset} is stored in "
+                                  f"{stored_bytes} bytes, more than any {length:,} events take (a damaged file?)")
             mask, stored = self.dataset.id.read_direct_chunk((offset,))
             if mask & 1:  # the optional filter was skipped when this chunk was written: the records as they are
                 records = np.frombuffer(stored, self.dataset.dtype, count=min(len(target), len(stored) //

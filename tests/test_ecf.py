@@ -127,6 +127,11 @@ def test_damaged_chunks_are_refused_naming_the_file_and_the_chunk(tmp_path):
         f["CD/events"].id.write_direct_chunk((16,), ecf_encode_naive(events[16:30], 0), 0)
     with pytest.raises(FormatError, match=r"damaged\.hdf5: the ECF chunk of CD/events at event 16 holds 14 events"):
         read_all(path)
+    with h5py.File(path, "r+") as f:  # a stored size no 16 events take (HDF5 allocates it before reading it)
+        f["CD/events"].id.write_direct_chunk((16,), bytes(32 * 16 + 65), 0)
+    with pytest.raises(FormatError, match=r"damaged\.hdf5: the chunk of CD/events at event 16 is stored in 577 bytes, "
+                                          r"more than any 16 events take"):
+        read_all(path)
 
 
 def test_an_unfiltered_prophesee_file_is_read_through_h5py(tmp_path):
