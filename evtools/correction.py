@@ -47,6 +47,7 @@ from evtools._kernels.correct import (
     compact_runs,
     compact_waiting,
     correct_events,
+    finish_runs,
     earliest_start,
     merge_sorted,
     release_runs,
@@ -237,6 +238,7 @@ class ThresholdCorrector:
             largest_on = float(np.nanmax(np.where(usable, on, 0)))
             largest_off = float(np.nanmax(np.where(usable, off, 0)))
         ratio = max(largest_on / self.target_on, largest_off / self.target_off)
+        self._largest = max(largest_on, largest_off)
         if ratio > MAX_EVENTS_PER_EVENT:
             raise CorrectionError(
                 f"target {self.target_on:.4g} / {self.target_off:.4g} (ON / OFF) is {ratio:,.0f} times smaller than the "
@@ -283,12 +285,13 @@ class ThresholdCorrector:
         # with turns a segment starts up to one window before its event and may wait up to two for the next one;
         # a tail starts at its event and waits up to two windows
         self.latency_us = 3 * self.window_us if self.turns else 2 * self.window_us if self.curves else self.window_us
-        self._lanes = [_Lane() for _ in range(LANES)]
+        self._lanes = [_Lane(parity) for parity in range(LANES)]
         self._due_us = -NO_EVENT_US  # when waiting pixels are next checked (see split_rows)
         self._earliest = (NO_EVENT_US, -1)  # the earliest segment start and a pixel where it is (see _bound)
         self._checks_us = np.empty(0, np.int64)
         self._pool = None
         self._started = False
+        self._last_us = 0  # the latest input event's time
         self.parameters: dict[str, Any] = {
             "target_on": self.target_on, "target_off": self.target_off, "mode": mode, "hold_us": self.hold_us,
             "max_gap_us": self.max_gap_us, "tau_us": self.tau_us, "turns": self.turns, "curves": self.curves,
@@ -320,6 +323,7 @@ class ThresholdCorrector:
             return empty_events()
         if not self._started:
             self._start(int(chunk["t"][0]))
+        self._last_us = int(chunk["t"][-1])
         if self._series is not None:
             return self._process_series(chunk)
         return self._process(chunk)
@@ -448,7 +452,8 @@ class _Lane:
     stream whose held events grow to millions (9.5 Mev/s: 4.3 million a lane) pays for the buffer's growth and
     moves: 15-20 % slower than runs of their own, for 4 % more memory at the peak."""
 
-    def __init__(self):
+    def __init__(self, parity: int):
+        self.parity = parity  # the lane's sensor rows: y % 2
         self.queue_pixel = np.empty(QUEUE_ENTRIES, dtype=np.int64)
         self.queue_us = np.empty(QUEUE_ENTRIES, dtype=np.int64)
         self.head = self.tail = 0
@@ -508,6 +513,13 @@ class _Lane:
                                           *self.new, n)
             if self.head < self.tail:
                 self.new = _grown(self.new, 2 * len(self.new[0]), n)
+        if c.turns and c._started:
+            room = n + int(np.ceil(c.width * ((c.height + 1) // 2) * (c._largest / min(c.target_on, c.target_off)
+                                                                         + 2)))
+            if len(self.new[0]) < room:
+                self.new = _grown(self.new, room, n)
+            n = finish_runs(c.width, self.parity, c._state, c._status, c._use, c.curves,
+                            c._last_us - c.latency_us, c.target_on, c.target_off, *self.new, n)
         return n
 
     def _make_queue_room(self, count: int, state: np.ndarray) -> None:

@@ -283,7 +283,7 @@ def test_a_lanes_buffer_of_runs_releases_what_a_list_of_runs_would(sizes, seed):
     from evtools.correction import _Lane
 
     rng = np.random.default_rng(seed)
-    lane, reference, now = _Lane(), [], 0
+    lane, reference, now = _Lane(0), [], 0
     for created, advance in sizes:
         times = now + rng.integers(-50, 20, created)
         words = rng.integers(0, 1 << 40, created)
@@ -385,7 +385,7 @@ def test_a_dense_stream_is_released_in_parts():
 def test_earliest_start_against_numpy(mode, turns, seed, cuts, part):
     # the corrector's bound keeps the earliest start and its pixel from part to part and skips the scan while
     # that pixel's start stands: after every part its answer is the minimum over all pixels, as a full scan's
-    from evtools._kernels.correct import FIRST, NO_EVENT_US, TURN, earliest_start
+    from evtools._kernels.correct import FIRST, LINES, NO_EVENT_US, TURN, earliest_start
 
     on, off = thresholds(seed % 1000)
     events = random_events(3000, W, H, seed=seed)
@@ -397,7 +397,7 @@ def test_earliest_start_against_numpy(mode, turns, seed, cuts, part):
         for chunk in cut(events, sorted(cuts)):
             corrector.process(chunk)
             state, status = corrector._state, corrector._status
-            waiting = np.isin(np.abs(status), [TURN, FIRST])
+            waiting = np.isin(np.abs(status), [TURN, FIRST, LINES])
             starts = state["last_us"] - np.where(waiting, state["pending_us"], 0)
             answers = [earliest_start(state, status, NO_EVENT_US, -1)] + [corrector._earliest] * (len(chunk) > 0)
             for earliest_us, pixel in answers:

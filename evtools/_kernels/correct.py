@@ -20,14 +20,18 @@ With ``turns`` (on in the ``turns`` and ``highpass`` modes of the corrector) the
 - anchored: every pixel's reconstruction starts at level 0 (its reference) at the stream's start (the caller sets
   ``last_us`` of every pixel to that time), so the crossings of its first event are interpolated too (unless the
   first event comes after a rest);
-- turned, exactly: on a ramp linear in log intensity consecutive events are one threshold apart, so the run's
-  last two events give its slope, and after the run's last event ``(t_a, R)`` the first event of the other
-  polarity lies exactly one of its thresholds beyond ``R`` (the DVS reset rule). So the segment that ends at a
-  reversal waits for the pixel's next event: of the same polarity, it gives the new ramp's slope, and the extremum
-  is where the two lines meet (:func:`_resolve`); the first ramp is extended back the same way to the start level.
-  With a slope unknown (a ramp of one event, a rest, the end of the stream) the known slope is assumed on both
-  sides; with neither, half a threshold at the midpoint. On a piecewise-linear log signal with exact thresholds
-  this is the signal itself wherever its ramps have two events or more, so the re-sampling is exact.
+- turned, consistently: after its latest event a pixel's log intensity stayed within one threshold of its
+  reference (it would have fired otherwise), so at a reversal the extremum lies beyond the run's last level by at
+  least 0 and less than the run's threshold. The segment that ends at a reversal waits for the pixel's next event
+  (the slope after the turn). Where the run before the turn is straight (its last two intervals within 1 %, as
+  on a ramp linear in log intensity, where consecutive events are one threshold apart) the extremum is where the
+  run's line and the new ramp's line meet (:func:`_resolve`): exact on piecewise log-linear signals with exact
+  thresholds, as long as that point is consistent. Otherwise (a curved run, as on natural scenes, where those
+  lines meet beyond the true extremum and re-sampling the overshoot invents events; a run of one event; a
+  meeting point the pixel would have fired at) the extremum is the expected value over the consistent interval,
+  half the run's threshold beyond its last level, reached at the time the two runs' slopes (scaled to fill the
+  gap) put it. A reversal over a rest gets the same excursion, at the event's time. The first ramp is extended
+  back to the start level along its line.
 
 Every re-sampled event lies after the start of the segment it belongs to: the pixel's previous event, or
 ``max(origin, t_j - max_gap_us)``; a waiting segment starts at most ``window_us`` before its event and waits at
@@ -115,12 +119,16 @@ PIXEL_DTYPE = np.dtype([("level", np.float64), ("last_us", np.int64), ("interval
 start of the pending segment while one waits), the latest event's time (NO_EVENT_US before the first; the stream's
 start with turns), the time between the current run's last two events (its slope is one threshold per that
 interval; 0 when unknown: one event so far, or after a rest), the length of the pending segment (its start is ``last_us - pending_us``), and
-the pixel's thresholds (float32, the maps' precision)."""
+the pixel's thresholds (float32, the maps' precision). While nothing is pending, ``pending_us`` holds the
+run's interval before ``interval_us`` (0 unknown), so that a turn knows whether the run was straight."""
 
 SETTLED = 1
 """``status`` of a pixel (int8, signed by its latest event's polarity, 0 before the first): nothing pending."""
 TURN = 2
 """``status``: the latest event reversed the run; its segment waits for the next event (the slope after the turn)."""
+LINES = 5
+"""``status``: as :data:`TURN`, after a straight run (its last two intervals within :data:`MIN_CURVE_RATIO`): the
+extremum is where the lines of the runs on both sides meet, if that is consistent."""
 FIRST = 3
 """``status``: the pixel's first event (reconstruction anchored at the stream's start); its segment waits for the
 next event (the slope of the first ramp, to extrapolate it back)."""
@@ -140,8 +148,18 @@ TAIL_TAUS = 3.0
 approach); later crossings lie where the distance left to the asymptote is within the fit's own error (a target
 level at the asymptote itself would fire at a time set by rounding)."""
 
+TAILED = -1.0
+"""``interval_us`` of a pixel whose run ended in a re-sampled tail (its excess beyond the last event is modelled:
+a reversal over a rest adds none)."""
+
 MAX_TAU_US = 2**31 - 1
 """The longest time constant kept (it waits in ``pending_us``, 32 bits)."""
+
+@kernel(inline=True)
+def _within(interval_a, interval_b):
+    """Whether two positive intervals agree within :data:`MIN_CURVE_RATIO` (a straight run)."""
+    return max(interval_a, interval_b) <= MIN_CURVE_RATIO * min(interval_a, interval_b)
+
 
 def _shape_table(cells: int) -> np.ndarray:
     """``y / (1 - x)`` at ``x = 1 / ratio = k / cells``, ``y`` the positive root of ``exp(y) + exp(-ratio y) = 2``:
@@ -206,13 +224,16 @@ def _resolve(level, t_b, pending_us, kind, up, interval_a, interval_b, theta_on,
     - ``FIRST``: the first ramp, extended back to the pixel's start level, starts ``interval_b`` before ``t_b``
       (the signal held its start level until then), never before the anchor ``pending_us`` back; with the interval
       unknown, the line from the anchor (the hold of the report).
-    - ``TURN``: the extremum is the intersection of the run's line through its last event ``(t_a, R)`` and the
-      new ramp's line through ``(t_b, R -/+ theta_b)``. With ``G = t_b - t_a`` and ``D = theta_a interval_b +
-      theta_b interval_a`` it lies ``u = theta_b (G - interval_b) interval_a / D`` after ``t_a`` and ``theta_a
-      theta_b (G - interval_b) / D`` beyond ``R`` (0 when ``G <= interval_b``; at most ``theta_a`` beyond, at
-      ``u = interval_a``: further and the pixel would have fired again). A slope not known takes the other's;
-      with neither, both are the symmetric slope that turns half a threshold beyond ``R``. One division: the
-      kernel's speed on reversing streams depends on it.
+    - ``TURN`` / ``LINES``: the extremum lies ``excess`` beyond the run's last level ``R`` (at ``t_a``), with ``0
+      <= excess < theta_a`` (the consistency rule), and ``u`` after ``t_a``. ``LINES`` (a straight run): the
+      intersection of the run's line through ``(t_a, R)`` and the new ramp's line through ``(t_b, R -/+
+      theta_b)``: with ``G = t_b - t_a`` and ``D = theta_a interval_b + theta_b interval_a`` it lies ``u = theta_b
+      (G - interval_b) interval_a / D`` after ``t_a`` and ``theta_a theta_b (G - interval_b) / D`` beyond ``R`` (0
+      when ``G <= interval_b``). ``TURN``, or a meeting point at or past ``theta_a`` (the pixel would have fired
+      again): ``excess = theta_a / 2``, the expected value over the consistent interval, at the ``u`` where the
+      time to rise by it at the run's slope and to fall to the event's level at the new ramp's slope, scaled to
+      fill ``G``, meet. A slope not known takes the other's; with neither, both are the slope that turns half a
+      threshold beyond ``R``.
     """
     theta_b = theta_on if up else theta_off
     d = theta_b if up else -theta_b
@@ -230,13 +251,20 @@ def _resolve(level, t_b, pending_us, kind, up, interval_a, interval_b, theta_on,
         interval_b = theta_b * interval_a / theta_a
     u = 0.0
     excess = 0.0
-    if gap > interval_b:
+    lines = kind == LINES
+    if lines and gap > interval_b:
         scale = theta_b * (gap - interval_b) / (theta_a * interval_b + theta_b * interval_a)
         u = scale * interval_a
         excess = scale * theta_a
-        if excess > theta_a:
+        if scale >= 1.0:  # at the next level: a turn there within the precision of whole-us times, else curved
+            lines = scale <= MIN_CURVE_RATIO
             u = interval_a
             excess = theta_a
+    if not lines:
+        excess = 0.5 * theta_a
+        rise = excess * interval_a / theta_a
+        both = rise + (excess + theta_b) * interval_b / theta_b  # 0 only when the gap is (both slopes unknown)
+        u = gap * rise / both if both > 0.0 else 0.0
     run = -1.0 if up else 1.0
     level, n = _segment(level, run * excess, -gap, u - gap, t_b, xy, target_on, target_off, out_t, out_w, n)
     return _segment(level, d - run * excess, u - gap, 0.0, t_b, xy, target_on, target_off, out_t, out_w, n)
@@ -273,14 +301,17 @@ def _settle(state, status, pixel, xy, interval_b, span_us, target_on, target_off
         level, n = _crossings(row.level, tail, 0.0, span_us, share, tau, row.last_us, xy, target_on, target_off,
                               out_t, out_w, n)
         row.level = level - tail
-        row.interval_us = 0.0
+        row.interval_us = TAILED
         row.pending_us = 0
         status[pixel] = SETTLED if up else -SETTLED
         return n
     row.level, n = _resolve(row.level, row.last_us, row.pending_us, kind, up, float(row.interval_us), interval_b,
                             theta_on, theta_off, xy, target_on, target_off, out_t, out_w, n)
-    row.interval_us = row.pending_us if (kind == FIRST and interval_b == 0.0) else 0.0
-    row.pending_us = 0
+    # a first ramp whose line back meets the anchor (or of one event: the line from the anchor is the ramp) is a
+    # straight run so far, its interval the anchored segment's
+    anchored = kind == FIRST and (interval_b == 0.0 or _within(interval_b, float(row.pending_us)))
+    row.interval_us = row.pending_us if anchored else 0.0
+    row.pending_us = row.pending_us if anchored else 0
     status[pixel] = SETTLED if up else -SETTLED
     return n
 
@@ -315,6 +346,46 @@ def settle_waiting(width, state, status, target_on, target_off, window_us, queue
     return n, head
 
 
+@kernel(inline=True)
+def _run_excess(row, up, curves):
+    """How far a settled pixel's run went on after its latest event, by the consistency rule's expected value:
+    none after a re-sampled tail (modelled); with ``curves``, a run that slowed down goes on by its exponential
+    approach's rest to the asymptote when that is below a threshold (the pixel did not fire again); otherwise half
+    its threshold. Signed by the run's direction."""
+    theta = float(row.on) if up else float(row.off)
+    excess = 0.5 * theta
+    if row.interval_us < 0.0:
+        excess = 0.0
+    elif curves and 0 < row.pending_us and row.interval_us > MIN_CURVE_RATIO * row.pending_us:
+        tau = min(math.floor(_approach_tau(float(row.pending_us), float(row.interval_us)) + 0.5), MAX_TAU_US)
+        rest = theta / math.expm1(float(row.interval_us) / tau)
+        if rest < theta:  # followed as a tail is: for at most TAIL_TAUS time constants
+            excess = rest * TAIL_SHARE
+    return excess if up else -excess
+
+
+@kernel
+def finish_runs(width, parity, state, status, use, curves, not_before_us, target_on, target_off, out_t, out_w,
+                n):  # pragma: no cover - compiled
+    """The stream ended: every re-sampled pixel of the sensor rows of ``parity`` (nothing pending: settled first),
+    in index order, goes on after its latest event by the expected excess of its run (:func:`_run_excess`, at
+    the run's slope), never before ``not_before_us`` (what is released already ends there).
+    Returns n; the caller makes room for the created events."""
+    for pixel in range(parity * width, status.shape[0], 2 * width):
+        for column in range(width):
+            here = pixel + column
+            sign = status[here]
+            row = state[here]
+            if not use[here] or sign == 0:
+                continue
+            excess = _run_excess(row, sign > 0, curves)
+            xy = ((here // width) << 16) | column
+            begin = float(max(not_before_us - row.last_us, 0))
+            row.level, n = _segment(row.level, excess, begin, max(0.5 * float(row.interval_us), begin), row.last_us,
+                                    xy, target_on, target_off, out_t, out_w, n)
+    return n
+
+
 @kernel
 def curve_run(state, status, pixel, xy, on, t_b, window_us, target_on, target_off, queue_pixel, queue_us, tail, out_t,
               out_w, n):  # pragma: no cover - compiled
@@ -328,6 +399,7 @@ def curve_run(state, status, pixel, xy, on, t_b, window_us, target_on, target_of
     interval_a = float(row.interval_us)
     span = float(t_b - row.last_us)
     row.interval_us = span
+    row.pending_us = np.int32(math.floor(interval_a + 0.5))
     sign = 1 if on else -1
     status[pixel] = sign
     if (level + 2.0 * theta < target_on) if on else (level - 2.0 * theta > -target_off):
@@ -417,6 +489,7 @@ def correct_events(words, start, width, state, status, use, target_on, target_of
         kind = abs(status[pixel])
         if kind == TAIL and gap <= window_us:  # the pixel fired again: the run went on (or turned), no tail
             status[pixel] = SETTLED if status[pixel] > 0 else -SETTLED
+            row.pending_us = 0  # (held the tail's tau; a slowing run is not straight)
         elif kind >= TURN:  # the pending segment (or tail) waited for this event
             same = (on == (status[pixel] > 0)) and 0 < gap <= window_us
             n = _settle(state, status, pixel, xy, float(gap) if same else 0.0, float(window_us), target_on,
@@ -426,16 +499,29 @@ def correct_events(words, start, width, state, status, use, target_on, target_of
         if t_a == NO_EVENT_US:  # a first event with nothing before it: its crossings at its own time
             a, n = _segment(a, d, 0.0, 0.0, t_b, xy, target_on, target_off, out_t, out_w, n)
             row.interval_us = 0.0
+            row.pending_us = 0
             status[pixel] = sign
         elif mode != MODE_FOH and gap > hold_us:  # a rest: held, everything at t_b
             if mode == MODE_HIGHPASS:
                 a = a * math.exp(-(gap - hold_us) / tau_us)
-            a, n = _segment(a, d, 0.0, 0.0, t_b, xy, target_on, target_off, out_t, out_w, n)
+            if turns and last == -sign:
+                # a reversal over a rest: the run went on by its expected excess (:func:`_run_excess`) at its slope
+                # (at once when unknown), never earlier than a window before t_b (the ordering bound), and came
+                # back just before t_b
+                excess = _run_excess(row, not on, curves)
+                reached = -min(float(gap) - 0.5 * max(row.interval_us, 0.0), float(window_us))
+                a, n = _segment(a, excess, max(-float(gap), -float(window_us)), reached, t_b, xy, target_on,
+                                target_off, out_t, out_w, n)
+                a, n = _segment(a, d - excess, 0.0, 0.0, t_b, xy, target_on, target_off, out_t, out_w, n)
+            else:
+                a, n = _segment(a, d, 0.0, 0.0, t_b, xy, target_on, target_off, out_t, out_w, n)
             row.interval_us = 0.0
+            row.pending_us = 0
             status[pixel] = sign
         elif turns and (last == 0 or last == -sign) and gap <= max_gap_us:  # wait for the pixel's next event
+            straight = 0 < row.pending_us and 0.0 < row.interval_us and _within(row.interval_us, row.pending_us)
             row.pending_us = gap
-            status[pixel] = sign * (FIRST if last == 0 else TURN)
+            status[pixel] = sign * (FIRST if last == 0 else LINES if straight else TURN)
             queue_pixel[tail] = pixel
             queue_us[tail] = t_b
             tail += 1
@@ -447,7 +533,9 @@ def correct_events(words, start, width, state, status, use, target_on, target_of
         else:
             a, n = _segment(a, d, -float(min(gap, max_gap_us)), 0.0, t_b, xy, target_on, target_off, out_t, out_w,
                             n)
-            row.interval_us = gap if (last == sign and 0 < gap <= window_us) else 0  # a ramp within the window
+            ramp = last == sign and 0 < gap <= window_us  # a ramp within the window
+            row.pending_us = np.int32(math.floor(max(row.interval_us, 0.0) + 0.5)) if ramp else 0
+            row.interval_us = gap if ramp else 0
             status[pixel] = sign
         row.level = a
         row.last_us = t_b
@@ -691,7 +779,7 @@ def _start_of(state, status, pixel):
     event)."""
     start = state[pixel].last_us
     kind = abs(status[pixel])
-    if kind == TURN or kind == FIRST:
+    if kind == TURN or kind == FIRST or kind == LINES:
         start -= state[pixel].pending_us
     return start
 

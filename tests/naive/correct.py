@@ -9,9 +9,17 @@ gives the slope after the turn; otherwise (or when the stream ends first) that s
 are also settled, slope unknown, whenever the stream has moved a window on since the last such check (they
 would get the same from their own next event, so this only fixes the order in which events are created):
 
-- at a reversal, the polyline goes through the extremum where the line of the run before (through its last two
-  events) meets the line of the run after (through its first two events);
-- at a first event, the first run's line is followed back to the start level; the polyline is flat before.
+- at a reversal, the polyline goes through the extremum: after a straight run (its last two intervals within
+  1 % of each other) where the line of the run before (through its last two events) meets the line of the run
+  after (through its first two events), if that point lies less than one of the run's thresholds beyond its last
+  level; otherwise half a threshold beyond it, at the time where the run's slope (rising to it) and the new run's
+  slope (falling from it to the event's level) meet when scaled to fill the gap. A reversal over a rest (all but
+  foh, unless the run ended in a re-sampled tail or, with ``curves``, slowed down: its approach's model says how
+  far it went) goes half a threshold beyond at the run's slope from its last
+  event (no earlier than a window before the event), stays, and comes back at the event's time;
+- at a first event, the first run's line is followed back to the start level; the polyline is flat before. A
+  first run whose line back meets the anchor (within 1 %), or of one event (its line is the anchored one), counts
+  as straight so far.
 
 With ``curves``, a segment between two events of a run (same polarity, within the window) whose interval is more
 than 1 % longer than the run's previous interval is not a line but the exponential approach ``A (1 - exp(-s /
@@ -20,6 +28,9 @@ whole us. Beyond the event, that approach goes on towards its asymptote: if with
 less than a threshold (the pixel will not fire again) but far enough to cross a target level, the pixel waits a
 window: an event of its own within the window drops that tail, otherwise (or at the stream's end) the tail's
 crossings are made and the level returns to the pixel's own reference level.
+
+With ``turns``, at the stream's end every pixel's run goes on by half its threshold at its slope (unless the run
+ended in a re-sampled tail or, with ``curves``, slowed down).
 
 Every segment of the polyline is re-sampled: an event wherever it crosses the corrected reference plus or minus
 the target threshold, at the crossing time on the segment. The output is then sorted by time, ties between pixels
@@ -98,13 +109,15 @@ def _clamp(value, low, high):
     return min(max(value, low), high)
 
 
-def extremum(gap, theta_before, interval_before, theta_after, interval_after):
+def extremum(gap, theta_before, interval_before, theta_after, interval_after, straight=True):
     """Where a run turns between its last event and, ``gap`` us later, the first event of the other polarity
     (``theta_after`` beyond): (us after the last event, level beyond it). A ramp's slope is one threshold per
     interval between its events (``interval_*``, 0 unknown).
 
-    The two lines meet where ``beyond = theta_before / interval_before * u`` and ``beyond + theta_after =
-    theta_after / interval_after * (gap - u)``. A slope not known takes the other's; neither known: both are the
+    ``straight``: the two lines meet where ``beyond = theta_before / interval_before * u`` and ``beyond +
+    theta_after = theta_after / interval_after * (gap - u)``, kept when ``beyond < theta_before``. Otherwise
+    ``beyond`` is half of ``theta_before``, reached after ``u`` in the ratio of the time to rise to it and the time
+    to fall from it by ``beyond + theta_after``. A slope not known takes the other's; neither known: both are the
     slope of a symmetric turn half a threshold beyond the run's last level."""
     if interval_before <= 0 and interval_after <= 0:
         # slope (theta_before + theta_after) / gap on both sides
@@ -114,13 +127,19 @@ def extremum(gap, theta_before, interval_before, theta_after, interval_after):
         interval_before = theta_before * interval_after / theta_after
     elif interval_after <= 0:
         interval_after = theta_after * interval_before / theta_before
-    if gap <= interval_after:  # the new ramp's line reaches its first event's level only from the last event on
-        return 0.0, 0.0
-    # solve both line equations for u (multiplying out the slopes' divisions)
-    scale = theta_after * (gap - interval_after) / (theta_before * interval_after + theta_after * interval_before)
-    if scale * theta_before > theta_before:  # would have fired again: the extremum a whole threshold beyond
-        return interval_before, theta_before
-    return scale * interval_before, scale * theta_before
+    if straight:
+        if gap <= interval_after:  # the new ramp's line reaches its first event's level only from the last event on
+            return 0.0, 0.0
+        # solve both line equations for u (multiplying out the slopes' divisions)
+        scale = theta_after * (gap - interval_after) / (theta_before * interval_after + theta_after * interval_before)
+        if scale < 1:
+            return scale * interval_before, scale * theta_before
+        if scale <= 1.01:  # a turn at the next level, within the precision of whole-us event times
+            return interval_before, theta_before
+    beyond = 0.5 * theta_before
+    rise = beyond * interval_before / theta_before  # at the run's slope
+    fall = (beyond + theta_after) * interval_after / theta_after  # at the new run's slope
+    return (gap * rise / (rise + fall) if rise + fall > 0 else 0.0), beyond
 
 
 def correct_naive(events, on, off, target_on, target_off, mode=FOH, hold_us=100_000, max_gap_us=1_000_000,
@@ -143,6 +162,7 @@ def correct_naive(events, on, off, target_on, target_off, mode=FOH, hold_us=100_
     last = {}  # pixel -> time of its latest original event (or the stream start, with turns)
     polarity = {}  # pixel -> polarity of its latest event
     interval = {}  # pixel -> time between the last two events of its current run (us; 0 unknown or > window)
+    previous = {}  # pixel -> the run's interval before that (us, whole; 0 unknown)
     level = {}  # pixel -> reconstruction minus corrected reference, at the start of what is not drawn yet
     waiting = {}  # pixel -> (kind "first", "turn" or "tail", segment length us or tail's tau) not drawn yet
     created = []
@@ -162,6 +182,24 @@ def correct_naive(events, on, off, target_on, target_off, mode=FOH, hold_us=100_
         decay = math.exp(-interval_us / tau)  # the rest to the asymptote is theta * decay / (1 - decay)
         return theta * decay / (1.0 - decay) * (1.0 - math.exp(-span / tau)), span
 
+    def run_excess(pixel):
+        """How far the pixel's run went on after its latest event (signed): none after a re-sampled tail; with
+        curves, a run that slowed down goes on by its approach's rest when below a threshold; else half a
+        threshold."""
+        x, y = pixel
+        up = polarity[pixel]
+        theta = float(on[y][x]) if up else float(off[y][x])
+        gone, before = interval.get(pixel, 0), previous.get(pixel, 0)
+        excess = 0.5 * theta
+        if gone < 0:
+            excess = 0.0
+        elif curves and before > 0 and gone > 1.01 * before:
+            tau = min(math.floor(approach_tau(float(before), float(gone)) + 0.5), 2**31 - 1)
+            decay = math.exp(-gone / tau)
+            if theta * decay / (1.0 - decay) < theta:  # followed as a tail is: for at most 3 tau
+                excess = theta * decay / (1.0 - decay) * (1.0 - math.exp(-3.0))
+        return excess if up else -excess
+
     def settle(pixel, interval_after):
         kind, gap = waiting.pop(pixel)
         x, y = pixel
@@ -175,18 +213,22 @@ def correct_naive(events, on, off, target_on, target_off, mode=FOH, hold_us=100_
             made, a = _curve_crossings(level[pixel], rise, 0.0, span, float(gap), t, target_on, target_off)
             created.extend((when, x, y, p) for when, p in made)
             level[pixel] = a - rise
-            interval[pixel] = 0
+            interval[pixel] = -1  # a tail re-sampled: a reversal over a rest adds no excess
+            previous[pixel] = 0
             return
         if kind == "first":
             back = min(gap, interval_after) if interval_after > 0 else gap  # the first ramp's line back to 0
             draw(pixel, [(-float(back), 0.0), (0.0, step)], t)
-            interval[pixel] = gap if interval_after == 0 else 0  # the anchored line is the first ramp
+            # the anchored line is the first ramp (unknown slope, or its line back meets the anchor)
+            meets = interval_after == 0 or max(gap, interval_after) <= 1.01 * min(gap, interval_after)
+            interval[pixel] = previous[pixel] = gap if meets else 0
             return
         theta_before = float(off[y][x]) if up else float(on[y][x])
-        u, beyond = extremum(float(gap), theta_before, float(interval[pixel]), theta, float(interval_after))
+        u, beyond = extremum(float(gap), theta_before, float(interval[pixel]), theta, float(interval_after),
+                             kind == "lines")
         signed = -beyond if up else beyond
         draw(pixel, [(-float(gap), 0.0), (u - gap, signed), (0.0, step - signed)], t)
-        interval[pixel] = 0
+        interval[pixel] = previous[pixel] = 0
 
     for t, x, y, p in events:
         t, x, y, p = int(t), int(x), int(y), bool(p)
@@ -209,27 +251,40 @@ def correct_naive(events, on, off, target_on, target_off, mode=FOH, hold_us=100_
             gap = t - last[pixel]
             if waiting[pixel][0] == "tail" and gap <= window:
                 del waiting[pixel]  # the pixel fired again: no tail
+                previous[pixel] = 0
             else:
                 settle(pixel, gap if polarity[pixel] == p and 0 < gap <= window else 0)
         if pixel not in last:
             draw(pixel, [(0.0, 0.0), (0.0, step)], t)
-            interval[pixel] = 0
+            interval[pixel] = previous[pixel] = 0
         else:
             gap = t - last[pixel]
             before = polarity.get(pixel)
             if mode != FOH and gap > hold_us:  # a rest: held, everything at t
                 if mode == HIGHPASS:
                     level[pixel] = level.get(pixel, 0.0) * math.exp(-(gap - hold_us) / tau_us)
-                draw(pixel, [(0.0, 0.0), (0.0, step)], t)
+                if turns and before is not None and before != p:
+                    # the run's excess, reached at its slope after its last event (but not earlier than a window
+                    # before t), held, and back at t
+                    beyond = run_excess(pixel)
+                    begin = max(-float(gap), -float(window))
+                    reached = -min(gap - 0.5 * max(interval.get(pixel, 0), 0), float(window))
+                    draw(pixel, [(begin, 0.0), (reached, beyond), (0.0, 0.0), (0.0, step - beyond)], t)
+                else:
+                    draw(pixel, [(0.0, 0.0), (0.0, step)], t)
                 interval[pixel] = 0
+                previous[pixel] = 0
             elif turns and before != p and gap <= max_gap_us:
-                waiting[pixel] = ("first" if before is None else "turn", gap)
+                a, b = float(interval.get(pixel, 0)), float(previous.get(pixel, 0))
+                straight = a > 0 and b > 0 and max(a, b) <= 1.01 * min(a, b)
+                waiting[pixel] = ("first" if before is None else "lines" if straight else "turn", gap)
             elif curves and before == p and 0 < interval[pixel] and gap <= window and gap > 1.01 * interval[pixel]:
                 tau = min(math.floor(approach_tau(float(interval[pixel]), float(gap)) + 0.5), 2**31 - 1)
                 made, a = _curve_crossings(level.get(pixel, 0.0), step, -float(gap), float(gap), float(tau), t,
                                            target_on, target_off)
                 created.extend((when, x, y, q) for when, q in made)
                 level[pixel] = a
+                previous[pixel] = math.floor(interval[pixel] + 0.5)
                 interval[pixel] = gap
                 rise, _ = tail_of(theta, float(gap), float(tau))
                 reaches = (a + rise >= target_on) if p else (a - rise <= -target_off)
@@ -237,10 +292,22 @@ def correct_naive(events, on, off, target_on, target_off, mode=FOH, hold_us=100_
                     waiting[pixel] = ("tail", tau)
             else:
                 draw(pixel, [(-float(min(gap, max_gap_us)), 0.0), (0.0, step)], t)
-                interval[pixel] = gap if before == p and 0 < gap <= window else 0
+                ramp = before == p and 0 < gap <= window
+                previous[pixel] = math.floor(max(interval.get(pixel, 0), 0) + 0.5) if ramp else 0
+                interval[pixel] = gap if ramp else 0
         polarity[pixel] = p
         last[pixel] = t
     for pixel in sorted(waiting, key=lambda q: last[q]):
         settle(pixel, 0.0)
+    if turns and events:  # the stream ended: each pixel's run went on by half its threshold, at its slope, but
+        # not before three windows before the stream's last event (what the kernel has released by then)
+        not_before = events[-1][0] - 3 * window
+        for pixel in sorted(polarity, key=lambda q: (q[1], q[0])):
+            if passthrough(*pixel):
+                continue
+            excess = run_excess(pixel)
+            gone = interval.get(pixel, 0)
+            begin = float(max(not_before - last[pixel], 0))
+            draw(pixel, [(begin, 0.0), (max(0.5 * gone, begin), excess)], last[pixel])
     order = sorted(range(len(created)), key=lambda i: (created[i][0], created[i][2] % 2, i))
     return [created[i] for i in order]

@@ -1,0 +1,78 @@
+"""``correct`` on natural moving textures (issue 36): it never makes a stream worse, and it approaches the input as
+the thresholds approach the target.
+
+The scenes come from ``tests/naive/texture.py`` (a random multi-scale log texture moved along a random pan and
+wobble, ideal pixels with exact crossings; none of the simulator's code). Each draw is compared with the ideal
+sensor (uniform thresholds at the target) watching the same signal: the per-pixel count error is the sum over
+pixels and polarities of |n - n_ideal| over the ideal's total (``texture.count_error``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from evtools.correction import correct_thresholds
+from evtools.events import make_events
+from tests.naive.texture import count_error, crossings, texture_signal
+
+TARGET = 0.2
+WIDTH, HEIGHT = 16, 12
+
+scene = st.fixed_dictionaries({
+    "seed": st.integers(0, 2**31),
+    "contrast": st.floats(0.5, 1.2),
+    "pan_x": st.floats(-8.0, 8.0),
+    "pan_y": st.floats(-4.0, 4.0),
+    "wobble_px": st.floats(0.0, 5.0),
+    "wobble_hz": st.floats(0.5, 3.0),
+    "mode": st.sampled_from(["exponential", "turns"]),
+})
+
+
+def run(draw, sigma, error, seed):
+    """(ideal, input, corrected) event arrays of one drawn scene and threshold maps."""
+    times, levels = texture_signal(WIDTH, HEIGHT, 2_000_000, seed=draw["seed"], contrast=draw["contrast"],
+                                   pan_px_s=(draw["pan_x"], draw["pan_y"]), wobble_px=draw["wobble_px"],
+                                   wobble_hz=draw["wobble_hz"])
+    rng = np.random.default_rng(seed)
+    on = np.clip(rng.normal(TARGET, sigma, (HEIGHT, WIDTH)), 0.05, None).astype(np.float32)
+    off = np.clip(rng.normal(TARGET, sigma, (HEIGHT, WIDTH)), 0.05, None).astype(np.float32)
+    ideal = crossings(times, levels, np.float32(TARGET), np.float32(TARGET))
+    given_ = crossings(times, levels, on, off)
+    events = make_events(given_["t"], given_["x"], given_["y"], given_["p"])
+    known_on = (on * (1 + rng.normal(0, error, on.shape))).astype(np.float32)
+    known_off = (off * (1 + rng.normal(0, error, off.shape))).astype(np.float32)
+    out = correct_thresholds(events, WIDTH, HEIGHT, known_on, known_off, target=TARGET, mode=draw["mode"], start_us=0)
+    return ideal, given_, out
+
+
+def errors(ideal, given_, out):
+    return count_error(given_, ideal, WIDTH, HEIGHT), count_error(out, ideal, WIDTH, HEIGHT)
+
+
+@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(draw=scene, seed=st.integers(0, 1000))
+def test_thresholds_near_the_target_leave_the_stream_nearly_as_it_was(draw, seed):
+    ideal, given_, out = run(draw, 0.001, 0.0, seed)
+    before, after = errors(ideal, given_, out)
+    assert abs(len(out) - len(given_)) <= 0.02 * len(given_) + 2
+    assert after <= before + 0.015, (before, after)
+
+
+@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(draw=scene, seed=st.integers(0, 1000))
+def test_exact_thresholds_bring_the_counts_closer_to_the_ideal_sensor(draw, seed):
+    ideal, given_, out = run(draw, 0.03, 0.0, seed)
+    before, after = errors(ideal, given_, out)
+    assert after <= 0.75 * before, (before, after)
+    assert abs(len(out) - len(ideal)) <= 0.04 * len(ideal) + 2
+
+
+@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(draw=scene, seed=st.integers(0, 1000))
+def test_five_percent_estimation_error_is_never_worse_than_no_correction(draw, seed):
+    ideal, given_, out = run(draw, 0.03, 0.05, seed)
+    before, after = errors(ideal, given_, out)
+    assert after <= before, (before, after)
