@@ -547,6 +547,12 @@ class ThresholdEstimator:
                 f"({self.events / (self.width * self.height):.1f} events per pixel on average); give a longer "
                 "recording (hundreds of events per pixel) or lower --min-events"
             )
+        if not valid.any() and extra.get("unchecked"):
+            raise EstimationError(
+                f"none of offe's {extra['unchecked']:,} estimates could be checked: its fit compares each pixel with "
+                "the natural method's estimate, which found no pixel whose neighbours share its excursion (a scene "
+                "not every pixel sees alike, or too few events); give --max-fit inf to take them unchecked, or use "
+                "--method stimulus with a known stimulus")
         if not valid.any():
             raise EstimationError(
                 f"no pixel could be estimated by {self.method} (fewer than {self.min_events} events or no usable "
@@ -625,8 +631,10 @@ class ThresholdEstimator:
             disagreement = np.stack([2 * (on - natural_on) / (on + natural_on),
                                      2 * (off - natural_off) / (off + natural_off)])
             fit = np.where(valid & natural_valid, np.sqrt(np.mean(disagreement**2, axis=0)), np.nan)
-        fitting = valid & ~(fit > self.max_fit)  # NaN (no natural estimate to compare with): kept
-        extra["rejected_by_fit"] = int((valid & ~fitting).sum())
+        # NaN (no natural estimate to compare with): not checked, not valid, unless no check is asked (max_fit inf)
+        fitting = valid if np.isinf(self.max_fit) else valid & (fit <= self.max_fit)
+        extra["rejected_by_fit"] = int((valid & np.isfinite(fit) & ~fitting).sum())
+        extra["unchecked"] = int((valid & ~np.isfinite(fit)).sum())
         extra["fit_compared"] = int(np.isfinite(fit).sum())
         return on, off, fitting, fit, extra
 

@@ -244,10 +244,17 @@ def test_stimulus_is_exact_on_an_ideal_pixel(scene, stimulus, phase, flicker, gr
 @pytest.mark.parametrize("scene,stimulus", [("flicker", FLICKER), ("gradient", GRADIENT)])
 def test_best_method_within_2_percent_and_offe_beats_a_constant_guess(scene, stimulus, flicker, gradient):
     events, simulator = flicker if scene == "flicker" else gradient
-    best = min(max(rel_rmse(estimate_thresholds(events, W, H, m, stimulus=stimulus), simulator))
+    # offE's estimates are valid only where its fit could check them against the natural method's; on the
+    # gradient none can be (issue 36): refused saying so, and taken unchecked with max_fit inf
+    unchecked = {"max_fit": math.inf} if scene == "gradient" else {}
+    if scene == "gradient":
+        with pytest.raises(EstimationError, match="could be checked"):
+            estimate_thresholds(events, W, H, "offe")
+    best = min(max(rel_rmse(estimate_thresholds(events, W, H, m, stimulus=stimulus,
+                                                **(unchecked if m == "offe" else {})), simulator))
                for m in ("offe", "stimulus"))
     assert best <= 0.02
-    offe = rel_rmse(estimate_thresholds(events, W, H, "offe"), simulator)
+    offe = rel_rmse(estimate_thresholds(events, W, H, "offe", **unchecked), simulator)
     constant = ThresholdEstimateLike(np.full((H, W), 0.2), np.full((H, W), 0.2), np.ones((H, W), bool))
     guess = rel_rmse(constant, simulator)
     assert offe[0] < guess[0] and offe[1] < guess[1]
@@ -382,7 +389,8 @@ def test_with_noise_and_bafilter_first_the_best_method_stays_within_3_percent(tm
         best = 1.0
         for method in ("offe", "stimulus"):
             out = tmp_path / f"{scene}.{method}.h5"
-            run("estimate", kept, "-o", out, "--method", method, *stimulus_args)
+            unchecked = ["--max-fit", "inf"] if (scene, method) == ("gradient", "offe") else []  # see above
+            run("estimate", kept, "-o", out, "--method", method, *stimulus_args, *unchecked)
             estimate = read_thresholds(str(out))
             if method == "stimulus":  # the noise left by the filter spoils few pixels' fit
                 assert estimate.fit is not None and estimate.valid.mean() > 0.8, estimate.valid.mean()
