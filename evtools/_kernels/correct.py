@@ -506,12 +506,13 @@ def correct_events(words, start, width, state, status, use, target_on, target_of
                 a = a * math.exp(-(gap - hold_us) / tau_us)
             if turns and last == -sign:
                 # a reversal over a rest: the run went on by its expected excess (:func:`_run_excess`) at its slope
-                # (at once when unknown), never earlier than a window before t_b (the ordering bound), and came
-                # back just before t_b
+                # (at once when unknown: a step), never earlier than three windows before t_b (the latency with
+                # turns: what is released ends there at the latest), and came back just before t_b
                 excess = _run_excess(row, not on, curves)
-                reached = -min(float(gap) - 0.5 * max(row.interval_us, 0.0), float(window_us))
-                a, n = _segment(a, excess, max(-float(gap), -float(window_us)), reached, t_b, xy, target_on,
-                                target_off, out_t, out_w, n)
+                latency = 3.0 * window_us
+                reached = -min(float(gap) - 0.5 * max(row.interval_us, 0.0), latency)
+                a, n = _segment(a, excess, max(-float(gap), -latency), reached, t_b, xy, target_on, target_off, out_t,
+                                out_w, n)
                 a, n = _segment(a, d - excess, 0.0, 0.0, t_b, xy, target_on, target_off, out_t, out_w, n)
             else:
                 a, n = _segment(a, d, 0.0, 0.0, t_b, xy, target_on, target_off, out_t, out_w, n)

@@ -16,7 +16,7 @@ would get the same from their own next event, so this only fixes the order in wh
   slope (falling from it to the event's level) meet when scaled to fill the gap. A reversal over a rest (all but
   foh, unless the run ended in a re-sampled tail or, with ``curves``, slowed down: its approach's model says how
   far it went) goes half a threshold beyond at the run's slope from its last
-  event (no earlier than a window before the event), stays, and comes back at the event's time;
+  event (no earlier than three windows before the event), stays, and comes back at the event's time;
 - at a first event, the first run's line is followed back to the start level; the polyline is flat before. A
   first run whose line back meets the anchor (within 1 %), or of one event (its line is the anchored one), counts
   as straight so far.
@@ -264,11 +264,11 @@ def correct_naive(events, on, off, target_on, target_off, mode=FOH, hold_us=100_
                 if mode == HIGHPASS:
                     level[pixel] = level.get(pixel, 0.0) * math.exp(-(gap - hold_us) / tau_us)
                 if turns and before is not None and before != p:
-                    # the run's excess, reached at its slope after its last event (but not earlier than a window
-                    # before t), held, and back at t
+                    # the run's excess, reached at its slope after its last event (but not earlier than three
+                    # windows before t), held, and back at t
                     beyond = run_excess(pixel)
-                    begin = max(-float(gap), -float(window))
-                    reached = -min(gap - 0.5 * max(interval.get(pixel, 0), 0), float(window))
+                    begin = max(-float(gap), -3.0 * window)
+                    reached = -min(gap - 0.5 * max(interval.get(pixel, 0), 0), 3.0 * window)
                     draw(pixel, [(begin, 0.0), (reached, beyond), (0.0, 0.0), (0.0, step - beyond)], t)
                 else:
                     draw(pixel, [(0.0, 0.0), (0.0, step)], t)
