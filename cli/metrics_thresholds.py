@@ -38,6 +38,11 @@ def thresholds(estimate_path, truth_path, plot_path, as_json):
     result = {"estimate": estimate_path, "truth": truth_path, "method": estimate.attributes.get("method"), **result}
     if "rejected_by_fit" in estimate.attributes:  # pixels with enough events whose events did not fit the model
         result["rejected_by_fit"] = int(estimate.attributes["rejected_by_fit"])
+    if "unchecked" in estimate.attributes:  # offE: estimates its fit could not check (not valid)
+        result["unchecked"] = int(estimate.attributes["unchecked"])
+    for key in ("scale", "not_observable"):  # what the estimate's scale is, and what events alone cannot give
+        if key in estimate.attributes:
+            result[key] = str(estimate.attributes[key])
     if plot_path is not None:
         from evtools.plots import save, thresholds_figure
 
@@ -66,4 +71,10 @@ def _print_table(result: dict) -> None:
     table.add_row("invalid pixels", f"{100 * result['invalid_fraction']:.2f} %", "")
     if "rejected_by_fit" in result:
         table.add_row("of which rejected by fit", str(result["rejected_by_fit"]), "")
+    if "unchecked" in result:
+        table.add_row("of which unchecked", str(result["unchecked"]), "")
+    if "scale" in result:
+        table.add_row("scale", result["scale"], "")
     Console().print(table)
+    if "not_observable" in result:
+        Console(stderr=True, highlight=False).print(f"note: {result['not_observable']}")

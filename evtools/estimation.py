@@ -80,6 +80,16 @@ __all__ = [
 ]
 
 METHODS = ("offe", "stimulus", "natural")
+
+SCALES = {"offe": "relative", "natural": "relative", "stimulus": "absolute"}
+"""Each method's scale (a map's ``scale`` attribute): ``absolute`` from a known stimulus; ``relative`` from events
+alone, set by ``nominal`` (the median pixel's threshold is the nominal value, whatever the camera's is)."""
+
+NOT_OBSERVABLE = ("events alone give thresholds relative to one another: not their absolute scale (set by "
+                  "--nominal), not a smooth spatial component of the mismatch (taken for the scene's), not a drift "
+                  "shared by all pixels (taken for the scene's); a known stimulus or APS frames can")
+"""What an events-only estimate cannot observe (a map's ``not_observable`` attribute, shown by ``metrics
+thresholds``)."""
 """The estimation methods, by name."""
 PHASES = ("fit", "given")
 """stimulus: each pixel's phase fitted to its own events, or given by the stimulus (low end at t = 0)."""
@@ -567,7 +577,10 @@ class ThresholdEstimator:
             "events": int(self.events), "width": self.width, "height": self.height,
             "t_first_us": int(self.t_first_us), "t_last_us": int(self.t_last_us),
             "valid_pixels": int(valid.sum()), "on_median": on_median, "off_median": off_median,
+            "scale": SCALES[self.method],
         }
+        if self.method != "stimulus":
+            attributes["not_observable"] = NOT_OBSERVABLE
         if fit is not None:
             fit = fit.astype(np.float32).reshape(self.height, self.width)
             compared = fit[valid.reshape(fit.shape) & np.isfinite(fit)]

@@ -63,3 +63,17 @@ def test_cli_json_plot_and_errors(tmp_path):
     bad = run("metrics", "thresholds", tmp_path / "est.h5", "--truth", tmp_path / "truth.h5", "--plot",
               tmp_path / "fig.xyz", check=False)
     assert bad.returncode == 2 and not (tmp_path / "fig.xyz").exists()
+
+
+def test_an_events_only_estimate_says_its_scale_is_relative_and_what_it_cannot_see(tmp_path):
+    """Issue 36: the map and `metrics thresholds` say plainly what events alone cannot give; a stimulus's map is
+    absolute."""
+    stream, truth = tmp_path / "f.aedat4", tmp_path / "t.h5"
+    run("simulate", "scene:flicker", "--size", "16x12", "--duration", "2s", "--seed", "1", "--truth", truth,
+        "-o", stream)
+    for method, scale in (("offe", "relative"), ("stimulus", "absolute")):
+        out = tmp_path / f"{method}.h5"
+        run("estimate", stream, "--method", method, "-o", out)
+        report = json.loads(run("metrics", "thresholds", out, "--truth", truth, "--json").stdout)
+        assert report["scale"] == scale
+        assert ("absolute scale" in report.get("not_observable", "")) == (scale == "relative")
