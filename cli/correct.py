@@ -6,6 +6,7 @@ import logging
 from dataclasses import replace
 
 import click
+import numpy as np
 
 from evtools.cli.batch import batch_options, plan, run
 from evtools.cli.options import FiniteRange, check_compression, compression_option, slicing_options
@@ -88,12 +89,14 @@ def correct_one(input, output, *, input_format, sensor_size, aedat2_layout, thre
         thresholds.check_size(opened.info.width, opened.info.height, thresholds_path)  # the file's sensor
         stream = sliced(opened, slicing)
         thresholds = replace(thresholds, **{name: on_sliced_sensor(stream, getattr(thresholds, name))
-                                            for name in ("on", "off", "valid")})
+                                            for name in ("on", "off", "valid", "fit")
+                                            if getattr(thresholds, name) is not None})
         try:
             corrector = ThresholdCorrector(
                 stream.info.width, stream.info.height, thresholds.on, thresholds.off, thresholds.valid,
                 target=target, mode=mode, hold_us=hold_us, max_gap_us=max_gap_us, tau_us=tau_us, start_us=start_us,
                 t_us=thresholds.t_us, check=False,  # the reader has checked the events
+                stale=None if thresholds.t_us is None or thresholds.fit is None else np.isinf(thresholds.fit),
             )
         except CorrectionError as error:
             raise CorrectionError(f"{thresholds_path}: {error}") from None

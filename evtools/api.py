@@ -251,10 +251,13 @@ def correct(events: np.ndarray, info: StreamInfo, thresholds, **params) -> np.nd
     elif getattr(thresholds, "series", None) is not None:  # an online ThresholdEstimate
         series = thresholds.series
         on, off, valid, params["t_us"] = series.on, series.off, series.valid, series.t_us
+        params.setdefault("stale", np.isinf(series.fit))
     elif all(hasattr(thresholds, name) for name in ("on", "off", "valid")):
         on, off, valid = thresholds.on, thresholds.off, thresholds.valid
         if getattr(thresholds, "t_us", None) is not None:
             params["t_us"] = thresholds.t_us
+            if getattr(thresholds, "fit", None) is not None:
+                params.setdefault("stale", np.isinf(thresholds.fit))
     else:
         raise EvtoolsError(f"thresholds must be an estimate (evtools.estimate), a thresholds map, a thresholds or "
                            f"truth file's path, or simulate()'s truth; got {type(thresholds).__name__} "

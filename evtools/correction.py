@@ -192,6 +192,10 @@ class ThresholdCorrector:
         A time series of maps (``estimate --online``): ``on``, ``off``, ``valid`` are (maps, height, width) and
         map k is used for the events from ``t_us[k]`` on (the first map before its time too: it is the earliest
         estimate); ``target="median"`` is the median over all maps.
+    stale : array_like of bool, optional
+        With ``t_us``: (maps, height, width), the pixels whose estimate a map marks as dropped (``fit`` infinite,
+        :data:`evtools.estimation.STALE_FIT`): from that map on a pixel does not keep its earlier value but takes
+        the map's median until it is valid again.
     check : bool, optional
         Check every chunk as a reader does (default; see :class:`evtools.filters.BAFilter`); the command line
         passes False, its readers having checked.
@@ -205,7 +209,7 @@ class ThresholdCorrector:
                  mode: str = CORRECT_DEFAULTS["mode"], hold_us: int = CORRECT_DEFAULTS["hold_us"],
                  max_gap_us: int = CORRECT_DEFAULTS["max_gap_us"], tau_us: float = CORRECT_DEFAULTS["tau_us"],
                  turns: bool | None = None, curves: bool | None = None, start_us: int | None = None,
-                 t_us=None, check: bool = True):
+                 t_us=None, stale=None, check: bool = True):
         check_sensor_size(width, height)
         self.width, self.height = int(width), int(height)
         self._checker = StreamChecker(StreamInfo(self.width, self.height)) if check else None
@@ -262,7 +266,10 @@ class ThresholdCorrector:
             off = np.where(usable, off, np.median(off[usable])).astype(np.float32)
             self._series = None
         else:
-            filled_on, filled_off = _carried(on, usable), _carried(off, usable)
+            stale = np.zeros(on.shape, bool) if stale is None else np.asarray(stale, dtype=bool)
+            if stale.shape != on.shape:
+                raise CorrectionError("the stale map must have the shape of the thresholds")
+            filled_on, filled_off = _carried(on, usable, stale), _carried(off, usable, stale)
             self._series = (t_us.astype(np.int64), filled_on.reshape(maps, -1), filled_off.reshape(maps, -1))
             self._map = 0
             on, off = filled_on[0], filled_off[0]
@@ -567,11 +574,12 @@ class _Lane:
         return self.out[0][:count], self.out[1][:count]
 
 
-def _carried(values: np.ndarray, usable: np.ndarray) -> np.ndarray:
+def _carried(values: np.ndarray, usable: np.ndarray, stale: np.ndarray) -> np.ndarray:
     """A series of maps (maps, height, width) with every unusable entry filled: a pixel keeps its latest usable
-    value; before its first one it takes that first one (its earliest estimate: early maps rest on the pixels
-    that fire most, whose median is biased low, 0.16 against 0.20 at 1 s of a flicker); a pixel never usable takes
-    the median of the last map's usable pixels."""
+    value, but where a map marks it ``stale`` (its estimate was dropped: the threshold stepped away) it takes that
+    map's median of the usable pixels (the latest map's that has any); before its first usable value it takes that
+    first one (its earliest estimate: early maps rest on the pixels that fire most, whose median is biased low, 0.16
+    against 0.20 at 1 s of a flicker); a pixel never usable takes the median of the last map's usable pixels."""
     filled = np.where(usable, values, np.nan)
     first = np.argmax(usable, axis=0)
     ever = usable.any(axis=0)
@@ -579,8 +587,11 @@ def _carried(values: np.ndarray, usable: np.ndarray) -> np.ndarray:
     start = np.where(ever, np.take_along_axis(values, first[None], axis=0)[0],
                      np.median(values[np.flatnonzero(usable.any(axis=(1, 2)))[-1]][last_usable]))
     filled[0] = np.where(usable[0], values[0], start)
+    median = float(np.median(values[0][usable[0]])) if usable[0].any() else float(np.median(start))
     for k in range(1, len(filled)):
-        filled[k] = np.where(usable[k], values[k], filled[k - 1])
+        if usable[k].any():
+            median = float(np.median(values[k][usable[k]]))
+        filled[k] = np.where(usable[k], values[k], np.where(stale[k], median, filled[k - 1]))
     return filled.astype(np.float32)
 
 

@@ -81,6 +81,16 @@ __all__ = [
 
 METHODS = ("offe", "stimulus", "natural")
 
+REACQUIRE_SHARE = 0.5
+"""stimulus, online: a polarity of a pixel whose accepted changes are fewer than this share of its recent ones (the
+decayed counts) has left its acceptance window (a threshold step of more than -20 % / +25 %) and seeds anew."""
+REACQUIRE_CHANGES = 4.0
+"""stimulus, online: ... judged only with at least this many recent changes (decayed count) of that polarity."""
+
+STALE_FIT = math.inf
+"""Online: a map's ``fit`` of a pixel whose estimate was dropped (its threshold left the acceptance window) and is
+not acquired again yet: ``correct`` does not carry its earlier value past that map."""
+
 SCALES = {"offe": "relative", "natural": "relative", "stimulus": "absolute"}
 """Each method's scale (a map's ``scale`` attribute): ``absolute`` from a known stimulus; ``relative`` from events
 alone, set by ``nominal`` (the median pixel's threshold is the nominal value, whatever the camera's is)."""
@@ -399,6 +409,8 @@ class ThresholdEstimator:
         self.forget_us = None if forget_us is None else float(forget_us)
         self._next_snapshot_us: int | None = None
         self._series: list[tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+        self.reacquired = 0  # online stimulus: polarities of pixels that stepped out of their window and seeded anew
+        self._stale = np.zeros(width * height, dtype=bool)  # dropped estimates not yet acquired again
         n = self.width * self.height
         self.events = 0
         self.t_first_us: int | None = None
@@ -490,10 +502,15 @@ class ThresholdEstimator:
     def _snapshot(self, t_us: int) -> None:
         """Online: the maps as they stand at ``t_us`` (invalid where nothing is known yet), then every sum decays
         by ``exp(-interval / forget)`` and the stimulus's acceptance windows re-centre on the current means (so
-        a threshold may drift beyond the window of its first changes)."""
+        a threshold may drift beyond the window of its first changes). Before the maps, a stimulus pixel whose
+        threshold stepped out of its window is dropped and acquired anew (:meth:`_reacquire`): stale in this map."""
+        if self.events and self.method == "stimulus":
+            self._reacquire()
         if self.events:
             on, off, valid, fit, _ = self._natural() if self.method == "natural" else self._stimulus(final=False)
             valid = valid & (fit <= self.max_fit)
+            self._stale &= ~valid
+            fit = np.where(self._stale, STALE_FIT, fit)
         else:
             on = off = fit = np.full(self.width * self.height, np.nan)
             valid = np.zeros(self.width * self.height, dtype=bool)
@@ -518,6 +535,26 @@ class ThresholdEstimator:
             mean = state[:, ST_SUM:ST_SUM + 2] / state[:, ST_PAIRS:ST_PAIRS + 2]
         state[:, ST_REF:ST_REF + 2] = np.where(seeded & np.isfinite(mean) & (mean > 0), mean,
                                                state[:, ST_REF:ST_REF + 2])
+
+    def _reacquire(self) -> None:
+        """A threshold that stepped out of its acceptance window (most of a polarity's recent changes rejected:
+        :data:`REACQUIRE_SHARE`) is acquired again: that polarity seeds anew from its next changes, and with fitted
+        phases the pixel fits its phase anew too (it was fitted with the old thresholds); the pixel is stale until
+        valid again."""
+        state = self._state
+        lost = (state[:, ST_ALL:ST_ALL + 2] >= REACQUIRE_CHANGES) & (
+            state[:, ST_PAIRS:ST_PAIRS + 2] < REACQUIRE_SHARE * state[:, ST_ALL:ST_ALL + 2])
+        if not lost.any():
+            return
+        for column in (ST_REF, ST_SUM, ST_PAIRS, ST_SQUARES, ST_ALL):
+            state[:, column:column + 2][lost] = 0.0
+        pixels = lost.any(axis=1)
+        self.reacquired += int(lost.sum())
+        self._stale |= pixels
+        if self.phase == "fit":
+            state[pixels, ST_FITTED] = 0.0
+            state[pixels, ST_EVENTS] = 0.0
+            self._filled[pixels] = 0
 
     def flush(self) -> np.ndarray:
         """No events to give back (the estimator consumes the stream); call :meth:`result` for the maps."""
@@ -601,6 +638,8 @@ class ThresholdEstimator:
                                      *(np.stack([m[k] for m in maps]).astype(np.float32) for k in (1, 2)),
                                      np.stack([m[3] for m in maps]), np.stack([m[4] for m in maps]).astype(np.float32))
             attributes["maps"] = len(maps)
+            if self.method == "stimulus":
+                attributes["reacquired"] = self.reacquired
         return ThresholdEstimate(on, off, valid.reshape(self.height, self.width), attributes, fit, phase_us, series)
 
     def finish(self) -> ThresholdEstimate:

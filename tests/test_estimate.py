@@ -914,3 +914,52 @@ def test_online_maps_beyond_the_memory_bound_are_refused(monkeypatch):
     beyond = estimation.ThresholdEstimator(8, 6, "natural", interval_us=1_000, min_events=1, max_fit=math.inf)
     with pytest.raises(EstimationError, match=r"online maps every 1,000 us: 11 maps of 8x6 would take more than"):
         beyond.process(events)
+
+
+@pytest.mark.parametrize("factor", [0.5, 0.7, 1.3, 1.5])
+def test_online_stimulus_survives_a_threshold_step(tmp_path, factor):
+    """Issue 36 item 3: a log flicker whose thresholds step by ``factor`` at 10 s (two recordings of one camera
+    joined). The stimulus method no longer refuses the stream: a pixel whose changes leave its acceptance window
+    seeds anew (and fits its phase anew), its maps are invalid and marked stale (fit inf) until then, and no map
+    calls a wrong value valid: every valid pixel of every map is within 10 % of the thresholds in force at the
+    map's time (before the step: the first recording's, after: the second's). A step down is acquired again
+    within three forgetting times (>= 90 % valid); a step up leaves fewer valid (>= 30 % measured at x1.5)."""
+    common = ["scene:flicker", "--size", "16x12", "--duration", "10s", *LOG_FLICKER, "--seed", "3"]
+    run("simulate", *common, "--truth", tmp_path / "a.h5", "-o", tmp_path / "a.aedat4")
+    run("simulate", *common, "--pos-thres", str(0.2 * factor), "--neg-thres", str(0.2 * factor),
+        "--sigma-thres", str(0.03 * factor), "--truth", tmp_path / "b.h5", "-o", tmp_path / "b.aedat4")
+    (info, a), (_, b) = read_all(tmp_path / "a.aedat4"), read_all(tmp_path / "b.aedat4")
+    b["t"] += 10_000_000
+    with create_events(str(tmp_path / "step.aedat4"), info) as writer:
+        writer.write(np.concatenate([a, b]))
+    run("estimate", tmp_path / "step.aedat4", *LOG_STIMULUS, "--online", "--interval", "1s", "--forget", "1s",
+        "-o", tmp_path / "series.h5")
+    series = read_thresholds(tmp_path / "series.h5", series=True)
+    truths = [read_thresholds(tmp_path / name) for name in ("a.h5", "b.h5")]
+    for k, when in enumerate(series.t_us):
+        truth = truths[0] if when <= 10_000_000 else truths[1]
+        valid = series.valid[k]
+        if when > 10_000_000 and when <= 11_000_000 or not valid.any():
+            continue  # a map whose forgetting window holds the step: checked by the stale marks below
+        for maps, true in ((series.on, truth.on), (series.off, truth.off)):
+            assert np.all(np.abs(maps[k][valid] / true[valid] - 1) < 0.1), (k, when)
+    after = series.t_us >= 13_000_000  # three forgetting times after the step
+    assert series.valid[after].mean() >= (0.9 if factor < 1 else 0.3)
+    stale = np.isinf(series.fit)
+    assert stale[(series.t_us > 10_000_000) & (series.t_us <= 12_000_000)].any()  # the step is marked
+    assert not (stale & series.valid).any()
+
+
+def test_correct_does_not_carry_a_stale_estimate(tmp_path):
+    """A pixel marked stale in map 1 takes map 1's median there, not its map-0 value; where not stale it keeps it."""
+    on = np.full((3, 2, 2), 0.2, np.float32)
+    on[1] = [[np.nan, 0.3], [0.3, 0.3]]
+    on[2] = 0.3
+    valid = np.isfinite(on)
+    stale = np.zeros(on.shape, bool)
+    stale[1, 0, 0] = True
+    from evtools.correction import _carried
+    filled = _carried(on, valid, stale)
+    assert filled[1, 0, 0] == np.float32(0.3) and filled[2, 0, 0] == np.float32(0.3)
+    filled = _carried(on, valid, np.zeros(on.shape, bool))
+    assert filled[1, 0, 0] == np.float32(0.2)  # not stale: carried
