@@ -28,6 +28,7 @@ from evtools.estimation import (
 from evtools.events import MAX_SENSOR_SIDE
 from evtools.formats import open_events
 from evtools.formats.io import STDIO, same_file
+from evtools.errors import EvtoolsError
 from evtools.formats.thresholds import ThresholdMap, write_thresholds
 
 log = logging.getLogger("evtools")
@@ -160,12 +161,26 @@ def estimate(inputs, input_format, sensor_size, aedat2_layout, output, jobs, sch
     run(estimate_one, pairs, options, jobs, scheduler, as_json)
 
 
+def _write_maps_so_far(estimator, output, name: str, message: str) -> None:
+    """An online run that stops midway keeps the maps it made: written (complete, ``partial`` attribute set) and
+    named in the error, which then exits 1 as any error does."""
+    maps = estimator.maps_so_far() if estimator is not None and estimator.interval_us is not None else None
+    if maps is None or output in (None, STDIO):
+        return
+    attributes = {**estimator.parameters, "input": name, "partial": True, "stopped_by": message,
+                  "stopped_at_us": int(estimator.t_last_us), "width": estimator.width, "height": estimator.height}
+    write_thresholds(output, ThresholdMap(maps.on, maps.off, maps.valid, attributes, maps.fit, None, maps.t_us))
+    raise EstimationError(f"{message} (at {estimator.t_last_us:,} us); the {len(maps.t_us)} maps made up to "
+                          f"{int(maps.t_us[-1]):,} us are written to {output} (attribute partial)")
+
+
 def estimate_one(input, output, *, input_format, sensor_size, aedat2_layout, parameters, slicing=None
                  ) -> tuple[int, int]:
     """Estimate one file's thresholds into ``output``: (events in, 0); ``slicing``: the shared slicing options
     (:func:`evtools.transform.sliced`): the map is of the sliced sensor."""
     if input != STDIO and same_file(output, input):
         raise EstimationError(f"{output}: the thresholds file would overwrite the input; choose another -o")
+    estimator = None
     with open_events(input, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as opened:
         stream = sliced(opened, slicing)
         try:
@@ -173,8 +188,10 @@ def estimate_one(input, output, *, input_format, sensor_size, aedat2_layout, par
             for chunk in with_progress(stream, stream, f"estimating from {stream.name}"):
                 estimator.process(chunk)
             result = estimator.result()
-        except EstimationError as error:
-            raise EstimationError(f"{stream.name}: {error}") from None
+        except EvtoolsError as error:
+            message = str(error) if str(error).startswith(stream.name) else f"{stream.name}: {error}"
+            _write_maps_so_far(estimator, output, stream.name, message)
+            raise type(error)(message) from None
         attributes = {**result.attributes, "input": stream.name}
     if result.series is not None:
         series = result.series

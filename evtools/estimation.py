@@ -642,6 +642,16 @@ class ThresholdEstimator:
                 attributes["reacquired"] = self.reacquired
         return ThresholdEstimate(on, off, valid.reshape(self.height, self.width), attributes, fit, phase_us, series)
 
+    def maps_so_far(self) -> ThresholdSeries | None:
+        """Online: the maps taken so far (each complete at its time), or None before the first; what is left of a
+        run that stops midway (an error in the stream)."""
+        if not self._series:
+            return None
+        maps = self._series
+        return ThresholdSeries(np.array([m[0] for m in maps], dtype=np.int64),
+                               *(np.stack([m[k] for m in maps]).astype(np.float32) for k in (1, 2)),
+                               np.stack([m[3] for m in maps]), np.stack([m[4] for m in maps]).astype(np.float32))
+
     def finish(self) -> ThresholdEstimate:
         """Alias of :meth:`result`."""
         return self.result()

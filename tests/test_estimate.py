@@ -5,6 +5,10 @@ from __future__ import annotations
 
 import json
 import math
+import subprocess
+import sys
+import time
+from pathlib import Path
 
 import h5py
 import numpy as np
@@ -963,3 +967,33 @@ def test_correct_does_not_carry_a_stale_estimate(tmp_path):
     assert filled[1, 0, 0] == np.float32(0.3) and filled[2, 0, 0] == np.float32(0.3)
     filled = _carried(on, valid, np.zeros(on.shape, bool))
     assert filled[1, 0, 0] == np.float32(0.2)  # not stale: carried
+
+
+def test_an_online_run_stopped_midway_keeps_its_maps(tmp_path, monkeypatch):
+    """Issue 36 item 3: an error midway (time going backwards at 3 s of a 4 s stream) writes the maps made so far
+    (a complete file, marked partial) and exits 1 naming the time and the file."""
+    run("simulate", "scene:flicker", "--size", "16x12", "--duration", "4s", *LOG_FLICKER, "--seed", "3",
+        "-o", tmp_path / "f.aedat4")
+    info, events = read_all(tmp_path / "f.aedat4")
+    late = events[events["t"] >= 3_000_000].copy()
+    late["t"][10:] -= 500_000  # the clock jumps back
+    monkeypatch.setattr("evtools.formats.aedat4.PACKET_EVENTS", 1000)  # many packets
+    with create_events(str(tmp_path / "back.aedat4"), info) as writer:  # (the writer stores what it is given)
+        writer.write(events[events["t"] < 3_000_000])
+        writer.write(late)
+    out = tmp_path / "series.h5"
+    data = (tmp_path / "back.aedat4").read_bytes()
+    # through a pipe, in two writes: a chunk is what has arrived, so the first 3 s are estimated before the rest
+    process = subprocess.Popen([str(Path(sys.executable).parent / "evtools"), "estimate", "-", *LOG_STIMULUS,
+                                "--online", "--interval", "1s", "-o", str(out)], stdin=subprocess.PIPE,
+                               stderr=subprocess.PIPE)
+    process.stdin.write(data[:len(data) * 3 // 4])
+    process.stdin.flush()
+    time.sleep(1.0)
+    process.stdin.write(data[len(data) * 3 // 4:])
+    process.stdin.close()
+    message = process.stderr.read().decode()
+    assert process.wait(timeout=120) == 1 and "Traceback" not in message, message
+    assert "maps made up to" in message and str(out) in message and "us" in message, message
+    series = read_thresholds(str(out), series=True)
+    assert series.attributes["partial"] and 2 <= len(series.t_us) <= 3 and series.valid[-1].mean() > 0.9
