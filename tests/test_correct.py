@@ -668,3 +668,21 @@ def test_a_start_after_the_first_event_is_refused():
         correct_thresholds(events, 2, 1, on, off, target=0.2, start_us=101)
     with pytest.raises(CorrectionError, match=r"start_us must be a whole number of microseconds within"):
         correct_thresholds(events, 2, 1, on, off, target=0.2, start_us=1 << 63)
+
+
+def test_thresholds_that_break_the_consistency_rule_and_backward_series_are_refused(tmp_path):
+    """Issue 36: no positive ON threshold anywhere (the rule 'below the reference plus the ON threshold' has no
+    meaning), and a series whose map times go backwards: one-line errors naming the file, exit 1, no output."""
+    events = tmp_path / "in.aedat4"
+    run("simulate", "scene:flicker", "--size", "4x3", "--duration", "200ms", "--seed", "1", "-o", events)
+    zero = np.zeros((3, 4), np.float32)
+    write_thresholds(str(tmp_path / "zero.h5"), ThresholdMap(zero, zero + 0.2, np.ones((3, 4), bool)))
+    done = run("correct", events, "--thresholds", tmp_path / "zero.h5", "-o", tmp_path / "a.aedat4", check=False)
+    assert_clean_error(done, "zero.h5")
+    assert "usable threshold" in done.stderr.decode() and not (tmp_path / "a.aedat4").exists()
+    maps = np.full((2, 3, 4), 0.2, np.float32)
+    backwards = ThresholdMap(maps, maps, np.ones(maps.shape, bool), t_us=np.array([1_000, 500], np.int64))
+    write_thresholds(str(tmp_path / "back.h5"), backwards)
+    done = run("correct", events, "--thresholds", tmp_path / "back.h5", "-o", tmp_path / "b.aedat4", check=False)
+    assert_clean_error(done, "back.h5")
+    assert "out of order" in done.stderr.decode() and not (tmp_path / "b.aedat4").exists()
