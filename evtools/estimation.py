@@ -818,23 +818,34 @@ def _excitation_gradient(inverse: np.ndarray, usable: np.ndarray, radius_px: int
     21 pixels a half; at a contrast edge a pixel on one side is off from the window's mean by about this much."""
     total = np.where(usable, inverse[..., 0] + inverse[..., 1], 0.0)
     weight = usable.astype(np.float64)
-    before, after, whole = range(-radius_px, 0), range(1, radius_px + 1), range(-radius_px, radius_px + 1)
+    r = radius_px
+    sums = [_integral(total), _integral(weight)]
+
+    def mean(x0, x1, y0, y1):
+        values, counts = (_rectangle_sum(table, x0, x1, y0, y1) for table in sums)
+        return values / counts
+
     with np.errstate(divide="ignore", invalid="ignore"):
-        left, right = (_window_sum(total, dxs, whole) / _window_sum(weight, dxs, whole) for dxs in (before, after))
-        top, bottom = (_window_sum(total, whole, dys) / _window_sum(weight, whole, dys) for dys in (before, after))
+        left, right = mean(-r, -1, -r, r), mean(1, r, -r, r)
+        top, bottom = mean(-r, r, -r, -1), mean(-r, r, 1, r)
         return np.fmax(np.abs(left - right) / (left + right), np.abs(top - bottom) / (top + bottom))
 
 
-def _window_sum(values: np.ndarray, dxs: range, dys: range) -> np.ndarray:
-    """The sum of ``values`` (2-D) at the offsets ``dxs`` x ``dys`` around each pixel, nothing outside the sensor."""
-    height, width = values.shape
-    reach = max(abs(d) for d in (*dxs, *dys))
-    padded = np.pad(values, reach)
-    out = np.zeros((height, width))
-    for dy in dys:
-        for dx in dxs:
-            out += padded[reach + dy:reach + dy + height, reach + dx:reach + dx + width]
-    return out
+def _integral(values: np.ndarray) -> np.ndarray:
+    """The summed-area table of ``values`` (2-D): ``table[i, j]`` is the sum of ``values[:i, :j]``."""
+    table = np.zeros((values.shape[0] + 1, values.shape[1] + 1))
+    np.cumsum(np.cumsum(values, axis=0), axis=1, out=table[1:, 1:])
+    return table
+
+
+def _rectangle_sum(table: np.ndarray, x0: int, x1: int, y0: int, y1: int) -> np.ndarray:
+    """Per pixel (x, y), the sum of the values at ``[x + x0, x + x1] x [y + y0, y + y1]`` inside the sensor, from
+    the summed-area ``table`` (:func:`_integral`): four lookups a pixel whatever the rectangle's size."""
+    height, width = table.shape[0] - 1, table.shape[1] - 1
+    columns, rows = np.arange(width), np.arange(height)
+    c, d = np.clip(columns + x0, 0, width), np.clip(columns + x1 + 1, 0, width)
+    a, b = np.clip(rows + y0, 0, height)[:, None], np.clip(rows + y1 + 1, 0, height)[:, None]
+    return table[b, d] - table[a, d] - table[b, c] + table[a, c]
 
 
 def _around(values: np.ndarray, radius_px: int) -> np.ndarray:

@@ -7,6 +7,8 @@ sort-and-merge release).
 - ``random``: random pixels and polarities, about 20 Mev/s of stream time: the worst case for the per-pixel state
   (a cache miss per event) and for ``turns``/``highpass`` (a reversal at every other event of a pixel, each one
   waiting for the pixel's next event).
+- ``texture``: a natural moving texture from the tests' independent generator (:func:`texture_period`), 2 s
+  repeated in time: curved runs and turns everywhere (issue 36).
 - ``walk``: a real recording (``../shared/data/dvs128_walk.aedat``, DVS128, 290k events) tiled six times over
   the 346 x 260 sensor (tiles shifted by 1 ms each) and repeated in time: real runs and rests.
 
@@ -81,6 +83,42 @@ def walk_chunks(total: int):
         repeat += 1
 
 
+def texture_period():
+    """A natural moving texture (``tests/naive/texture.py``: a hand-held wobble of 4 px over a random multi-scale
+    log texture, ideal pixels with exact crossings, thresholds 0.2 +/- 0.03) on the 346 x 260 sensor, 2 s of it:
+    made once and kept in the temporary folder (it takes about a minute)."""
+    import tempfile
+
+    from evtools.events import make_events
+
+    path = Path(tempfile.gettempdir()) / f"evtools-bench-texture-{WIDTH}x{HEIGHT}.npy"
+    if not path.exists():
+        from tests.naive.texture import crossings, texture_signal
+
+        times, levels = texture_signal(WIDTH, HEIGHT, 2_000_000, seed=1, wobble_px=4.0, step_us=500)
+        rng = np.random.default_rng(1)
+        on, off = rng.normal(0.2, 0.03, (2, HEIGHT, WIDTH)).clip(0.05)
+        events = crossings(times, levels, on, off)
+        np.save(path, np.stack([events["t"], events["x"], events["y"], events["p"]]).astype(np.int64))
+    t, x, y, p = np.load(path)
+    return make_events(t, x, y, p)
+
+
+def texture_chunks(total: int):
+    period = texture_period()
+    span_us = int(period["t"][-1]) + 1000
+    produced, repeat = 0, 0
+    while produced < total:
+        for start in range(0, len(period), CHUNK):
+            chunk = period[start:start + min(CHUNK, total - produced)].copy()
+            chunk["t"] += repeat * span_us
+            produced += len(chunk)
+            yield chunk
+            if produced >= total:
+                return
+        repeat += 1
+
+
 def child(total: int, mode: str, source: str) -> dict:
     repo = os.environ.get("EVTOOLS_BENCH_REPO")
     if repo:  # another checkout's evtools (the baseline row)
@@ -100,7 +138,8 @@ def child(total: int, mode: str, source: str) -> dict:
     warm = make_events([0, 1], [0, 1], [0, 0], [1, 0])  # the first call (loading the stored kernel) is not throughput
     ThresholdCorrector(WIDTH, HEIGHT, on, off, target=0.2, **options).process(warm)
     corrector = ThresholdCorrector(WIDTH, HEIGHT, on, off, target=0.2, **options)
-    chunks = random_chunks(total, rng) if source == "random" else walk_chunks(total)
+    chunks = {"random": lambda: random_chunks(total, rng), "walk": lambda: walk_chunks(total),
+              "texture": lambda: texture_chunks(total)}[source]()
     spent, produced, latency_us = 0.0, 0, 0
     for chunk in chunks:
         begin = time.perf_counter()
@@ -120,6 +159,8 @@ def main() -> None:
     parser.add_argument("--events", type=int, default=100_000_000)
     parser.add_argument("--baseline", metavar="DIR", help="also measure the default mode of the evtools in DIR")
     parser.add_argument("--child", nargs=3, metavar=("N", "MODE", "SOURCE"))
+    parser.add_argument("--sources", default="random,walk,texture", help="streams: random, walk, texture")
+    parser.add_argument("--modes", default="exponential,highpass,turns,step,foh")
     args = parser.parse_args()
     if args.child:
         print(json.dumps(child(int(args.child[0]), args.child[1], args.child[2])))
@@ -127,14 +168,15 @@ def main() -> None:
     from rich.console import Console
     from rich.table import Table
 
-    sources = ["random"] + (["walk"] if WALK.exists() else [])
+    parser_sources = args.sources.split(",")
+    sources = [s for s in parser_sources if s != "walk" or WALK.exists()]
     if not WALK.exists():
         print(f"{WALK} is missing: the real-recording rows are left out", file=sys.stderr)
     table = Table(title=f"correct, {WIDTH} x {HEIGHT}, {args.events:,} events")
     for column in ("stream", "mode", "Mev/s", "peak RSS MB", "max latency ms", "target"):
         table.add_column(column, justify="right")
     for source in sources:
-        rows = [(mode, None) for mode in ("exponential", "highpass", "turns", "step", "foh")]
+        rows = [(mode, None) for mode in args.modes.split(",")]
         if args.baseline:
             rows.append(("default", args.baseline))
         for mode, repo in rows:

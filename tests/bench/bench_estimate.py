@@ -15,6 +15,9 @@ per event, one logarithm each). Random events are the worst case for ``stimulus`
 seeding) and its accept test are unpredictable branches, and every pixel shows ~16 polarity reversals in its
 first 32 events (16 candidate phases to screen).
 
+``natural-texture``: natural on the tests' natural moving texture (``bench_correct``'s ``texture`` stream).
+``--baseline DIR`` adds a row per method for the evtools in DIR (a worktree of an older commit), in the same run.
+
 Run: ``python -m tests.bench.bench_estimate [--events 10000000,100000000] [--methods offe,stimulus,fitted,...]``.
 """
 
@@ -62,6 +65,11 @@ def chunks(method: str, events: int, scratch: str):
     ``fitted-gradient`` the simulated gradient repeated every two periods (its times shifted, so still sorted)."""
     from evtools.events import make_events
 
+    if method == "natural-texture":  # the tests' natural moving texture (bench_correct's), repeated in time
+        from tests.bench.bench_correct import texture_chunks
+
+        yield from texture_chunks(events)
+        return
     rng = np.random.default_rng(0)
     done = 0
     t0 = 0
@@ -82,6 +90,13 @@ def chunks(method: str, events: int, scratch: str):
 
 
 def child(method: str, events: int, scratch: str) -> dict:
+    repo = os.environ.get("EVTOOLS_BENCH_REPO")
+    if repo:  # another checkout's evtools (the baseline row)
+        import sys
+
+        sys.path.insert(0, repo)
+        for name in [m for m in sys.modules if m == "evtools" or m.startswith("evtools.")]:
+            del sys.modules[name]
     from evtools.estimation import Stimulus, ThresholdEstimator
 
     stimulus = Stimulus.moving(50, 200, 50, 64) if method == "gradient" else Stimulus()
@@ -90,7 +105,7 @@ def child(method: str, events: int, scratch: str) -> dict:
     phase = "fit" if method.startswith("fitted") else "given"
     online = method.endswith("-online")  # a map every second of the stream (10 maps on 100M events)
     method = method.removesuffix("-online")
-    kind = method if method in ("offe", "natural") else "stimulus"
+    kind = "natural" if method == "natural-texture" else method if method in ("offe", "natural") else "stimulus"
     estimator = ThresholdEstimator(WIDTH, HEIGHT, kind, stimulus=stimulus, segment_us=10_000, phase=phase,
                                    max_fit=float("inf"), interval_us=1_000_000 if online else None)
     spent = 0.0
@@ -121,6 +136,7 @@ def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--child", nargs=3)
     parser.add_argument("--events", default="10000000,100000000")
+    parser.add_argument("--baseline", metavar="DIR", help="also measure each method with the evtools in DIR")
     parser.add_argument("--methods", default="offe,natural,natural-online,stimulus,stimulus-online,fitted,"
                                                 "fitted-gradient,gradient")
     args = parser.parse_args()
@@ -135,10 +151,16 @@ def main() -> None:
     gradient = os.path.join(scratch, "gradient.aedat4")
     for method in args.methods.split(","):
         for events in (int(n) for n in args.events.split(",")):
-            r = measure(method, events, gradient)
-            rate = r["events"] / r["seconds"]
-            print(f"{method:15} {r['events']:>12,} {r['seconds']:8.2f} {rate / 1e6:7.1f} {r['result_s']:8.2f} "
-                  f"{r['peak_mb']:11.0f} {rate / TARGET_EV_S.get(method, DEFAULT_TARGET_EV_S):8.2f}x", flush=True)
+            for repo in [None] + ([args.baseline] if args.baseline else []):
+                if repo:
+                    os.environ["EVTOOLS_BENCH_REPO"] = os.path.abspath(repo)
+                r = measure(method, events, gradient)
+                os.environ.pop("EVTOOLS_BENCH_REPO", None)
+                rate = r["events"] / r["seconds"]
+                label = f"{method} ({os.path.basename(os.path.abspath(repo))})" if repo else method
+                print(f"{label:15} {r['events']:>12,} {r['seconds']:8.2f} {rate / 1e6:7.1f} {r['result_s']:8.2f} "
+                      f"{r['peak_mb']:11.0f} {rate / TARGET_EV_S.get(method, DEFAULT_TARGET_EV_S):8.2f}x",
+                      flush=True)
 
 
     shutil.rmtree(scratch)
