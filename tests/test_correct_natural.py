@@ -54,13 +54,20 @@ def run(draw, sigma, error, seed):
     return ideal, given_, out
 
 
+def drawn(test):
+    """Every test here: 12 scenes drawn, each with its own threshold maps (no explain phase: its tracer made a
+    failing draw take minutes)."""
+    return settings(max_examples=12, deadline=None,
+                    suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much],
+                    phases=[Phase.explicit, Phase.reuse, Phase.generate, Phase.shrink])(
+        given(draw=scene, seed=st.integers(0, 1000))(test))
+
+
 def errors(ideal, given_, out):
     return count_error(given_, ideal, WIDTH, HEIGHT), count_error(out, ideal, WIDTH, HEIGHT)
 
 
-@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much],
-          phases=[Phase.explicit, Phase.reuse, Phase.generate, Phase.shrink])  # no explain: it traces
-@given(draw=scene, seed=st.integers(0, 1000))
+@drawn
 def test_thresholds_near_the_target_leave_the_stream_nearly_as_it_was(draw, seed):
     ideal, given_, out = run(draw, 0.001, 0.0, seed)
     before, after = errors(ideal, given_, out)
@@ -68,9 +75,7 @@ def test_thresholds_near_the_target_leave_the_stream_nearly_as_it_was(draw, seed
     assert after <= before + 0.015, (before, after)
 
 
-@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much],
-          phases=[Phase.explicit, Phase.reuse, Phase.generate, Phase.shrink])  # no explain: it traces
-@given(draw=scene, seed=st.integers(0, 1000))
+@drawn
 def test_exact_thresholds_bring_the_counts_closer_to_the_ideal_sensor(draw, seed):
     ideal, given_, out = run(draw, 0.03, 0.0, seed)
     before, after = errors(ideal, given_, out)
@@ -78,9 +83,7 @@ def test_exact_thresholds_bring_the_counts_closer_to_the_ideal_sensor(draw, seed
     assert abs(len(out) - len(ideal)) <= 0.04 * len(ideal) + 2
 
 
-@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much],
-          phases=[Phase.explicit, Phase.reuse, Phase.generate, Phase.shrink])  # no explain: it traces
-@given(draw=scene, seed=st.integers(0, 1000))
+@drawn
 def test_five_percent_estimation_error_is_never_worse_than_no_correction(draw, seed):
     ideal, given_, out = run(draw, 0.03, 0.05, seed)
     before, after = errors(ideal, given_, out)

@@ -69,7 +69,11 @@ def walk_chunks(total: int):
         tile["t"] += 1000 * k
         tiles.append(tile)
     period = join(tiles)
-    period = period[np.argsort(period["t"], kind="stable")]
+    yield from repeated(period[np.argsort(period["t"], kind="stable")], total)
+
+
+def repeated(period, total: int):
+    """``total`` events of ``period`` (time-sorted) repeated in time, 1 ms apart, in chunks of :data:`CHUNK`."""
     span_us = int(period["t"][-1]) + 1000
     produced, repeat = 0, 0
     while produced < total:
@@ -105,18 +109,7 @@ def texture_period():
 
 
 def texture_chunks(total: int):
-    period = texture_period()
-    span_us = int(period["t"][-1]) + 1000
-    produced, repeat = 0, 0
-    while produced < total:
-        for start in range(0, len(period), CHUNK):
-            chunk = period[start:start + min(CHUNK, total - produced)].copy()
-            chunk["t"] += repeat * span_us
-            produced += len(chunk)
-            yield chunk
-            if produced >= total:
-                return
-        repeat += 1
+    yield from repeated(texture_period(), total)
 
 
 def child(total: int, mode: str, source: str) -> dict:
