@@ -182,7 +182,7 @@ def roc(noisy, truth, methods, sweep, preset, weights, polarity_maps, settings, 
             parse_methods(chain)
         except BAFilterError as error:
             raise click.BadParameter(str(error), param_hint="--method") from None
-    figure_path(plot, "--plot")
+    figure_path(plot, "--plot", (noisy, truth, weights))
     labels = _labels_for(truth, _count_events(noisy), noisy)
     name, values = sweep
     results, curves = [], []

@@ -8,7 +8,7 @@ import math
 import click
 import numpy as np
 
-from evtools.cli.options import FINITE, json_option, wants_json
+from evtools.cli.options import FINITE, figure_path, json_option, wants_json
 from evtools.metrics.reconstruction import HighPassReconstructor, ReconstructionError, reconstruction_errors
 from evtools.formats import open_events
 from evtools.formats.io import output_stream
@@ -58,6 +58,7 @@ def reconstruction(events_path, truth_path, thresholds_path, contrast, cutoff_hz
     evtools metrics reconstruction step.aedat4 --truth t.h5 --thresholds t.h5
     evtools metrics reconstruction corrected.aedat4 --truth t.h5 --contrast 0.2 --plot recon.png
     """
+    figure_path(plot_path, "--plot", (events_path, truth_path, thresholds_path))
     if not math.isfinite(contrast) or contrast <= 0:
         raise ReconstructionError(f"--contrast must be a positive number of log units, got {contrast}")
     times, truth = read_true_frames(truth_path)

@@ -30,7 +30,7 @@ def thresholds(estimate_path, truth_path, plot_path, as_json):
             f"{estimate_path}: thresholds are {estimate.width}x{estimate.height} but the truth {truth_path} is "
             f"{truth.width}x{truth.height}; compare the estimate with the truth of the same sensor"
         )
-    figure_path(plot_path, "--plot")
+    figure_path(plot_path, "--plot", (estimate_path, truth_path))
     try:
         result = threshold_errors(estimate.on, estimate.off, estimate.valid, truth.on, truth.off)
     except ThresholdMetricsError as error:

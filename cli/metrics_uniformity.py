@@ -50,7 +50,7 @@ def uniformity(input, input_format, sensor_size, aedat2_layout, edges_at, refere
     evtools metrics uniformity corrected.aedat4 --reference ideal.aedat4
     evtools metrics uniformity corrected.aedat4 --before raw.aedat4 --plot edges.png
     """
-    figure_path(plot, "--plot")
+    figure_path(plot, "--plot", (input, reference, before))
     options = dict(format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout)
     info, name, events = _read(input, **options)
     try:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import math
+import os
 import re
 import sys
 
@@ -147,13 +148,18 @@ def slicing_options(function=None, *, polarity: bool = True):
     return decorate if function is None else decorate(function)
 
 
-def figure_path(path: str | None, param_hint: str) -> str | None:
-    """``path`` when it names a figure evtools can write (.png, .svg, .pdf), else a usage error: checked before any
-    work is done."""
+def figure_path(path: str | None, param_hint: str, inputs=()) -> str | None:
+    """``path`` when it names a figure evtools can write (.png, .svg, .pdf) and none of the command's ``inputs``
+    (the same file through a symbolic or a hard link too), else a usage error: checked before any work is done."""
     if path is None:
         return None
+    from evtools.formats.io import STDIO, same_file
     from evtools.plots import PlotError, figure_format
 
+    for named in inputs:
+        if named is not None and os.fspath(named) != STDIO and same_file(path, os.fspath(named)):
+            raise click.BadParameter(f"{path} is an input of this command ({named}): a picture would replace it; "
+                                     "choose another file", param_hint=param_hint)
     try:
         figure_format(path)
     except PlotError as error:

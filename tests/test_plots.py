@@ -137,3 +137,28 @@ def test_bafilter_draws_the_hot_pixels_on_their_rates(tmp_path):
     run("bafilter", noisy, "--method", "hotpixel", "--save-hot-pixels", tmp_path / "hot.csv", "-o", tmp_path / "b.aedat4")
     count = len((tmp_path / "hot.csv").read_text().splitlines()) - 1
     assert count > 0 and f"hot pixels: {count} of 16,384" in (tmp_path / "hot.svg").read_text()
+
+
+def test_a_plot_never_replaces_an_input(tmp_path):
+    """Issue 37 item 1: `metrics ... --plot` naming one of the command's inputs (directly, through a symbolic link
+    or a hard link) is a usage error before any work, and the input is untouched."""
+    import os
+
+    stream, truth, estimate = tmp_path / "s.aedat4", tmp_path / "t.h5", tmp_path / "e.h5"
+    run("simulate", "scene:flicker", "--size", "8x6", "--duration", "1s", "--seed", "1", "--truth", truth,
+        "-o", stream)
+    run("estimate", stream, "--method", "stimulus", "-o", estimate)
+    link, hard = tmp_path / "link.png", tmp_path / "hard.png"
+    link.symlink_to(truth)
+    os.link(estimate, hard)
+    before = {path: path.read_bytes() for path in (stream, truth, estimate)}
+    cases = [("thresholds", estimate, "--truth", truth, "--plot", truth),
+             ("thresholds", estimate, "--truth", truth, "--plot", link),
+             ("thresholds", estimate, "--truth", truth, "--plot", hard),
+             ("uniformity", stream, "--plot", stream),
+             ("reconstruction", stream, "--truth", truth, "--contrast", "0.2", "--plot", link)]
+    for case in cases:
+        done = run("metrics", *case, check=False)
+        assert done.returncode == 2, (case, done.stderr.decode())
+        assert "an input of this command" in done.stderr.decode() and "Traceback" not in done.stderr.decode()
+    assert all(path.read_bytes() == data for path, data in before.items())
