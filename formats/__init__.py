@@ -173,6 +173,11 @@ class _NamedWriter:
     def close(self) -> None:
         _named(self.target, self.writer.close)
 
+    def abort(self) -> None:
+        """Release the writer without marking the stream's end (its ``abort``), or close it (formats without an
+        end mark)."""
+        _named(self.target, getattr(self.writer, "abort", self.writer.close))
+
 
 def check_compression(fmt, compression: str | None, target: str) -> None:
     """Refuse a ``compression`` that the format ``fmt`` does not write (a CSV file has none to choose: asking for
@@ -237,9 +242,10 @@ def create_events(
         try:
             yield writer
         except BaseException:
-            # release the writer's hold on the stream (h5py crashes if its file object closes first); the
+            # release the writer's hold on the stream (h5py crashes if its file object closes first) without
+            # marking the stream's end: what went out to a pipe, a FIFO or a socket reads as cut, not as whole; a
             # half-written temporary file is then deleted by output_stream
             with contextlib.suppress(Exception):
-                writer.close()
+                writer.abort()
             raise
         writer.close()

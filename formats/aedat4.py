@@ -539,6 +539,17 @@ class Aedat4Writer:
         self._drain()
         self.stream.flush()
 
+    def abort(self) -> None:
+        """The input stopped with an error: write what is held but no end mark, so that a reader of this output
+        (a pipe's next stage) sees a cut stream, not a whole one."""
+        try:
+            self._flush()
+            self._drain()
+            self.stream.flush()
+        finally:
+            if self.pool is not None:
+                self.pool.shutdown()
+
     def close(self) -> None:
         """Write what is held, then the end mark (an empty event packet, see :data:`END_MARK_KEY`)."""
         self._flush()

@@ -618,6 +618,14 @@ class WriteBehind:
         self._raise()
         self.writer.close()
 
+    def abort(self) -> None:
+        """The producer stopped with an error: what is queued is written, then the writer is released without
+        marking the stream's end (``abort`` where the writer has one, else ``close``)."""
+        if self.thread.is_alive():
+            self.queue.put(_DONE)
+            self.thread.join()
+        getattr(self.writer, "abort", self.writer.close)()
+
 
 PACE_SLICE_US = 5_000
 """:func:`paced` releases events in slices of at most this much stream time (5 ms)."""

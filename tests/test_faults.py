@@ -204,3 +204,20 @@ def test_a_video_on_a_full_disk_fails_in_one_line_and_leaves_nothing(small_disk)
     result = run("render", SAMPLES / "flicker.aedat4", "-o", target, "--window-us", "2000", check=False)
     assert_clean_error(result, str(target), "No space left on device")
     assert os.listdir(small_disk) == []
+
+
+@pytest.mark.parametrize("name", ["bafilter", "convert", "correct"])
+def test_a_stage_whose_input_was_cut_does_not_end_its_output_as_whole(tmp_path, stream, name):
+    """Issue 37 item 2: `head -c N s.aedat4 | evtools NAME - | evtools bafilter - -o x.aedat4`: the middle stage
+    fails (its input was cut) and writes no end mark, so the last stage fails too instead of writing a whole-looking
+    file of part of the events."""
+    output = tmp_path / "x.aedat4"
+    size = stream[0].stat().st_size
+    options = " ".join(_options(name, stream))
+    script = (f"head -c {size // 2} {stream[0]} | {EVTOOLS} -q {name} - {options} "
+              f"| {EVTOOLS} -q bafilter - -o {output}; echo ${{PIPESTATUS[@]}}")
+    done = subprocess.run(["bash", "-c", script], capture_output=True, text=True, timeout=120, cwd=ROOT)
+    statuses = done.stdout.split()
+    assert statuses[1:] == ["1", "1"], (statuses, done.stderr)
+    assert "Traceback" not in done.stderr and not output.exists()
+    _no_temporaries(tmp_path)
