@@ -22,7 +22,7 @@ from typing import Any, Callable
 import click
 
 from evtools.errors import EvtoolsError
-from evtools.formats.io import STDIO
+from evtools.formats.io import STDIO, same_file
 
 log = logging.getLogger("evtools")
 
@@ -110,6 +110,16 @@ def plan(inputs: tuple[str, ...], output: str | None, suffix: str,
 
 
 def _checked(pairs: list[tuple[str, str]], check) -> list[tuple[str, str]]:
+    """``pairs`` once no output names another input (the same file through a symbolic or a hard link too: one
+    input's output would replace another input; an output naming its own input is refused where it is written)
+    and ``check`` accepts them."""
+    inputs = [name for name, _ in pairs if name != STDIO]
+    for name, target in pairs:
+        if target == STDIO or not os.path.exists(target):
+            continue
+        replaced = next((other for other in inputs if other != name and same_file(target, other)), None)
+        if replaced is not None:
+            raise click.UsageError(f"{name}'s output {target} would replace the input {replaced}; choose another -o")
     if check is not None:
         check(pairs)
     return pairs

@@ -82,3 +82,15 @@ def test_one_input_into_a_folder(tmp_path):
     assert (tmp_path / "new" / "rec00.aedat4").read_bytes() == run("bafilter", first).stdout
     result = run("bafilter", "-o", tmp_path / "maps", input=first.read_bytes(), check=False)
     assert result.returncode == 2 and "folder" in result.stderr.decode()
+
+
+def test_one_inputs_output_never_replaces_another_input(tmp_path):
+    """Issue 37 item 3: `ln -s a.aedat4 link.aedat4; bafilter link.aedat4 a.csv -o ./`: a.csv's output ./a.aedat4
+    is the link's target, an input: a usage error before anything is written (a.aedat4 was replaced)."""
+    run("simulate", "scene:bars", "--size", "16x12", "--duration", "300ms", "--seed", "1", "-o", tmp_path / "a.aedat4")
+    run("convert", tmp_path / "a.aedat4", "-o", tmp_path / "a.csv")
+    (tmp_path / "link.aedat4").symlink_to(tmp_path / "a.aedat4")
+    original = (tmp_path / "a.aedat4").read_bytes()
+    done = run("bafilter", "link.aedat4", "a.csv", "-o", "./", "--jobs", "1", check=False, cwd=tmp_path)
+    assert done.returncode == 2 and "would replace the input" in done.stderr.decode(), done.stderr.decode()
+    assert (tmp_path / "a.aedat4").read_bytes() == original
