@@ -50,6 +50,11 @@ HDF5_CHUNK_EVENTS = 1 << 16
 MS_BLOCK = 1 << 16
 """``ms_to_idx`` is appended in blocks of this many entries."""
 
+MAX_MS_TO_IDX = 1 << 28
+"""The most ``ms_to_idx`` entries written (74.6 hours of stream at one a millisecond, 2 GiB): a stream spanning
+more is refused, naming the span (two events 10^12 us apart, microseconds read as something larger, asked for
+13.7 GB)."""
+
 COMPRESSIONS = BY_NAME["hdf5"].compressions
 """The compressions written (the format table's, which ``--compression`` is checked against before writing)."""
 DEFAULT_COMPRESSION = COMPRESSIONS[0]
@@ -449,10 +454,16 @@ class Hdf5Writer:
             dataset.resize((stop,))
             dataset[start:stop] = values.astype(dataset.dtype)
         last_ms = int(t_us[-1]) // 1000
-        if last_ms >= self.next_ms:
-            ms = np.arange(self.next_ms, last_ms + 1, dtype=np.int64)
+        if last_ms >= MAX_MS_TO_IDX:
+            raise FormatError(
+                f"the events span {last_ms + 1:,} ms: the DSEC layout's ms_to_idx would hold an entry per ms, more "
+                f"than the {MAX_MS_TO_IDX:,} allowed ({MAX_MS_TO_IDX * 8 / 2**30:.0f} GiB, {MAX_MS_TO_IDX / 3.6e6:.0f} "
+                "hours); check the times' unit, or write another format")
+        while last_ms >= self.next_ms:  # in blocks: a long gap costs no more memory than a block
+            upto = min(last_ms, self.next_ms + MS_BLOCK * 16 - 1)
+            ms = np.arange(self.next_ms, upto + 1, dtype=np.int64)
             self._append_ms(start + np.searchsorted(t_us, ms * 1000, side="left").astype(np.uint64))
-            self.next_ms = last_ms + 1
+            self.next_ms = upto + 1
         self.events_written = stop
 
     def _append_ms(self, indices: np.ndarray | None, final: bool = False) -> None:

@@ -20,7 +20,7 @@ from evtools.formats import FormatError, ReadOptions, WriteOptions, create_event
 from evtools.formats.hdf5 import Hdf5Writer
 from evtools.formats.io import Source
 from tests.conftest import data_file
-from tests.helpers import read_all, write_bytes
+from tests.helpers import assert_clean_error, read_all, run, write_bytes
 
 COMPRESSIONS = ["none", "gzip", "lzf", "zstd"]
 
@@ -198,3 +198,14 @@ def test_sensor_size_option_when_missing(tmp_path):
     assert [len(chunk) for chunk in reader] == [2, 2, 1]
     reader.close()
     source.close()
+
+
+def test_a_stream_spanning_more_than_the_ms_index_can_hold_is_refused(tmp_path):
+    """Issue 37 item 4: two events 10^12 us apart (a 45-byte CSV) asked 13.7 GB for ms_to_idx; now refused before
+    any allocation, naming the span and the limit, with nothing left under the output's name."""
+    source = tmp_path / "two.csv"
+    source.write_text("0,1,1,1\n1000000000000,2,2,0\n")
+    done = run("convert", source, "--sensor-size", "4x4", "-o", tmp_path / "two.h5", check=False)
+    assert_clean_error(done, "two.h5")
+    assert "1,000,000,001 ms" in done.stderr.decode() and "268,435,456" in done.stderr.decode()
+    assert not (tmp_path / "two.h5").exists()
