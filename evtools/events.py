@@ -241,7 +241,8 @@ def rechunk(chunks: Iterable[np.ndarray], size: int) -> Iterator[np.ndarray]:
 
 
 class StreamChecker:
-    """Checks chunk after chunk that events lie on the sensor and that time never goes backwards (and converts an
+    """Checks chunk after chunk that events lie on the sensor, that their polarity is 0 or 1 and that time never
+    goes backwards (and converts an
     array with EVENT_DTYPE's fields in another layout, see :func:`as_chunk`).
 
     The first offending event is reported by its index in the whole stream, so the user can find it; ``name``
@@ -268,6 +269,12 @@ class StreamChecker:
                     f"{self.name}: event {self.events_seen + i} at (x={chunk['x'][i]}, y={chunk['y'][i]}) lies "
                     f"outside the {self.info.width}x{self.info.height} sensor{self.hint}"
                 )
+            polarity = chunk["p"].view(np.uint8)  # a bool byte other than 0 or 1 is damage: read as ON and copied
+            if polarity.max() > 1:
+                i = int(np.argmax(polarity > 1))
+                raise InvalidEventsError(
+                    f"{self.name}: event {self.events_seen + i} has a polarity byte of {int(polarity[i])}, not 0 (OFF) "
+                    "or 1 (ON): a damaged file?")
             if t[0] < -MAX_TIME_US or t[-1] > MAX_TIME_US:  # sorted (checked below): the ends bound the rest
                 i = 0 if t[0] < -MAX_TIME_US else int(np.argmax(t > MAX_TIME_US))
                 raise InvalidEventsError(

@@ -239,6 +239,7 @@ class Hdf5Reader:
         if t.dtype.kind == "f" and not np.isfinite(t).all():
             raise FormatError(f"{self.name}: event times that are not numbers between events {start} and {stop} "
                               "(a damaged file?)")
+        _check_polarity(self.name, p, start, stop)
         for field, values in (("x", x), ("y", y)):
             if len(values) and (np.min(values) < 0 or np.max(values) > 32767 or
                                 (values.dtype.kind == "f" and not np.isfinite(values).all())):
@@ -297,6 +298,7 @@ class Hdf5Reader:
         x, y = records["x"], records["y"]
         if len(records) and (max(int(x.max()), int(y.max())) > 32767):
             raise FormatError(f"{self.name}: event coordinates beyond 32767 from event {start} (a damaged file?)")
+        _check_polarity(self.name, records["p"], start, start + len(records))
         words = record_words(out)
         words[:, 0] = records["t"]
         words[:, 1] = second_words(x, y, records["p"] > 0)
@@ -356,6 +358,17 @@ def _compression_args(name: str | None) -> dict:
 
 _ABANDONED: list = []
 """h5py objects of files whose write failed, never freed (see :func:`abandon`)."""
+
+
+def _check_polarity(name: str, p: np.ndarray, start: int, stop: int) -> None:
+    """Polarities must be 1 (ON) or 0 / -1 (OFF, as the layouts write it): a 2 or a 0.5 is damage (it was read as
+    ON, or as ON in one layout and OFF in another), refused naming the events' range."""
+    if len(p) == 0:
+        return
+    wrong = (p.min() < -1 or p.max() > 1) if p.dtype.kind in "iub" else not np.isin(p, (-1.0, 0.0, 1.0)).all()
+    if wrong:
+        raise FormatError(f"{name}: polarities other than 1 (ON) and 0 or -1 (OFF) between events {start} and {stop} "
+                          "(a damaged file?)")
 
 
 def abandon(*objects) -> None:

@@ -189,7 +189,7 @@ def test_sensor_size_option_when_missing(tmp_path):
     path = tmp_path / "dsec.h5"
     with h5py.File(path, "w") as f:
         for key, dtype in (("x", "u2"), ("y", "u2"), ("t", "u4"), ("p", "u1")):
-            f.create_dataset(f"events/{key}", data=np.arange(5).astype(dtype))
+            f.create_dataset(f"events/{key}", data=(np.arange(5) % (2 if key == "p" else 5)).astype(dtype))
         f.create_dataset("t_offset", data=np.int64(100))
     info, events = read_all(path, sensor_size=(640, 480))
     assert info.size == (640, 480) and list(events["t"]) == [100, 101, 102, 103, 104]
@@ -209,3 +209,29 @@ def test_a_stream_spanning_more_than_the_ms_index_can_hold_is_refused(tmp_path):
     assert_clean_error(done, "two.h5")
     assert "1,000,000,001 ms" in done.stderr.decode() and "268,435,456" in done.stderr.decode()
     assert not (tmp_path / "two.h5").exists()
+
+
+def test_polarities_other_than_on_and_off_are_refused(tmp_path):
+    """Issue 37 item 9: a polarity of 2 (HDF5 and an AEDAT 4.0 byte) and of 0.5 were read as ON (or ON in one
+    layout, OFF in another) and copied into outputs; every reader now refuses them, naming the file."""
+    import h5py
+
+    from evtools.events import make_events
+    from evtools.formats import create_events
+    from evtools.events import StreamInfo
+
+    events = make_events([1, 2, 3, 4], [0, 1, 2, 3], [0, 0, 1, 1], [1, 0, 1, 0])
+    damaged = events.copy()
+    damaged["p"].view(np.uint8)[2] = 2
+    with create_events(str(tmp_path / "a.aedat4"), StreamInfo(4, 4)) as writer:
+        writer.write(damaged)
+    assert_clean_error(run("info", tmp_path / "a.aedat4", check=False), "a.aedat4", "polarity byte of 2")
+    with create_events(str(tmp_path / "d.h5"), StreamInfo(4, 4)) as writer:
+        writer.write(events)
+    with h5py.File(tmp_path / "d.h5", "r+") as file:
+        file["events/p"][1] = 2
+    assert_clean_error(run("info", tmp_path / "d.h5", check=False), "d.h5", "polarities other than")
+    with h5py.File(tmp_path / "d.h5", "r+") as file:
+        del file["events/p"]
+        file["events/p"] = np.array([1.0, 0.5, 1.0, 0.0])
+    assert_clean_error(run("info", tmp_path / "d.h5", check=False), "d.h5", "polarities other than")
