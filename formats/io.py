@@ -422,7 +422,8 @@ def atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[str]:
     """A temporary path beside ``path``, renamed to ``path`` when the block ends without an error, else removed.
 
     For writers that need a path of their own (OpenCV); ``suffix`` keeps an extension they dispatch on.
-    The file gets the permissions of any new file (``mkstemp`` alone would make it private). A symbolic link keeps
+    The file gets the permissions of any new file (``mkstemp`` alone would make it private), or those of the file it
+    replaces; a read-only file is not replaced (an error naming it). A symbolic link keeps
     pointing where it did (its target is replaced); a FIFO, a socket or a device is refused (a writer that wants a
     path cannot write into it, and renaming over it would destroy it).
     """
@@ -434,12 +435,19 @@ def atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[str]:
     directory = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(directory):
         raise FormatError(f"{named}: directory {directory} does not exist")
+    replaced_mode = stat.S_IMODE(os.stat(path).st_mode) if os.path.exists(path) else None
+    if replaced_mode is not None and not replaced_mode & 0o222:
+        raise FormatError(f"{named}: exists and is read-only (mode {replaced_mode:o}): remove it or make it writable "
+                          "first, or choose another -o")
     fd, temporary = tempfile.mkstemp(dir=directory, prefix="." + os.path.basename(path) + ".", suffix=".part" + suffix)
     os.close(fd)
     try:
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(temporary, 0o666 & ~umask)
+        if replaced_mode is None:
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(temporary, 0o666 & ~umask)
+        else:  # a replaced file keeps its permissions (a private 0600 output stays private)
+            os.chmod(temporary, replaced_mode)
         yield temporary
         os.replace(temporary, path)
     except BaseException:

@@ -221,3 +221,17 @@ def test_a_stage_whose_input_was_cut_does_not_end_its_output_as_whole(tmp_path, 
     assert statuses[1:] == ["1", "1"], (statuses, done.stderr)
     assert "Traceback" not in done.stderr and not output.exists()
     _no_temporaries(tmp_path)
+
+
+def test_a_replaced_output_keeps_its_permissions_and_a_read_only_one_is_not_replaced(tmp_path, stream):
+    """Issue 37 item 11: -o over a 0600 file left 0644; over a 0444 file replaced it without a word."""
+    private, locked = tmp_path / "private.aedat4", tmp_path / "locked.aedat4"
+    for path, mode in ((private, 0o600), (locked, 0o444)):
+        path.write_bytes(b"old")
+        path.chmod(mode)
+    run("convert", stream[0], "-o", private)
+    assert private.stat().st_mode & 0o777 == 0o600 and len(evtools.read(private)[0]) > 0
+    done = run("convert", stream[0], "-o", locked, check=False)
+    assert_clean_error(done, "locked.aedat4", "read-only")
+    assert locked.read_bytes() == b"old"
+    _no_temporaries(tmp_path)
