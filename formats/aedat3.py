@@ -80,6 +80,8 @@ class Aedat3Reader:
             if not line.startswith(b"#"):
                 raise FormatError(f"{self.name}: AEDAT 3.1 header has no {END_HEADER.decode()} line")
             lines.append(line)
+        if not lines[-1].endswith(b"\n"):  # (a file cut inside that line read as no events on a 1 x 1 sensor)
+            raise FormatError(f"{self.name}: the file ends inside its AEDAT 3.1 header (a cut file?)")
         self.header_bytes = sum(map(len, lines))
         text = [line.decode("latin-1").rstrip("\r\n") for line in lines]
         sources = {int(m.group(1)): m.group(2).strip() for m in map(_SOURCE.match, text) if m}

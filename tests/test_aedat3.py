@@ -87,3 +87,13 @@ def test_wrong_magic_and_missing_end_of_header_name_the_file(tmp_path):
     path.write_bytes(b"#!AER-DAT3.1\r\n#Format: RAW\r\n" + np.zeros(4, "<u4").tobytes())
     with pytest.raises(FormatError, match=r"wrong\.aedat3.*END-HEADER"):
         read_all(path)
+
+
+def test_a_file_cut_inside_its_end_of_header_line_is_refused(tmp_path):
+    """Issue 37 item 11: cut inside (or right after the text of) its end-of-header line, an AEDAT 3.1 file read as
+    0 events on a 1 x 1 sensor, exit 0."""
+    path = tmp_path / "cut.aedat"
+    for cut in (b"#!END-HEADER", b"#!END-HEADER\r"):
+        path.write_bytes(b"#!AER-DAT3.1\r\n#Format: RAW\r\n#Source 1: DAVIS346B\r\n" + cut)
+        with pytest.raises(FormatError, match=r"cut\.aedat.*ends inside its AEDAT 3\.1 header"):
+            read_all(path)
