@@ -28,7 +28,7 @@ import numpy as np
 
 from evtools._kernels.pixel import LABEL_HOT, LABEL_LEAK, LABEL_SHOT, LABEL_SIGNAL
 from evtools.events import CHUNK_EVENTS, EVENT_DTYPE, StreamChecker, StreamInfo, check_sensor_size, empty_events, join
-from evtools.simulation import SimulationError, _check_fraction, _check_nonnegative
+from evtools.simulation import SimulationError, _check_fraction, _check_nonnegative, check_noise_rates
 
 __all__ = ["BLOCK_US", "NOISE_DEFAULTS", "NoiseInjector", "inject_noise"]
 
@@ -129,6 +129,7 @@ class NoiseInjector:
             "seed": self.seed,
             "block_us": self.block_us,
         }
+        check_noise_rates(self.width, self.height, self.parameters)
         self._draw_maps()
         self._checker = StreamChecker(StreamInfo(self.width, self.height))
         self._t_first: int | None = None  # time of the first input event

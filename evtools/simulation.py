@@ -111,6 +111,30 @@ def _check_nonnegative(name: str, value: float) -> float:
     return number
 
 
+MAX_PIXEL_RATE_HZ = 1e6
+"""A noise rate per pixel (leak, shot, hot) above one event a microsecond (evtools' time resolution) is refused."""
+MAX_NOISE_RATE_EV_S = 2e9
+"""Noise over the whole sensor above 2 Gev/s (twice a Prophesee IMX636's peak event rate) is refused: it would be
+made a block at a time in memory (10^12 Hz a pixel grew past 1.8 GiB with no message)."""
+
+
+def check_noise_rates(width: int, height: int, parameters: dict[str, Any]) -> None:
+    """Refuse the per-pixel noise rates of ``parameters`` (leak, shot, hot pixels; already checked >= 0) beyond
+    :data:`MAX_PIXEL_RATE_HZ`, or whose sum over the sensor exceeds :data:`MAX_NOISE_RATE_EV_S`, naming the value
+    and the limit."""
+    rates_hz = {name: parameters[name] for name in ("leak_rate_hz", "shot_noise_rate_hz", "hot_pixel_rate_hz")}
+    for name, rate in rates_hz.items():
+        if rate > MAX_PIXEL_RATE_HZ:
+            raise SimulationError(f"{name} {rate:g} Hz is more than a pixel can fire ({MAX_PIXEL_RATE_HZ:g} Hz: one "
+                                  "event a microsecond)")
+    total = (rates_hz["leak_rate_hz"] + rates_hz["shot_noise_rate_hz"]
+             + rates_hz["hot_pixel_rate_hz"] * parameters["hot_pixel_fraction"]) * width * height
+    if total > MAX_NOISE_RATE_EV_S:
+        raise SimulationError(f"noise rates of {', '.join(f'{n} {r:g} Hz' for n, r in rates_hz.items() if r)} on "
+                              f"{width}x{height} pixels make {total:.3g} events/s, more than the {MAX_NOISE_RATE_EV_S:g} "
+                              "allowed (twice the fastest sensor's peak)")
+
+
 def _check_fraction(name: str, value: float) -> float:
     value = _check_nonnegative(name, value)
     if value > 1.0:
@@ -274,6 +298,7 @@ class DvsSimulator:
         }
         if not math.isfinite(thres_drift_per_s):
             raise SimulationError(f"thres_drift_per_s must be a finite fraction per second, got {thres_drift_per_s}")
+        check_noise_rates(self.width, self.height, self.parameters)
         self._draw_maps(thresholds)
         self._t0_us: int | None = None  # the first frame's time: the drift's origin
         if thres_drift_per_s != 0.0:  # the kernel's maps become copies, rescaled before every frame interval
@@ -536,6 +561,9 @@ def _frame_times_us(duration_us: int, frame_rate_hz: float) -> np.ndarray:
         raise SimulationError(f"duration must be positive, got {duration_us} us")
     if not frame_rate_hz > 0 or math.isinf(frame_rate_hz):
         raise SimulationError(f"frame rate must be positive, got {frame_rate_hz} Hz")
+    if frame_rate_hz > 1e6:  # (checked before the frame times are made: 10^9 Hz asked for more than 3 GiB)
+        raise SimulationError(f"frame rate {frame_rate_hz:g} Hz is more than one frame a microsecond (1e+06 Hz), "
+                              "the resolution of event times")
     n = int(math.floor(duration_us * 1e-6 * frame_rate_hz + 1e-9)) + 1
     times = np.round(np.arange(n) * (1e6 / frame_rate_hz)).astype(np.int64)
     if times[-1] < duration_us:

@@ -456,9 +456,11 @@ def atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[str]:
         raise
 
 
-MAX_INFERRED_SIDE = 8192
-"""A sensor size inferred from the events (the file does not store it) is refused beyond this many pixels a side:
-the largest event cameras have 1280 x 960; a damaged coordinate would otherwise allocate gigabytes of maps."""
+MAX_INFERRED_SIDE = 2048
+"""A sensor size inferred from the events (the file does not store it) is refused beyond this many pixels a side
+(the largest event cameras have 1280 x 960; Prophesee's 11-bit addresses reach 2048): a stray coordinate would
+otherwise size every per-pixel map by it (a 3-line CSV reaching 8191 took 2-3 GiB in estimate, bafilter, render).
+``--sensor-size`` sets any size."""
 
 
 def resolve_sensor_size(source: Source, from_file, sensor_size, scan=None) -> tuple[int, int]:

@@ -235,3 +235,35 @@ def test_a_replaced_output_keeps_its_permissions_and_a_read_only_one_is_not_repl
     assert_clean_error(done, "locked.aedat4", "read-only")
     assert locked.read_bytes() == b"old"
     _no_temporaries(tmp_path)
+
+
+BOMBS = [
+    (["simulate", "scene:flicker", "--size", "64x48", "--duration", "1s", "--shot-noise-rate-hz", "1e12"],
+     "--shot-noise-rate-hz"),
+    (["simulate", "scene:flicker", "--size", "64x48", "--duration", "1s", "--leak-rate-hz", "1e12"], "--leak-rate-hz"),
+    (["simulate", "scene:flicker", "--size", "346x260", "--duration", "1s", "--shot-noise-rate-hz", "1e5"],
+     "events/s"),
+    (["simulate", "scene:flicker", "--size", "64x48", "--duration", "1s", "--frame-rate", "1e9"], "frame rate"),
+]
+
+
+@pytest.mark.parametrize("argv, named", BOMBS, ids=[b[1] for b in BOMBS])
+def test_values_that_would_exhaust_memory_are_refused_in_bounded_memory(tmp_path, argv, named):
+    """Issue 37 item 8: each ran until killed for memory (1.8 GiB and growing, > 3 GiB); under a 1 GB address
+    space each now exits 1 with one line naming the value and its limit, nothing written."""
+    out = tmp_path / "x.aedat4"
+    done = subprocess.run(["prlimit", "--as=1000000000", EVTOOLS, *argv, "-o", str(out)], capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == 1, done.stderr
+    assert named in done.stderr and "Traceback" not in done.stderr and len(done.stderr.strip().splitlines()) == 1
+    assert not out.exists()
+
+
+def test_an_inferred_sensor_larger_than_any_camera_is_refused(tmp_path):
+    """Issue 37 item 8: a 3-line CSV reaching x = 8191 inferred an 8192 x 8192 sensor and took 2-3 GiB in estimate,
+    bafilter and render; an inferred side beyond 2048 is refused, --sensor-size still sets any size."""
+    source = tmp_path / "three.csv"
+    source.write_text("0,1,1,1\n10,8191,2,0\n20,3,3,1\n")
+    done = run("bafilter", source, "-o", tmp_path / "x.aedat4", check=False)
+    assert_clean_error(done, "three.csv", "--sensor-size")
+    run("bafilter", source, "--sensor-size", "8192x4", "-o", tmp_path / "x.aedat4")
