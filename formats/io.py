@@ -69,6 +69,39 @@ class _PrefixedRaw(io.RawIOBase):
         return n
 
 
+TCP_READ_TIMEOUT_S = 60.0
+"""A network input (``tcp://``) that sends nothing for this long is an error naming it (a server that accepts and
+never sends made evtools wait forever; connecting has its own 10 s)."""
+
+
+class _NetworkRaw(io.RawIOBase):
+    """A connected socket's reads, each waiting at most :data:`TCP_READ_TIMEOUT_S`; a silence that long and a
+    connection reset mid-stream are errors naming the input (a reset was 'cannot connect')."""
+
+    def __init__(self, name: str, connection) -> None:
+        self._name, self._raw = name, connection.makefile("rb", buffering=0)
+        connection.settimeout(TCP_READ_TIMEOUT_S)
+
+    def readable(self) -> bool:
+        return True
+
+    def fileno(self) -> int:
+        return self._raw.fileno()
+
+    def readinto(self, buffer) -> int:
+        try:
+            return self._raw.readinto(buffer)
+        except TimeoutError:
+            raise FormatError(f"{self._name}: no data for {TCP_READ_TIMEOUT_S:g} s; the server is connected but "
+                              "sends nothing") from None
+        except ConnectionResetError:
+            raise FormatError(f"{self._name}: the server reset the connection mid-stream (the stream is cut)") from None
+
+    def close(self) -> None:
+        self._raw.close()
+        super().close()
+
+
 class Source:
     """An input: a file path or ``-`` for stdin, opened for binary reading, with its first bytes known.
 
@@ -102,7 +135,7 @@ class Source:
         if path.startswith(TCP_PREFIX):  # a live network stream (AEDAT 4.0 from DV or dv-processing)
             self.name, self.path, self.network = path, None, True
             self.connection = _connect(path)
-            self._open_stream(self.connection.makefile("rb", buffering=0))
+            self._open_stream(_NetworkRaw(path, self.connection))
             return
         self.name, self.path = path, path
         if os.path.isdir(path):

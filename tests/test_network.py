@@ -241,3 +241,42 @@ def test_bad_servers_give_one_line_errors_naming_the_address(tmp_path):
     busy = subprocess.run([*EVTOOLS, "convert", str(recording), "-o", f"tcp://127.0.0.1:{whole_port}", "--format",
                            "csv"], capture_output=True, text=True, env=env, cwd=ROOT, timeout=60)
     assert busy.returncode == 2 and "carries AEDAT 4.0" in busy.stderr  # a usage error
+
+
+def test_a_server_that_sends_nothing_or_resets_is_an_error_naming_it(monkeypatch):
+    """Issue 37 item 10: a server that accepts and never sends made evtools wait forever (the 10 s limit covered
+    the connect only); a reset mid-stream was reported as 'cannot connect'. Reads now wait at most
+    TCP_READ_TIMEOUT_S (lowered here) and a reset says so."""
+    import socket
+    import struct
+    import threading
+
+    import evtools.formats.io as io_module
+    from evtools.formats import open_events
+    from evtools.formats.errors import FormatError
+
+    monkeypatch.setattr(io_module, "TCP_READ_TIMEOUT_S", 0.5)
+    for behaviour in ("silent", "reset"):
+        listener = socket.socket()
+        listener.bind(("127.0.0.1", 0))
+        listener.listen(1)
+        port = listener.getsockname()[1]
+
+        def serve():
+            client, _ = listener.accept()
+            if behaviour == "reset":
+                client.send(b"#!AER-DAT4.0\r\n" + bytes(20))  # a header's start, then a reset (RST)
+                client.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+                client.close()
+            else:
+                threading.Event().wait(3)
+                client.close()
+            listener.close()
+
+        thread = threading.Thread(target=serve, daemon=True)
+        thread.start()
+        with pytest.raises(FormatError, match="no data for 0.5 s" if behaviour == "silent" else "reset|cut|ends"):
+            with open_events(f"tcp://127.0.0.1:{port}") as stream:
+                for _ in stream:
+                    pass
+        thread.join(5)
