@@ -50,6 +50,10 @@ HDF5_CHUNK_EVENTS = 1 << 16
 MS_BLOCK = 1 << 16
 """``ms_to_idx`` is appended in blocks of this many entries."""
 
+MAX_MS_CHECKED = 1 << 24
+"""A DSEC ``ms_to_idx`` of at most this many entries (4.7 hours, 128 MiB) is read whole and the times checked
+against it; a longer one is not checked."""
+
 MAX_MS_TO_IDX = 1 << 28
 """The most ``ms_to_idx`` entries written (74.6 hours of stream at one a millisecond, 2 GiB): a stream spanning
 more is refused, naming the span (two events 10^12 us apart, microseconds read as something larger, asked for
@@ -138,6 +142,7 @@ class Hdf5Reader:
         f = self.file
         group = f.get("events")
         self.t_offset_us = 0
+        self.ms_to_idx: np.ndarray | None = None  # DSEC's index, to check the times read against (see _check_times)
         cd = f.get("CD")
         if isinstance(cd, h5py.Group) and isinstance(cd.get("events"), h5py.Dataset):
             self._open_prophesee(cd["events"], options)
@@ -146,6 +151,10 @@ class Hdf5Reader:
         if isinstance(group, h5py.Group) and all(k in group for k in ("x", "y", "t", "p")):
             self.layout = "evtools" if _text(f.attrs.get("format")) == "evtools" else "dsec"
             self.columns = [group[k] for k in ("t", "x", "y", "p")]
+            index = f.get("ms_to_idx")
+            if isinstance(index, h5py.Dataset) and index.ndim == 1 and index.dtype.kind in "iu" and (
+                    0 < len(index) <= MAX_MS_CHECKED):
+                self.ms_to_idx = np.asarray(index[()], dtype=np.int64)
             if "t_offset" in f:
                 self.t_offset_us = int(np.asarray(f["t_offset"][()]).item())
             elif "t_offset" in f.attrs:
@@ -240,6 +249,8 @@ class Hdf5Reader:
             raise FormatError(f"{self.name}: event times that are not numbers between events {start} and {stop} "
                               "(a damaged file?)")
         _check_polarity(self.name, p, start, stop)
+        if self.ms_to_idx is not None:
+            self._check_times(t, start, stop)
         for field, values in (("x", x), ("y", y)):
             if len(values) and (np.min(values) < 0 or np.max(values) > 32767 or
                                 (values.dtype.kind == "f" and not np.isfinite(values).all())):
@@ -256,6 +267,26 @@ class Hdf5Reader:
             words[:, 0] += self.t_offset_us
         words[:, 1] = second_words(x, y, on)
         return out
+
+    def _check_times(self, t: np.ndarray, start: int, stop: int) -> None:
+        """DSEC's ``ms_to_idx`` says where each millisecond starts (``t[ms_to_idx[ms]] >= 1000 ms >
+        t[ms_to_idx[ms] - 1]``, times after ``t_offset``): the times read (``t``, events ``start:stop``) must agree
+        wherever an entry points into them, else a damaged chunk of ``t`` (decoded as zeros, say) would be read as
+        other events. One comparison an entry: the index has one a millisecond."""
+        index = self.ms_to_idx
+        first, last = np.searchsorted(index, [start, stop], side="left")
+        ms = np.arange(first, min(last + 1, len(index)), dtype=np.int64)
+        at = index[ms]
+        t = np.asarray(t, dtype=np.int64)
+        inside = (at >= start) & (at < stop)
+        before = (at > start) & (at <= stop)
+        wrong = np.zeros(len(ms), dtype=bool)
+        wrong[inside] |= t[at[inside] - start] < 1000 * ms[inside]
+        wrong[before] |= t[at[before] - 1 - start] >= 1000 * ms[before]
+        if wrong.any():
+            k = int(np.argmax(wrong))
+            raise FormatError(f"{self.name}: the event times near event {int(at[k])} disagree with ms_to_idx (ms "
+                              f"{int(ms[k])}): a damaged file?")
 
     def _read_prophesee(self, start: int, stop: int) -> np.ndarray:
         """Events ``start:stop`` of ``CD/events``; with ECF, ``start`` on a chunk boundary: whole chunks are

@@ -235,3 +235,27 @@ def test_polarities_other_than_on_and_off_are_refused(tmp_path):
         del file["events/p"]
         file["events/p"] = np.array([1.0, 0.5, 1.0, 0.0])
     assert_clean_error(run("info", tmp_path / "d.h5", check=False), "d.h5", "polarities other than")
+
+
+def test_a_damaged_time_chunk_disagrees_with_ms_to_idx_and_is_refused(tmp_path):
+    """Issue 37 item 5: a damaged chunk of t decoded as zeros was read as 30,000 events at one time, exit 0. The
+    DSEC layout's ms_to_idx says where each millisecond starts: times that disagree are refused naming the file;
+    undamaged files (written by evtools, read in any chunk size) pass the check."""
+    from evtools.events import StreamInfo, make_events
+    from evtools.formats import create_events
+
+    rng = np.random.default_rng(0)
+    n = 50_000
+    events = make_events(np.sort(rng.integers(0, 2_000_000, n)), rng.integers(0, 64, n), rng.integers(0, 48, n),
+                         rng.integers(0, 2, n))
+    path = tmp_path / "d.h5"
+    with create_events(str(path), StreamInfo(64, 48)) as writer:
+        writer.write(events)
+    for chunk_events in (1000, 7777, 1 << 20):
+        _, back = read_all(path, chunk_events=chunk_events)
+        assert np.array_equal(back["t"], events["t"])
+    with h5py.File(path, "r+") as file:
+        t = file["events/t"]
+        t[20_000:30_000] = np.full(10_000, t[20_000])  # a run of one time where the events spread over ~400 ms
+    with pytest.raises(FormatError, match=r"d\.h5.*ms_to_idx"):
+        read_all(path)
