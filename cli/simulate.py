@@ -3,6 +3,7 @@ labelled noise added to an event stream."""
 
 from __future__ import annotations
 
+import contextlib
 import inspect
 import json
 import logging
@@ -21,6 +22,7 @@ from evtools.cli.options import (FINITE, Duration, FiniteRange, aedat2_layout_op
                                  compression_option, input_format_option)
 from evtools.cli.progress import with_progress
 from evtools.events import CHUNK_EVENTS, MAX_TIME_US, StreamInfo, join, parse_sensor_size
+from evtools.formats.errors import FormatError
 from evtools.noise import NOISE_DEFAULTS, NoiseInjector
 from evtools.simulation import (
     DEFAULT_PARAMETERS,
@@ -506,12 +508,24 @@ def simulate(source, output, output_format, truth, truth_frame_rate, input_forma
         else:
             import h5py
 
-            with output_stream(truth, binary_name="HDF5", needs_seek=True) as stream, h5py.File(stream, "w") as h5:
+            with _truth_errors(truth), output_stream(truth, binary_name="HDF5", needs_seek=True) as stream, \
+                    h5py.File(stream, "w") as h5:
                 _start_truth(h5, simulator, frames, preset)
                 rate_hz = TRUTH_FRAME_RATE_HZ if truth_frame_rate is None else truth_frame_rate
                 _run(simulator, frames, writer, h5["label"], counts,
                      _LogFrames(h5, frames, rate_hz) if rate_hz else None)
     _report(source, output, counts, as_json)
+
+
+@contextlib.contextmanager
+def _truth_errors(truth: str):
+    """A failed write of the truth file (a full disk) is an error naming it (HDF5's own said only 'No space left')."""
+    try:
+        yield
+    except (FormatError, BrokenPipeError):
+        raise
+    except OSError as error:
+        raise FormatError(f"{truth}: cannot write the truth ({error.strerror or error})") from None
 
 
 def _start_truth(h5, simulator: DvsSimulator, frames: FrameSource, preset: str | None) -> None:
@@ -660,7 +674,8 @@ def _inject_into(source, output, written_as, truth, preset, seed, parameters, st
                 return
             import h5py
 
-            with output_stream(truth, binary_name="HDF5", needs_seek=True) as file, h5py.File(file, "w") as h5:
+            with _truth_errors(truth), output_stream(truth, binary_name="HDF5", needs_seek=True) as file, \
+                    h5py.File(file, "w") as h5:
                 h5.create_dataset("hot_pixels", data=injector.hot_pixels)
                 h5.create_dataset("leak_rate_hz", data=injector.leak_rate_map_hz.astype(np.float32))
                 h5.create_dataset(

@@ -267,3 +267,14 @@ def test_an_inferred_sensor_larger_than_any_camera_is_refused(tmp_path):
     done = run("bafilter", source, "-o", tmp_path / "x.aedat4", check=False)
     assert_clean_error(done, "three.csv", "--sensor-size")
     run("bafilter", source, "--sensor-size", "8192x4", "-o", tmp_path / "x.aedat4")
+
+
+def test_a_truth_file_on_a_full_disk_names_it(small_disk, tmp_path):
+    """Issue 37 item 11: simulate --truth on a full disk did not name the file; the events go elsewhere."""
+    filler = small_disk / "filler"
+    filler.write_bytes(bytes(240 * 1024))
+    done = run("simulate", "scene:flicker", "--size", "64x48", "--duration", "2s", "--truth", small_disk / "t.h5",
+               "-o", tmp_path / "s.aedat4", check=False)
+    assert done.returncode == 1 and "Traceback" not in done.stderr.decode()
+    assert str(small_disk / "t.h5") in done.stderr.decode(), done.stderr.decode()
+    assert sorted(os.listdir(small_disk)) == ["filler"]
