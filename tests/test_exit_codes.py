@@ -5,6 +5,9 @@ option is one too; a missing input is a data error (exit 1, one line naming the 
 
 from __future__ import annotations
 
+import signal
+import subprocess
+import sys
 from pathlib import Path
 
 import click
@@ -173,3 +176,14 @@ def test_a_picture_too_large_and_a_full_device_are_named(tmp_path):
     assert list(tmp_path.iterdir()) == []
     assert_clean_error(run("convert", data_file("dvxplorer_sample.aedat4"), "-o", "/dev/full", check=False),
                        "/dev/full: cannot write (No space left on device)")
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_stop_while_the_command_line_is_imported_is_one_line(signum):
+    """Issue 37 item 7: SIGINT in the first ~0.1 s (imports) printed a KeyboardInterrupt traceback and SIGTERM
+    took its default action; the console script now handles both before it imports the command line."""
+    code = ("import os, signal, time; from evtools.cli import stop_early; "
+            "signal.signal(signal.SIGINT, stop_early); signal.signal(signal.SIGTERM, stop_early); "
+            f"os.kill(os.getpid(), {int(signum)}); time.sleep(5)")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=30)
+    assert done.returncode == 128 + signum and done.stderr == "evtools: interrupted\n"

@@ -34,7 +34,7 @@ def test_the_wheel_has_one_top_level_package(tmp_path):
     assert "evtools/_kernels/correct.py" in names and "evtools/metrics/thresholds.py" in names
     assert "evtools/estimation.py" in names and "evtools/estimate.py" not in names
     entry_points = next(n for n in names if n.endswith("entry_points.txt"))
-    assert "evtools = evtools.cli.main:main" in zipfile.ZipFile(wheel).read(entry_points).decode()
+    assert "evtools = evtools.cli:run" in zipfile.ZipFile(wheel).read(entry_points).decode()
 
 
 def _child(code: str, **environment) -> str:
