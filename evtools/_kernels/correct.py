@@ -30,8 +30,10 @@ With ``turns`` (on in the ``turns`` and ``highpass`` modes of the corrector) the
   lines meet beyond the true extremum and re-sampling the overshoot invents events; a run of one event; a
   meeting point the pixel would have fired at) the extremum is the expected value over the consistent interval,
   half the run's threshold beyond its last level, reached at the time the two runs' slopes (scaled to fill the
-  gap) put it. A reversal over a rest gets the same excursion, at the event's time. The first ramp is extended
-  back to the start level along its line.
+  gap) put it. A reversal over a rest, and every pixel when the stream ends (:func:`finish_runs`), get the run's
+  expected excess (:func:`_run_excess`: half a threshold; after a slowing run with ``curves``, its approach's rest;
+  none after a re-sampled tail) at the run's slope after its last event, no earlier than three windows before the
+  event (the latency with turns). The first ramp is extended back to the start level along its line.
 
 Every re-sampled event lies after the start of the segment it belongs to: the pixel's previous event, or
 ``max(origin, t_j - max_gap_us)``; a waiting segment starts at most ``window_us`` before its event and waits at
