@@ -77,5 +77,6 @@ def convert_one(input, output, *, input_format, sensor_size, aedat2_layout, outp
                 events_out += len(chunk)
                 if transform and transform.done:  # past --end: the rest of the input is not read
                     break
+            writer.cut = getattr(stream, "was_cut", False)  # a cut input's output ends without the end mark too
     log.info(f"convert: {events_in:,} events in, {events_out:,} out")
     return events_in, events_out

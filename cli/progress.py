@@ -49,4 +49,5 @@ def process_stream(stream, processor, writer, label: str) -> tuple[int, int]:
     rest = processor.flush()
     if len(rest):
         writer.write(rest)
+    writer.cut = getattr(stream, "was_cut", False)  # a cut input's output ends without the end mark too
     return events_in, events_out + len(rest)

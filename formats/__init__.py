@@ -52,6 +52,12 @@ class EventStream:
         self.cut: FormatError | None = None  # a network stream's error, raised on closing (see _chunks)
         self.closed = False
 
+    @property
+    def was_cut(self) -> bool:
+        """Whether the stream, read to its end, turned out cut (a file whose writer promised an end mark and that
+        ends without it: read with a warning); a command's output of it is then left without the end mark too."""
+        return bool(getattr(self.reader, "cut_file", False))
+
     def __iter__(self) -> Iterator[np.ndarray]:
         return read_ahead(self._chunks(), READ_AHEAD)
 
@@ -241,6 +247,9 @@ def create_events(
         writer = WriteBehind(_NamedWriter(target, _named(target, writer_class, stream, info, options), stream, live))
         try:
             yield writer
+            if writer.cut:  # the input turned out cut: the output says so by ending without the end mark
+                writer.abort()
+                return
         except BaseException:
             # release the writer's hold on the stream (h5py crashes if its file object closes first) without
             # marking the stream's end: what went out to a pipe, a FIFO or a socket reads as cut, not as whole; a

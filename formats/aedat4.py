@@ -317,6 +317,7 @@ class Aedat4Reader:
         if self.source.live:
             raise FormatError(message)
         logging.getLogger("evtools").warning(message)
+        self.cut_file = True  # (a stage's output then ends without the end mark too: see EventStream.was_cut)
 
     def _packet_waits(self) -> bool:
         """True when the next packet of a live input has arrived whole (reading it would not wait)."""

@@ -278,3 +278,25 @@ def test_a_truth_file_on_a_full_disk_names_it(small_disk, tmp_path):
     assert done.returncode == 1 and "Traceback" not in done.stderr.decode()
     assert str(small_disk / "t.h5") in done.stderr.decode(), done.stderr.decode()
     assert sorted(os.listdir(small_disk)) == ["filler"]
+
+
+@pytest.mark.parametrize("name", ["convert", "bafilter", "correct"])
+def test_a_cut_file_input_gives_an_output_that_reads_as_cut(tmp_path, stream, name):
+    """Issue 37 item 2, its file half: a file whose end mark is missing is read with a warning; the output of a
+    stage then ends without the end mark too, so the next reader warns as well (it looked complete)."""
+    from evtools.formats.aedat4 import Aedat4Writer
+    from evtools.formats.registry import WriteOptions
+
+    events, info = evtools.read(stream[0])
+    cut = tmp_path / "cut.aedat4"
+    with open(cut, "wb") as file:
+        writer = Aedat4Writer(file, info, WriteOptions())
+        writer.write(events[: len(events) // 2])
+        writer.abort()  # no end mark: a writer killed between two packets
+    output = tmp_path / "out.aedat4"
+    done = run(name, cut, *_options(name, stream), "-o", output)
+    assert "ends without the end mark" in done.stderr.decode()
+    assert "ends without the end mark" in run("info", output).stderr.decode()
+    whole = tmp_path / "whole.aedat4"
+    run(name, stream[0], *_options(name, stream), "-o", whole)
+    assert "end mark" not in run("info", whole).stderr.decode()
