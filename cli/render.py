@@ -38,6 +38,9 @@ IMAGE_EXTENSIONS = {".png": "PNG image", ".jpg": "JPEG image", ".jpeg": "JPEG im
 as a raster image the size of the upscaled frame (pixels stay sharp: no smoothing)."""
 MANY_FRAMES = 18_000
 """A video reaching this many frames (10 minutes at 30 fps) gets a warning naming --window-us."""
+MAX_FRAMES = 1_000_000
+"""A video is refused when it would pass this many frames (9 hours at 30 fps; ``--window-us 1`` made a frame for
+every microsecond of stream, without end): the error names the count and --window-us, nothing is left."""
 VIDEO_FOURCC = {".mp4": ("avc1", "mp4v"), ".avi": ("MJPG",)}
 """Video containers by extension and the codecs OpenCV's FFmpeg backend may write into each, the first it can
 open taken: H.264 (``avc1``) where the OpenCV build has an encoder for it (the PyPI wheels do not: patents), else
@@ -311,6 +314,9 @@ def _render_video(chunks, stream, framer: EventFramer, output: str, extension: s
                     image = _captioned(image, framer, window_start_us)
                 encoder.write(_even(image, background_bgr))
                 count += 1
+                if count > MAX_FRAMES:
+                    raise RenderError(f"{output}: more than {MAX_FRAMES:,} frames, one per --window-us "
+                                      f"{framer.window_us} us; give a larger --window-us (or --start / --end)")
                 if count == MANY_FRAMES:
                     log.warning("%s: %d frames so far, one per --window-us %d us: the video will play for more than "
                                 "%.0f minutes at %g fps (a larger --window-us makes it shorter)", output, count,

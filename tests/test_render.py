@@ -466,3 +466,19 @@ def test_frames_and_maps_as_svg_and_pdf_for_papers(tmp_path):
         tmp_path / "x.aedat4")
     run("render", "--map", truth, "-o", tmp_path / "map.pdf")
     assert (tmp_path / "map.pdf").read_bytes().startswith(b"%PDF")
+
+
+def test_a_video_of_more_frames_than_the_limit_is_refused(tmp_path, monkeypatch):
+    """Issue 37 item 8: `render -o x.mp4 --window-us 1` made a frame for every microsecond of stream; a video
+    passing MAX_FRAMES (lowered here) is refused naming the count and --window-us, nothing left."""
+    from click.testing import CliRunner
+
+    import evtools.cli.render as render_module
+    from evtools.cli.main import cli
+
+    monkeypatch.setattr(render_module, "MAX_FRAMES", 50)
+    source = tmp_path / "s.aedat4"
+    run("simulate", "scene:bars", "--size", "16x12", "--duration", "200ms", "--seed", "1", "-o", source)
+    result = CliRunner().invoke(cli, ["render", str(source), "-o", str(tmp_path / "x.mp4"), "--window-us", "1000"])
+    assert result.exit_code == 1 and "more than 50 frames" in result.output, result.output
+    assert not (tmp_path / "x.mp4").exists() and [p.name for p in tmp_path.iterdir()] == ["s.aedat4"]
