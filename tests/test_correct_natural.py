@@ -55,9 +55,9 @@ def run(draw, sigma, error, seed):
 
 
 def drawn(test):
-    """Every test here: 12 scenes drawn, each with its own threshold maps (no explain phase: its tracer made a
+    """Every test here: 8 scenes drawn, each with its own threshold maps (no explain phase: its tracer made a
     failing draw take minutes)."""
-    return settings(max_examples=12, deadline=None,
+    return settings(max_examples=8, deadline=None,
                     suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much],
                     phases=[Phase.explicit, Phase.reuse, Phase.generate, Phase.shrink])(
         given(draw=scene, seed=st.integers(0, 1000))(test))
