@@ -3,10 +3,13 @@ dead pixels, exactness on an ideal pixel, accuracy on the report's scenes, the C
 
 from __future__ import annotations
 
+import array
+import fcntl
 import json
 import math
 import subprocess
 import sys
+import termios
 import time
 from pathlib import Path
 
@@ -989,7 +992,12 @@ def test_an_online_run_stopped_midway_keeps_its_maps(tmp_path, monkeypatch):
                                stderr=subprocess.PIPE)
     process.stdin.write(data[:len(data) * 3 // 4])
     process.stdin.flush()
-    time.sleep(1.0)
+    waiting = array.array("i", [1])
+    deadline = time.monotonic() + 120
+    while waiting[0] and time.monotonic() < deadline:  # until the command has read the first part (however busy
+        fcntl.ioctl(process.stdin.fileno(), termios.FIONREAD, waiting)  # the machine): its chunk ends there
+        time.sleep(0.05)
+    time.sleep(0.2)
     process.stdin.write(data[len(data) * 3 // 4:])
     process.stdin.close()
     message = process.stderr.read().decode()
