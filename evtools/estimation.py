@@ -634,9 +634,7 @@ class ThresholdEstimator:
             maps = self._series + [(self.t_last_us + 1, np.where(valid.reshape(on.shape), on, np.nan),
                                     np.where(valid.reshape(on.shape), off, np.nan), valid.reshape(on.shape),
                                     final_fit)]
-            series = ThresholdSeries(np.array([m[0] for m in maps], dtype=np.int64),
-                                     *(np.stack([m[k] for m in maps]).astype(np.float32) for k in (1, 2)),
-                                     np.stack([m[3] for m in maps]), np.stack([m[4] for m in maps]).astype(np.float32))
+            series = _series_of(maps)
             attributes["maps"] = len(maps)
             if self.method == "stimulus":
                 attributes["reacquired"] = self.reacquired
@@ -645,12 +643,7 @@ class ThresholdEstimator:
     def maps_so_far(self) -> ThresholdSeries | None:
         """Online: the maps taken so far (each complete at its time), or None before the first; what is left of a
         run that stops midway (an error in the stream)."""
-        if not self._series:
-            return None
-        maps = self._series
-        return ThresholdSeries(np.array([m[0] for m in maps], dtype=np.int64),
-                               *(np.stack([m[k] for m in maps]).astype(np.float32) for k in (1, 2)),
-                               np.stack([m[3] for m in maps]), np.stack([m[4] for m in maps]).astype(np.float32))
+        return _series_of(self._series) if self._series else None
 
     def finish(self) -> ThresholdEstimate:
         """Alias of :meth:`result`."""
@@ -808,6 +801,13 @@ def _relative_to_neighbours(inverse: np.ndarray, usable: np.ndarray, radius_px: 
         mean = _around(total, radius_px) / neighbours
         relative = np.where(usable[..., None], 2.0 * inverse / mean[..., None], np.nan)
     return relative, np.round(neighbours)
+
+
+def _series_of(maps: list) -> ThresholdSeries:
+    """The online maps (time, on, off, valid, fit each) as one :class:`ThresholdSeries`."""
+    return ThresholdSeries(np.array([m[0] for m in maps], dtype=np.int64),
+                           *(np.stack([m[k] for m in maps]).astype(np.float32) for k in (1, 2)),
+                           np.stack([m[3] for m in maps]), np.stack([m[4] for m in maps]).astype(np.float32))
 
 
 def _excitation_gradient(inverse: np.ndarray, usable: np.ndarray, radius_px: int) -> np.ndarray:
