@@ -5,9 +5,13 @@ from __future__ import annotations
 import numpy as np
 
 from evtools.events import EVENT_DTYPE, concatenate, make_events
+import fcntl
 import io
+import struct
 import subprocess
 import sys
+import termios
+import time
 from pathlib import Path
 
 from evtools.formats import WriteOptions, open_events
@@ -70,3 +74,43 @@ def assert_clean_error(result: subprocess.CompletedProcess, *needles: str) -> No
     for needle in needles:
         assert needle in stderr, stderr
     assert result.stdout == b""
+
+
+def wait_until(condition, what: str, timeout_s: float = 60.0, poll_s: float = 0.02) -> None:
+    """Waits for a state, not for a time (a busy machine may take any time to reach it); fails after
+    ``timeout_s``, a bound far above any time the state needs."""
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout_s:g} s waiting for {what}")
+        time.sleep(poll_s)
+
+
+def unread_bytes(pipe) -> int:
+    """Bytes written into a pipe and not yet read from it (the test keeps its own copy of the read end)."""
+    return struct.unpack("i", fcntl.ioctl(pipe.fileno(), termios.FIONREAD, b"\0\0\0\0"))[0]
+
+
+def _idle(pid: int) -> bool:
+    """Every thread of the process sleeps in the kernel (waits for input, a lock or a timer: none is working)."""
+    try:
+        return all((task / "stat").read_text().rsplit(")", 1)[1].split()[0] == "S"
+                   for task in Path(f"/proc/{pid}/task").iterdir())
+    except OSError:
+        return False
+
+
+def wait_until_waiting_for_input(process: subprocess.Popen, *pipes) -> None:
+    """Waits until ``process`` has read everything in ``pipes`` (read ends the test still holds) and waits for more:
+    every thread asleep, three polls in a row."""
+    settled = [0]
+
+    def waiting() -> bool:
+        assert process.poll() is None, f"{process.args} exited early: {process.returncode}"
+        if all(unread_bytes(pipe) == 0 for pipe in pipes) and _idle(process.pid):
+            settled[0] += 1
+        else:
+            settled[0] = 0
+        return settled[0] >= 3
+
+    wait_until(waiting, f"{process.args[1:4]} to wait for input", poll_s=0.05)

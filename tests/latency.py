@@ -20,6 +20,7 @@ import numpy as np
 
 from evtools.formats.aedat4 import Aedat4Writer
 from evtools.formats.registry import WriteOptions
+from tests.helpers import wait_until_waiting_for_input
 
 EVTOOLS = str(Path(sys.executable).with_name("evtools"))
 
@@ -76,7 +77,8 @@ def pipeline_latency_ms(stages: list[list[str]], header: bytes, packets: list[by
     source = processes[0].stdin
     source.write(header)
     source.flush()
-    time.sleep(1.0)  # every stage started (imports done) before the clock starts
+    for process in processes:  # every stage started (imports done, the header read) before the clock starts
+        wait_until_waiting_for_input(process)
     start = time.monotonic()
     sent_s = np.empty(len(packets))
     for index, packet in enumerate(packets):

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 import evtools
-from tests.helpers import assert_clean_error, assert_same_events, run
+from tests.helpers import assert_clean_error, assert_same_events, run, wait_until_waiting_for_input
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLES = ROOT / "samples"
@@ -59,10 +59,12 @@ def _feed(path: Path, fraction: float) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, "-c", HOLD, str(path), str(fraction)], stdout=subprocess.PIPE)
 
 
-def _stage(name: str, output: Path, feed: subprocess.Popen, extra: list[str]) -> subprocess.Popen:
+def _stage(name: str, output: Path, feed: subprocess.Popen, extra: list[str], keep_pipe=False) -> subprocess.Popen:
+    """``evtools NAME - ... -o OUTPUT`` reading ``feed``; the test keeps its copy of the pipe's read end if asked."""
     process = subprocess.Popen([EVTOOLS, "-q", name, "-", *extra, "-o", str(output)], stdin=feed.stdout,
                                stderr=subprocess.PIPE, text=True, cwd=ROOT)
-    feed.stdout.close()
+    if not keep_pipe:
+        feed.stdout.close()
     return process
 
 
@@ -76,10 +78,10 @@ def test_sigterm_while_waiting_on_a_pipe_stops_cleanly(tmp_path, stream, name):
     it wrote is complete (an event file readable, and a prefix of the whole run's events where it is a filter)."""
     output = tmp_path / f"out{STREAM_COMMANDS[name][1]}"
     feed = _feed(stream[0], 0.5)
-    stage = _stage(name, output, feed, _options(name, stream))
+    stage = _stage(name, output, feed, _options(name, stream), keep_pipe=True)
     try:
-        time.sleep(2.5)
-        assert stage.poll() is None, stage.stderr.read()
+        wait_until_waiting_for_input(stage, feed.stdout)
+        feed.stdout.close()
         stage.send_signal(15)
         assert stage.wait(timeout=30) == 143
     finally:
