@@ -53,7 +53,7 @@ demo: $(VENV)/.installed
 
 # the slowest tests are listed at the end: the whole run is to stay under 10 minutes on 2 cores
 test: $(VENV)/.installed-test
-	$(BIN)/python -m pytest -q --durations=15
+	$(BIN)/python -m pytest -q -n 2 --durations=15
 
 # the readers against 2,000 mutants of every format, each format in a child under a memory and time limit
 fuzz: $(VENV)/.installed-test
