@@ -9,10 +9,12 @@ import logging
 import os
 import signal
 import sys
+import threading
 
 import click
 
 from evtools import __version__, interrupt
+from evtools.cli import stop_late
 from evtools.errors import EvtoolsError
 
 EXIT_ERROR = 1
@@ -191,6 +193,9 @@ def main() -> None:
             os._exit(done.code if isinstance(done.code, int) else 1)
         raise
     finally:
+        if threading.current_thread() is threading.main_thread():  # the work is done: a late stop just ends
+            signal.signal(signal.SIGINT, stop_late)
+            signal.signal(signal.SIGTERM, stop_late)
         # When numba is loaded (a kernel compiled, or an argument only numba takes), Python's last garbage
         # collections walk every object it created (~0.2 s per process, measured with `time`); frozen objects are
         # skipped. Files are closed and flushed as usual.

@@ -18,6 +18,7 @@ import threading
 _received: int | None = None  # the first stop signal, once one came
 _streams = 0  # how many streams are being consumed (a stop then ends them rather than aborting)
 _waiting = False  # the main thread waits for input: a stop ends the wait
+_deferring = 0  # how many outputs are being committed (a stop then waits until they are)
 
 
 class StopReading(BaseException):
@@ -27,6 +28,10 @@ class StopReading(BaseException):
 
 def _handle(signum, frame) -> None:
     global _received
+    if _deferring:  # an output is being committed: it ends complete, then the command stops (exit 128 + signal)
+        if _received is None:
+            _received = signum
+        return
     if _received is None and _streams:
         _received = signum
         if _waiting:
@@ -65,6 +70,19 @@ def consuming():
         yield
     finally:
         _streams -= 1
+
+
+@contextlib.contextmanager
+def deferred():
+    """While an output is committed (its last blocks written, its file closed), a stop signal waits until it is: an
+    exception raised inside HDF5's writes through a Python file object leaves the library in a state that crashes the
+    process (SIGSEGV). The command then stops as after a stream ended early (exit 128 + signal)."""
+    global _deferring
+    _deferring += 1
+    try:
+        yield
+    finally:
+        _deferring -= 1
 
 
 @contextlib.contextmanager

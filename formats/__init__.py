@@ -10,6 +10,7 @@ from typing import Iterator
 
 import numpy as np
 
+from evtools import interrupt
 from evtools.events import CHUNK_EVENTS, StreamChecker, StreamInfo, concatenate
 from evtools.formats.errors import FormatError
 from evtools.formats.io import (
@@ -244,17 +245,21 @@ def create_events(
     writer_class = fmt.writer_class()
     with output_stream(path, binary_name=fmt.description, needs_seek=fmt.writer_needs_seek) as stream:
         live = getattr(stream, "network", False) or is_live(stream)
-        writer = WriteBehind(_NamedWriter(target, _named(target, writer_class, stream, info, options), stream, live))
+        with interrupt.deferred():  # a writer half made (HDF5's file, its datasets) cannot be released cleanly
+            writer = WriteBehind(_NamedWriter(target, _named(target, writer_class, stream, info, options), stream,
+                                              live))
         try:
             yield writer
             if writer.cut:  # the input turned out cut: the output says so by ending without the end mark
-                writer.abort()
+                with interrupt.deferred():
+                    writer.abort()
                 return
         except BaseException:
             # release the writer's hold on the stream (h5py crashes if its file object closes first) without
             # marking the stream's end: what went out to a pipe, a FIFO or a socket reads as cut, not as whole; a
             # half-written temporary file is then deleted by output_stream
-            with contextlib.suppress(Exception):
+            with contextlib.suppress(Exception), interrupt.deferred():
                 writer.abort()
             raise
-        writer.close()
+        with interrupt.deferred():
+            writer.close()
