@@ -508,8 +508,9 @@ def simulate(source, output, output_format, truth, truth_frame_rate, input_forma
         else:
             import h5py
 
+            # a stop waits for the truth file's writes (inside them it would crash HDF5); the loop then stops
             with _truth_errors(truth), output_stream(truth, binary_name="HDF5", needs_seek=True) as stream, \
-                    h5py.File(stream, "w") as h5:
+                    interrupt.deferred(), h5py.File(stream, "w") as h5:
                 _start_truth(h5, simulator, frames, preset)
                 rate_hz = TRUTH_FRAME_RATE_HZ if truth_frame_rate is None else truth_frame_rate
                 _run(simulator, frames, writer, h5["label"], counts,
@@ -675,7 +676,7 @@ def _inject_into(source, output, written_as, truth, preset, seed, parameters, st
             import h5py
 
             with _truth_errors(truth), output_stream(truth, binary_name="HDF5", needs_seek=True) as file, \
-                    h5py.File(file, "w") as h5:
+                    interrupt.deferred(), h5py.File(file, "w") as h5:
                 h5.create_dataset("hot_pixels", data=injector.hot_pixels)
                 h5.create_dataset("leak_rate_hz", data=injector.leak_rate_map_hz.astype(np.float32))
                 h5.create_dataset(

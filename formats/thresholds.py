@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from evtools import interrupt
 from evtools.formats.errors import FormatError
 from evtools.formats.io import output_stream
 
@@ -144,8 +145,8 @@ def write_thresholds(path: str, thresholds: ThresholdMap) -> None:
 
     from evtools.formats.hdf5 import abandon
 
-    with output_stream(path, binary_name="HDF5", needs_seek=True) as stream:
-        h5 = h5py.File(stream, "w")
+    with output_stream(path, binary_name="HDF5", needs_seek=True) as stream, interrupt.deferred():
+        h5 = h5py.File(stream, "w")  # (a stop inside HDF5's writes would crash it: it waits until the file is made)
         try:
             _fill(h5, thresholds)
             h5.close()  # HDF5 writes its blocks through the stream here: a full disk fails here
