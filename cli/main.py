@@ -113,6 +113,15 @@ def _max_latency(ctx, param, value):
     return value
 
 
+def _timeout(ctx, param, value):
+    if value is not None:
+        from evtools.cli.options import Duration
+        from evtools.formats import io
+
+        io.TCP_READ_TIMEOUT_S = io.TCP_CONNECT_TIMEOUT_S = Duration(minimum_us=1000).convert(value, param, ctx) / 1e6
+    return value
+
+
 class EvtoolsGroup(LazyGroup):
     """Runs a subcommand; an :class:`EvtoolsError` becomes one line on stderr and exit code 1, never a traceback."""
 
@@ -153,7 +162,10 @@ class EvtoolsGroup(LazyGroup):
               help="How long a live input's (pipe, socket, tcp://) first waiting events may be held while more "
                    "keep arriving (they then go on together); nothing waits when no more has arrived. "
                    "[default: 20ms]")
-def cli(quiet: bool, verbose: bool, max_latency) -> None:
+@click.option("--timeout", metavar="TIME", default=None, callback=_timeout,
+              help="How long a network input (tcp://) may take to connect and may then stay silent before it is an "
+                   "error. [default: 10s to connect, 60s of silence]")
+def cli(quiet: bool, verbose: bool, max_latency, timeout) -> None:
     """Event-camera (DVS) noise toolkit: read, convert, simulate, filter, estimate and correct event streams.
 
     Every command reads a path or `-` (stdin) and writes `-o PATH` or stdout; pipes carry AEDAT 4.0.

@@ -71,7 +71,9 @@ class _PrefixedRaw(io.RawIOBase):
 
 TCP_READ_TIMEOUT_S = 60.0
 """A network input (``tcp://``) that sends nothing for this long is an error naming it (a server that accepts and
-never sends made evtools wait forever; connecting has its own 10 s)."""
+never sends made evtools wait forever). The command line's ``--timeout`` sets it."""
+TCP_CONNECT_TIMEOUT_S = 10.0
+"""How long connecting to a network input may take (``--timeout`` sets it too)."""
 
 
 class _NetworkRaw(io.RawIOBase):
@@ -93,7 +95,7 @@ class _NetworkRaw(io.RawIOBase):
             return self._raw.readinto(buffer)
         except TimeoutError:
             raise FormatError(f"{self._name}: no data for {TCP_READ_TIMEOUT_S:g} s; the server is connected but "
-                              "sends nothing") from None
+                              "sends nothing (--timeout sets how long to wait)") from None
         except ConnectionResetError:
             raise FormatError(f"{self._name}: the server reset the connection mid-stream (the stream is cut)") from None
 
@@ -217,11 +219,11 @@ def _connect(name: str):
 
     host, port = tcp_address(name)
     try:
-        connection = socket.create_connection((host or "localhost", port), timeout=10)
+        connection = socket.create_connection((host or "localhost", port), timeout=TCP_CONNECT_TIMEOUT_S)
     except socket.gaierror as error:
         raise FormatError(f"{name}: unknown host ({error.strerror})") from None
     except TimeoutError:
-        raise FormatError(f"{name}: no answer within 10 s") from None
+        raise FormatError(f"{name}: no answer within {TCP_CONNECT_TIMEOUT_S:g} s (--timeout)") from None
     except OSError as error:
         raise FormatError(f"{name}: cannot connect ({error.strerror or error})") from None
     connection.settimeout(None)

@@ -284,3 +284,24 @@ def test_a_server_that_sends_nothing_or_resets_is_an_error_naming_it(monkeypatch
                     pass
         finished.set()
         thread.join(5)
+
+
+def test_the_timeout_option_bounds_a_silent_server_from_the_command_line(tmp_path):
+    """`evtools --timeout 300ms info tcp://...` against a server that accepts and never sends: exit 1, one line
+    naming the address and the wait; a bad duration is a usage error (2)."""
+    import socket
+
+    listener = socket.socket()
+    listener.bind(("127.0.0.1", 0))
+    listener.listen(1)
+    port = listener.getsockname()[1]
+    try:
+        done = subprocess.run([*EVTOOLS, "--timeout", "300ms", "info", f"tcp://127.0.0.1:{port}"], capture_output=True,
+                              text=True, env=_environment(), cwd=ROOT, timeout=60)
+    finally:
+        listener.close()
+    assert done.returncode == 1 and "Traceback" not in done.stderr, done.stderr
+    assert f"127.0.0.1:{port}" in done.stderr and "no data for 0.3 s" in done.stderr, done.stderr
+    bad = subprocess.run([*EVTOOLS, "--timeout", "soon", "info", f"tcp://127.0.0.1:{port}"], capture_output=True,
+                         text=True, env=_environment(), cwd=ROOT)
+    assert bad.returncode == 2 and "--timeout" in bad.stderr
