@@ -22,6 +22,7 @@ True
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import itertools
 import os
 import tempfile
@@ -37,7 +38,7 @@ __all__ = [
     "simulate", "to_columns", "to_dv", "to_tonic", "write", "writer",
 ]
 
-def read(path: str | os.PathLike, **options) -> tuple[np.ndarray, StreamInfo]:
+def read(path: str | os.PathLike, *, frames: bool = False, **options) -> tuple:
     """Read a whole event file into memory.
 
     Parameters
@@ -54,7 +55,11 @@ def read(path: str | os.PathLike, **options) -> tuple[np.ndarray, StreamInfo]:
     -------
     events : ndarray of EVENT_DTYPE
     info : StreamInfo
-        Sensor size, format and what the file said about itself (``metadata``).
+        Sensor size, format and what the file said about itself (``metadata``; ``frame_size`` when it has APS
+        frames).
+    frames : list of evtools.Frame
+        Only with ``frames=True``: the APS frames (a DAVIS camera's intensity images) in the file's order, each
+        with its image and five times (:class:`evtools.Frame`); empty where the file has none.
 
     Examples
     --------
@@ -67,7 +72,10 @@ def read(path: str | os.PathLike, **options) -> tuple[np.ndarray, StreamInfo]:
     (4, 2, [0, 5, 5], [1, 2, 3])
     """
     with open(path, **options) as stream:
-        return stream.read_all(), stream.info
+        events = stream.read_all()
+        if frames:
+            return events, stream.info, stream.take_frames()
+        return events, stream.info
 
 
 def open(path: str | os.PathLike | None = None, **options):  # noqa: A001 - the name users expect (evtools.open)
@@ -90,7 +98,7 @@ def open(path: str | os.PathLike | None = None, **options):  # noqa: A001 - the 
     return open_events(path, **options)
 
 
-def write(path: str | os.PathLike, events: np.ndarray, info: StreamInfo, **options) -> None:
+def write(path: str | os.PathLike, events: np.ndarray, info: StreamInfo, frames=(), **options) -> None:
     """Write ``events`` to ``path`` (atomically: the file appears complete or not at all).
 
     Parameters
@@ -100,12 +108,26 @@ def write(path: str | os.PathLike, events: np.ndarray, info: StreamInfo, **optio
         4.0).
     events : ndarray of EVENT_DTYPE
     info : StreamInfo
+    frames : sequence of evtools.Frame
+        APS frames to write among the events, each after the events before the end of its exposure (AEDAT 4.0;
+        other formats store none and say so). ``info.metadata["frame_size"]`` gives the frame stream's size;
+        without it, the sensor's.
     **options
         ``format`` (aedat4, aedat2, hdf5, csv, txt), ``compression`` (AEDAT 4.0: lz4, zstd, none; HDF5: the
         filter), ``aedat2_layout`` - the command line's output options.
     """
+    info = _stream_info(info)
+    frames = list(frames)
+    if frames and not info.metadata.get("frame_size"):
+        info = dataclasses.replace(info, metadata={**info.metadata, "frame_size": (info.width, info.height)})
     with writer(path, info, **options) as sink:
-        sink.write(events)
+        start = 0
+        for frame in frames:
+            end = int(np.searchsorted(events["t"], frame.order_us, "right"))
+            sink.write(events[start:end])
+            sink.write_frame(frame)
+            start = max(start, end)
+        sink.write(events[start:])
 
 
 @contextlib.contextmanager
@@ -146,7 +168,11 @@ class _CheckedSink:
         self.sink, self.checker = sink, StreamChecker(info)
 
     def write(self, chunk) -> None:
-        self.sink.write(self.checker.check(chunk))
+        if len(chunk):
+            self.sink.write(self.checker.check(chunk))
+
+    def write_frame(self, frame) -> None:
+        self.sink.write_frame(frame)
 
 
 def bafilter(events: np.ndarray, info: StreamInfo, method: str = "baf", **params) -> np.ndarray:

@@ -62,6 +62,21 @@ class EventStream:
     def __iter__(self) -> Iterator[np.ndarray]:
         return read_ahead(self._chunks(), READ_AHEAD)
 
+    def take_frames(self) -> list:
+        """The APS frames (:class:`evtools.frames.Frame`) read since the last call, in the order of the input (the
+        reader reads ahead of the chunks given out, so these may lie beyond the last chunk); all of them once the
+        stream has been read to its end."""
+        frames = getattr(self.reader, "frames", None)
+        taken = []
+        while frames:
+            taken.append(frames.popleft())
+        return taken
+
+    @property
+    def frames_read(self) -> int:
+        """APS frames read so far."""
+        return getattr(self.reader, "frames_read", 0)
+
     def _chunks(self) -> Iterator[np.ndarray]:
         try:
             for chunk in self.reader:
@@ -168,17 +183,30 @@ class _NamedWriter:
     """A writer whose errors name the output file (writers see only a stream); on a live output (a pipe, a socket,
     a FIFO) what each chunk brought is flushed at once (``flush()`` of the writer, else of the stream)."""
 
-    def __init__(self, target: str, writer, stream, live: bool) -> None:
-        self.target, self.writer = target, writer
+    def __init__(self, target: str, writer, stream, live: bool, description: str) -> None:
+        self.target, self.writer, self.description = target, writer, description
         self.flush = (getattr(writer, "flush", None) or stream.flush) if live else None
+        self.frames_left_out = 0
 
     def write(self, chunk: np.ndarray) -> None:
         _named(self.target, self.writer.write, chunk)
         if self.flush is not None:
             _named(self.target, self.flush)
 
+    def write_frame(self, frame) -> None:
+        """An APS frame, where the format stores frames (AEDAT 4.0, HDF5); elsewhere counted and said at the end."""
+        if not hasattr(self.writer, "write_frame"):
+            self.frames_left_out += 1
+            return
+        _named(self.target, self.writer.write_frame, frame)
+        if self.flush is not None:
+            _named(self.target, self.flush)
+
     def close(self) -> None:
         _named(self.target, self.writer.close)
+        if self.frames_left_out:
+            log.warning(f"{self.target}: {self.description} does not store APS frames: the input's "
+                        f"{self.frames_left_out:,} frames are left out (AEDAT 4.0 and HDF5 keep them)")
 
     def abort(self) -> None:
         """Release the writer without marking the stream's end (its ``abort``), or close it (formats without an
@@ -247,7 +275,7 @@ def create_events(
         live = getattr(stream, "network", False) or is_live(stream)
         with interrupt.deferred():  # a writer half made (HDF5's file, its datasets) cannot be released cleanly
             writer = WriteBehind(_NamedWriter(target, _named(target, writer_class, stream, info, options), stream,
-                                              live))
+                                              live, fmt.description))
         try:
             yield writer
             if writer.cut:  # the input turned out cut: the output says so by ending without the end mark

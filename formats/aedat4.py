@@ -29,6 +29,7 @@ from typing import BinaryIO, Iterator
 import numpy as np
 
 from evtools.events import EVENT_DTYPE, StreamInfo
+from evtools.frames import FORMAT_BGR, FORMAT_BGRA, FORMAT_GRAY, FORMAT_GRAY16, Frame, gray
 from evtools.formats import io as formats_io
 from evtools.formats.errors import FormatError
 from evtools.formats.io import Source
@@ -146,6 +147,51 @@ def _packet_layout(body: bytes, name: str, offset: int) -> tuple[int, int]:
     return vector + 4, count
 
 
+FRAME_DTYPES = {FORMAT_GRAY: (np.uint8, 1), FORMAT_GRAY16: (np.uint16, 1), FORMAT_BGR: (np.uint8, 3),
+                FORMAT_BGRA: (np.uint8, 4)}
+"""DV's pixel formats read: dtype and channels."""
+
+
+def _parse_frame(body: bytes, name: str, offset: int) -> Frame:
+    """One decompressed, size-prefixed ``FRME`` flatbuffer: ``table Frame { t, begin_t, end_t, exposure_begin_t,
+    exposure_end_t: int64; format: int8; width, height, offset_x, offset_y: int16; pixels: [uint8] }``."""
+    buffer = memoryview(body)
+    where = f"{name}: frame packet at byte {offset}"
+    try:
+        if bytes(buffer[8:12]) != b"FRME":
+            raise FormatError(f"{where} is not a FRME flatbuffer")
+        (root,) = struct.unpack_from("<I", buffer, 4)
+        fields = _table_fields(buffer, 4 + root) + (0,) * 11
+
+        def number(index: int, code: str) -> int:
+            return struct.unpack_from(code, buffer, fields[index])[0] if fields[index] else 0
+
+        times = [number(i, "<q") for i in range(5)]
+        pixel_format = number(5, "<b")
+        width, height, offset_x, offset_y = (number(i, "<h") for i in range(6, 10))
+        if not fields[10]:
+            raise FormatError(f"{where} has no pixels")
+        vector = fields[10] + struct.unpack_from("<I", buffer, fields[10])[0]
+        (count,) = struct.unpack_from("<I", buffer, vector)
+    except struct.error:
+        raise FormatError(f"{where} is corrupt or truncated") from None
+    if pixel_format not in FRAME_DTYPES:
+        raise FormatError(f"{where} has pixel format {pixel_format}; evtools reads gray (0), 16-bit gray (2), BGR "
+                          "(16) and BGRA (24)")
+    dtype, channels = FRAME_DTYPES[pixel_format]
+    if width <= 0 or height <= 0 or count != width * height * channels * np.dtype(dtype).itemsize:
+        raise FormatError(f"{where} holds {count:,} bytes of pixels for a {width} x {height} image of format "
+                          f"{pixel_format} (a damaged packet?)")
+    if vector + 4 + count > len(body):
+        raise FormatError(f"{where} is truncated")
+    pixels = np.frombuffer(body, dtype, width * height * channels, vector + 4).reshape(height, width, channels)
+    metadata = {}
+    if channels > 1:
+        metadata["converted_from"] = "BGR" if channels == 3 else "BGRA"
+    image = gray(pixels[:, :, 0] if channels == 1 else pixels, pixel_format).copy()
+    return Frame(image, times[0], times[3], times[4], times[1], times[2], offset_x, offset_y, metadata)
+
+
 def _copy_records(target: np.ndarray, events: np.ndarray) -> None:
     """Copy event records as 8-byte words (a structured copy goes field by field: 15x slower), padding zeroed."""
     words = target.view(np.uint64).reshape(-1, 2)
@@ -203,6 +249,10 @@ class Aedat4Reader:
             raise FormatError(f"{self.name}: AEDAT 4.0 file has no event stream")
         self.stream_id = event_ids[0]
         events = streams[self.stream_id]
+        frame_ids = sorted(i for i, s in streams.items() if s["type"] == "FRME")
+        self.frame_stream_id = frame_ids[0] if frame_ids else None
+        self.frames: deque[Frame] = deque()  # read, not yet taken (EventStream.take_frames): file order
+        self.frames_read = 0
         self.expects_end_mark = events["end_mark"]
         self._last_count: int | None = None  # events in the last event packet read (0: the end mark)
         try:
@@ -212,11 +262,18 @@ class Aedat4Reader:
         if from_file is None and options.sensor_size is None:
             raise FormatError(f"{self.name}: the event stream does not state its size; give --sensor-size WxH")
         width, height = formats_io.resolve_sensor_size(source, from_file, options.sensor_size)
-        skipped = sorted(s["name"] or s["type"] for i, s in streams.items() if i != self.stream_id)
+        skipped = sorted(s["name"] or s["type"] for i, s in streams.items()
+                         if i not in (self.stream_id, self.frame_stream_id))
         self.info = StreamInfo(
             width, height, "aedat4",
             {"source": events["source"], "compression": COMPRESSION_XML.get(code, str(code)), "skipped_streams": skipped},
         )
+        if self.frame_stream_id is not None:
+            frames = streams[self.frame_stream_id]
+            try:
+                self.info.metadata["frame_size"] = (int(frames["width"] or width), int(frames["height"] or height))
+            except ValueError:
+                raise FormatError(f"{self.name}: the frame stream's size is not a number") from None
 
     def _read_exact(self, n: int, what: str) -> bytes:
         data = formats_io.read_at_most(self.source.stream, n, self.source.seekable)
@@ -265,6 +322,9 @@ class Aedat4Reader:
                     raise FormatError(f"{self.name}: truncated AEDAT 4.0 packet at byte {offset} (its size field says "
                                       f"{size:,} bytes: the file was cut or damaged)")
                 if stream_id != self.stream_id:
+                    if stream_id == self.frame_stream_id and self.frame_stream_id is not None:
+                        self._read_frame(size, offset)
+                        continue
                     skipped_packets += 1
                     self._skip(size, offset)
                     continue
@@ -308,6 +368,28 @@ class Aedat4Reader:
         self.info.metadata["skipped_packets"] = skipped_packets
         if self.expects_end_mark and self._last_count != 0:
             self._cut()
+
+    def _read_frame(self, size: int, offset: int) -> None:
+        """A frame packet: decoded (at once: frames are few) and queued for :meth:`EventStream.take_frames`."""
+        body = self._read_packet(size, size, offset)
+        if self.decompress is not None:
+            try:
+                body = self.decompress(body)
+            except Exception as error:  # lz4 and zstandard raise their own types
+                raise FormatError(f"{self.name}: cannot decompress packet at byte {offset} ({error})") from None
+        frame = _parse_frame(body, self.name, offset)
+        size_stated = self.info.metadata["frame_size"]
+        if frame.offset_x < 0 or frame.offset_y < 0 or frame.offset_x + frame.width > size_stated[0] or \
+                frame.offset_y + frame.height > size_stated[1]:
+            raise FormatError(f"{self.name}: frame packet at byte {offset} is {frame.width} x {frame.height} at "
+                              f"({frame.offset_x}, {frame.offset_y}), outside the {size_stated[0]} x "
+                              f"{size_stated[1]} frame stream")
+        if self.frames_read and frame.order_us < self._last_frame_us:
+            raise FormatError(f"{self.name}: frame packet at byte {offset} ends its exposure at {frame.order_us} us, "
+                              f"before the frame before it ({self._last_frame_us} us): frames go back in time")
+        self._last_frame_us = frame.order_us
+        self.frames.append(frame)
+        self.frames_read += 1
 
     def _cut(self) -> None:
         """A stream whose writer promised an end mark ended without it: an error on a pipe or socket (the writer
@@ -433,7 +515,24 @@ aedat, faery) would parse the stream description."""
 
 
 def _description(info: StreamInfo, compression: int) -> str:
+    """The streams' XML: events (id 0) and, when ``info.metadata["frame_size"]`` says the stream has APS frames,
+    frames (id :data:`FRAME_STREAM_ID`)."""
     source = escape(_NOT_XML.sub("\ufffd", str(info.metadata.get("source") or "evtools")), quote=False)
+    frame_size = info.metadata.get("frame_size")
+    frames = "" if not frame_size else (
+        f'        <node name="{FRAME_STREAM_ID}" path="/mainloop/Recorder/outInfo/{FRAME_STREAM_ID}/">\n'
+        f'            <attr key="compression" type="string">{COMPRESSION_XML[compression]}</attr>\n'
+        '            <attr key="originalModuleName" type="string">evtools</attr>\n'
+        '            <attr key="originalOutputName" type="string">frames</attr>\n'
+        '            <attr key="typeDescription" type="string">Standard frame (8-bit image).</attr>\n'
+        '            <attr key="typeIdentifier" type="string">FRME</attr>\n'
+        f'            <node name="info" path="/mainloop/Recorder/outInfo/{FRAME_STREAM_ID}/info/">\n'
+        f'                <attr key="sizeX" type="int">{int(frame_size[0])}</attr>\n'
+        f'                <attr key="sizeY" type="int">{int(frame_size[1])}</attr>\n'
+        f'                <attr key="source" type="string">{source}</attr>\n'
+        '            </node>\n'
+        '        </node>\n'
+    )
     return (
         '<dv version="2.0">\n'
         '    <node name="outInfo" path="/mainloop/Recorder/outInfo/">\n'
@@ -450,9 +549,31 @@ def _description(info: StreamInfo, compression: int) -> str:
         f'                <attr key="{END_MARK_KEY}" type="string">true</attr>\n'
         '            </node>\n'
         '        </node>\n'
+        f'{frames}'
         '    </node>\n'
         '</dv>\n'
     )
+
+
+FRAME_STREAM_ID = 1
+"""The stream id of the frames the writer declares (DV's recordings number them 1 too)."""
+
+
+def _frame_body(frame: Frame) -> bytes:
+    """A size-prefixed ``FRME`` flatbuffer (see :func:`_parse_frame`), aligned as DV's: root table at byte 44 (its
+    int64 times 8-aligned from the body's start), the pixels' vector after the table."""
+    image = np.ascontiguousarray(frame.image)
+    pixel_format = FORMAT_GRAY16 if image.dtype == np.uint16 else FORMAT_GRAY
+    pixels = image.astype("<u2" if pixel_format == FORMAT_GRAY16 else np.uint8, copy=False).tobytes()
+    table, vector = 44, 104
+    vtable = struct.pack("<13H", 26, 60, 4, 12, 20, 28, 36, 56, 48, 50, 52, 54, 44)
+    fields = struct.pack("<i5qI4hb3x", table - 12, frame.t_us, frame.begin_us, frame.end_us, frame.exposure_begin_us,
+                         frame.exposure_end_us, vector - (table + 44), image.shape[1], image.shape[0], frame.offset_x,
+                         frame.offset_y, pixel_format)
+    body = struct.pack("<I4s", table - 4, b"FRME") + vtable + bytes(table - 12 - len(vtable)) + fields
+    body += struct.pack("<I", len(pixels)) + pixels
+    body += bytes(-len(body) % 4)
+    return struct.pack("<I", len(body)) + body
 
 
 def _packet_prefix(count: int) -> bytes:
@@ -490,8 +611,9 @@ class Aedat4Writer:
         stream.write(first_line + struct.pack("<I", len(header)) + header)
         self.pending: list[np.ndarray] = []
         self.held = 0
-        self.encoding: deque = deque()  # packets being compressed (futures of their bodies), in file order
+        self.encoding: deque = deque()  # packets being compressed ((stream id, future of the body)), in file order
         self.pool: ThreadPoolExecutor | None = None
+        self.frames = bool(info.metadata.get("frame_size"))  # the header declares a frame stream
 
     def write(self, chunk: np.ndarray) -> None:
         while len(chunk):
@@ -515,24 +637,38 @@ class Aedat4Writer:
         for piece in self.pending:
             _copy_records(events[at:at + len(piece)], np.ascontiguousarray(piece, EVENT_DTYPE))
             at += len(piece)
-        if self.compress is None:
-            self._write_body(body)
-        else:
-            if self.pool is None:
-                self.pool = ThreadPoolExecutor(ENCODE_THREADS, thread_name_prefix="evtools-encode")
-            self.encoding.append(self.pool.submit(self.compress, body))
-            while len(self.encoding) > ENCODE_AHEAD:
-                self._write_body(self.encoding.popleft().result())
+        self._packet(0, body)
         self.pending, self.held = [], 0
 
-    def _write_body(self, body) -> None:
-        self.stream.write(struct.pack("<iI", 0, memoryview(body).nbytes))
+    def _packet(self, stream_id: int, body) -> None:
+        """Write a packet's body, or hand it to the compressing pool (packets leave in the order given)."""
+        if self.compress is None:
+            self._write_body(body, stream_id)
+            return
+        if self.pool is None:
+            self.pool = ThreadPoolExecutor(ENCODE_THREADS, thread_name_prefix="evtools-encode")
+        self.encoding.append((stream_id, self.pool.submit(self.compress, body)))
+        while len(self.encoding) > ENCODE_AHEAD:
+            stream_id, future = self.encoding.popleft()
+            self._write_body(future.result(), stream_id)
+
+    def write_frame(self, frame: Frame) -> None:
+        """An APS frame, as one ``FRME`` packet (after the events written before it; the events held for the
+        current packet stay held, so that packets hold a fixed number of events whatever the frames)."""
+        if not self.frames:
+            raise FormatError("an APS frame for a stream whose header declares no frame stream (the input's info "
+                              "lacks frame_size)")
+        self._packet(FRAME_STREAM_ID, _frame_body(frame))
+
+    def _write_body(self, body, stream_id: int = 0) -> None:
+        self.stream.write(struct.pack("<iI", stream_id, memoryview(body).nbytes))
         self.stream.write(body)
 
     def _drain(self) -> None:
         """Write every packet still being compressed, in order."""
         while self.encoding:
-            self._write_body(self.encoding.popleft().result())
+            stream_id, future = self.encoding.popleft()
+            self._write_body(future.result(), stream_id)
 
     def flush(self) -> None:
         """Write the events held as a (short) packet and flush the stream: a live output's reader gets them now."""

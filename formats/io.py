@@ -644,7 +644,10 @@ class WriteBehind:
                 return
             if self.error is None:
                 try:
-                    self.writer.write(chunk)
+                    if isinstance(chunk, np.ndarray):
+                        self.writer.write(chunk)
+                    else:  # an APS frame, in its place among the chunks
+                        self.writer.write_frame(chunk)
                 except BaseException as error:  # raised in the producer's thread
                     self.error = error
 
@@ -656,6 +659,11 @@ class WriteBehind:
     def write(self, chunk) -> None:
         self._raise()
         self.queue.put(chunk)
+
+    def write_frame(self, frame) -> None:
+        """An APS frame (:class:`evtools.frames.Frame`), written after the chunks given before it."""
+        self._raise()
+        self.queue.put(frame)
 
     def close(self) -> None:
         if self.thread.is_alive():

@@ -1,0 +1,113 @@
+"""APS intensity frames as data beside events (a DAVIS camera's frames; DESIGN.md "Frames").
+
+A :class:`Frame` holds one image and its five times, as DV records them (AEDAT 4.0 ``FRME``): the frame's own time,
+the start and end of its readout, and the start and end of its exposure, all in microseconds. Streams carry frames
+in the order their file or pipe has them; a command that processes events passes every frame on untouched, once its
+output has reached the frame's :attr:`Frame.order_us` (the end of the exposure: when the image was complete), so an
+output is in time order whatever the stage holds back.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+FORMAT_GRAY, FORMAT_BGR, FORMAT_BGRA = 0, 16, 24
+"""DV's pixel formats (OpenCV's CV_8UC1, CV_8UC3, CV_8UC4)."""
+FORMAT_GRAY16 = 2
+"""OpenCV's CV_16UC1: 16-bit gray, which DV's type allows (its ``format`` is an OpenCV type) though DV writes 8."""
+
+
+@dataclass(frozen=True, eq=False)
+class Frame:
+    """One APS frame.
+
+    Parameters
+    ----------
+    image : ndarray
+        Gray levels, 2-D (height x width), uint8 or uint16 (colour images are converted to gray when read, with a
+        warning).
+    t_us : int
+        The frame's time (DV: the middle of the exposure).
+    exposure_begin_us, exposure_end_us : int
+        Start and end of the exposure (global shutter: every pixel integrates over this interval).
+    begin_us, end_us : int
+        Start and end of the readout (0 when the writer did not give them, as dv-processing's ``Frame``).
+    offset_x, offset_y : int
+        Position of the image's top-left pixel on the sensor (a region of interest), usually 0.
+    """
+
+    image: np.ndarray
+    t_us: int
+    exposure_begin_us: int
+    exposure_end_us: int
+    begin_us: int = 0
+    end_us: int = 0
+    offset_x: int = 0
+    offset_y: int = 0
+    metadata: dict = field(default_factory=dict)
+
+    @property
+    def exposure_us(self) -> int:
+        """Exposure time."""
+        return self.exposure_end_us - self.exposure_begin_us
+
+    @property
+    def order_us(self) -> int:
+        """The time a stream orders the frame by: the end of its exposure (its ``t`` when that is unknown)."""
+        return self.exposure_end_us if self.exposure_end_us else self.t_us
+
+    @property
+    def width(self) -> int:
+        return int(self.image.shape[1])
+
+    @property
+    def height(self) -> int:
+        return int(self.image.shape[0])
+
+    def same_as(self, other: "Frame") -> bool:
+        """Equal in every time, position and pixel."""
+        return (self.times() == other.times() and (self.offset_x, self.offset_y) == (other.offset_x, other.offset_y)
+                and self.image.dtype == other.image.dtype and np.array_equal(self.image, other.image))
+
+    def times(self) -> tuple[int, int, int, int, int]:
+        """(t, begin, end, exposure begin, exposure end) in us."""
+        return (self.t_us, self.begin_us, self.end_us, self.exposure_begin_us, self.exposure_end_us)
+
+
+def gray(pixels: np.ndarray, pixel_format: int) -> np.ndarray:
+    """A 2-D gray image from DV's pixel layout (gray 8 or 16 bit, BGR or BGRA 8 bit: converted with OpenCV's
+    weights, as DV's own conversion)."""
+    if pixel_format in (FORMAT_GRAY, FORMAT_GRAY16):
+        return pixels
+    import cv2
+
+    code = cv2.COLOR_BGR2GRAY if pixel_format == FORMAT_BGR else cv2.COLOR_BGRA2GRAY
+    return cv2.cvtColor(pixels, code)
+
+
+class FrameRelay:
+    """Passes a stream's frames on to a writer (``write_frame``), each once the output has reached its
+    :attr:`Frame.order_us`: :meth:`release` with the time before which the processor's output is final, and with
+    None when the stream has ended. ``transform`` (:class:`evtools.transform.Transform`) cuts and re-maps them as it
+    does the events."""
+
+    def __init__(self, stream, writer, transform=None) -> None:
+        self.stream, self.writer, self.transform = stream, writer, transform
+        self.pending: deque[Frame] = deque()
+        self.written = 0
+
+    def release(self, released_us: int | None) -> None:
+        take = getattr(self.stream, "take_frames", None)
+        if take is not None:
+            self.pending.extend(take())
+        while self.pending and (released_us is None or self.pending[0].order_us < released_us):
+            frame = self.pending.popleft()
+            if self.transform is not None:
+                frame = self.transform.frame(frame)
+                if frame is None:
+                    continue
+            self.writer.write_frame(frame)
+            self.written += 1
