@@ -12,7 +12,8 @@ from evtools.cli.progress import with_progress
 from evtools.formats import create_events, open_events
 from evtools.formats.io import paced
 from evtools.formats.registry import FORMATS, by_name
-from evtools.transform import Transform
+from evtools.frames import FrameRelay
+from evtools.transform import SlicedStream, Transform
 
 log = logging.getLogger("evtools")
 
@@ -68,15 +69,19 @@ def convert_one(input, output, *, input_format, sensor_size, aedat2_layout, outp
             aedat2_layout=aedat2_layout, inputs=(input,),
         ) as writer:
             chunks = stream if speed is None else paced(stream, speed)
+            frames = FrameRelay(SlicedStream(stream, transform) if transform else stream, writer)
             for chunk in with_progress(chunks, stream, f"converting {stream.name}"):
                 events_in += len(chunk)
+                last_us = int(chunk["t"][-1])
                 if transform:
                     chunk = transform.process(chunk)
                 if len(chunk):
                     writer.write(chunk)
                 events_out += len(chunk)
+                frames.release(last_us)
                 if transform and transform.done:  # past --end: the rest of the input is not read
                     break
+            frames.release(None)
             writer.cut = getattr(stream, "was_cut", False)  # a cut input's output ends without the end mark too
     log.info(f"convert: {events_in:,} events in, {events_out:,} out")
     return events_in, events_out

@@ -19,13 +19,16 @@ from evtools.formats import open_events
 @aedat2_layout_option
 @json_option
 def info(inputs, input_format, sensor_size, aedat2_layout, as_json):
-    """Format, sensor size, event count, time span, rate and ON fraction of each FILE (`-` = stdin)."""
+    """Format, sensor size, event count, time span, rate and ON fraction of each FILE (`-` = stdin), and its APS
+    frames (count, rate, exposure, size) where it has them."""
     rows = []
     for path in inputs or ("-",):
         with open_events(path, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as stream:
             summary = StreamSummary()
             for chunk in with_progress(stream, stream, f"reading {stream.name}"):
                 summary.add(chunk)
+                summary.add_frames(stream.take_frames())
+            summary.add_frames(stream.take_frames())
             rows.append({"file": stream.name, **summary.as_dict(stream.info)})
     if wants_json(as_json):
         click.echo(json.dumps(rows if len(rows) > 1 else rows[0], indent=2, default=str))
@@ -53,6 +56,17 @@ def _print_table(rows: list[dict]) -> None:
     line("span", lambda r: f"{r['duration_s']:.6g} s")
     line("rate", lambda r: f"{r['rate_hz'] / 1e6:.4g} Mev/s")
     line("ON fraction", lambda r: "-" if r["on_fraction"] is None else f"{r['on_fraction']:.3f}")
+    line("APS frames", _frames_line)
     line("source", lambda r: str(r["metadata"].get("source") or r["metadata"].get("aechip") or "-"))
     line("skipped", lambda r: ", ".join(r["metadata"].get("skipped_streams", [])) or "-")
     Console().print(table)
+
+
+def _frames_line(row: dict) -> str:
+    frames = row["frames"]
+    if not frames["count"]:
+        return "-"
+    low, median, high = frames["exposure_us"]
+    exposure = f"{median:,.0f} us" if low == high else f"{low:,}-{high:,} us (median {median:,.0f})"
+    return (f"{frames['count']:,} ({frames['rate_hz']:.4g} /s), exposure {exposure}, "
+            f"{', '.join(frames['sizes'])} {', '.join(frames['pixels'])}")

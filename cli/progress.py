@@ -38,16 +38,24 @@ def _stderr_console():
 
 def process_stream(stream, processor, writer, label: str) -> tuple[int, int]:
     """Feed every chunk of ``stream`` through ``processor`` (``process`` then ``flush``) into ``writer``, with
-    progress labelled ``label``; empty results are not written. Returns (events in, events out)."""
+    progress labelled ``label``; empty results are not written. The stream's APS frames are passed on untouched,
+    each once the output is final up to its time (``processor.released_us(last input time)``, where the processor
+    holds events back). Returns (events in, events out)."""
+    from evtools.frames import FrameRelay
+
     events_in = events_out = 0
+    frames = FrameRelay(stream, writer)
+    released = getattr(processor, "released_us", lambda last_us: last_us)
     for chunk in with_progress(stream, stream, label):
         events_in += len(chunk)
         out = processor.process(chunk)
         events_out += len(out)
         if len(out):
             writer.write(out)
+        frames.release(released(int(chunk["t"][-1])))
     rest = processor.flush()
     if len(rest):
         writer.write(rest)
+    frames.release(None)
     writer.cut = getattr(stream, "was_cut", False)  # a cut input's output ends without the end mark too
     return events_in, events_out + len(rest)

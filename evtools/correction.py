@@ -368,7 +368,7 @@ class ThresholdCorrector:
             parallel = len(part) >= PARALLEL_EVENTS
             self._each_lane(lambda lane, lane_words: lane.hold(lane.resample(self, lane_words, checks_us)),
                             [even[:n_even], odd[:n_odd]], parallel)
-            bound = self._bound(int(part[-1, 0]))
+            bound = self._released_us = self._bound(int(part[-1, 0]))
             released = self._each_lane(lambda lane, _: lane.release(bound), [None] * LANES, parallel)
             pieces.append(np.empty(sum(len(times) for times, _ in released), EVENT_DTYPE))
             self._merged(released, pieces[-1], 0)
@@ -401,6 +401,11 @@ class ThresholdCorrector:
         state = dict(self.__dict__)
         state["_pool"] = None  # a thread pool does not pickle; a copy makes its own
         return state
+
+    def released_us(self, last_us: int) -> int:
+        """The time before which the output is final (the last release's bound; APS frames pass on once the output
+        reaches them)."""
+        return min(getattr(self, "_released_us", NO_EVENT_US), last_us)
 
     def _bound(self, t_now: int) -> int:
         """The time before which created events are final once the stream has reached ``t_now``: every later event

@@ -388,6 +388,13 @@ class BAFilter:
                 return None if stage.learning else stage.hot_map
         return None
 
+    def released_us(self, last_us: int) -> int:
+        """The time before which the output is final once the input has reached ``last_us``: ``last_us``, or the
+        start of what a learning ``hotpixel`` stage holds (APS frames pass on once the output reaches them)."""
+        held = [stage.t_first for stage in self.stages
+                if stage.method == "hotpixel" and stage.learning and stage.t_first is not None]
+        return min([last_us, *held])
+
     def process(self, chunk: np.ndarray) -> np.ndarray:
         """The events of ``chunk`` that every stage keeps (those a learning stage holds come later)."""
         if self._flushed:

@@ -91,11 +91,10 @@ def gray(pixels: np.ndarray, pixel_format: int) -> np.ndarray:
 class FrameRelay:
     """Passes a stream's frames on to a writer (``write_frame``), each once the output has reached its
     :attr:`Frame.order_us`: :meth:`release` with the time before which the processor's output is final, and with
-    None when the stream has ended. ``transform`` (:class:`evtools.transform.Transform`) cuts and re-maps them as it
-    does the events."""
+    None when the stream has ended."""
 
-    def __init__(self, stream, writer, transform=None) -> None:
-        self.stream, self.writer, self.transform = stream, writer, transform
+    def __init__(self, stream, writer) -> None:
+        self.stream, self.writer = stream, writer
         self.pending: deque[Frame] = deque()
         self.written = 0
 
@@ -104,10 +103,5 @@ class FrameRelay:
         if take is not None:
             self.pending.extend(take())
         while self.pending and (released_us is None or self.pending[0].order_us < released_us):
-            frame = self.pending.popleft()
-            if self.transform is not None:
-                frame = self.transform.frame(frame)
-                if frame is None:
-                    continue
-            self.writer.write_frame(frame)
+            self.writer.write_frame(self.pending.popleft())
             self.written += 1

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -17,6 +17,18 @@ class StreamSummary:
     on_events: int = 0
     t_first_us: int | None = None
     t_last_us: int | None = None
+    frame_times_us: list = field(default_factory=list)  # each APS frame's end of exposure
+    frame_exposures_us: list = field(default_factory=list)
+    frame_sizes: set = field(default_factory=set)
+    frame_dtypes: set = field(default_factory=set)
+
+    def add_frames(self, frames) -> None:
+        """APS frames (:class:`evtools.Frame`) of the stream."""
+        for frame in frames:
+            self.frame_times_us.append(frame.order_us)
+            self.frame_exposures_us.append(frame.exposure_us)
+            self.frame_sizes.add((frame.width, frame.height))
+            self.frame_dtypes.add(str(frame.image.dtype))
 
     def add(self, chunk: np.ndarray) -> None:
         if not len(chunk):
@@ -51,5 +63,20 @@ class StreamSummary:
             "duration_s": self.duration_s,
             "rate_hz": self.rate_hz,
             "on_fraction": None if not self.events else self.on_fraction,
+            "frames": self.frames_dict(),
             "metadata": info.metadata,
+        }
+
+    def frames_dict(self) -> dict:
+        """APS frames: count, rate (frames per second over their span), exposure (min, median, max us), sizes and
+        pixel types."""
+        times, exposures = np.asarray(self.frame_times_us), np.asarray(self.frame_exposures_us)
+        span_s = (times[-1] - times[0]) * 1e-6 if len(times) > 1 else 0.0
+        return {
+            "count": len(times),
+            "rate_hz": (len(times) - 1) / span_s if span_s > 0 else 0.0,
+            "exposure_us": [int(exposures.min()), float(np.median(exposures)), int(exposures.max())]
+            if len(exposures) else None,
+            "sizes": sorted(f"{w}x{h}" for w, h in self.frame_sizes),
+            "pixels": sorted(self.frame_dtypes),
         }

@@ -65,6 +65,10 @@ class Transform:
         self.flipped_size = (width, height)  # the sensor the flips act in
         out_width, out_height = (height, width) if transpose else (width, height)
         self.info = replace(info, width=out_width, height=out_height, metadata=dict(info.metadata))
+        self.source_size = (info.width, info.height)
+        self.moves_pixels = crop is not None or flip_x or flip_y or transpose
+        if self.moves_pixels and info.metadata.get("frame_size"):
+            self.info.metadata["frame_size"] = (out_width, out_height)
         self.first_us: int | None = None
         self.done = False  # the end has passed: no later event can be kept
 
@@ -104,6 +108,24 @@ class Transform:
     def flush(self) -> np.ndarray:
         return empty_events()
 
+    def frame(self, frame):
+        """An APS frame (:class:`evtools.Frame`) under the same time slice (by the end of its exposure), crop, flips
+        and transpose as the events; None outside the slice."""
+        if self.first_us is None:  # no event yet: times relative to the stream's start count from this frame
+            start, end = (-np.inf if self.start is None else self.start.resolve(frame.order_us),
+                          np.inf if self.end is None else self.end.resolve(frame.order_us))
+        else:
+            start, end = self._bounds()
+        if not start <= frame.order_us < end:
+            return None
+        if not self.moves_pixels:
+            return frame
+        if (frame.offset_x, frame.offset_y) != (0, 0) or (frame.width, frame.height) != self.source_size:
+            raise TransformError(f"an APS frame of {frame.width} x {frame.height} at ({frame.offset_x}, "
+                                 f"{frame.offset_y}) cannot be cropped, flipped or transposed with the "
+                                 f"{self.source_size[0]} x {self.source_size[1]} sensor's events (only whole frames)")
+        return replace(frame, image=self.pixels(frame.image))
+
     def pixels(self, values: np.ndarray) -> np.ndarray:
         """A per-pixel array (``(..., height, width)``: a thresholds map, a series of maps) under the same crop,
         flips and transpose as the events, so that map and stream stay pixel for pixel aligned."""
@@ -131,6 +153,11 @@ class SlicedStream:
 
     def __getattr__(self, name):
         return getattr(self._stream, name)
+
+    def take_frames(self) -> list:
+        """The stream's APS frames read since the last call, sliced and re-mapped as the events."""
+        frames = (self.transform.frame(frame) for frame in self._stream.take_frames())
+        return [frame for frame in frames if frame is not None]
 
     def __iter__(self):
         for chunk in self._stream:

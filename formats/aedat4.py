@@ -388,6 +388,10 @@ class Aedat4Reader:
             raise FormatError(f"{self.name}: frame packet at byte {offset} ends its exposure at {frame.order_us} us, "
                               f"before the frame before it ({self._last_frame_us} us): frames go back in time")
         self._last_frame_us = frame.order_us
+        if frame.metadata.get("converted_from") and not getattr(self, "_said_colour", False):
+            self._said_colour = True
+            logging.getLogger("evtools").warning(f"{self.name}: its {frame.metadata['converted_from']} colour frames are "
+                                                 "read as gray (OpenCV's weights)")
         self.frames.append(frame)
         self.frames_read += 1
 

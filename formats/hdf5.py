@@ -17,12 +17,14 @@ Layouts read (see FORMATS.md):
 from __future__ import annotations
 
 import contextlib
+from collections import deque
 from typing import BinaryIO, Iterator
 
 import numpy as np
 
 from evtools._kernels.ecf import MAX_BLOCK_EVENTS, decode_ecf
 from evtools.events import EVENT_DTYPE, StreamInfo, record_words, second_words
+from evtools.frames import Frame
 from evtools.formats.errors import FormatError
 from evtools.formats.io import Recycled, Source, resolve_sensor_size
 from evtools.formats.prophesee import header_size
@@ -70,6 +72,10 @@ chunked, except with lzf: liblzf's encoder leaves its hash table unset, so its o
 varies from run to run."""
 
 
+FRAME_TIMES = ("t_us", "begin_us", "end_us", "exposure_begin_us", "exposure_end_us")
+"""The per-frame times of evtools' ``frames/`` group (us, absolute)."""
+
+
 def _h5py():
     import hdf5plugin  # noqa: F401  (registers Zstd, Blosc, ... with HDF5 before any file is opened)
     import h5py
@@ -115,6 +121,8 @@ class Hdf5Reader:
         self.name = source.name
         self.chunk_events = max(1, int(options.chunk_events))
         self._recycled = Recycled()
+        self.frames: deque[Frame] = deque()  # APS frames read, not yet taken (EventStream.take_frames)
+        self.frames_read, self._frame_times, self._next_frame = 0, None, 0
         try:
             self.file = h5py.File(source.spooled(), "r")
         except (OSError, ValueError, RuntimeError, KeyError, TypeError, OverflowError) as error:  # h5py's, damaged
@@ -177,14 +185,69 @@ class Hdf5Reader:
         if len(lengths) != 1:
             raise FormatError(f"{self.name}: the event datasets have different lengths {sorted(lengths)}")
         self.n_events = lengths.pop()
+        self._open_frames()
         events_group = group if isinstance(group, h5py.Group) else None
         width, height = resolve_sensor_size(
             self.source, _attr_size(f, events_group), options.sensor_size, self._scan_size
         )
         metadata = {"layout": self.layout, "events": self.n_events}
+        if getattr(self, "info_frame_size", None):
+            metadata["frame_size"] = self.info_frame_size
         if self.layout in ("dsec", "evtools"):
             metadata["t_offset_us"] = self.t_offset_us
         self.info = StreamInfo(width, height, "hdf5", metadata)
+
+    def _open_frames(self) -> None:
+        """APS frames: evtools' ``frames/`` (``images`` N x H x W, and the five times and offsets per frame, us) or
+        event_utils' ``images/image*`` datasets (attribute ``timestamp`` in seconds; no exposure stored). Their times
+        are read now, their images as the events pass them."""
+        h5py = _h5py()
+        group = self.file.get("frames")
+        if isinstance(group, h5py.Group) and isinstance(group.get("images"), h5py.Dataset):
+            images = group["images"]
+            columns = {name: np.asarray(group[name][()], np.int64) for name in FRAME_TIMES + ("offset_x", "offset_y")
+                       if isinstance(group.get(name), h5py.Dataset)}
+            if images.ndim != 3 or any(len(column) != len(images) for column in columns.values()) or \
+                    "exposure_end_us" not in columns:
+                raise FormatError(f"{self.name}: frames/ holds images of shape {images.shape} and times of other "
+                                  "lengths (a damaged file?)")
+            self._frame_images, self._frame_columns = (lambda k: images[k]), columns
+        elif self.layout == "event_utils" and isinstance(self.file.get("images"), h5py.Group):
+            names = sorted(name for name, node in self.file["images"].items() if isinstance(node, h5py.Dataset))
+            datasets = [self.file["images"][name] for name in names]
+            try:
+                seconds = np.array([float(np.asarray(d.attrs["timestamp"]).item()) for d in datasets])
+            except (KeyError, TypeError, ValueError):
+                raise FormatError(f"{self.name}: an image in images/ has no numeric 'timestamp' attribute") from None
+            t_us = np.round(seconds * 1e6).astype(np.int64)
+            self._frame_images = lambda k: datasets[k][()]
+            self._frame_columns = {"t_us": t_us, "exposure_begin_us": t_us, "exposure_end_us": t_us}
+        else:
+            return
+        self._frame_times = self._frame_columns["exposure_end_us"]
+        if (np.diff(self._frame_times) < 0).any():
+            raise FormatError(f"{self.name}: the frames' times go backwards")
+        first = self._frame_images(0) if len(self._frame_times) else None
+        if first is not None:
+            self.info_frame_size = (first.shape[1], first.shape[0])
+
+    def _frames_until(self, t_us: float) -> None:
+        """Queue the frames whose exposure ended at or before ``t_us`` (all of them: ``inf``)."""
+        if self._frame_times is None:
+            return
+        stop = int(np.searchsorted(self._frame_times, t_us, "right"))
+        for k in range(self._next_frame, stop):
+            image = np.asarray(self._frame_images(k))
+            if image.ndim != 2 or image.dtype not in (np.uint8, np.uint16):
+                raise FormatError(f"{self.name}: frame {k} is a {image.dtype} array of shape {image.shape}; frames "
+                                  "are 2-D gray uint8 or uint16")
+            column = {name: int(values[k]) for name, values in self._frame_columns.items()}
+            self.frames.append(Frame(image, column.get("t_us", column["exposure_end_us"]),
+                                     column.get("exposure_begin_us", column["exposure_end_us"]),
+                                     column["exposure_end_us"], column.get("begin_us", 0), column.get("end_us", 0),
+                                     column.get("offset_x", 0), column.get("offset_y", 0)))
+            self.frames_read += 1
+        self._next_frame = max(self._next_frame, stop)
 
     def _open_prophesee(self, dataset, options: ReadOptions) -> None:
         """Metavision's layout: ``CD/events`` records, ECF chunks decoded here (see the module's notes)."""
@@ -359,8 +422,12 @@ class Hdf5Reader:
         for start in range(0, self.n_events, step):
             with self._corruption():
                 chunk = self._read(start, min(start + step, self.n_events))
+                if len(chunk):
+                    self._frames_until(int(chunk["t"][-1]))
             for piece in range(0, len(chunk), self.chunk_events):
                 yield chunk[piece:piece + self.chunk_events]
+        with self._corruption():
+            self._frames_until(np.inf)
 
     def close(self) -> None:
         self.file.close()
@@ -459,6 +526,36 @@ class Hdf5Writer:
         self.ms_pending: list[np.ndarray] = []
         self.ms_pending_count = 0
         self.ms_written = 0
+        self.filters = filters
+        self.frame_datasets: dict | None = None  # frames/, made at the first frame
+
+    def write_frame(self, frame: Frame) -> None:
+        """An APS frame into ``frames/``: ``images`` (N x H x W, one HDF5 chunk a frame) and per frame its five times
+        (us, absolute) and offset; every frame of a file has one size and pixel type."""
+        try:
+            if self.frame_datasets is None:
+                group = self.file.create_group("frames")
+                image = frame.image
+                self.frame_datasets = {"images": group.create_dataset(
+                    "images", shape=(0, *image.shape), maxshape=(None, *image.shape), dtype=image.dtype,
+                    chunks=(1, *image.shape), track_times=False, **self.filters)}
+                for name in FRAME_TIMES + ("offset_x", "offset_y"):
+                    self.frame_datasets[name] = group.create_dataset(
+                        name, shape=(0,), maxshape=(None,), dtype="<i8", chunks=(256,), track_times=False)
+            images = self.frame_datasets["images"]
+            if frame.image.shape != images.shape[1:] or frame.image.dtype != images.dtype:
+                raise FormatError(f"HDF5 stores frames of one size and type: a {frame.image.dtype} frame of "
+                                  f"{frame.width} x {frame.height} after {images.dtype} frames of "
+                                  f"{images.shape[2]} x {images.shape[1]}")
+            n = len(images)
+            values = dict(zip(FRAME_TIMES, (frame.t_us, frame.begin_us, frame.end_us, frame.exposure_begin_us,
+                                            frame.exposure_end_us)), offset_x=frame.offset_x, offset_y=frame.offset_y)
+            for name, dataset in self.frame_datasets.items():
+                dataset.resize((n + 1, *dataset.shape[1:]))
+                dataset[n] = frame.image if name == "images" else values[name]
+        except BaseException as error:
+            self._give_up(error)
+            raise
 
     def write(self, chunk: np.ndarray) -> None:
         """Append a chunk of ``EVENT_DTYPE`` (sorted by t)."""
@@ -553,5 +650,5 @@ class Hdf5Writer:
                 return
             except BaseException:
                 pass
-        abandon(self.file, self.datasets, self.ms_dataset)
-        self.file, self.datasets, self.ms_dataset = None, {}, None
+        abandon(self.file, self.datasets, self.ms_dataset, self.frame_datasets)
+        self.file, self.datasets, self.ms_dataset, self.frame_datasets = None, {}, None, None

@@ -1,0 +1,235 @@
+"""APS frames as data (issue 38 item 1): read as DV and dv-processing write them, written so that DV's readers
+(dv-processing, aedat) read them back, kept by HDF5, passed through every stage in order, sliced as the events."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import evtools
+from evtools.events import join
+from evtools.frames import Frame
+from tests.conftest import data_file
+from tests.helpers import assert_same_events, random_events, run
+
+RECORDINGS = ["davis346_lab_frames.aedat4", "davis346_street_frames.aedat4"]
+
+
+def _dv_frames(path) -> list:
+    dv = pytest.importorskip("dv_processing", reason="dv-processing (the test extra) reads the frames")
+    reader, frames = dv.io.MonoCameraRecording(str(path)), []
+    while (frame := reader.getNextFrame()) is not None:
+        frames.append((frame.timestamp, int(frame.exposure.total_seconds() * 1e6 + 0.5), frame.positionX,
+                       frame.positionY, frame.image.copy()))
+    return frames
+
+
+def _aedat_frames(path) -> list:
+    aedat = pytest.importorskip("aedat", reason="aedat (a dependency of the tests) reads the frames")
+    return [packet["frame"] for packet in aedat.Decoder(str(path)) if "frame" in packet]
+
+
+def _same(ours: list[Frame], theirs: list) -> None:
+    """Ours against dv-processing's (timestamp = start of exposure, exposure, position, image)."""
+    assert len(ours) == len(theirs) > 0
+    for frame, (t, exposure, x, y, image) in zip(ours, theirs):
+        assert (frame.exposure_begin_us, frame.exposure_us, frame.offset_x, frame.offset_y) == (t, exposure, x, y)
+        np.testing.assert_array_equal(frame.image, image.reshape(frame.image.shape))
+
+
+@pytest.mark.parametrize("name", RECORDINGS)
+def test_the_davis_recordings_frames_read_as_dv_processing_reads_them(name):
+    path = data_file(name)
+    events, info, frames = evtools.read(path, frames=True)
+    _same(frames, _dv_frames(path))
+    assert info.metadata["frame_size"] == (346, 260) and all(f.image.shape == (260, 346) for f in frames)
+    assert_same_events(events, evtools.read(path)[0])  # the frames change nothing in the events
+    for frame, theirs in zip(frames, _aedat_frames(path)):  # all five times, as the aedat package reads them
+        assert frame.times() == (theirs["t"], theirs["begin_t"], theirs["end_t"], theirs["exposure_begin_t"],
+                                 theirs["exposure_end_t"])
+
+
+def _frames(rng, count: int, width: int, height: int, dtype=np.uint8, t0_us: int = 0) -> list[Frame]:
+    frames, t = [], t0_us
+    top = 255 if dtype == np.uint8 else 65535
+    for _ in range(count):
+        t += int(rng.integers(1, 50_000))
+        exposure = int(rng.integers(0, 20_000))
+        image = rng.integers(0, top + 1, (height, width)).astype(dtype)
+        frames.append(Frame(image, t + exposure // 2, t, t + exposure, t - 1000, t + exposure + 9000))
+        t += exposure
+    return frames
+
+
+@settings(max_examples=8, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), width=st.integers(1, 80), height=st.integers(1, 60),
+       count=st.integers(1, 5), compression=st.sampled_from(["none", "lz4", "zstd"]))
+def test_evtools_frames_read_back_by_dv_processing_and_aedat(tmp_path_factory, seed, width, height, count,
+                                                             compression):
+    rng = np.random.default_rng(seed)
+    frames = _frames(rng, count, width, height)
+    events = random_events(500, width, height, seed=seed)
+    path = tmp_path_factory.mktemp("frames") / "f.aedat4"
+    evtools.write(path, events, evtools.StreamInfo(width, height), frames=frames, compression=compression)
+    back, info, ours = evtools.read(path, frames=True)
+    assert_same_events(back, events)
+    assert len(ours) == count and all(a.same_as(b) for a, b in zip(ours, frames))
+    _same(frames, _dv_frames(path))
+    for frame, theirs in zip(frames, _aedat_frames(path)):
+        assert frame.times() == (theirs["t"], theirs["begin_t"], theirs["end_t"], theirs["exposure_begin_t"],
+                                 theirs["exposure_end_t"])
+        np.testing.assert_array_equal(np.asarray(theirs["pixels"]).reshape(height, width), frame.image)
+
+
+def test_frames_written_by_dv_processing_read_with_their_times_and_colour_converted(tmp_path):
+    """dv-processing's writer (as DV records): t = start of exposure, end of exposure = t + exposure, no readout
+    times; a BGR frame is read as gray by OpenCV's weights, with a warning."""
+    dv = pytest.importorskip("dv_processing", reason="dv-processing (the test extra) writes the file")
+    import cv2
+
+    path = tmp_path / "dv.aedat4"
+    writer = dv.io.MonoCameraWriter(str(path), dv.io.MonoCameraWriter.DAVISConfig("DAVIS346", (64, 48)))
+    colour = (np.arange(64 * 48 * 3) % 251).astype(np.uint8).reshape(48, 64, 3)
+    gray = (np.arange(64 * 48) % 253).astype(np.uint8).reshape(48, 64)
+    writer.writeFrame(dv.Frame(1000, 500, 0, 0, colour, dv.FrameSource.SENSOR))
+    writer.writeFrame(dv.Frame(2000, 700, 0, 0, gray, dv.FrameSource.SENSOR))
+    store = dv.EventStore()
+    store.push_back(1200, 3, 4, True)
+    writer.writeEvents(store)
+    del writer
+    _, _, frames = evtools.read(path, frames=True)
+    assert [f.times() for f in frames] == [(1000, 0, 0, 1000, 1500), (2000, 0, 0, 2000, 2700)]
+    np.testing.assert_array_equal(frames[0].image, cv2.cvtColor(colour, cv2.COLOR_BGR2GRAY))
+    np.testing.assert_array_equal(frames[1].image, gray)
+    done = run("info", path, "--json")
+    assert "colour frames" in done.stderr.decode() and '"count": 2' in done.stdout.decode()
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+def test_hdf5_keeps_every_frame_field_and_csv_says_it_drops_them(tmp_path, dtype):
+    rng = np.random.default_rng(3)
+    frames = _frames(rng, 4, 20, 10, dtype)
+    events = random_events(300, 20, 10, seed=3)
+    source = tmp_path / "s.aedat4"
+    evtools.write(source, events, evtools.StreamInfo(20, 10), frames=frames)
+    run("convert", source, "-o", tmp_path / "s.h5")
+    back, info, ours = evtools.read(tmp_path / "s.h5", frames=True)
+    assert_same_events(back, events)
+    assert info.metadata["frame_size"] == (20, 10) and all(a.same_as(b) for a, b in zip(ours, frames))
+    done = run("convert", tmp_path / "s.h5", "-o", tmp_path / "s.csv")
+    assert "does not store APS frames" in done.stderr.decode() and "4 frames" in done.stderr.decode()
+
+
+class _Recorder:
+    """A writer that notes the order of what it is given."""
+
+    def __init__(self):
+        self.calls = []
+
+    def write(self, chunk):
+        self.calls.append(chunk.copy())
+
+    def write_frame(self, frame):
+        self.calls.append(frame)
+
+
+@settings(max_examples=12, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), chunk_events=st.integers(50, 3000),
+       stage=st.sampled_from(["bafilter", "hotpixel", "correct"]))
+def test_stages_pass_every_frame_on_after_the_events_before_it(tmp_path_factory, seed, chunk_events, stage):
+    """Whatever the chunks: every frame goes out once, in order, after every output event before the end of its
+    exposure (a stage that holds events back, correct or a learning hotpixel filter, holds the frame too), and
+    the events are those of a run without frames."""
+    from evtools.cli.progress import process_stream
+    from evtools.correction import ThresholdCorrector
+    from evtools.filters import BAFilter
+
+    rng = np.random.default_rng(seed)
+    events = random_events(4000, 16, 12, seed=seed)
+    frames = _frames(rng, 6, 16, 12, t0_us=int(events["t"][0]))
+    path = tmp_path_factory.mktemp("relay") / "f.aedat4"
+    evtools.write(path, events, evtools.StreamInfo(16, 12), frames=frames)
+
+    def processor():
+        if stage == "correct":
+            on = np.full((12, 16), 0.18, np.float32)
+            return ThresholdCorrector(16, 12, on, on * 1.1, target=0.2, max_gap_us=2000, hold_us=500)
+        return BAFilter(16, 12, "baf" if stage == "bafilter" else "hotpixel", **(
+            {"learn_us": 20_000} if stage == "hotpixel" else {}))
+
+    recorder = _Recorder()
+    with evtools.open(path, chunk_events=chunk_events) as stream:
+        process_stream(stream, processor(), recorder, "test")
+    written = [call for call in recorder.calls if isinstance(call, Frame)]
+    assert len(written) == len(frames) and all(a.same_as(b) for a, b in zip(written, frames))
+    out = [call for call in recorder.calls if not isinstance(call, Frame)]
+    expected = processor()
+    whole = join([expected.process(events), expected.flush()])
+    assert_same_events(join(out) if out else whole[:0], whole)
+    for index, call in enumerate(recorder.calls):
+        if isinstance(call, Frame):
+            later = [c for c in recorder.calls[index + 1:] if not isinstance(c, Frame)]
+            assert all(int(c["t"].min()) >= call.order_us for c in later if len(c))
+
+
+def test_a_pipeline_keeps_the_frames_and_convert_slices_them_as_the_events(tmp_path):
+    rng = np.random.default_rng(5)
+    frames = _frames(rng, 5, 32, 24)
+    events = random_events(3000, 32, 24, seed=5)
+    source = tmp_path / "s.aedat4"
+    evtools.write(source, events, evtools.StreamInfo(32, 24), frames=frames)
+    piped = run("bafilter", "-", input=run("convert", source, "-o", "-").stdout).stdout
+    (tmp_path / "piped.aedat4").write_bytes(piped)
+    _, _, back = evtools.read(tmp_path / "piped.aedat4", frames=True)
+    assert len(back) == 5 and all(a.same_as(b) for a, b in zip(back, frames))
+    start, end = frames[1].order_us, frames[3].order_us
+    run("convert", source, "--start", f"@{start}us", "--end", f"@{end}us", "--crop", "2,3,20,10",
+        "--flip-x", "--transpose", "-o", tmp_path / "cut.aedat4")
+    _, info, cut_frames = evtools.read(tmp_path / "cut.aedat4", frames=True)
+    assert info.metadata["frame_size"] == (10, 20) == info.size
+    assert [f.order_us for f in cut_frames] == [frames[1].order_us, frames[2].order_us]
+    np.testing.assert_array_equal(cut_frames[0].image, frames[1].image[3:13, 2:22][:, ::-1].T)
+
+
+def _first_packet_of(data: bytes, stream_id: int) -> int:
+    """Byte position of the first packet of ``stream_id`` in an AEDAT 4.0 file (its 8-byte packet header)."""
+    position = 14 + 4 + int(np.frombuffer(data, "<u4", 1, 14)[0])
+    while int(np.frombuffer(data, "<i4", 1, position)[0]) != stream_id:
+        position += 8 + int(np.frombuffer(data, "<u4", 1, position + 4)[0])
+    return position
+
+
+def test_bad_frames_are_one_line_errors_naming_the_file(tmp_path):
+    rng = np.random.default_rng(7)
+    frames = _frames(rng, 3, 16, 12)
+    events = random_events(200, 16, 12, seed=7)
+    good = tmp_path / "good.aedat4"
+    evtools.write(good, events, evtools.StreamInfo(16, 12), frames=frames)
+    data = good.read_bytes()
+    # frames whose times go backwards
+    backwards = tmp_path / "backwards.aedat4"
+    swapped = [frames[1], frames[0], frames[2]]
+    evtools.write(backwards, events, evtools.StreamInfo(16, 12), frames=frames[:1])
+    import evtools.formats.aedat4 as aedat4
+
+    body = [aedat4._frame_body(f) for f in swapped]
+    head_end = _first_packet_of(data, 1)  # the first frame packet
+    packets = b"".join(np.array([1, len(b)], "<i4").tobytes() + b for b in body)
+    backwards.write_bytes(data[:head_end] + packets)
+    done = run("info", backwards, check=False)
+    assert done.returncode == 1 and "frames go back in time" in done.stderr.decode() and "backwards" in \
+        done.stderr.decode()
+    # a frame packet cut short
+    cut = tmp_path / "cut.aedat4"
+    cut.write_bytes(data[:head_end] + np.array([1, len(body[0])], "<i4").tobytes() + body[0][:100])
+    done = run("info", cut, check=False)
+    assert done.returncode == 1 and "cut.aedat4" in done.stderr.decode() and "Traceback" not in done.stderr.decode()
+    # a frame larger than the frame stream
+    big = Frame(np.zeros((13, 16), np.uint8), 5, 5, 5)
+    large = tmp_path / "large.aedat4"
+    large.write_bytes(data[:head_end] + np.array([1, len(aedat4._frame_body(big))], "<i4").tobytes()
+                      + aedat4._frame_body(big))
+    done = run("info", large, check=False)
+    assert done.returncode == 1 and "outside the 16 x 12 frame stream" in done.stderr.decode()
