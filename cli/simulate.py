@@ -20,6 +20,7 @@ import numpy as np
 from evtools import interrupt
 from evtools.cli.options import (FINITE, Duration, FiniteRange, aedat2_layout_option, check_compression,
                                  compression_option, input_format_option)
+from evtools.aps import APS_DEFAULTS, ApsSensor
 from evtools.cli.progress import with_progress
 from evtools.events import CHUNK_EVENTS, MAX_TIME_US, StreamInfo, join, parse_sensor_size
 from evtools.formats.errors import FormatError
@@ -437,6 +438,21 @@ def _float_option(name: str, help: str, low: float | None = 0.0, high: float | N
 @click.option("--max-level", type=FINITE, default=None, help="Scene's brightest intensity, 0-255 (default 200).")
 @click.option("--level", type=FINITE, default=None, help="static: intensity, 0-255 (default 128).")
 @compression_option
+@click.option("--aps-rate", "aps_rate_hz", type=FiniteRange(min=0, min_open=True), default=None, metavar="HZ",
+              help="Also record APS frames (a DAVIS camera's intensity images) at this rate, into the output with "
+                   "the events (AEDAT 4.0 or HDF5) and, with --truth, their true log intensity (`aps/`).")
+@click.option("--aps-exposure", "aps_exposure_us", type=Duration(minimum_us=1), default=None, metavar="TIME",
+              help=f"APS exposure (global shutter) [default: {APS_DEFAULTS['aps_exposure_us'] // 1000}ms].")
+@click.option("--aps-gain", type=FiniteRange(min=0), default=None, metavar="DN",
+              help=f"APS gain, DN per intensity level (0-255) per ms of exposure [default: {APS_DEFAULTS['aps_gain']}].")
+@click.option("--aps-black-level", type=FiniteRange(min=0), default=None, metavar="DN",
+              help=f"APS black level [default: {APS_DEFAULTS['aps_black_level']:g}].")
+@click.option("--aps-read-noise", type=FiniteRange(min=0), default=None, metavar="DN",
+              help=f"APS read noise, standard deviation [default: {APS_DEFAULTS['aps_read_noise']:g}].")
+@click.option("--aps-gain-fpn", type=FiniteRange(min=0), default=None, metavar="FRACTION",
+              help=f"Per-pixel gain non-uniformity, standard deviation [default: {APS_DEFAULTS['aps_gain_fpn']:g}].")
+@click.option("--aps-offset-fpn", type=FiniteRange(min=0), default=None, metavar="DN",
+              help=f"Per-pixel offset non-uniformity, standard deviation [default: {APS_DEFAULTS['aps_offset_fpn']:g}].")
 @click.option("--json", "as_json", is_flag=True,
               help="Print the counts as JSON (on stdout when the events go to a file, else on stderr).")
 def simulate(source, output, output_format, truth, truth_frame_rate, input_format, sensor_size, aedat2_layout, size,
@@ -457,10 +473,18 @@ def simulate(source, output, output_format, truth, truth_frame_rate, input_forma
     """
     compression = options.pop("compression")
     check_compression(compression, [(source, output)], output_format)
+    aps = {name: options.pop(name) for name in ("aps_rate_hz", *APS_DEFAULTS)}
+    aps = {name: value for name, value in aps.items() if value is not None}
+    if aps and "aps_rate_hz" not in aps:
+        raise click.UsageError(f"{', '.join('--' + n.replace('_us', '').replace('_', '-') for n in aps)} require "
+                               "--aps-rate")
     size = _merged("--size", size, "--sensor-size", sensor_size)
     fps = options["frame_rate"] = _merged("--frame-rate", options["frame_rate"], "--fps", fps)
     given = {name: value for name, value in options.items() if value is not None}
     if is_event_stream(source, input_format):
+        if aps:
+            raise click.UsageError("--aps-rate: APS frames are simulated from a scene, a video or images, not added "
+                                   "to an event stream")
         sensor_size, size = (parse_sensor_size(size) if size else None), None
         frame_only = [name for name, value in (("--size", size), ("--duration", duration),
                                                ("--timestamps", timestamps),
@@ -502,9 +526,13 @@ def simulate(source, output, output_format, truth, truth_frame_rate, input_forma
     info = StreamInfo(frames.width, frames.height, metadata={"source": description})
     inputs = (source,) if not source.startswith("scene:") else ()
     counts = np.zeros(len(LABELS), np.int64)
+    sensor = None
+    if aps:
+        sensor = _build(ApsSensor, frames.width, frames.height, aps.pop("aps_rate_hz"), seed=simulator.seed, **aps)
+        info.metadata["frame_size"] = (frames.width, frames.height)
     with create_events(output, info, format=output_format, compression=compression, inputs=inputs) as writer:
         if truth is None:
-            _run(simulator, frames, writer, None, counts)
+            _run(simulator, frames, writer, None, counts, aps=_Aps(sensor, None) if sensor else None)
         else:
             import h5py
 
@@ -514,7 +542,7 @@ def simulate(source, output, output_format, truth, truth_frame_rate, input_forma
                 _start_truth(h5, simulator, frames, preset)
                 rate_hz = TRUTH_FRAME_RATE_HZ if truth_frame_rate is None else truth_frame_rate
                 _run(simulator, frames, writer, h5["label"], counts,
-                     _LogFrames(h5, frames, rate_hz) if rate_hz else None)
+                     _LogFrames(h5, frames, rate_hz) if rate_hz else None, _Aps(sensor, h5) if sensor else None)
     _report(source, output, counts, as_json)
 
 
@@ -616,13 +644,52 @@ class _LogFrames:
         self.times[n] = t_us
 
 
-def _run(simulator: DvsSimulator, frames: FrameSource, writer, labels_dataset, counts, log_frames=None) -> None:
+class _Aps:
+    """The APS of a simulation: its frames go to the output after the events before them (the events held are
+    written first), their truth to the truth file's ``aps/`` group: ``t_us``, ``exposure_begin_us``,
+    ``exposure_end_us``, ``log_intensity`` (the scene's lin-log at each exposure's middle), ``mean_intensity`` (over
+    the exposure), and the per-pixel ``gain`` and ``offset`` maps."""
+
+    def __init__(self, sensor: ApsSensor, h5) -> None:
+        self.sensor, self.datasets = sensor, None
+        if h5 is not None:
+            group = h5.create_group("aps")
+            shape = (sensor.height, sensor.width)
+            group.create_dataset("gain", data=sensor.gain_map).attrs["units"] = "DN per intensity level per ms"
+            group.create_dataset("offset", data=sensor.offset_map).attrs["units"] = "DN"
+            for key, value in sensor.parameters.items():
+                group.attrs[key] = value
+            self.datasets = {name: group.create_dataset(name, shape=(0,), maxshape=(None,), dtype=np.int64,
+                                                        chunks=(256,))
+                             for name in ("t_us", "exposure_begin_us", "exposure_end_us")}
+            for name in ("log_intensity", "mean_intensity"):
+                self.datasets[name] = group.create_dataset(name, shape=(0, *shape), maxshape=(None, *shape),
+                                                           dtype=np.float32, chunks=(1, *shape), compression="gzip")
+
+    def add(self, t_us: int, frame: np.ndarray, sink: "_LabelledSink") -> None:
+        for done in self.sensor.add(t_us, frame):
+            sink.write()
+            sink.writer.write_frame(done.frame)
+            if self.datasets is not None:
+                n = len(self.datasets["t_us"])
+                values = {"t_us": done.frame.t_us, "exposure_begin_us": done.frame.exposure_begin_us,
+                          "exposure_end_us": done.frame.exposure_end_us, "log_intensity": done.true_log,
+                          "mean_intensity": done.mean_intensity}
+                for name, dataset in self.datasets.items():
+                    dataset.resize((n + 1, *dataset.shape[1:]))
+                    dataset[n] = values[name]
+
+
+def _run(simulator: DvsSimulator, frames: FrameSource, writer, labels_dataset, counts, log_frames=None,
+         aps: _Aps | None = None) -> None:
     sink = _LabelledSink(writer, labels_dataset, counts)
     with interrupt.consuming():  # Ctrl-C / SIGTERM: stop after the frame at hand, outputs complete
         for t_us, frame in _progress(frames):
             if log_frames is not None:
                 log_frames.add(int(t_us), frame)
             sink.add(*simulator.process_labelled(t_us, frame))
+            if aps is not None:
+                aps.add(int(t_us), frame, sink)
             if interrupt.received() is not None:
                 break
     sink.add(*simulator.flush_labelled())
