@@ -25,6 +25,7 @@ from evtools.estimation import (
     Stimulus,
     ThresholdEstimator,
 )
+from evtools.estimation_frames import FrameThresholdEstimator
 from evtools.events import MAX_SENSOR_SIDE
 from evtools.formats import open_events
 from evtools.formats.io import STDIO, same_file
@@ -73,10 +74,12 @@ def _stimulus(levels, period_us, profile, amplitude, speed, wavelength, rise) ->
 
 @click.command()
 @batch_options
-@click.option("--method", type=click.Choice(METHODS), default="offe", show_default=True,
+@click.option("--method", type=click.Choice(METHODS + ("frames",)), default="offe", show_default=True,
               help="offe: Wang et al.'s events-only least squares (relative, scaled by --nominal); stimulus: the "
                    "known calibration stimulus (absolute, exact for an ideal pixel); natural: an ordinary moving "
-                   "scene, each pixel's event counts against its neighbours' (relative, scaled by --nominal).")
+                   "scene, each pixel's event counts against its neighbours' (relative, scaled by --nominal); "
+                   "frames: a DAVIS recording's events and APS frames (absolute, Wang et al.'s offEI; onEI with "
+                   "--online).")
 @click.option("--segment-us", type=MICROSECONDS, default=DEFAULT_SEGMENT_US, show_default=True,
               help="offe: segment length, microseconds.")
 @click.option("--nominal", type=FiniteRange(min=0, min_open=True), default=DEFAULT_NOMINAL, show_default=True,
@@ -121,12 +124,14 @@ def _stimulus(levels, period_us, profile, amplitude, speed, wavelength, rise) ->
                    "replaces --stimulus-period.")
 @click.option("--stimulus-wavelength", type=FiniteRange(min=0, min_open=True), default=None, metavar="PX",
               help="stimulus: a moving gradient's rise-and-fall length (simulate's --wavelength).")
+@click.option("--black-level", type=FiniteRange(min=0), default=None, metavar="DN",
+              help="frames: the APS frames' value of no light (default: fitted to the data, 0-32 DN).")
 @slicing_options
 def estimate(inputs, input_format, sensor_size, aedat2_layout, output, jobs, scheduler, as_json,
              method, segment_us, nominal, radius, online,
              interval, forget, min_events,
              max_fit, stimulus_amplitude, stimulus_levels, stimulus_period, stimulus_profile, stimulus_rise,
-             stimulus_phase, stimulus_speed, stimulus_wavelength, slicing):
+             stimulus_phase, stimulus_speed, stimulus_wavelength, black_level, slicing):
     """Estimate every pixel's ON and OFF contrast thresholds from IN (default stdin), streaming, into -o FILE.
 
     Several inputs go to the folder -o FOLDER, one NAME.h5 each, --jobs at a time.
@@ -145,9 +150,11 @@ def estimate(inputs, input_format, sensor_size, aedat2_layout, output, jobs, sch
                               "FOLDER for several inputs)")
     if not online and (interval is not None or forget is not None):
         raise click.UsageError("--interval and --forget apply to --online estimation")
+    if method != "frames" and black_level is not None:
+        raise click.UsageError("--black-level applies to --method frames")
     if online and method == "offe":
-        raise click.UsageError("--online works with --method stimulus or natural (offE fits each pixel's whole "
-                               "history)")
+        raise click.UsageError("--online works with --method stimulus, natural or frames (offE fits each pixel's "
+                               "whole history)")
     interval_us = (interval or 1_000_000) if online else None
     stimulus = None
     if method == "stimulus":
@@ -157,7 +164,8 @@ def estimate(inputs, input_format, sensor_size, aedat2_layout, output, jobs, sch
     options = dict(input_format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout,
                    parameters=dict(method=method, nominal=nominal, segment_us=segment_us, stimulus=stimulus,
                                    phase=stimulus_phase, min_events=min_events, max_fit=max_fit, radius_px=radius,
-                                   interval_us=interval_us, forget_us=forget), slicing=slicing)
+                                   interval_us=interval_us, forget_us=forget,
+                                   **({"black_level": black_level} if method == "frames" else {})), slicing=slicing)
     run(estimate_one, pairs, options, jobs, scheduler, as_json)
 
 
@@ -184,9 +192,16 @@ def estimate_one(input, output, *, input_format, sensor_size, aedat2_layout, par
     with open_events(input, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as opened:
         stream = sliced(opened, slicing)
         try:
-            estimator = ThresholdEstimator(stream.info.width, stream.info.height, check=False, **parameters)
-            for chunk in with_progress(stream, stream, f"estimating from {stream.name}"):
-                estimator.process(chunk)
+            if parameters["method"] == "frames":
+                estimator = FrameThresholdEstimator(stream.info.width, stream.info.height, check=False, **parameters)
+                for chunk in with_progress(stream, stream, f"estimating from {stream.name}"):
+                    estimator.process(chunk)
+                    estimator.add_frames(stream.take_frames())
+                estimator.add_frames(stream.take_frames())
+            else:
+                estimator = ThresholdEstimator(stream.info.width, stream.info.height, check=False, **parameters)
+                for chunk in with_progress(stream, stream, f"estimating from {stream.name}"):
+                    estimator.process(chunk)
             result = estimator.result()
         except EvtoolsError as error:
             message = str(error) if str(error).startswith(stream.name) else f"{stream.name}: {error}"

@@ -641,3 +641,23 @@ def count_accumulate(t, x, y, p, width, block_us, counts):  # pragma: no cover -
     time: ``t // block_us`` even or odd), into ``counts`` (pixels, :data:`COUNT_SIZE`)."""
     for k in range(t.shape[0]):
         _count(t[k], np.int64(y[k]) * width + x[k], p[k], block_us, counts)
+
+
+# frames method (APS frames with events, Wang et al. 2019's offEI): per pixel its cumulative ON and OFF counts and
+# the polarity of its latest event (+1 ON, -1 OFF, 0 none yet)
+FRAMES_ON, FRAMES_OFF, FRAMES_LAST = 0, 1, 2
+FRAMES_ROW = 4
+
+
+@kernel
+def polarity_counts(x, y, p, width, counts):  # pragma: no cover - compiled
+    """Events in stream order into ``counts`` (int64, (pixels, FRAMES_ROW)): each pixel's ON and OFF counts and the
+    polarity of its latest event."""
+    for k in range(len(x)):
+        i = y[k] * width + x[k]
+        if p[k]:
+            counts[i, FRAMES_ON] += 1
+            counts[i, FRAMES_LAST] = 1
+        else:
+            counts[i, FRAMES_OFF] += 1
+            counts[i, FRAMES_LAST] = -1

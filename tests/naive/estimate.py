@@ -251,3 +251,13 @@ def naive_natural(events, width, height, nominal=0.2, radius_px=3, min_events=10
             on[y, x] = nominal * 2 * u_on / mean
             off[y, x] = nominal * 2 * u_off / mean
     return on, off, np.isfinite(on)
+
+
+def naive_polarity_counts(events, width: int, height: int) -> dict:
+    """{(x, y): [on count, off count, latest polarity (+1, -1)]} of ``events``, in plain Python."""
+    counts: dict = {}
+    for x, y, p in zip(events["x"].tolist(), events["y"].tolist(), events["p"].tolist()):
+        row = counts.setdefault((x, y), [0, 0, 0])
+        row[0 if p else 1] += 1
+        row[2] = 1 if p else -1
+    return counts

@@ -1,0 +1,402 @@
+"""``estimate --method frames``: each pixel's ON and OFF thresholds on the absolute log scale from its events and
+the APS frames of a DAVIS recording (Wang, Ng, van Goor, Mahony, "Event camera calibration of per-pixel biased
+contrast threshold", ACRA 2019: offEI offline, onEI online with ``--online``).
+
+The model. A pixel's events move its reference level by its thresholds: after ``A`` ON and ``B`` OFF events the
+reference is ``R = c + theta_on A - theta_off B`` (``c`` the pixel's own unknown offset, its gain's log included),
+and its log intensity ``L`` lies strictly between ``R - theta_off`` and ``R + theta_on`` (else it would have fired).
+A frame measures ``L`` up to noise: ``y = log(DN - black) - log(exposure)``. Two facts shape the fit:
+
+- A frame integrates intensity over its exposure: only frames during whose exposure the pixel had no event are
+  used for it (its intensity then stayed inside one band of the lattice, so the frame's mean does too); dark
+  (signal below :data:`MIN_SIGNAL_DN`) and saturated (at or above :data:`SATURATED_DN`) values are not used.
+- The remainder ``L - R`` is not centred: after an ON event the signal has mostly gone on rising (it lies in
+  ``[0, theta_on)``), after an OFF event falling. Fitting ``y`` against the counts alone biases the thresholds
+  (about +6 % on moving textures); the regressors here are ``A + 1/2`` after an ON event and ``B + 1/2`` after an
+  OFF one, the remainder's expected value on a ramp, so that ``y = c + theta_on A' - theta_off B' + e`` with ``e``
+  centred.
+
+Each pixel's least squares (sums accumulated frame by frame: O(pixels) memory) gives the thresholds, the residual
+RMS and the standard errors; frames between which the pixel did not fire share one remainder, so the errors are
+scaled by ``sqrt(frames / frames with a new count)``. The ``fit`` map is the larger relative standard error of ON
+and OFF: it predicts the estimate's error. A pixel is invalid when it has fewer than :data:`MIN_FRAMES` usable
+frames, fewer than ``min_events`` events or events of one polarity only, a fit above ``max_fit``, or residuals
+more than :data:`MAX_RESIDUAL_RATIO` times what the model allows (its events and frames disagree: a hot pixel,
+a frame stream of another time base); the reasons are counted in the attributes. The black level (the DN of no
+light) is fitted unless given: the candidate of :data:`BLACK_LEVELS` whose fits leave the smallest median residual.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from typing import Any
+
+import numpy as np
+
+from evtools._kernels.estimate import FRAMES_LAST, FRAMES_OFF, FRAMES_ON, FRAMES_ROW, polarity_counts
+from evtools.estimation import DEFAULT_MIN_EVENTS, EstimationError, ThresholdEstimate, ThresholdSeries, _series_of
+from evtools.events import StreamChecker, StreamInfo, as_chunk
+
+MIN_SIGNAL_DN = 8.0
+"""A frame's pixel this close to the black level is dark: its log is dominated by read noise."""
+SATURATED_DN = 250
+"""A frame's pixel at or above this DN is saturated (8-bit frames clip at 255)."""
+MAX_EXPOSURE_EVENTS = 1
+"""A pixel's frame is used when it fired at most this often during the exposure (its intensity then moved by at most
+about a threshold while the frame integrated it)."""
+MIN_FRAMES = 12
+"""Fewer usable frames than this leave a pixel invalid."""
+DEFAULT_MAX_FRAME_FIT = 0.05
+"""Pixels whose predicted relative error is larger are invalid (``--max-fit``)."""
+MAX_RESIDUAL_RATIO = 2.0
+"""A pixel whose residual RMS exceeds this many times the model's (the remainder's spread, a band of one threshold:
+``theta / sqrt(12)``, and the frames' noise) does not fit the model: invalid."""
+READ_NOISE_DN = 2.0
+"""The frames' noise assumed when judging residuals (DN, standard deviation)."""
+BLACK_LEVELS = tuple(float(level) for level in range(0, 44, 4))
+"""Black levels tried when none is given (DN)."""
+HOLD_EVENTS = 1 << 22
+"""Events held until the frames around them are known (a frame's packet may follow later events in a file); beyond
+this many, they are counted and a frame that then arrives too late for them is left out (counted)."""
+BLACK_LEVEL_SAMPLE = 4
+"""Every this many pixels take part in the black level's test (its sums, twice per candidate, for a quarter of the
+sensor)."""
+N_SUMS = 10  # per candidate and pixel: n, x1, x2, y, x1x1, x2x2, x1x2, x1y, x2y, yy
+S_N, S_X1, S_X2, S_Y, S_X1X1, S_X2X2, S_X1X2, S_X1Y, S_X2Y, S_YY = range(N_SUMS)
+
+
+class FrameThresholdEstimator:
+    """Accumulates a stream's events (:meth:`process`) and APS frames (:meth:`add_frames`, in the stream's order)
+    and estimates every pixel's thresholds on the absolute scale (see the module docstring).
+
+    Parameters
+    ----------
+    width, height : int
+        Sensor size; frames may be smaller (a region of interest at their offset).
+    black_level : float or None
+        The frames' DN of no light; None: fitted (:data:`BLACK_LEVELS`).
+    min_events : int
+        Pixels with fewer events are invalid.
+    max_fit : float or None
+        Pixels whose predicted relative error (the fit map) is larger are invalid (default
+        :data:`DEFAULT_MAX_FRAME_FIT`; inf: none).
+    interval_us, forget_us : int or None
+        onEI: a map every ``interval_us`` from the frames so far, older ones forgotten with time constant
+        ``forget_us`` (default 3 intervals).
+    """
+
+    def __init__(self, width: int, height: int, *, black_level: float | None = None,
+                 min_events: int = DEFAULT_MIN_EVENTS, max_fit: float | None = None, interval_us: int | None = None,
+                 forget_us: int | None = None, check: bool = True, **unused) -> None:
+        unknown = sorted(name for name, value in unused.items() if value is not None and name not in (
+            "method", "nominal", "segment_us", "stimulus", "phase", "radius_px"))
+        if unknown:
+            raise EstimationError(f"the frames method takes no {', '.join(unknown)}")
+        if black_level is not None and not (math.isfinite(black_level) and 0 <= black_level < 65535):
+            raise EstimationError(f"the black level must be a DN from 0, not {black_level}")
+        if interval_us is not None and interval_us <= 0:
+            raise EstimationError("the interval must be positive")
+        self.width, self.height = width, height
+        self.min_events = int(min_events)
+        self.max_fit = DEFAULT_MAX_FRAME_FIT if max_fit is None else float(max_fit)
+        self.candidates = np.array([black_level] if black_level is not None else BLACK_LEVELS, np.float64)
+        self.black_level_given = black_level is not None
+        self.black_level_unsure = False  # the thresholds' slope against brightness never crossed zero
+        self.interval_us = interval_us
+        self.forget_us = forget_us if forget_us is not None else (3 * interval_us if interval_us else None)
+        pixels = width * height
+        self.counts = np.zeros((pixels, FRAMES_ROW), np.int64)
+        self.sums = np.zeros((len(self.candidates), N_SUMS, pixels), np.float64)
+        self.new_counts = np.zeros((len(self.candidates), pixels), np.float64)  # frames with a count not seen before
+        self.signal_sums = np.zeros((len(self.candidates), pixels), np.float64)  # DN above black, frames used
+        self.sample = np.arange(0, pixels, BLACK_LEVEL_SAMPLE)
+        self.half_sums = np.zeros((len(self.candidates), 2, N_SUMS, len(self.sample)), np.float64)
+        self.last_state = np.full((len(self.candidates), pixels), -1, np.int64)
+        self.frames_seen = np.zeros(pixels, np.int64)
+        self.saturated = np.zeros(pixels, np.int64)
+        self.blurred = np.zeros(pixels, np.int64)  # frames during whose exposure the pixel fired
+        self._checker = StreamChecker(StreamInfo(width, height)) if check else None
+        self.pending: deque = deque()  # frames whose exposure the counts have not passed yet
+        self.held: deque = deque()  # event chunks not counted yet
+        self.held_events = 0
+        self.counted_before_us = -math.inf  # every event earlier than this is counted (and no later one)
+        self.last_t_us: int | None = None
+        self.events = 0
+        self.frames_used = self.frames_late = self.frames_outside = 0
+        self.opening: tuple[Any, np.ndarray] | None = None  # the frame at hand and its counts at its exposure start
+        self.t_frame_us: int | None = None  # the last frame used (online forgetting)
+        self.next_map_us: int | None = None
+        self.maps: list = []
+
+    @property
+    def parameters(self) -> dict[str, Any]:
+        return {"method": "frames", "black_level": float(self.candidates[0]) if self.black_level_given else "fitted",
+                "min_events": self.min_events, "max_fit": self.max_fit,
+                **({"interval_us": self.interval_us, "forget_us": self.forget_us} if self.interval_us else {})}
+
+    def add_frames(self, frames) -> None:
+        """APS frames of the stream, in its order (a frame whose exposure lies before events already counted, when
+        more than :data:`HOLD_EVENTS` were waiting for it, is left out and counted)."""
+        for frame in frames:
+            if frame.exposure_begin_us < self.counted_before_us:
+                self.frames_late += 1
+                continue
+            self.pending.append(frame)
+        self._advance(final=False)
+
+    def process(self, chunk: np.ndarray) -> np.ndarray:
+        """Hold a chunk of events until the frames around it are known; returns nothing (an estimator)."""
+        chunk = self._checker.check(chunk) if self._checker else as_chunk(chunk)
+        if len(chunk):
+            self.held.append(chunk)
+            self.held_events += len(chunk)
+            self.events += len(chunk)
+            self.last_t_us = int(chunk["t"][-1])
+        self._advance(final=False)
+        if self.held_events > HOLD_EVENTS:  # no frame for a long stretch: count what waits
+            self._count_before(self.last_t_us)
+        return chunk[:0]
+
+    def flush(self) -> np.ndarray:
+        self._advance(final=True)
+        return np.empty(0, self.held[0].dtype) if self.held else as_chunk(np.empty(0, dtype=[("t", "<i8")]))[:0]
+
+    # -- events and frames in time order --------------------------------------------------------------------
+
+    def _count_before(self, t_us: float) -> None:
+        """Count every held event earlier than ``t_us``."""
+        while self.held:
+            chunk = self.held[0]
+            split = len(chunk) if chunk["t"][-1] < t_us else int(np.searchsorted(chunk["t"], t_us, "left"))
+            if split:
+                part = chunk[:split]
+                polarity_counts(part["x"], part["y"], part["p"], self.width, self.counts)
+                self.held_events -= split
+            if split < len(chunk):
+                self.held[0] = chunk[split:]
+                break
+            self.held.popleft()
+        self.counted_before_us = max(self.counted_before_us, t_us)
+
+    def _advance(self, final: bool) -> None:
+        """Use every pending frame whose exposure the events have passed (all of them at the stream's end)."""
+        known_us = math.inf if final else (self.last_t_us if self.last_t_us is not None else -math.inf)
+        while self.pending:
+            frame = self.pending[0]
+            middle_us = (frame.exposure_begin_us + frame.exposure_end_us) / 2
+            if self.opening is None:  # the events before the exposure, then those of its first half
+                if known_us <= middle_us:  # a later event may still belong before its middle
+                    return
+                self._count_before(frame.exposure_begin_us)
+                before = self.counts[:, FRAMES_ON] + self.counts[:, FRAMES_OFF]
+                self._count_before(middle_us)
+                self.opening = (frame, before, self.counts[:, :FRAMES_LAST + 1].copy())
+            if known_us <= frame.exposure_end_us:
+                return
+            self._count_before(frame.exposure_end_us + 1)
+            self._use(*self.opening)
+            self.opening = None
+            self.pending.popleft()
+        if final:
+            self._count_before(math.inf)
+
+    # -- the fit ------------------------------------------------------------------------------------------------
+
+    def _full(self, frame) -> tuple[np.ndarray, np.ndarray] | None:
+        """The frame's DN on the whole sensor (flattened, float64) and where it has pixels."""
+        height, width = frame.image.shape
+        x0, y0 = frame.offset_x, frame.offset_y
+        if x0 < 0 or y0 < 0 or x0 + width > self.width or y0 + height > self.height:
+            self.frames_outside += 1
+            return None
+        if (x0, y0, width, height) == (0, 0, self.width, self.height):
+            return frame.image.astype(np.float64).reshape(-1), np.ones(self.width * self.height, bool)
+        dn = np.zeros((self.height, self.width))
+        inside = np.zeros((self.height, self.width), bool)
+        dn[y0:y0 + height, x0:x0 + width] = frame.image
+        inside[y0:y0 + height, x0:x0 + width] = True
+        return dn.reshape(-1), inside.reshape(-1)
+
+    def _use(self, frame, before: np.ndarray, at_middle: np.ndarray) -> None:
+        """One frame into the sums: each pixel's counts at the exposure's middle against its log DN, where the
+        pixel fired at most :data:`MAX_EXPOSURE_EVENTS` times during the exposure."""
+        full = self._full(frame)
+        if full is None:
+            return
+        dn, inside = full
+        self._forget(frame.exposure_end_us)
+        ons, offs = at_middle[:, FRAMES_ON], at_middle[:, FRAMES_OFF]
+        quiet = inside & (self.counts[:, FRAMES_ON] + self.counts[:, FRAMES_OFF] - before <= MAX_EXPOSURE_EVENTS)
+        saturated = inside & (dn >= SATURATED_DN)
+        self.frames_seen += inside
+        self.saturated += saturated
+        self.blurred += inside & ~quiet
+        x1, x2 = ons.astype(np.float64), -offs.astype(np.float64)
+        log_exposure = math.log(max(frame.exposure_us, 1) * 1e-6)
+        state = ons + offs
+        for index, black in enumerate(self.candidates):
+            signal = dn - black
+            use = quiet & ~saturated & (signal >= MIN_SIGNAL_DN)
+            y = np.where(use, np.log(np.maximum(signal, 1.0)) - log_exposure, 0.0)
+            w = use.astype(np.float64)
+            values = np.stack([w, w * x1, w * x2, y, w * x1 * x1, w * x2 * x2, w * x1 * x2, x1 * y, x2 * y, y * y])
+            sums = self.sums[index]
+            # the black level's test: a sample of pixels fitted apart on their frames below and above their mean
+            # count level so far (split by the counts, not by the DN, which would bias both halves' slopes)
+            sampled = sums[:, self.sample]
+            level = (sampled[S_X1] + sampled[S_X2]) / np.maximum(sampled[S_N], 1)
+            high = (x1 + x2)[self.sample] > level
+            part = values[:, self.sample]
+            self.half_sums[index, 1] += part * high
+            self.half_sums[index, 0] += part * ~high
+            sums += values
+            self.signal_sums[index] += w * signal
+            fresh = use & (state != self.last_state[index])
+            self.new_counts[index] += fresh
+            self.last_state[index] = np.where(use, state, self.last_state[index])
+        self.frames_used += 1
+        if self.interval_us is not None:
+            self._snapshot_maps(frame.exposure_end_us)
+
+    def _forget(self, t_us: int) -> None:
+        """onEI: older frames weigh ``exp(-age / forget_us)``."""
+        if self.interval_us is None:
+            return
+        if self.t_frame_us is not None and t_us > self.t_frame_us:
+            factor = math.exp(-(t_us - self.t_frame_us) / self.forget_us)
+            self.sums *= factor
+            self.new_counts *= factor
+            self.signal_sums *= factor
+        self.t_frame_us = t_us
+
+    def _snapshot_maps(self, t_us: int) -> None:
+        if self.next_map_us is None:
+            self.next_map_us = t_us + self.interval_us
+        while t_us >= self.next_map_us:
+            self.maps.append(self._map_of(self.next_map_us, self._solve()))
+            self.next_map_us += self.interval_us
+
+    def _black_level(self, fits: list[dict]) -> tuple[dict, float]:
+        """The fit at the black level where a pixel's thresholds do not depend on its brightness. A black level
+        too low compresses the logs of a pixel's darker frames more than those of its brighter ones (their
+        thresholds come out smaller), one too high stretches them: the median over a sample of pixels of
+        ``log(theta below / theta above)`` (each pixel fitted apart on its frames below and above its mean count
+        level) falls through zero at the true level, found between two candidates and interpolated (the maps
+        too)."""
+        if len(fits) == 1:
+            return fits[0], float(self.candidates[0])
+        slopes = []
+        ones = np.ones(len(self.sample))
+        for index in range(len(fits)):
+            low, high = (_least_squares(self.half_sums[index, half], ones, ones) for half in (0, 1))
+            use = low["solved"] & high["solved"] & (np.minimum(low["n"], high["n"]) >= MIN_FRAMES)
+            for fit in (low, high):
+                use &= (fit["on"] > 0) & (fit["off"] > 0)
+            if use.sum() < 10:
+                slopes.append(np.nan)
+                continue
+            ratio = np.log(low["on"][use] * low["off"][use] / (high["on"][use] * high["off"][use])) / 2
+            slopes.append(-float(np.median(ratio)))
+        slopes = np.array(slopes)
+        for k in range(len(slopes) - 1):
+            a, b = slopes[k], slopes[k + 1]
+            if np.isfinite(a) and np.isfinite(b) and a > 0 >= b:
+                share = a / (a - b)
+                mixed = {key: (1 - share) * fits[k][key] + share * fits[k + 1][key]
+                         for key in ("on", "off", "rms", "expected_rms", "fit", "n")}
+                mixed["solved"] = fits[k]["solved"] & fits[k + 1]["solved"]
+                return mixed, float((1 - share) * self.candidates[k] + share * self.candidates[k + 1])
+        finite = np.where(np.isfinite(slopes), np.abs(slopes), np.inf)
+        best = int(np.argmin(finite))
+        self.black_level_unsure = True
+        return fits[best], float(self.candidates[best])
+
+    def _solve(self) -> ThresholdEstimate:
+        fit, black_level = self._black_level([self._fit(index) for index in range(len(self.candidates))])
+        on, off = fit["on"], fit["off"]
+        n_events = self.counts[:, FRAMES_ON] + self.counts[:, FRAMES_OFF]
+        reasons = {
+            "no_frames": self.frames_seen == 0,
+            "saturated": (self.saturated * 2 > self.frames_seen) & (self.frames_seen > 0),
+            "few_events": n_events < self.min_events,
+            "one_polarity": (self.counts[:, FRAMES_ON] < 2) | (self.counts[:, FRAMES_OFF] < 2),
+            "few_frames": fit["n"] < MIN_FRAMES,
+        }
+        valid = fit["solved"].copy()
+        for mask in reasons.values():
+            valid &= ~mask
+        in_range = (on > 0.01) & (off > 0.01) & (on < 5) & (off < 5)
+        reasons["out_of_range"] = valid & ~in_range
+        valid &= in_range
+        reasons["does_not_fit"] = valid & (fit["rms"] > MAX_RESIDUAL_RATIO * fit["expected_rms"])
+        valid &= ~reasons["does_not_fit"]
+        reasons["poor_fit"] = valid & ~(fit["fit"] <= self.max_fit)
+        valid &= ~reasons["poor_fit"]
+        shape = (self.height, self.width)
+        on_map, off_map = on.astype(np.float32), off.astype(np.float32)
+        if valid.any():
+            on_map[~valid], off_map[~valid] = np.median(on[valid]), np.median(off[valid])
+        attributes = {
+            **self.parameters, "black_level_used": black_level, "scale": "absolute",
+            "black_level_unsure": bool(self.black_level_unsure),
+            "events": self.events, "frames": self.frames_used, "frames_late": self.frames_late,
+            "frames_outside": self.frames_outside, "valid_fraction": float(valid.mean()),
+            **{f"invalid_{name}": int(mask.sum()) for name, mask in reasons.items()},
+        }
+        return ThresholdEstimate(on_map.reshape(shape), off_map.reshape(shape), valid.reshape(shape), attributes,
+                                 fit["fit"].astype(np.float32).reshape(shape))
+
+    def result(self) -> ThresholdEstimate:
+        """The maps from everything so far (the stream's end: its held events and frames used); raises
+        :class:`EstimationError` when the stream had no frames."""
+        self._advance(final=True)
+        if self.frames_used == 0:
+            raise EstimationError("no APS frames: --method frames needs a recording with frames (a DAVIS camera's, "
+                                  "or simulate --aps-rate); --method natural estimates from events alone")
+        estimate = self._solve()
+        if self.interval_us is not None:
+            self.maps.append(self._map_of((self.last_t_us or 0) + 1, estimate))
+            estimate.series = _series_of(self.maps)
+        return estimate
+
+    @staticmethod
+    def _map_of(t_us: int, estimate: ThresholdEstimate) -> tuple:
+        """One map of an online series (NaN where not valid, as :class:`ThresholdSeries` holds them)."""
+        return (t_us, np.where(estimate.valid, estimate.on, np.nan), np.where(estimate.valid, estimate.off, np.nan),
+                estimate.valid, estimate.fit)
+
+    def _fit(self, index: int) -> dict:
+        """Each pixel's least squares for black-level candidate ``index``: thresholds, residual RMS, the RMS the
+        model allows, and the fit (the larger relative standard error)."""
+        return _least_squares(self.sums[index], self.new_counts[index], self.signal_sums[index])
+
+
+def _least_squares(s: np.ndarray, new_counts: np.ndarray, signal_sums: np.ndarray) -> dict:
+    """Per pixel, ``y = c + theta_on x1 + theta_off x2`` from the sums ``s`` (:data:`N_SUMS` rows)."""
+    n = s[S_N]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        matrix = np.stack([np.stack([n, s[S_X1], s[S_X2]], -1), np.stack([s[S_X1], s[S_X1X1], s[S_X1X2]], -1),
+                           np.stack([s[S_X2], s[S_X1X2], s[S_X2X2]], -1)], -2)
+        vector = np.stack([s[S_Y], s[S_X1Y], s[S_X2Y]], -1)
+        determinant = np.linalg.det(matrix)
+        scale = np.maximum(n, 1) * np.maximum(s[S_X1X1], 1) * np.maximum(s[S_X2X2], 1)
+        solved = (n >= 3) & (np.abs(determinant) > 1e-9 * scale)
+        safe = np.where(solved[:, None, None], matrix, np.eye(3))
+        inverse = np.linalg.inv(safe)
+        beta = np.einsum("pij,pj->pi", inverse, np.where(solved[:, None], vector, 0.0))
+        residual_ss = np.maximum(s[S_YY] - np.einsum("pi,pi->p", beta, vector), 0.0)
+        dof = np.maximum(n - 3, 1)
+        variance = residual_ss / dof
+        inflation = n / np.maximum(new_counts, 1)
+        on, off = beta[:, 1], beta[:, 2]
+        se_on = np.sqrt(variance * inverse[:, 1, 1] * inflation)
+        se_off = np.sqrt(variance * inverse[:, 2, 2] * inflation)
+        fit = np.maximum(se_on / np.abs(on), se_off / np.abs(off))
+        band = (np.abs(on) + np.abs(off)) / 2
+        mean_dn = signal_sums / np.maximum(n, 1)  # its frames' noise is relative to this
+        expected_rms = np.sqrt(band**2 / 12 + (READ_NOISE_DN / np.maximum(mean_dn, 1.0)) ** 2)
+    fit = np.where(solved, fit, np.nan)
+    return {"on": np.where(solved, on, np.nan), "off": np.where(solved, off, np.nan), "n": n, "solved": solved,
+            "rms": np.sqrt(variance), "expected_rms": expected_rms, "fit": fit}
+
