@@ -72,6 +72,18 @@ def _stimulus(levels, period_us, profile, amplitude, speed, wavelength, rise) ->
     return Stimulus(*levels, period_us, 0.0, profile, rise)
 
 
+def _black_level(ctx, param, value):
+    if value is None or value == "fit":
+        return value
+    try:
+        number = float(value)
+    except ValueError:
+        raise click.BadParameter(f"{value!r} is not a DN (a number from 0) or 'fit'") from None
+    if not math.isfinite(number) or number < 0:
+        raise click.BadParameter(f"{value!r} is not a DN from 0")
+    return number
+
+
 @click.command()
 @batch_options
 @click.option("--method", type=click.Choice(METHODS + ("frames",)), default="offe", show_default=True,
@@ -124,8 +136,9 @@ def _stimulus(levels, period_us, profile, amplitude, speed, wavelength, rise) ->
                    "replaces --stimulus-period.")
 @click.option("--stimulus-wavelength", type=FiniteRange(min=0, min_open=True), default=None, metavar="PX",
               help="stimulus: a moving gradient's rise-and-fall length (simulate's --wavelength).")
-@click.option("--black-level", type=FiniteRange(min=0), default=None, metavar="DN",
-              help="frames: the APS frames' value of no light (default: fitted to the data, 0-32 DN).")
+@click.option("--black-level", default=None, metavar="DN|fit", callback=_black_level,
+              help="frames: the APS frames' value of no light [default: 0, as DV's black-subtracted DAVIS frames]; "
+                   "`fit`: estimated from the data (approximate: give it when known).")
 @slicing_options
 def estimate(inputs, input_format, sensor_size, aedat2_layout, output, jobs, scheduler, as_json,
              method, segment_us, nominal, radius, online,

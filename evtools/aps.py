@@ -27,14 +27,15 @@ from evtools.frames import Frame
 APS_DEFAULTS = {
     "aps_exposure_us": 10_000,
     "aps_gain": 0.08,
-    "aps_black_level": 16.0,
+    "aps_black_level": 0.0,
     "aps_read_noise": 1.5,
     "aps_gain_fpn": 0.01,
     "aps_offset_fpn": 2.0,
 }
 """The APS model's defaults: exposure 10 ms; 0.08 DN per intensity level per ms of exposure (the brightest level,
-255, gives 204 DN above black at 10 ms and saturates from 12 ms); black level 16 DN; read noise 1.5 DN; gain
-non-uniformity 1 %; offset non-uniformity 2 DN."""
+255, gives 204 DN at 10 ms and saturates from 12.5 ms); black level 0 DN (DV's DAVIS frames are black-subtracted by
+correlated double sampling: their darkest pixels read 0, as in the DAVIS346 recordings of the tests); read noise
+1.5 DN; gain non-uniformity 1 %; offset non-uniformity 2 DN."""
 APS_MAX_DN = 255
 APS_SEED_KEY = 0x415053  # "APS": the APS's draws come from the simulator's seed, apart from the DVS's
 MAX_APS_RATE_HZ = 10_000.0
