@@ -287,3 +287,27 @@ def test_numbas_cache_of_a_kernel_goes_where_numba_cache_dir_says(tmp_path, monk
     locator = jit._kernels_cache(jit.kernel(scale_and_count))._impl.locator
     assert locator.get_cache_path().startswith(str(tmp_path))
     assert locator.get_source_stamp() == jit._sources(jit.kernel(scale_and_count))
+
+
+def test_a_terminal_is_told_once_that_kernels_are_being_compiled(monkeypatch):
+    """Issue 39: the first run of a command compiled its kernels for seconds without a word; on a terminal one line
+    says so, once a process, and nothing is written when stderr is not a terminal."""
+    import io
+
+    from evtools._kernels import jit
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    monkeypatch.setattr(jit, "_SAID", [])
+    terminal = Terminal()
+    monkeypatch.setattr("sys.stderr", terminal)
+    jit._say_compiling("a.kernel")
+    jit._say_compiling("another.kernel")
+    assert terminal.getvalue().count("compiling machine code") == 1
+    monkeypatch.setattr(jit, "_SAID", [])
+    piped = io.StringIO()
+    monkeypatch.setattr("sys.stderr", piped)
+    jit._say_compiling("a.kernel")
+    assert piped.getvalue() == ""

@@ -555,6 +555,7 @@ class _NativeCall:
                 record = None
         library = directory / (name[:-len(".pkl")] + ".so") if directory is not None else None
         if record is None:
+            _say_compiling(kernel_name)
             record = _compile(kernel, args, kinds)
             if record is None:
                 return False
@@ -603,6 +604,20 @@ class _NativeCall:
         if self.is_tuple:
             return values
         return values[0] if values else None
+
+
+_SAID = []
+
+
+def _say_compiling(kernel_name: str) -> None:
+    """One line on a terminal, once a process, before the first kernel is compiled: the first run of a command (a
+    fresh install) compiles its kernels for seconds, and a silent wait looks like a hang."""
+    if _SAID or not sys.stderr.isatty():
+        return
+    _SAID.append(kernel_name)
+    sys.stderr.write("evtools: compiling machine code for this machine (the first run of a command only; later runs "
+                     "load it)\n")
+    sys.stderr.flush()
 
 
 def _numba_code(name: str) -> str:
