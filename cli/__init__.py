@@ -1,24 +1,13 @@
 """The ``evtools`` command line: one module per subcommand, ``main.py`` only builds the group."""
 
-import contextlib
 import os
 import signal
-import sys
 
 
 def stop_early(signum, frame) -> None:
     """A stop signal before the command line's handling is installed: nothing is open yet (no output to close, no
     temporary to remove), so the process ends at once, with one line and ``128 + signal``."""
     os.write(2, b"evtools: interrupted\n")
-    os._exit(128 + signum)
-
-
-def stop_late(signum, frame) -> None:
-    """A stop signal after the command's work is done (its outputs committed): what it printed is flushed and the
-    process ends with ``128 + signal`` (Python's own ending would die of the signal, or print a traceback)."""
-    for stream in (sys.stdout, sys.stderr):
-        with contextlib.suppress(Exception):
-            stream.flush()
     os._exit(128 + signum)
 
 

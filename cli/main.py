@@ -14,7 +14,6 @@ import threading
 import click
 
 from evtools import __version__, interrupt
-from evtools.cli import stop_late
 from evtools.errors import EvtoolsError
 
 EXIT_ERROR = 1
@@ -206,9 +205,9 @@ def main() -> None:
             os._exit(done.code if isinstance(done.code, int) else 1)
         raise
     finally:
-        if threading.current_thread() is threading.main_thread():  # the work is done: a late stop just ends
-            signal.signal(signal.SIGINT, stop_late)
-            signal.signal(signal.SIGTERM, stop_late)
+        if threading.current_thread() is threading.main_thread():  # the work is done (its outputs committed): a
+            signal.signal(signal.SIGINT, signal.SIG_IGN)  # stop now changes nothing; the interpreter's own ending
+            signal.signal(signal.SIGTERM, signal.SIG_IGN)  # would restore the default and die of it
         # When numba is loaded (a kernel compiled, or an argument only numba takes), Python's last garbage
         # collections walk every object it created (~0.2 s per process, measured with `time`); frozen objects are
         # skipped. Files are closed and flushed as usual.
