@@ -6,6 +6,7 @@ import contextlib
 import itertools
 import logging
 import os
+from collections import deque
 
 import click
 import numpy as np
@@ -110,12 +111,15 @@ def _refuse(ctx: click.Context, names: dict[str, str], why: str) -> None:
                    "colormap (default viridis).")
 @click.option("--caption", is_flag=True,
               help="Write each frame's time window on it (seconds from the first event, and the window's length).")
+@click.option("--aps", is_flag=True,
+              help="Draw each window over the APS frame (a DAVIS camera's image) whose exposure ended last before "
+                   "the window's end: pixels without events show its gray.")
 @click.option("--rate", is_flag=True,
               help="Draw the event rate over time (ON, OFF) and the per-pixel rate map of the whole stream "
                    "instead of frames (-o FIG.png, .svg or .pdf).")
 @click.pass_context
 def render(ctx, input, input_format, sensor_size, aedat2_layout, output, window_us, start, end, scale, fps,
-           background, map_path, value_range, mode, colormap, caption, rate):
+           background, map_path, value_range, mode, colormap, caption, aps, rate):
     """Draw IN (default stdin) as event frames, or a thresholds map with --map: users look before they read.
 
     A frame colours each pixel by the events of one time window: ON (brighter) orange, OFF (darker) blue,
@@ -132,7 +136,7 @@ def render(ctx, input, input_format, sensor_size, aedat2_layout, output, window_
     if rate:
         _refuse(ctx, {"window_us": "--window-us", "start": "--start", "end": "--end", "fps": "--fps",
                       "background": "--background", "map_path": "--map", "value_range": "--range", "scale": "--scale",
-                      "mode": "--mode", "colormap": "--colormap", "caption": "--caption"},
+                      "mode": "--mode", "colormap": "--colormap", "caption": "--caption", "aps": "--aps"},
                 "does not apply to --rate")
         _render_rate(input, output, dict(format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout))
         return
@@ -142,7 +146,7 @@ def render(ctx, input, input_format, sensor_size, aedat2_layout, output, window_
             raise click.UsageError("give either an event stream IN or --map THRESHOLDS.h5, not both")
         _refuse(ctx, {"window_us": "--window-us", "start": "--start", "end": "--end", "fps": "--fps",
                       "background": "--background", "input_format": "--input-format", "sensor_size": "--sensor-size",
-                      "aedat2_layout": "--aedat2-layout", "mode": "--mode", "caption": "--caption"},
+                      "aedat2_layout": "--aedat2-layout", "mode": "--mode", "caption": "--caption", "aps": "--aps"},
                 "applies to event streams, not to --map")
         if extension not in IMAGE_EXTENSIONS:
             raise RenderError(f"{output}: a thresholds map is drawn as an image; give -o MAP.png")
@@ -175,10 +179,14 @@ def render(ctx, input, input_format, sensor_size, aedat2_layout, output, window_
         chunks = itertools.chain([] if first is None else [first], chunks)
         framer = EventFramer(info.width, info.height, window_us, start_us=start_us, background=background, mode=mode,
                              colormap=colormap)
+        backdrop = _ApsBackdrop(stream, framer) if aps else None
         if extension in IMAGE_EXTENSIONS:
-            _render_image(chunks, stream, framer, output, extension, scale, start_us, caption)
+            _render_image(chunks, stream, framer, output, extension, scale, start_us, caption, backdrop)
         else:
-            _render_video(chunks, stream, framer, output, extension, scale, fps, start_us, caption)
+            _render_video(chunks, stream, framer, output, extension, scale, fps, start_us, caption, backdrop)
+        if backdrop is not None and backdrop.current is None:
+            log.warning("%s: no APS frame before the windows drawn (--aps): the events are drawn on the background",
+                        stream.name)
 
 
 def _render_rate(input: str, output: str, options: dict) -> None:
@@ -196,10 +204,47 @@ def _render_rate(input: str, output: str, options: dict) -> None:
     save(rate_figure(counter, f"event rate of {os.path.basename(stream.name)}"), output)
 
 
-def _frames(chunks, framer: EventFramer):
+def _frames(chunks, framer: EventFramer, backdrop=None):
     for chunk in chunks:
-        yield from framer.process(chunk)
-    yield from framer.flush()
+        for window_start_us, frame in framer.process(chunk):
+            yield window_start_us, frame if backdrop is None else backdrop.under(window_start_us, frame)
+    for window_start_us, frame in framer.flush():
+        yield window_start_us, frame if backdrop is None else backdrop.under(window_start_us, frame)
+
+
+class _ApsBackdrop:
+    """``--aps``: each window drawn over the APS frame whose exposure ended last before the window's end (frames
+    taken from the stream as it is read); a pixel without events shows the frame's gray (16-bit frames by their
+    high byte), a pixel outside a frame's region the background."""
+
+    def __init__(self, stream, framer: EventFramer) -> None:
+        self.stream, self.framer = stream, framer
+        self.pending: deque = deque()
+        self.current = None
+        self._gray: np.ndarray | None = None
+
+    def under(self, window_start_us: int, frame: np.ndarray) -> np.ndarray:
+        self.pending.extend(self.stream.take_frames())
+        end_us = window_start_us + self.framer.window_us
+        while self.pending and self.pending[0].order_us <= end_us:
+            self.current, self._gray = self.pending.popleft(), None
+        if self.current is None:
+            return frame
+        if self._gray is None:
+            self._gray = self._gray_of(self.current)
+        quiet = (frame == np.array(self.framer.background_rgb, np.uint8)).all(axis=-1)
+        out = frame.copy()
+        out[quiet] = self._gray[quiet]
+        return out
+
+    def _gray_of(self, aps) -> np.ndarray:
+        image = aps.image if aps.image.dtype == np.uint8 else (aps.image >> 8).astype(np.uint8)
+        rgb = np.broadcast_to(np.array(self.framer.background_rgb, np.uint8),
+                              (self.framer.height, self.framer.width, 3)).copy()
+        x0, y0 = aps.offset_x, aps.offset_y
+        part = image[: max(0, self.framer.height - y0), : max(0, self.framer.width - x0)]
+        rgb[y0:y0 + part.shape[0], x0:x0 + part.shape[1]] = part[..., None]
+        return rgb
 
 
 def _nothing_to_draw(name: str, framer: EventFramer, start_us: int | None) -> RenderError:
@@ -246,9 +291,9 @@ def _captioned(image: np.ndarray, framer: EventFramer, window_start_us: int) -> 
 
 
 def _render_image(chunks, stream, framer: EventFramer, output: str, extension: str, scale: int, start_us,
-                  caption: bool = False) -> None:
+                  caption: bool = False, backdrop=None) -> None:
     """The first window only: reading stops as soon as it is complete."""
-    first = next(_frames(chunks, framer), None)
+    first = next(_frames(chunks, framer, backdrop), None)
     if first is None:
         raise _nothing_to_draw(stream.name, framer, start_us)
     window_start_us, frame = first
@@ -288,7 +333,7 @@ def _open_video(temporary: str, output: str, extension: str, fps: float, size: t
 
 
 def _render_video(chunks, stream, framer: EventFramer, output: str, extension: str, scale: int, fps: float,
-                  start_us, caption: bool = False) -> None:
+                  start_us, caption: bool = False, backdrop=None) -> None:
     """Every window as one frame, written as it is made: memory does not grow with the stream. Frames are encoded
     on a second thread (OpenCV releases the GIL) while the next ones are drawn."""
     import cv2
@@ -308,7 +353,8 @@ def _render_video(chunks, stream, framer: EventFramer, output: str, extension: s
         try:
             count = 0
             folder = os.path.dirname(os.path.abspath(temporary))
-            for window_start_us, frame in _frames(with_progress(chunks, stream, f"rendering {stream.name}"), framer):
+            for window_start_us, frame in _frames(with_progress(chunks, stream, f"rendering {stream.name}"), framer,
+                                                  backdrop):
                 image = upscale(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR), scale)
                 if caption:
                     image = _captioned(image, framer, window_start_us)

@@ -233,3 +233,26 @@ def test_bad_frames_are_one_line_errors_naming_the_file(tmp_path):
                       + aedat4._frame_body(big))
     done = run("info", large, check=False)
     assert done.returncode == 1 and "outside the 16 x 12 frame stream" in done.stderr.decode()
+
+
+def test_render_draws_the_events_over_the_latest_aps_frame(tmp_path):
+    """render --aps: a pixel without events shows the gray of the frame whose exposure ended last before the
+    window's end; a pixel with events keeps its event colour; without --aps, neither shows the frame."""
+    import cv2
+
+    events = evtools.from_columns([15_000, 15_000], [3, 5], [2, 2], [True, False])
+    image = (np.arange(8 * 6) * 5).astype(np.uint8).reshape(6, 8)
+    frames = [Frame(np.zeros((6, 8), np.uint8), 1000, 0, 2000), Frame(image, 9000, 8000, 10_000),
+              Frame(np.full((6, 8), 255, np.uint8), 29_000, 28_000, 30_000)]
+    source = tmp_path / "s.aedat4"
+    evtools.write(source, events, evtools.StreamInfo(8, 6), frames=frames)
+    run("render", source, "--aps", "--window-us", "10000", "--start", "@10000us", "--scale", "1",
+        "-o", tmp_path / "aps.png")
+    run("render", source, "--window-us", "10000", "--start", "@10000us", "--scale", "1", "-o", tmp_path / "plain.png")
+    drawn = cv2.imread(str(tmp_path / "aps.png"))[..., ::-1]
+    plain = cv2.imread(str(tmp_path / "plain.png"))[..., ::-1]
+    quiet = np.ones((6, 8), bool)
+    quiet[2, 3] = quiet[2, 5] = False
+    np.testing.assert_array_equal(drawn[quiet], np.repeat(image[quiet][:, None], 3, axis=1))
+    np.testing.assert_array_equal(drawn[~quiet], plain[~quiet])
+    assert not (plain[quiet] == np.repeat(image[quiet][:, None], 3, axis=1)).all()
