@@ -80,8 +80,8 @@ class LazyGroup(click.Group):
 
 COMMANDS = {
     "info": ("evtools.cli.info:info",
-             "Format, sensor size, event count, time span, rate and ON fraction of each FILE (`-` = stdin), and its APS "
-             "frames (count, rate, exposure, size) where it has them."),
+             "Format, sensor size, event count, time span, rate and ON fraction of each FILE (`-` = stdin), and its "
+             "APS frames (count, rate, exposure, size) where it has them."),
     "convert": ("evtools.cli.convert:convert",
                 "Convert IN (default stdin) to OUT or -o OUT (default stdout), chunk by chunk in bounded memory."),
     "simulate": ("evtools.cli.simulate:simulate",

@@ -26,10 +26,31 @@ def _sensor_size(ctx, param, value):
 
 DURATION_UNITS_US = {"us": 1, "ms": 1_000, "s": 1_000_000, "min": 60_000_000}
 
-MICROSECONDS = click.IntRange(1, MAX_TIME_US)
+def _range_text(low, high, low_open: bool, high_open: bool, technical: float) -> str:
+    """A range for help texts, without the bounds no user types: none at all, or one at the type's technical
+    limit (2^62 us, 2^31 events), which are checked all the same."""
+    high = None if high is None or high >= technical else high
+    low = None if low is None or low <= -technical else low
+    if low is None and high is None:
+        return ""
+    if high is None:
+        return f"x{'>' if low_open else '>='}{low:g}"
+    if low is None:
+        return f"x{'<' if high_open else '<='}{high}"
+    return f"{low}{'<' if low_open else '<='}x{'<' if high_open else '<='}{high}"
+
+
+class IntRange(click.IntRange):
+    """click's IntRange whose help leaves out a bound at the type's technical limit."""
+
+    def _describe_range(self) -> str:
+        return _range_text(self.min, self.max, self.min_open, self.max_open, 2**31 - 1)
+
+
+MICROSECONDS = IntRange(1, MAX_TIME_US)
 """Options named with their unit (``--dt-us``): whole microseconds up to evtools' time range, 2^62 (a larger
 value reached the kernels as more than int64 holds: a traceback, or a window that overflowed)."""
-COUNT = click.IntRange(1, 2**31 - 1)
+COUNT = IntRange(1, 2**31 - 1)
 """Options that count (events, neighbours, windows): a positive int32."""
 
 
@@ -41,6 +62,9 @@ class FiniteRange(click.FloatRange):
     def __init__(self, *args, infinite: bool = False, **kwargs) -> None:
         super().__init__(*args, **kwargs)
         self.infinite = infinite
+
+    def _describe_range(self) -> str:
+        return _range_text(self.min, self.max, self.min_open, self.max_open, math.inf)
 
     def convert(self, value, param, ctx):
         number = super().convert(value, param, ctx)

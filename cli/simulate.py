@@ -18,9 +18,9 @@ import click
 import numpy as np
 
 from evtools import interrupt
-from evtools.cli.options import (FINITE, Duration, FiniteRange, aedat2_layout_option, check_compression,
-                                 compression_option, input_format_option)
 from evtools.aps import APS_DEFAULTS, ApsSensor
+from evtools.cli.options import (FINITE, Duration, FiniteRange, IntRange, aedat2_layout_option,
+                                 check_compression, compression_option, input_format_option)
 from evtools.cli.progress import with_progress
 from evtools.events import CHUNK_EVENTS, MAX_TIME_US, StreamInfo, join, parse_sensor_size
 from evtools.formats.errors import FormatError
@@ -410,7 +410,7 @@ def _float_option(name: str, help: str, low: float | None = 0.0, high: float | N
                "Per-pixel spread of the leak rate, decades (default 0.1; 0.5 for an event stream).")
 @_float_option("--shot-noise-rate-hz",
                "Shot-noise rate per pixel in the dark (any intensity for an event stream), ON+OFF (default 0).")
-@click.option("--refractory-us", type=click.IntRange(0, MAX_TIME_US), default=None,
+@click.option("--refractory-us", type=IntRange(0, MAX_TIME_US), default=None,
               help="Refractory period, microseconds (default 0).")
 @_float_option("--hot-pixel-fraction", "Fraction of hot pixels (default 0).", high=1.0)
 @_float_option("--hot-pixel-rate-hz", "Event rate of a hot pixel (default 100).")
@@ -444,7 +444,8 @@ def _float_option(name: str, help: str, low: float | None = 0.0, high: float | N
 @click.option("--aps-exposure", "aps_exposure_us", type=Duration(minimum_us=1), default=None, metavar="TIME",
               help=f"APS exposure (global shutter) [default: {APS_DEFAULTS['aps_exposure_us'] // 1000}ms].")
 @click.option("--aps-gain", type=FiniteRange(min=0), default=None, metavar="DN",
-              help=f"APS gain, DN per intensity level (0-255) per ms of exposure [default: {APS_DEFAULTS['aps_gain']}].")
+              help=f"APS gain, DN per intensity level (0-255) per ms of exposure "
+                   f"[default: {APS_DEFAULTS['aps_gain']}].")
 @click.option("--aps-black-level", type=FiniteRange(min=0), default=None, metavar="DN",
               help=f"APS black level [default: {APS_DEFAULTS['aps_black_level']:g}].")
 @click.option("--aps-read-noise", type=FiniteRange(min=0), default=None, metavar="DN",
@@ -452,7 +453,8 @@ def _float_option(name: str, help: str, low: float | None = 0.0, high: float | N
 @click.option("--aps-gain-fpn", type=FiniteRange(min=0), default=None, metavar="FRACTION",
               help=f"Per-pixel gain non-uniformity, standard deviation [default: {APS_DEFAULTS['aps_gain_fpn']:g}].")
 @click.option("--aps-offset-fpn", type=FiniteRange(min=0), default=None, metavar="DN",
-              help=f"Per-pixel offset non-uniformity, standard deviation [default: {APS_DEFAULTS['aps_offset_fpn']:g}].")
+              help=f"Per-pixel offset non-uniformity, standard deviation "
+                   f"[default: {APS_DEFAULTS['aps_offset_fpn']:g}].")
 @click.option("--json", "as_json", is_flag=True,
               help="Print the counts as JSON (on stdout when the events go to a file, else on stderr).")
 def simulate(source, output, output_format, truth, truth_frame_rate, input_format, sensor_size, aedat2_layout, size,

@@ -372,3 +372,16 @@ def test_text_to_a_pipe_is_whole_or_ends_with_141(sample, tmp_path, unbuffered):
     shell = f"'{EVTOOLS}' convert '{path}' --format csv -o - | head -c 100 > /dev/null; echo ${{PIPESTATUS[0]}}"
     result = subprocess.run(["bash", "-c", shell], capture_output=True, timeout=60, env=env)
     assert result.stdout.strip() == b"141" and result.stderr == b""
+
+
+@pytest.mark.parametrize("command", ["convert", "bafilter", "estimate", "correct", "simulate", "render", "info",
+                                     "metrics denoise", "metrics roc", "metrics esr", "metrics thresholds",
+                                     "metrics uniformity", "metrics reconstruction", "metrics train-denoiser"])
+def test_help_shows_no_implementation_noise(command):
+    """Issue 39: help texts showed `[x<=None]` (an unbounded number) and `[1<=x<=4611686018427387904]` (the time
+    type's technical limit); ranges now show only bounds a user types."""
+    done = run(*command.split(), "--help")
+    text = done.stdout.decode()
+    assert "Usage:" in text
+    for noise in ("None]", "<=None", "4611686018427387904", "2147483647"):
+        assert noise not in text, (command, noise)
