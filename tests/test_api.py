@@ -233,3 +233,15 @@ def test_the_doors_say_what_info_and_thresholds_must_be():
         evtools.correct(events, evtools.StreamInfo(8, 6), 0.2)
     with pytest.raises(evtools.InvalidEventsError, match=r"sensor width 8.5 is not a whole number of pixels"):
         evtools.StreamInfo(8.5, 5)
+
+
+def test_a_sensor_size_is_taken_as_a_pair_or_as_the_command_lines_text(tmp_path):
+    """Issue 39: evtools.read(path, sensor_size="32x24") printed a logging traceback and raised 'too many values to
+    unpack'; the API takes (W, H) and "WxH", and anything else is one clear error."""
+    path = tmp_path / "e.csv"
+    evtools.write(path, evtools.from_columns([1, 2], [0, 31], [0, 23], [1, 0]), evtools.StreamInfo(32, 24))
+    assert evtools.read(path, sensor_size="40x30")[1].size == (40, 30)
+    assert evtools.read(path, sensor_size=(40, 30))[1].size == (40, 30)
+    for bad in (32, "32", (1, 2, 3), "axb"):
+        with pytest.raises(evtools.InvalidEventsError, match="sensor"):
+            evtools.read(path, sensor_size=bad)
