@@ -11,7 +11,6 @@ import numpy as np
 from evtools.cli.options import FINITE, figure_path, json_option, wants_json
 from evtools.metrics.reconstruction import HighPassReconstructor, ReconstructionError, reconstruction_errors
 from evtools.formats import open_events
-from evtools.formats.io import output_stream
 from evtools.formats.thresholds import read_thresholds
 
 DEFAULT_CUTOFF_HZ = 0.0
@@ -94,25 +93,21 @@ def reconstruction(events_path, truth_path, thresholds_path, contrast, cutoff_hz
 
 
 def _plot(path: str, truth: np.ndarray, estimated: np.ndarray, times: np.ndarray) -> None:
-    """True (top row) and reconstructed (bottom row) frames at five times, one grey scale (the true range)."""
-    import cv2
+    """True (top row) and reconstructed (bottom row) log intensity at five times, one grey scale (the true range),
+    drawn by matplotlib in the format of the name's extension (PNG, SVG or PDF: vector text)."""
+    from evtools.plots import _pyplot, save
 
+    plt = _pyplot()
     picks = np.unique(np.linspace(0, len(truth) - 1, 5).round().astype(int))
     low, high = float(truth.min()), float(truth.max())
-    scale = 255.0 / max(high - low, 1e-6)
-    cell = max(1, 160 // max(truth.shape[1:]))
-
-    def tile(frame, label):
-        image = np.clip((frame - low) * scale, 0, 255).astype(np.uint8)
-        image = cv2.resize(image, None, fx=cell, fy=cell, interpolation=cv2.INTER_NEAREST)
-        image = cv2.copyMakeBorder(image, 18, 4, 4, 4, cv2.BORDER_CONSTANT, value=255)
-        cv2.putText(image, label, (4, 13), cv2.FONT_HERSHEY_SIMPLEX, 0.4, 0, 1, cv2.LINE_AA)
-        return image
-
-    rows = [np.hstack([tile(truth[k], f"true {times[k] / 1e3:.0f} ms") for k in picks]),
-            np.hstack([tile(estimated[k], f"recon {times[k] / 1e3:.0f} ms") for k in picks])]
-    ok, encoded = cv2.imencode(".png", np.vstack(rows))
-    if not ok:
-        raise ReconstructionError(f"{path}: OpenCV could not encode the picture")
-    with output_stream(path, binary_name="PNG", needs_seek=True) as stream:
-        stream.write(encoded.tobytes())
+    figure, axes = plt.subplots(2, len(picks), figsize=(2.2 * len(picks), 4.6), squeeze=False)
+    for column, k in enumerate(picks):
+        for row, (frames, label) in enumerate(((truth, "true"), (estimated, "reconstructed"))):
+            shown = axes[row][column].imshow(frames[k], cmap="gray", vmin=low, vmax=high, interpolation="nearest")
+            axes[row][column].tick_params(labelsize=7)
+            if row == 0:
+                axes[row][column].set_title(f"{times[k] / 1e3:.0f} ms", fontsize=9)
+            if column == 0:
+                axes[row][column].set_ylabel(f"{label}\ny (px)", fontsize=9)
+    figure.colorbar(shown, ax=axes, shrink=0.8, label="log intensity")
+    save(figure, path)

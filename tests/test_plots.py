@@ -162,3 +162,19 @@ def test_a_plot_never_replaces_an_input(tmp_path):
         assert done.returncode == 2, (case, done.stderr.decode())
         assert "an input of this command" in done.stderr.decode() and "Traceback" not in done.stderr.decode()
     assert all(path.read_bytes() == data for path, data in before.items())
+
+
+@pytest.mark.parametrize("suffix, magic", [(".png", b"\x89PNG"), (".svg", b"<?xml"), (".pdf", b"%PDF")])
+def test_the_reconstruction_figure_is_what_its_name_says(tmp_path, suffix, magic):
+    """Issue 39: `metrics reconstruction --plot recon.pdf` (or .svg) wrote PNG bytes; the figure is matplotlib's,
+    in the format of the extension, with its times and the log-intensity scale."""
+    from tests.helpers import run
+
+    run("simulate", "scene:step", "--size", "16x12", "--duration", "1s", "--truth", tmp_path / "t.h5",
+        "-o", tmp_path / "s.aedat4")
+    figure = tmp_path / f"recon{suffix}"
+    run("metrics", "reconstruction", tmp_path / "s.aedat4", "--truth", tmp_path / "t.h5", "--plot", figure)
+    data = figure.read_bytes()
+    assert data.startswith(magic)
+    if suffix == ".svg":
+        assert "log intensity" in data.decode() and "500 ms" in data.decode()
