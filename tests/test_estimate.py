@@ -539,7 +539,7 @@ def test_phases_found_from_the_events_give_exact_thresholds(seed, rise, amplitud
             assert np.abs(relative).max() <= max(1e-2, 3 * rounding)
         wider = valid & ~exact
         assert (np.abs(est[wider] / true[wider] - 1) <= 3 * estimate.fit[wider] + max(1e-2, 3 * rounding)).all()
-    assert exact.sum() >= 0.9 * valid.sum()
+    assert exact.sum() >= 0.9 * valid.sum() - 1  # (a 2 x 2 sensor may have one wider pixel)
 
 
 @settings(max_examples=6, deadline=None)
