@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from evtools._kernels.estimate import FRAMES_LAST, FRAMES_OFF, FRAMES_ON, FRAMES_ROW, polarity_counts
+from evtools._kernels.estimate import FRAMES_LAST, FRAMES_OFF, FRAMES_ON, FRAMES_ROW, frame_sums, polarity_counts
 from evtools.estimation import DEFAULT_MIN_EVENTS, EstimationError, ThresholdEstimate, ThresholdSeries, _series_of
 from evtools.events import StreamChecker, StreamInfo, as_chunk
 
@@ -239,35 +239,17 @@ class FrameThresholdEstimator:
             return
         dn, inside = full
         self._forget(frame.exposure_end_us)
-        ons, offs = at_middle[:, FRAMES_ON], at_middle[:, FRAMES_OFF]
         quiet = inside & (self.counts[:, FRAMES_ON] + self.counts[:, FRAMES_OFF] - before <= MAX_EXPOSURE_EVENTS)
         saturated = inside & (dn >= SATURATED_DN)
         self.frames_seen += inside
         self.saturated += saturated
         self.blurred += inside & ~quiet
-        x1, x2 = ons.astype(np.float64), -offs.astype(np.float64)
         log_exposure = math.log(max(frame.exposure_us, 1) * 1e-6)
-        state = ons + offs
+        middle = np.ascontiguousarray(at_middle)
         for index, black in enumerate(self.candidates):
-            signal = dn - black
-            use = quiet & ~saturated & (signal >= MIN_SIGNAL_DN)
-            y = np.where(use, np.log(np.maximum(signal, 1.0)) - log_exposure, 0.0)
-            w = use.astype(np.float64)
-            values = np.stack([w, w * x1, w * x2, y, w * x1 * x1, w * x2 * x2, w * x1 * x2, x1 * y, x2 * y, y * y])
-            sums = self.sums[index]
-            # the black level's test: a sample of pixels fitted apart on their frames below and above their mean
-            # count level so far (split by the counts, not by the DN, which would bias both halves' slopes)
-            sampled = sums[:, self.sample]
-            level = (sampled[S_X1] + sampled[S_X2]) / np.maximum(sampled[S_N], 1)
-            high = (x1 + x2)[self.sample] > level
-            part = values[:, self.sample]
-            self.half_sums[index, 1] += part * high
-            self.half_sums[index, 0] += part * ~high
-            sums += values
-            self.signal_sums[index] += w * signal
-            fresh = use & (state != self.last_state[index])
-            self.new_counts[index] += fresh
-            self.last_state[index] = np.where(use, state, self.last_state[index])
+            frame_sums(dn, inside, self.counts, before, middle, float(black), log_exposure, MAX_EXPOSURE_EVENTS,
+                       MIN_SIGNAL_DN, float(SATURATED_DN), self.sums[index], self.half_sums[index],
+                       BLACK_LEVEL_SAMPLE, self.signal_sums[index], self.new_counts[index], self.last_state[index])
         self.frames_used += 1
         if self.interval_us is not None:
             self._snapshot_maps(frame.exposure_end_us)

@@ -13,12 +13,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import evtools
-from evtools._kernels.estimate import FRAMES_LAST, FRAMES_OFF, FRAMES_ON, FRAMES_ROW, polarity_counts
+from evtools._kernels.estimate import FRAMES_LAST, FRAMES_OFF, FRAMES_ON, FRAMES_ROW, frame_sums, polarity_counts
 from evtools.estimation import estimate_thresholds
 from evtools.estimation_frames import FrameThresholdEstimator
 from tests.helpers import assert_clean_error, cut, random_events, run
 from tests.naive.davis import davis_recording, write_with_dv
-from tests.naive.estimate import naive_polarity_counts
+from tests.naive.estimate import naive_frame_sums, naive_polarity_counts
 
 W, H = 32, 24
 
@@ -34,6 +34,30 @@ def test_polarity_counts_against_plain_python(n, seed, cuts):
     for i in range(35):
         row = expected.get((i % 7, i // 7), [0, 0, 0])
         assert [counts[i, FRAMES_ON], counts[i, FRAMES_OFF], counts[i, FRAMES_LAST]] == row
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), pixels=st.integers(1, 60), frames=st.integers(1, 6),
+       black=st.sampled_from([0.0, 4.0, 16.0]), step=st.integers(1, 5))
+def test_frame_sums_against_plain_python(seed, pixels, frames, black, step):
+    """The frames method's per-frame kernel against a pixel-by-pixel loop, over several frames (the sums, the halves
+    of the black level's test, the signal, the new-count tally and the states all carried)."""
+    rng = np.random.default_rng(seed)
+    state = {name: [np.zeros((10, pixels)), np.zeros((2, 10, -(-pixels // step)))] for name in ("kernel", "naive")}
+    extra = {name: [np.zeros(pixels), np.zeros(pixels), np.full(pixels, -1, np.int64)] for name in state}
+    counts = np.zeros((pixels, FRAMES_ROW), np.int64)
+    for _ in range(frames):
+        before = counts[:, 0] + counts[:, 1]
+        counts[:, :2] += rng.integers(0, 3, (pixels, 2))
+        middle = counts[:, :3].copy()
+        counts[:, :2] += rng.integers(0, 2, (pixels, 2)) * (rng.random((pixels, 1)) < 0.3)
+        dn = rng.integers(0, 256, pixels).astype(np.float64)
+        inside = rng.random(pixels) < 0.9
+        arguments = (dn, inside, counts, before, middle, black, -4.6, 1, 8.0, 250.0)
+        frame_sums(*arguments, *state["kernel"], step, *extra["kernel"])
+        naive_frame_sums(*arguments, *state["naive"], step, *extra["naive"])
+    for got, expected in zip(state["kernel"] + extra["kernel"], state["naive"] + extra["naive"]):
+        np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-12)
 
 
 def _thresholds(seed):

@@ -661,3 +661,52 @@ def polarity_counts(x, y, p, width, counts):  # pragma: no cover - compiled
         else:
             counts[i, FRAMES_OFF] += 1
             counts[i, FRAMES_LAST] = -1
+
+
+@kernel
+def frame_sums(dn, inside, counts, before, at_middle, black, log_exposure, max_events, min_signal, saturated_dn,
+               sums, half, sample_step, signal_sums, new_counts, last_state):  # pragma: no cover - compiled
+    """One APS frame into the frames method's per-pixel least-squares sums (see
+    :class:`evtools.estimation_frames.FrameThresholdEstimator`), for one black level: a pixel inside the frame that
+    fired at most ``max_events`` times during the exposure (``counts`` now minus ``before`` at its start), neither
+    saturated nor dark, adds ``y = log(dn - black) - log_exposure`` against ``x1 = A``, ``x2 = -B`` (its counts
+    at the exposure's middle) to ``sums`` (rows n, x1, x2, y, x1x1, x2x2, x1x2, x1y, x2y, yy); every
+    ``sample_step``-th pixel also to ``half[0 or 1]``, by whether its count level is above its mean so far."""
+    for i in range(len(dn)):
+        if not inside[i] or counts[i, 0] + counts[i, 1] - before[i] > max_events:
+            continue
+        value = dn[i]
+        if value >= saturated_dn or value - black < min_signal:
+            continue
+        y = math.log(value - black) - log_exposure
+        x1 = float(at_middle[i, 0])
+        x2 = -float(at_middle[i, 1])
+        if i % sample_step == 0:
+            k = i // sample_step
+            level = (sums[1, i] + sums[2, i]) / max(sums[0, i], 1.0)
+            side = 1 if x1 + x2 > level else 0
+            half[side, 0, k] += 1.0
+            half[side, 1, k] += x1
+            half[side, 2, k] += x2
+            half[side, 3, k] += y
+            half[side, 4, k] += x1 * x1
+            half[side, 5, k] += x2 * x2
+            half[side, 6, k] += x1 * x2
+            half[side, 7, k] += x1 * y
+            half[side, 8, k] += x2 * y
+            half[side, 9, k] += y * y
+        sums[0, i] += 1.0
+        sums[1, i] += x1
+        sums[2, i] += x2
+        sums[3, i] += y
+        sums[4, i] += x1 * x1
+        sums[5, i] += x2 * x2
+        sums[6, i] += x1 * x2
+        sums[7, i] += x1 * y
+        sums[8, i] += x2 * y
+        sums[9, i] += y * y
+        signal_sums[i] += value - black
+        state = at_middle[i, 0] + at_middle[i, 1]
+        if state != last_state[i]:
+            new_counts[i] += 1.0
+            last_state[i] = state

@@ -261,3 +261,29 @@ def naive_polarity_counts(events, width: int, height: int) -> dict:
         row[0 if p else 1] += 1
         row[2] = 1 if p else -1
     return counts
+
+
+def naive_frame_sums(dn, inside, counts, before, at_middle, black, log_exposure, max_events, min_signal,
+                     saturated_dn, sums, half, sample_step, signal_sums, new_counts, last_state) -> None:
+    """The frames method's sums for one frame, pixel by pixel in plain Python (see
+    ``evtools._kernels.estimate.frame_sums``): a usable pixel (inside, at most ``max_events`` events in the exposure,
+    not saturated, at least ``min_signal`` above black) adds (1, A, -B, y, A^2, B^2, -AB, Ay, -By, y^2)."""
+    for i in range(len(dn)):
+        fired = int(counts[i][0]) + int(counts[i][1]) - int(before[i])
+        if not inside[i] or fired > max_events or dn[i] >= saturated_dn or dn[i] - black < min_signal:
+            continue
+        y = math.log(dn[i] - black) - log_exposure
+        a, b = float(at_middle[i][0]), -float(at_middle[i][1])
+        row = [1.0, a, b, y, a * a, b * b, a * b, a * y, b * y, y * y]
+        if i % sample_step == 0:
+            mean_level = (sums[1][i] + sums[2][i]) / max(sums[0][i], 1.0)
+            side = 1 if a + b > mean_level else 0
+            for r in range(10):
+                half[side][r][i // sample_step] += row[r]
+        for r in range(10):
+            sums[r][i] += row[r]
+        signal_sums[i] += dn[i] - black
+        state = int(at_middle[i][0]) + int(at_middle[i][1])
+        if state != last_state[i]:
+            new_counts[i] += 1
+            last_state[i] = state
