@@ -68,6 +68,7 @@ bench: $(VENV)/.installed-test
 	$(BIN)/python -m tests.bench.bench_batch
 	$(BIN)/python -m tests.bench.bench_peers
 	$(BIN)/python -m tests.bench.bench_latency
+	$(BIN)/python -m tests.bench.bench_frames
 	$(BIN)/python -m tests.bench.bench_render
 
 # the API reference from the docstrings (pdoc, an optional extra) into docs/api/
