@@ -1,4 +1,5 @@
-"""``evtools metrics reconstruction``: how well EVENTS reconstruct the true log intensity (issue 12 part 3)."""
+"""``evtools metrics reconstruction``: how well EVENTS reconstruct the true log intensity (issue 12 part 3), or
+predict their own APS frames (issue 38 item 4)."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import math
 import click
 import numpy as np
 
-from evtools.cli.options import FINITE, figure_path, json_option, wants_json
+from evtools.cli.options import FINITE, FiniteRange, figure_path, json_option, wants_json
 from evtools.metrics.reconstruction import HighPassReconstructor, ReconstructionError, reconstruction_errors
 from evtools.formats import open_events
 from evtools.formats.thresholds import read_thresholds
@@ -35,8 +36,11 @@ def read_true_frames(path: str) -> tuple[np.ndarray, np.ndarray]:
 
 @click.command()
 @click.argument("events_path", metavar="EVENTS")
-@click.option("--truth", "truth_path", required=True, metavar="TRUTH.h5", type=click.Path(dir_okay=False),
-              help="`evtools simulate ... --truth TRUTH.h5` (with its true log frames, `--truth-frame-rate`).")
+@click.option("--truth", "truth_path", default=None, metavar="TRUTH.h5", type=click.Path(dir_okay=False),
+              help="`evtools simulate ... --truth TRUTH.h5` (with its true log frames, `--truth-frame-rate`); "
+                   "without it, EVENTS' own APS frames: each predicted from the one before and the events between.")
+@click.option("--black-level", default=0.0, show_default=True, type=FiniteRange(min=0), metavar="DN",
+              help="Without --truth: the APS frames' value of no light (DV's frames: 0).")
 @click.option("--thresholds", "thresholds_path", default=None, metavar="TH.h5", type=click.Path(dir_okay=False),
               help="Each pixel's contrast per event (`estimate`'s output or a truth file); default --contrast.")
 @click.option("--contrast", default=0.2, show_default=True, type=FINITE,
@@ -46,8 +50,9 @@ def read_true_frames(path: str) -> tuple[np.ndarray, np.ndarray]:
 @click.option("--plot", "plot_path", default=None, metavar="FIG.png", type=click.Path(dir_okay=False),
               help="Also draw true (top) and reconstructed (bottom) log intensity at five frames.")
 @json_option
-def reconstruction(events_path, truth_path, thresholds_path, contrast, cutoff_hz, plot_path, as_json):
-    """RMSE and SSIM of the log intensity reconstructed from EVENTS against the true frames of TRUTH.h5.
+def reconstruction(events_path, truth_path, black_level, thresholds_path, contrast, cutoff_hz, plot_path, as_json):
+    """RMSE and SSIM of the log intensity reconstructed from EVENTS against the true frames of TRUTH.h5; without
+    --truth, how well EVENTS predict their own APS frames (a DAVIS recording).
 
     Each pixel integrates its events (+contrast ON, -contrast OFF) from the first true frame, decaying towards
     it at --cutoff-hz: the complementary filter of Scheerlinck, Barnes, Mahony (ACCV 2018). Run it on a stream
@@ -56,10 +61,17 @@ def reconstruction(events_path, truth_path, thresholds_path, contrast, cutoff_hz
     \b
     evtools metrics reconstruction step.aedat4 --truth t.h5 --thresholds t.h5
     evtools metrics reconstruction corrected.aedat4 --truth t.h5 --contrast 0.2 --plot recon.png
+    evtools metrics reconstruction davis.aedat4 --thresholds frames.h5       # real frames, an estimated map
     """
     figure_path(plot_path, "--plot", (events_path, truth_path, thresholds_path))
     if not math.isfinite(contrast) or contrast <= 0:
         raise ReconstructionError(f"--contrast must be a positive number of log units, got {contrast}")
+    if truth_path is None:
+        if plot_path is not None or cutoff_hz != DEFAULT_CUTOFF_HZ:
+            raise click.UsageError("--plot and --cutoff-hz apply with --truth (against the APS frames each frame is "
+                                   "predicted from the one before)")
+        _against_frames(events_path, thresholds_path, contrast, black_level, as_json)
+        return
     times, truth = read_true_frames(truth_path)
     height, width = truth.shape[1:]
     if thresholds_path is not None:
@@ -90,6 +102,41 @@ def reconstruction(events_path, truth_path, thresholds_path, contrast, cutoff_hz
 
         Console().print(f"{events_path}: {result['frames']} frames, RMSE {result['rmse']:.4f} log units, "
                         f"SSIM {result['ssim']:.4f} (cut-off {cutoff_hz:g} Hz)")
+
+
+def _against_frames(events_path, thresholds_path, contrast, black_level, as_json) -> None:
+    """Each APS frame of EVENTS predicted from the one before and the events between (see
+    :mod:`evtools.metrics.frames`)."""
+    from evtools.metrics.frames import FramePrediction
+
+    with open_events(events_path) as stream:
+        width, height = stream.info.width, stream.info.height
+        on = off = contrast
+        if thresholds_path is not None:
+            maps = read_thresholds(thresholds_path)
+            maps.check_size(width, height, thresholds_path)
+            usable = maps.usable() if maps.t_us is None else maps.usable()[-1]
+            on = np.where(usable, maps.on if maps.t_us is None else maps.on[-1], np.nan)
+            off = np.where(usable, maps.off if maps.t_us is None else maps.off[-1], np.nan)
+            middle = (np.nanmedian(on), np.nanmedian(off)) if usable.any() else (contrast, contrast)
+            on, off = np.where(usable, on, middle[0]), np.where(usable, off, middle[1])  # as correct uses a map
+        scorer = FramePrediction(width, height, on, off, black_level=black_level, check=False)
+        for chunk in stream:
+            scorer.process(chunk)
+            scorer.add_frames(stream.take_frames())
+        scorer.add_frames(stream.take_frames())
+    try:
+        result = {"events": events_path, "contrast": thresholds_path or contrast, **scorer.scores()}
+    except ReconstructionError as error:
+        raise ReconstructionError(f"{events_path}: {error}") from None
+    if wants_json(as_json):
+        click.echo(json.dumps(result, indent=2))
+    else:
+        from rich.console import Console
+
+        Console().print(f"{events_path}: {result['pairs']} frame pairs, prediction RMSE {result['rmse']:.4f} log "
+                        f"units (holding the previous frame {result['rmse_hold']:.4f}; the events explain "
+                        f"{100 * result['explained']:.1f} % of its squared error)")
 
 
 def _plot(path: str, truth: np.ndarray, estimated: np.ndarray, times: np.ndarray) -> None:

@@ -213,3 +213,36 @@ def test_the_real_davis_recordings_are_estimated_honestly(tmp_path, name):
     assert "0 of 89,960 pixels" in done.stderr.decode()
     with h5py.File(tmp_path / "t.h5") as f:
         assert not f["valid"][()].any() and f.attrs["invalid_few_frames"] > 0 and f.attrs["frames"] >= 3
+
+
+def test_metrics_reconstruction_predicts_the_recordings_own_frames(tmp_path):
+    """Issue 38 item 4: without --truth, each APS frame is predicted from the one before and the events between;
+    the true thresholds predict best, a constant too small or too large worse, all better than holding the frame;
+    bad input is one line."""
+    out, truth = tmp_path / "davis.aedat4", tmp_path / "truth.h5"
+    run("simulate", "scene:texture", "--size", "32x24", "--duration", "4s", "--seed", "4", "--speed", "200",
+        "--sigma-thres", "0.05", "--aps-rate", "25", "--aps-exposure", "10ms", "--truth", truth, "-o", out)
+
+    def score(*options):
+        return json.loads(run("metrics", "reconstruction", out, *options, "--json").stdout)
+
+    true, small, large = score("--thresholds", truth), score("--contrast", "0.1"), score("--contrast", "0.3")
+    assert true["pairs"] == true["frames"] - 1 == 99
+    assert true["rmse"] < min(small["rmse"], large["rmse"]) and true["rmse"] < true["rmse_hold"]
+    assert true["explained"] > 0.5
+    events_only = tmp_path / "events.aedat4"
+    evtools.write(events_only, evtools.read(out)[0], evtools.StreamInfo(32, 24))
+    done = run("metrics", "reconstruction", events_only, check=False)
+    assert_clean_error(done, "events.aedat4", "no APS frames")
+    done = run("metrics", "reconstruction", out, "--plot", tmp_path / "x.png", check=False)
+    assert done.returncode == 2 and "--truth" in done.stderr.decode()
+
+
+@pytest.mark.parametrize("name", ["davis346_lab_frames.aedat4", "davis346_street_frames.aedat4"])
+def test_metrics_reconstruction_runs_on_the_real_davis_recordings(name):
+    """The two DAVIS346 recordings: every pair of consecutive frames scored, most pixels compared."""
+    from tests.conftest import data_file
+
+    result = json.loads(run("metrics", "reconstruction", data_file(name), "--json").stdout)
+    assert result["pairs"] == result["frames"] - 1 >= 2
+    assert result["pixels_per_pair"] > 0.5 * 346 * 260 and 0 < result["rmse"] < 1 and 0 < result["rmse_hold"] < 1
