@@ -32,7 +32,7 @@ class BatchError(EvtoolsError):
 
 
 inputs_argument = click.argument("inputs", nargs=-1, metavar="[IN]...",
-                                 type=click.Path(dir_okay=False, allow_dash=True))
+                                 type=click.Path(allow_dash=True))  # a folder: the RPG layout
 jobs_option = click.option(
     "--jobs", type=click.IntRange(min=1), default=None, metavar="N",
     help="Several inputs: files processed at once (default: the number of cores).")

@@ -13,7 +13,7 @@ from evtools.formats import open_events
 
 
 @click.command()
-@click.argument("inputs", nargs=-1, metavar="FILE...", type=click.Path(dir_okay=False, allow_dash=True))
+@click.argument("inputs", nargs=-1, metavar="FILE...", type=click.Path(allow_dash=True))
 @input_format_option
 @sensor_size_option
 @aedat2_layout_option

@@ -144,6 +144,11 @@ def open_events(
     arrives.
     """
     sensor_size = _sensor_size(sensor_size)
+    folder = None
+    if path is not None and os.fspath(path) != STDIO and os.path.isdir(path):  # the RPG dataset layout
+        from evtools.formats.rpg import rpg_events_path
+
+        folder, path = os.fspath(path), rpg_events_path(os.fspath(path))
     source = Source(path)
     try:
         if not source.head:
@@ -162,6 +167,10 @@ def open_events(
             raise FormatError(f"{source.name}: {fmt.description} cannot be read")
         options = ReadOptions(sensor_size=sensor_size, chunk_events=chunk_events, aedat2_layout=aedat2_layout)
         reader = fmt.reader_class()(source, options)
+        if folder is not None:
+            from evtools.formats.rpg import RpgFrames
+
+            reader = RpgFrames(reader, folder)
         return EventStream(source, reader, fmt.name, check)
     except BaseException:
         source.close()

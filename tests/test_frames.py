@@ -12,7 +12,7 @@ import evtools
 from evtools.events import join
 from evtools.frames import Frame
 from tests.conftest import data_file
-from tests.helpers import assert_same_events, random_events, run
+from tests.helpers import assert_clean_error, assert_same_events, random_events, run
 
 RECORDINGS = ["davis346_lab_frames.aedat4", "davis346_street_frames.aedat4"]
 
@@ -256,3 +256,56 @@ def test_render_draws_the_events_over_the_latest_aps_frame(tmp_path):
     np.testing.assert_array_equal(drawn[quiet], np.repeat(image[quiet][:, None], 3, axis=1))
     np.testing.assert_array_equal(drawn[~quiet], plain[~quiet])
     assert not (plain[quiet] == np.repeat(image[quiet][:, None], 3, axis=1)).all()
+
+
+def _rpg_folder(folder, events, frames, info):
+    """The RPG dataset layout written by plain code: events.txt by evtools' text writer, images.txt and PNGs."""
+    import cv2
+
+    (folder / "images").mkdir(parents=True)
+    evtools.write(folder / "events.txt", events, info)
+    lines = []
+    for k, frame in enumerate(frames):
+        name = f"images/frame_{k:08d}.png"
+        cv2.imwrite(str(folder / name), frame.image)
+        lines.append(f"{frame.t_us / 1e6:.6f} {name}")
+    (folder / "images.txt").write_text("\n".join(lines) + "\n")
+
+
+def test_an_rpg_folder_is_read_with_its_images_as_frames(tmp_path):
+    """Issue 38: the RPG layout (events.txt, images.txt, images/): its events as the text reader reads them, its
+    images as frames at their times (8 and 16 bit), through the command line too (info, bafilter keeps them)."""
+    rng = np.random.default_rng(9)
+    for dtype in (np.uint8, np.uint16):
+        frames = _frames(rng, 4, 20, 10, dtype)
+        events = random_events(500, 20, 10, seed=9)
+        folder = tmp_path / f"rpg{np.dtype(dtype).itemsize}"
+        _rpg_folder(folder, events, frames, evtools.StreamInfo(20, 10))
+        back, info, read = evtools.read(folder, frames=True)
+        assert_same_events(back, evtools.read(folder / "events.txt")[0])
+        assert info.metadata["frame_size"] == (20, 10) and len(read) == 4
+        for ours, theirs in zip(read, frames):
+            assert ours.t_us == ours.exposure_end_us == theirs.t_us
+            np.testing.assert_array_equal(ours.image, theirs.image)
+    run("bafilter", tmp_path / "rpg1", "-o", tmp_path / "kept.aedat4")
+    assert len(evtools.read(tmp_path / "kept.aedat4", frames=True)[2]) == 4
+    assert '"count": 4' in run("info", tmp_path / "rpg1", "--json").stdout.decode()
+
+
+def test_bad_rpg_folders_are_one_line_errors(tmp_path):
+    frames = _frames(np.random.default_rng(2), 3, 8, 6)
+    events = random_events(100, 8, 6, seed=2)
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert_clean_error(run("info", empty, check=False), "empty", "no events.txt")
+    backwards = tmp_path / "backwards"
+    _rpg_folder(backwards, events, frames, evtools.StreamInfo(8, 6))
+    lines = (backwards / "images.txt").read_text().splitlines()
+    (backwards / "images.txt").write_text("\n".join([lines[1], lines[0], lines[2]]) + "\n")
+    assert_clean_error(run("info", backwards, check=False), "images.txt", "backwards")
+    missing = tmp_path / "missing"
+    _rpg_folder(missing, events, frames, evtools.StreamInfo(8, 6))
+    (missing / "images" / "frame_00000001.png").unlink()
+    assert_clean_error(run("info", missing, check=False), "frame_00000001.png", "no such image")
+    (missing / "images" / "frame_00000001.png").write_bytes(b"not a png")
+    assert_clean_error(run("info", missing, check=False), "frame_00000001.png", "not a readable image")
