@@ -21,7 +21,8 @@ from evtools.cli.main import LazyGroup
                    "fraction."),
     "reconstruction": ("evtools.cli.metrics_reconstruction:reconstruction",
                        "RMSE and SSIM of the log intensity reconstructed from EVENTS against the true frames of "
-                       "TRUTH.h5."),
+                       "TRUTH.h5; without --truth, how well EVENTS predict their own APS frames (a DAVIS "
+                       "recording)."),
     "train-denoiser": ("evtools.cli.metrics_train:train_denoiser",
                        "Train the MLPF filter (`bafilter --method mlpf --weights FILE`) on NOISY streams labelled by "
                        "their --truth."),
