@@ -4,7 +4,8 @@ a time limit; every outcome must be a stream that passes the stream checks or an
 Run by ``tests/test_fuzz.py`` (a few dozen mutants per format, in ``make test``) and by ``make fuzz`` (``python -m
 tests.fuzz all 2000``: 2,000 per format). Each format runs in a child process of its own so that its memory limit
 (``resource.setrlimit``, 1 GiB of address space beyond the interpreter's) cannot touch the test runner. Prints one
-JSON line per format: the mutants tried, how many read whole, how many were refused cleanly, peak RSS.
+JSON line per format: the mutants tried, how many read whole, how many were refused cleanly, the "damaged but valid"
+class (payload-only bit flips: refused, read the same, or read as other events without a word), peak RSS.
 Mutations (hypothesis): truncation at any offset, bit flips, spliced files, a corrupted header, huge length fields.
 """
 
@@ -180,8 +181,57 @@ def fuzz(name: str, examples: int) -> dict:
         counts[outcome] += 1
 
     check()
+    counts.update(payload_damage(data, mutant, examples))
     counts["peak_rss_mb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
     return counts
+
+
+def _decoded(path: Path):
+    """The events of a file, or None when it is refused (an evtools error naming it)."""
+    import evtools
+    from evtools.errors import EvtoolsError
+
+    try:
+        return evtools.read(path)[0]
+    except EvtoolsError:
+        return None
+
+
+def payload_damage(data: bytes, mutant: Path, examples: int) -> dict:
+    """The "damaged but valid" class (issue 37): one to four bit flips in the second half of the file, where every
+    format holds payload (events, compressed blocks), none in a header. Each mutant is refused, read as the seed's
+    events (the flip hit padding or a field the reader ignores), or read as other events without a word: a damage no
+    check of the format can see (none of these formats carries a checksum). Counted, not asserted: the rates are
+    the finding; a crash or a message without the file name still fails."""
+    from hypothesis import HealthCheck, given, settings
+    from hypothesis import strategies as st
+
+    original = _decoded(mutant.with_name("seed" + mutant.suffix))
+    tally = {"payload_mutants": 0, "payload_refused": 0, "payload_same": 0, "payload_silently_different": 0}
+    half = len(data) // 2
+
+    @settings(max_examples=max(examples // 2, 1), deadline=None, database=None,
+              suppress_health_check=list(HealthCheck))
+    @given(points=st.lists(st.integers(half, len(data) - 1), min_size=1, max_size=4),
+           bits=st.lists(st.integers(0, 7), min_size=4, max_size=4))
+    def check(points, bits):
+        damaged = bytearray(data)
+        for point, bit in zip(points, bits):
+            damaged[point] ^= 1 << bit
+        mutant.write_bytes(bytes(damaged))
+        outcome, problem = read_outcome(mutant)
+        assert problem is None, problem
+        tally["payload_mutants"] += 1
+        if outcome == "refused":
+            tally["payload_refused"] += 1
+            return
+        events = _decoded(mutant)
+        same = events is not None and len(events) == len(original) and all(
+            np.array_equal(events[name], original[name]) for name in ("t", "x", "y", "p"))
+        tally["payload_same" if same else "payload_silently_different"] += 1
+
+    check()
+    return tally
 
 
 def _limit_memory() -> None:
