@@ -21,7 +21,7 @@ from tests.helpers import assert_same_events, cut, wait_until, wait_until_waitin
 
 ROOT = Path(__file__).resolve().parents[1]
 EVTOOLS = [str(Path(sys.executable).with_name("evtools")), "-q"]
-PARTS, PAUSE_S = 4, 0.6
+PARTS, PAUSE_S = 4, 1.0  # a pause 10x the 100 ms latency target: load slows the stages, it cannot break this
 
 FEED = """
 import sys, time
@@ -29,9 +29,9 @@ data = open(sys.argv[1], "rb").read()
 parts, pause = int(sys.argv[2]), float(sys.argv[3])
 step = len(data) // parts
 for i in range(parts):
+    print(time.monotonic(), file=sys.stderr, flush=True)  # before the write: what it sends cannot arrive earlier
     sys.stdout.buffer.write(data[i * step: (i + 1) * step if i < parts - 1 else len(data)])
     sys.stdout.buffer.flush()
-    print(time.monotonic(), file=sys.stderr, flush=True)
     time.sleep(pause)
 """
 
@@ -59,7 +59,7 @@ def _environment():
 
 
 def test_a_paced_pipe_leaves_the_pipeline_as_it_arrives(recording, tmp_path):
-    """Fed in four parts 0.6 s apart through convert | bafilter: events of each part come out before the next part
+    """Fed in four parts 1 s apart through convert | bafilter: events of each part come out before the next part
     is fed (readers used to wait for a million events, i.e. for the end), and they are the file-to-file events."""
     env = _environment()
     feed = subprocess.Popen([sys.executable, "-c", FEED, str(recording), str(PARTS), str(PAUSE_S)],
@@ -131,7 +131,7 @@ def test_packets_that_arrived_together_go_on_together(recording, tmp_path, monke
 
 
 def test_a_csv_pipe_is_passed_on_as_its_lines_arrive(recording, tmp_path):
-    """CSV on a pipe, fed in two parts 0.6 s apart: the first part's events are read before the second is fed,
+    """CSV on a pipe, fed in two parts 1 s apart: the first part's events are read before the second is fed,
     and all of them are those of the file."""
     env = _environment()
     text = tmp_path / "bars.csv"
