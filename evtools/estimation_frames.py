@@ -35,8 +35,8 @@ from typing import Any
 import numpy as np
 
 from evtools._kernels.estimate import FRAMES_LAST, FRAMES_OFF, FRAMES_ON, FRAMES_ROW, frame_sums, polarity_counts
-from evtools.estimation import DEFAULT_MIN_EVENTS, EstimationError, ThresholdEstimate, ThresholdSeries, _series_of
-from evtools.events import StreamChecker, StreamInfo, as_chunk
+from evtools.estimation import DEFAULT_MIN_EVENTS, EstimationError, ThresholdEstimate, _series_of
+from evtools.events import StreamChecker, StreamInfo, as_chunk, empty_events
 
 MIN_SIGNAL_DN = 8.0
 """A frame's pixel this close to the black level is dark: its log is dominated by read noise."""
@@ -172,8 +172,9 @@ class FrameThresholdEstimator:
         return chunk[:0]
 
     def flush(self) -> np.ndarray:
+        """Use every frame still waiting (the stream ended); returns nothing (an estimator)."""
         self._advance(final=True)
-        return np.empty(0, self.held[0].dtype) if self.held else as_chunk(np.empty(0, dtype=[("t", "<i8")]))[:0]
+        return empty_events()
 
     # -- events and frames in time order --------------------------------------------------------------------
 
@@ -354,6 +355,15 @@ class FrameThresholdEstimator:
             self.maps.append(self._map_of((self.last_t_us or 0) + 1, estimate))
             estimate.series = _series_of(self.maps)
         return estimate
+
+    def maps_so_far(self):
+        """onEI: the maps made so far (a run stopped midway keeps them), or None."""
+        return _series_of(self.maps) if self.maps else None
+
+    @property
+    def t_last_us(self) -> int:
+        """The latest event's time (0 before any)."""
+        return self.last_t_us or 0
 
     @staticmethod
     def _map_of(t_us: int, estimate: ThresholdEstimate) -> tuple:

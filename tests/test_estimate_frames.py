@@ -246,3 +246,22 @@ def test_metrics_reconstruction_runs_on_the_real_davis_recordings(name):
     result = json.loads(run("metrics", "reconstruction", data_file(name), "--json").stdout)
     assert result["pairs"] == result["frames"] - 1 >= 2
     assert result["pixels_per_pair"] > 0.5 * 346 * 260 and 0 < result["rmse"] < 1 and 0 < result["rmse_hold"] < 1
+
+
+def test_an_online_frames_run_cut_midway_keeps_its_maps(tmp_path):
+    """onEI on a pipe cut midway: exit 1 naming stdin, and the maps made so far written, marked partial."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    out = tmp_path / "davis.aedat4"
+    run("simulate", "scene:texture", "--size", "16x12", "--duration", "4s", "--seed", "2", "--speed", "200",
+        "--aps-rate", "25", "--aps-exposure", "10ms", "-o", out)
+    data = out.read_bytes()
+    done = subprocess.run([str(Path(sys.executable).with_name("evtools")), "estimate", "-", "--method", "frames",
+                           "--online", "--interval", "1s", "--max-fit", "0.5", "-o", str(tmp_path / "series.h5")],
+                          input=data[: len(data) * 3 // 4], capture_output=True)
+    message = done.stderr.decode()
+    assert done.returncode == 1 and "<stdin>" in message and "partial" in message, message
+    with h5py.File(tmp_path / "series.h5") as f:
+        assert f.attrs["partial"] and f["on"].ndim == 3 and len(f["t_us"]) >= 1
