@@ -16,7 +16,7 @@ import evtools
 from evtools._kernels.estimate import FRAMES_LAST, FRAMES_OFF, FRAMES_ON, FRAMES_ROW, frame_sums, polarity_counts
 from evtools.estimation import estimate_thresholds
 from evtools.estimation_frames import FrameThresholdEstimator
-from tests.helpers import assert_clean_error, cut, random_events, run
+from tests.helpers import assert_clean_error, cut, random_events, run, unread_bytes, wait_until
 from tests.naive.davis import davis_recording, write_with_dv
 from tests.naive.estimate import naive_frame_sums, naive_polarity_counts
 
@@ -255,13 +255,18 @@ def test_an_online_frames_run_cut_midway_keeps_its_maps(tmp_path):
     from pathlib import Path
 
     out = tmp_path / "davis.aedat4"
-    run("simulate", "scene:texture", "--size", "16x12", "--duration", "4s", "--seed", "2", "--speed", "200",
+    run("simulate", "scene:texture", "--size", "64x48", "--duration", "4s", "--seed", "2", "--speed", "200",
         "--aps-rate", "25", "--aps-exposure", "10ms", "-o", out)
     data = out.read_bytes()
-    done = subprocess.run([str(Path(sys.executable).with_name("evtools")), "estimate", "-", "--method", "frames",
-                           "--online", "--interval", "1s", "--max-fit", "0.5", "-o", str(tmp_path / "series.h5")],
-                          input=data[: len(data) * 3 // 4], capture_output=True)
-    message = done.stderr.decode()
-    assert done.returncode == 1 and "<stdin>" in message and "partial" in message, message
+    process = subprocess.Popen([str(Path(sys.executable).with_name("evtools")), "estimate", "-", "--method",
+                                "frames", "--online", "--interval", "1s", "--max-fit", "0.5", "-o",
+                                str(tmp_path / "series.h5")], stdin=subprocess.PIPE, stderr=subprocess.PIPE)
+    process.stdin.write(data[: len(data) * 3 // 4])  # most of the stream (several event packets) at once
+    process.stdin.flush()
+    wait_until(lambda: unread_bytes(process.stdin) == 0, "the command to read its input")
+    process.stdin.write(data[len(data) * 3 // 4: len(data) * 3 // 4 + 100])  # then a packet cut short
+    process.stdin.close()
+    message = process.stderr.read().decode()
+    assert process.wait(timeout=60) == 1 and "<stdin>" in message and "partial" in message, message
     with h5py.File(tmp_path / "series.h5") as f:
         assert f.attrs["partial"] and f["on"].ndim == 3 and len(f["t_us"]) >= 1
