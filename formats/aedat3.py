@@ -5,7 +5,11 @@ Layout (FORMATS.md, after libcaer's ``events/common.h`` and ``events/polarity.h`
 int32 eventTSOffset, int32 eventTSOverflow, int32 eventCapacity, int32 eventNumber, int32 eventValid``
 (little-endian) followed by ``eventCapacity * eventSize`` bytes. Polarity events (type 1) are ``uint32 data,
 int32 ts``: bit 0 valid, bit 1 polarity (1 = ON), bits 2-16 y, bits 17-31 x, and the full time is
-``(eventTSOverflow << 31) | ts`` microseconds. Other packet types (frames, IMU, special) are skipped.
+``(eventTSOverflow << 31) | ts`` microseconds. Frame events (type 2, libcaer's ``frame.h``) are ``uint32 info``
+(bit 0 valid, bits 1-3 colour channels: 1 gray, 3 RGB, 4 RGBA), ``int32`` start and end of frame, start and end of
+exposure, ``int32 lengthX, lengthY, positionX, positionY``, then ``uint16`` pixels (row-major, channels
+interleaved): read as APS frames (:class:`evtools.Frame`, 16-bit gray; colour converted with a warning). Other
+packet types (IMU, special) are skipped.
 
 References
 ----------
@@ -15,13 +19,16 @@ iniVation, AEDAT 3.1 file format; libcaer ``include/libcaer/events/common.h``, `
 
 from __future__ import annotations
 
+import logging
 import re
 import struct
+from collections import deque
 from typing import BinaryIO, Iterator
 
 import numpy as np
 
 from evtools.events import EVENT_DTYPE, StreamInfo
+from evtools.frames import Frame
 from evtools.formats.errors import FormatError
 from evtools.formats.io import read_at_most, Source, resolve_sensor_size
 from evtools.formats.registry import ReadOptions
@@ -30,6 +37,9 @@ MAGIC = b"#!AER-DAT3.1\r\n"
 END_HEADER = b"#!END-HEADER"
 PACKET_HEADER = struct.Struct("<hhiiiiii")
 POLARITY_EVENT = 1
+FRAME_EVENT = 2
+FRAME_HEADER = struct.Struct("<Iiiiiiiii")
+"""A frame event's fields before its pixels: info, four times, lengthX, lengthY, positionX, positionY."""
 
 SOURCE_SIZES = (("dvs128", (128, 128)), ("davis240", (240, 180)), ("davis346", (346, 260)))
 """Sensor size by the camera named in ``#Source N: NAME`` (only names whose size is unambiguous)."""
@@ -89,14 +99,21 @@ class Aedat3Reader:
             source, _header_size("\n".join(text), sources), options.sensor_size, scan=self._scan
         )
         self.skipped_packets: dict[int, int] = {}
+        self.frames: deque[Frame] = deque()  # read, not yet taken (EventStream.take_frames)
+        self.frames_read = 0
+        self._said_colour = False
         self.info = StreamInfo(
             width, height, "aedat3",
             metadata={"version": text[0][2:], "sources": sources, "skipped_packets": self.skipped_packets,
                       "invalid_events": 0},
         )
+        frame_size = self._first_frame_size() if source.seekable else None
+        if frame_size is not None:
+            self.info.metadata["frame_size"] = frame_size
 
-    def _packets(self, stream: BinaryIO, offset: int, skipped: dict[int, int]) -> Iterator[np.ndarray]:
-        """(events, invalid count) of each polarity packet from ``offset`` (where ``stream`` is) to the end."""
+    def _packets(self, stream: BinaryIO, offset: int, skipped: dict[int, int], frames=None) -> Iterator[np.ndarray]:
+        """(events, invalid count) of each polarity packet from ``offset`` (where ``stream`` is) to the end; the
+        frames of frame packets into ``frames`` (None: skipped)."""
         while True:
             head = stream.read(PACKET_HEADER.size)
             if not head:
@@ -119,6 +136,9 @@ class Aedat3Reader:
                     f"({len(body)} of {size * capacity} body bytes)"
                 )
             packet_offset, offset = offset, offset + PACKET_HEADER.size + size * capacity
+            if kind == FRAME_EVENT and frames is not None:
+                frames.extend(self._frames_of(body, size, number, overflow, packet_offset))
+                continue
             if kind != POLARITY_EVENT:
                 skipped[kind] = skipped.get(kind, 0) + 1
                 continue
@@ -141,6 +161,67 @@ class Aedat3Reader:
             out["p"] = (data & 2) != 0
             yield out, invalid
 
+    def _frames_of(self, body: bytes, size: int, number: int, overflow: int, offset: int) -> list[Frame]:
+        """The valid frame events of a frame packet's body."""
+        where = f"{self.name}: frame packet at byte offset {offset}"
+        if number and size < FRAME_HEADER.size:
+            raise FormatError(f"{where} has eventSize {size}, less than a frame event's {FRAME_HEADER.size} bytes")
+        frames, base = [], np.int64(overflow) << 31
+        for k in range(number):
+            start = k * size
+            info, frame_start, frame_end, exposure_start, exposure_end, width, height, x0, y0 = \
+                FRAME_HEADER.unpack_from(body, start)
+            if not info & 1:
+                continue
+            channels = (info >> 1) & 7
+            if channels not in (1, 3, 4) or width <= 0 or height <= 0 or x0 < 0 or y0 < 0 or \
+                    FRAME_HEADER.size + 2 * width * height * channels > size:
+                raise FormatError(f"{where}: a frame of {width} x {height} x {channels} channels at ({x0}, {y0}) "
+                                  f"does not fit its {size}-byte event (a damaged packet?)")
+            pixels = np.frombuffer(body, "<u2", width * height * channels, start + FRAME_HEADER.size)
+            image = pixels.reshape(height, width, channels)
+            if channels == 1:
+                image = image[:, :, 0].astype(np.uint16)
+            else:
+                import cv2
+
+                if not self._said_colour:
+                    self._said_colour = True
+                    logging.getLogger("evtools").warning(f"{self.name}: its colour frames are read as gray "
+                                                         "(OpenCV's weights)")
+                image = cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2GRAY if channels == 3
+                                     else cv2.COLOR_RGBA2GRAY)
+            times = [int(base | value) for value in (frame_start, frame_end, exposure_start, exposure_end)]
+            frames.append(Frame(image, (times[2] + times[3]) // 2, times[2], times[3], times[0], times[1], x0, y0))
+        for frame in frames:
+            if self.frames_read and frame.order_us < self._last_frame_us:
+                raise FormatError(f"{where}: a frame ends its exposure at {frame.order_us} us, before the frame "
+                                  f"before it ({self._last_frame_us} us): frames go back in time")
+            self._last_frame_us = frame.order_us
+            self.frames_read += 1
+        return frames
+
+    def _first_frame_size(self) -> tuple[int, int] | None:
+        """The size of the first frame (a file: its packet headers scanned, the stream put back), or None."""
+        stream = self.source.stream
+        position, offset = stream.tell(), self.header_bytes
+        try:
+            while True:
+                head = stream.read(PACKET_HEADER.size)
+                if len(head) < PACKET_HEADER.size:
+                    return None
+                kind, _, size, _, _, capacity, number, _ = PACKET_HEADER.unpack(head)
+                if size <= 0 or capacity < 0:
+                    return None  # damaged: the read proper says so
+                if kind == FRAME_EVENT and number > 0 and size >= FRAME_HEADER.size:
+                    fields = FRAME_HEADER.unpack(stream.read(FRAME_HEADER.size))
+                    return (fields[5] + fields[7], fields[6] + fields[8]) if fields[5] > 0 and fields[6] > 0 \
+                        else None
+                stream.seek(size * capacity, 1)
+                offset += PACKET_HEADER.size + size * capacity
+        finally:
+            stream.seek(position)
+
     def _scan(self) -> tuple[int, int]:
         """(max x + 1, max y + 1) over the whole file; leaves the stream where it was."""
         stream = self.source.stream
@@ -156,7 +237,8 @@ class Aedat3Reader:
     def __iter__(self) -> Iterator[np.ndarray]:
         pending: list[np.ndarray] = []
         held = 0
-        for events, invalid in self._packets(self.source.stream, self.header_bytes, self.skipped_packets):
+        for events, invalid in self._packets(self.source.stream, self.header_bytes, self.skipped_packets,
+                                             self.frames):
             self.info.metadata["invalid_events"] += invalid
             if len(events):
                 pending.append(events)

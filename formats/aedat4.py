@@ -618,6 +618,7 @@ class Aedat4Writer:
         self.encoding: deque = deque()  # packets being compressed ((stream id, future of the body)), in file order
         self.pool: ThreadPoolExecutor | None = None
         self.frames = bool(info.metadata.get("frame_size"))  # the header declares a frame stream
+        self.frames_left_out = 0
 
     def write(self, chunk: np.ndarray) -> None:
         while len(chunk):
@@ -659,9 +660,9 @@ class Aedat4Writer:
     def write_frame(self, frame: Frame) -> None:
         """An APS frame, as one ``FRME`` packet (after the events written before it; the events held for the
         current packet stay held, so that packets hold a fixed number of events whatever the frames)."""
-        if not self.frames:
-            raise FormatError("an APS frame for a stream whose header declares no frame stream (the input's info "
-                              "lacks frame_size)")
+        if not self.frames:  # the header went out before the input's frames were known (an AEDAT 3.1 pipe)
+            self.frames_left_out += 1
+            return
         self._packet(FRAME_STREAM_ID, _frame_body(frame))
 
     def _write_body(self, body, stream_id: int = 0) -> None:
@@ -693,6 +694,10 @@ class Aedat4Writer:
 
     def close(self) -> None:
         """Write what is held, then the end mark (an empty event packet, see :data:`END_MARK_KEY`)."""
+        if self.frames_left_out:
+            logging.getLogger("evtools").warning(
+                f"{self.frames_left_out:,} APS frames left out: the input's frames became known after the output's "
+                "header was written (a pipe of a format that does not state them upfront); write to a file first")
         self._flush()
         self._drain()
         if self.pool is not None:

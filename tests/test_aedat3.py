@@ -56,7 +56,7 @@ def test_given_sensor_size_wins_and_pipes_need_it(monkeypatch):
 def test_packets_overflow_invalid_events_and_other_types(tmp_path):
     path = tmp_path / "built.aedat3"
     first = [(_polarity(3, 4, True), 10), (_polarity(5, 6, False, valid=False), 11), (_polarity(7, 8, False), 12)]
-    frame = _packet(2, [], capacity=3, size=20, payload=bytes(60))  # a frame packet: skipped by its size
+    frame = _packet(3, [], capacity=3, size=20, payload=bytes(60))  # an IMU packet: skipped by its size
     second = [(_polarity(345, 259, True), 5)]
     body = _packet(1, first, capacity=5) + frame + _packet(1, second, overflow=3)
     path.write_bytes(HEADER + body)
@@ -64,7 +64,7 @@ def test_packets_overflow_invalid_events_and_other_types(tmp_path):
     assert (info.width, info.height) == (346, 260)  # from '#Source 1: DAVIS346B'
     expected = make_events([10, 12, (3 << 31) | 5], [3, 7, 345], [4, 8, 259], [1, 0, 1])
     assert_same_events(events, expected)
-    assert info.metadata["skipped_packets"] == {2: 1}
+    assert info.metadata["skipped_packets"] == {3: 1}  # (frame packets, type 2, are read: test_frames.py)
     assert info.metadata["invalid_events"] == 1
 
 

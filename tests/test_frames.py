@@ -309,3 +309,30 @@ def test_bad_rpg_folders_are_one_line_errors(tmp_path):
     assert_clean_error(run("info", missing, check=False), "frame_00000001.png", "no such image")
     (missing / "images" / "frame_00000001.png").write_bytes(b"not a png")
     assert_clean_error(run("info", missing, check=False), "frame_00000001.png", "not a readable image")
+
+
+def test_aedat3_frame_packets_are_read_as_16_bit_frames(tmp_path):
+    """AEDAT 3.1 frame events (libcaer's layout, written by plain code): 16-bit gray frames with their four times,
+    the events unchanged, the frames kept by convert to AEDAT 4.0 (a file: its frame size is known upfront) and
+    left out with a warning from a pipe."""
+    from tests.naive import aedat3_with_frames
+
+    rng = np.random.default_rng(4)
+    events = random_events(2000, 24, 16, seed=4)
+    frames = [(5_000 + 10_000 * k, 9_000 + 10_000 * k, rng.integers(0, 65536, (16, 24)).astype(np.uint16))
+              for k in range(3)]
+    path = tmp_path / "davis.aedat3"
+    path.write_bytes(aedat3_with_frames(events, frames, 24, 16))
+    back, info, read = evtools.read(path, frames=True)
+    assert_same_events(back, events)
+    assert info.metadata["frame_size"] == (24, 16) and len(read) == 3
+    for ours, (begin, end, image) in zip(read, frames):
+        assert (ours.exposure_begin_us, ours.exposure_end_us, ours.begin_us, ours.end_us) == (begin, end, begin - 100,
+                                                                                               end + 100)
+        assert ours.image.dtype == np.uint16
+        np.testing.assert_array_equal(ours.image, image)
+    run("convert", path, "-o", tmp_path / "kept.aedat4")
+    kept = evtools.read(tmp_path / "kept.aedat4", frames=True)[2]
+    assert len(kept) == 3 and all(a.same_as(b) for a, b in zip(kept, read))
+    piped = run("convert", "-", "-o", tmp_path / "piped.aedat4", input=path.read_bytes())
+    assert "3 APS frames left out" in piped.stderr.decode()

@@ -563,3 +563,33 @@ def write_metavision_h5(path, events, width: int, height: int, seed: int, chunk:
         triggers.create_dataset("events", (0,), {"names": ["p", "t", "id"], "formats": ["<i2", "<i8", "<i2"],
                                                  "offsets": [0, 8, 16], "itemsize": 24}, maxshape=(None,),
                                 chunks=(chunk,))
+
+
+def aedat3_with_frames(events, frames, width: int, height: int) -> bytes:
+    """An AEDAT 3.1 file written from libcaer's layout by plain code: a header naming a DAVIS346, then per frame a
+    polarity packet (type 1) of the events before its exposure's end and a frame packet (type 2) of one 16-bit gray
+    frame event (info: valid, 1 channel; four times; size; position; pixels), times below 2^31 (overflow 0)."""
+    import struct
+
+    out = [b"#!AER-DAT3.1\r\n", f"#Source 1: DAVIS346 sizeX {width} sizeY {height}\r\n".encode(),
+           b"#!END-HEADER\r\n"]
+    start = 0
+    for t_start, t_end, image in frames:
+        stop = int(np.searchsorted(events["t"], t_end, "right"))
+        chunk = events[start:stop]
+        if len(chunk):
+            out.append(struct.pack("<hhiiiiii", 1, 1, 8, 4, 0, len(chunk), len(chunk), len(chunk)))
+            for t, x, y, p in zip(chunk["t"].tolist(), chunk["x"].tolist(), chunk["y"].tolist(), chunk["p"].tolist()):
+                out.append(struct.pack("<Ii", 1 | (int(p) << 1) | (y << 2) | (x << 17), t))
+        start = stop
+        pixels = np.asarray(image, "<u2")
+        size = 36 + pixels.nbytes
+        out.append(struct.pack("<hhiiiiii", 2, 1, size, 4, 0, 1, 1, 1))
+        out.append(struct.pack("<Iiiiiiiii", 1 | (1 << 1), t_start - 100, t_end + 100, t_start, t_end,
+                               pixels.shape[1], pixels.shape[0], 0, 0) + pixels.tobytes())
+    chunk = events[start:]
+    if len(chunk):
+        out.append(struct.pack("<hhiiiiii", 1, 1, 8, 4, 0, len(chunk), len(chunk), len(chunk)))
+        for t, x, y, p in zip(chunk["t"].tolist(), chunk["x"].tolist(), chunk["y"].tolist(), chunk["p"].tolist()):
+            out.append(struct.pack("<Ii", 1 | (int(p) << 1) | (y << 2) | (x << 17), t))
+    return b"".join(out)
