@@ -128,6 +128,7 @@ class EvtoolsGroup(LazyGroup):
     def invoke(self, ctx: click.Context):
         try:
             result = super().invoke(ctx)
+            interrupt.work_done()
         except EvtoolsError as error:
             click.echo(f"evtools: error: {error}", err=True)
             ctx.exit(EXIT_ERROR)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import signal
+import sys
 import threading
 
 _received: int | None = None  # the first stop signal, once one came
@@ -42,6 +43,15 @@ def _handle(signum, frame) -> None:
     raise KeyboardInterrupt
 
 
+def _unraisable(unraisable) -> None:
+    """A stop raised where Python cannot pass it on (a weakref callback, a ``__del__`` as objects are freed) is not
+    a finding to print with a traceback: the signal is recorded (:func:`received`), so the command ends with
+    128 + signal all the same."""
+    if isinstance(unraisable.exc_value, (KeyboardInterrupt, StopReading)):
+        return
+    sys.__unraisablehook__(unraisable)
+
+
 def install() -> None:
     """Handle SIGINT and SIGTERM as described above (from the main thread)."""
     global _received
@@ -49,6 +59,7 @@ def install() -> None:
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, _handle)
         signal.signal(signal.SIGTERM, _handle)
+        sys.unraisablehook = _unraisable
 
 
 def received() -> int | None:
@@ -83,6 +94,13 @@ def deferred():
         yield
     finally:
         _deferring -= 1
+
+
+def work_done() -> None:
+    """The command's work is done and its outputs committed: from now on a stop signal is only recorded (raised
+    while the interpreter tears objects down, it would print 'Exception ignored' with a traceback)."""
+    global _deferring
+    _deferring += 1
 
 
 @contextlib.contextmanager

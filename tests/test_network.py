@@ -149,7 +149,7 @@ def test_a_late_client_gets_the_header_and_then_live_events(tmp_path):
                              stderr=subprocess.PIPE, text=True, env=_environment(), cwd=ROOT)
     try:
         _wait_for_server(port, stage)
-        quitter, received = socket.create_connection(("127.0.0.1", port)), 0  # takes the header (under 1 KiB) and
+        quitter, received = socket.create_connection(("127.0.0.1", port), timeout=60), 0  # the header (< 1 KiB) and
         while received < 4096:  # some packets, then goes away: the server has sent its first packet (a state, not
             piece = quitter.recv(4096)  # a time, so a busy machine does not matter)
             assert piece, "the server closed before sending a packet"
