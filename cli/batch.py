@@ -42,16 +42,19 @@ scheduler_option = click.option(
          "tcp://HOST:PORT joins a running dask.distributed scheduler (needs `pip install evtools[cluster]`).")
 
 
-batch_output_option = click.option(
-    "-o", "--output", default=None, metavar="OUT", type=click.Path(allow_dash=True),
-    help="Output file (`-` or absent: stdout), or with several inputs the folder that gets one output per input.")
+OUTPUT_HELP = "Output file (`-` or absent: stdout), or with several inputs the folder that gets one output per input."
 
 
-def batch_options(function):
-    """The options of a stream command that takes one or several inputs: ``IN...``, the input options, ``-o``,
-    ``--jobs``, ``--scheduler`` and ``--json`` (the function takes ``inputs, input_format, sensor_size, aedat2_layout,
-    output, jobs, scheduler, as_json``)."""
+def batch_options(function=None, *, output_help: str = OUTPUT_HELP):
+    """The options of a stream command that takes one or several inputs: ``IN...``, the input options, ``-o``
+    (described by ``output_help``), ``--jobs``, ``--scheduler`` and ``--json`` (the function takes ``inputs,
+    input_format, sensor_size, aedat2_layout, output, jobs, scheduler, as_json``)."""
+    if function is None:
+        return lambda decorated: batch_options(decorated, output_help=output_help)
     from evtools.cli.options import aedat2_layout_option, input_format_option, sensor_size_option
+
+    batch_output_option = click.option("-o", "--output", default=None, metavar="OUT",
+                                       type=click.Path(allow_dash=True), help=output_help)
 
     json_counts = click.option("--json", "as_json", is_flag=True,
                                help="Print the counts as JSON (on stdout when the events go to files, else on "

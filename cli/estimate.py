@@ -85,7 +85,8 @@ def _black_level(ctx, param, value):
 
 
 @click.command()
-@batch_options
+@batch_options(output_help="The thresholds file (HDF5: a file, never stdout), or with several inputs the folder that "
+                           "gets one NAME.h5 per input.")
 @click.option("--method", type=click.Choice(METHODS + ("frames",)), default="offe", show_default=True,
               help="offe: Wang et al.'s events-only least squares (relative, scaled by --nominal); stimulus: the "
                    "known calibration stimulus (absolute, exact for an ideal pixel); natural: an ordinary moving "

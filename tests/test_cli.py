@@ -385,3 +385,5 @@ def test_help_shows_no_implementation_noise(command):
     assert "Usage:" in text
     for noise in ("None]", "<=None", "4611686018427387904", "2147483647"):
         assert noise not in text, (command, noise)
+    if command == "estimate":  # its output is an HDF5 file, never stdout: the help said `-` or absent would do
+        assert "absent: stdout" not in text and "never stdout" in " ".join(text.split())
