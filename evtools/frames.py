@@ -77,15 +77,18 @@ class Frame:
         return (self.t_us, self.begin_us, self.end_us, self.exposure_begin_us, self.exposure_end_us)
 
 
-def gray(pixels: np.ndarray, pixel_format: int) -> np.ndarray:
-    """A 2-D gray image from DV's pixel layout (gray 8 or 16 bit, BGR or BGRA 8 bit: converted with OpenCV's
-    weights, as DV's own conversion)."""
-    if pixel_format in (FORMAT_GRAY, FORMAT_GRAY16):
-        return pixels
+def gray(pixels: np.ndarray, order: str = "BGR") -> tuple[np.ndarray, str | None]:
+    """``(image, layout)``: a 2-D gray image from ``pixels`` (height x width, or x channels: 1, 3 or 4 in the
+    colour ``order`` of the format, DV's and OpenCV's BGR, libcaer's RGB, alpha last), colour converted by OpenCV's
+    weights, as DV's own conversion; ``layout`` names the colour layout converted (``"BGRA"``...) or is None. The
+    readers put it in the frame's ``converted_from`` metadata, which the stream says once
+    (:meth:`evtools.formats.EventStream.take_frames`)."""
+    if pixels.ndim == 2 or pixels.shape[2] == 1:
+        return (pixels if pixels.ndim == 2 else pixels[:, :, 0]), None
     import cv2
 
-    code = cv2.COLOR_BGR2GRAY if pixel_format == FORMAT_BGR else cv2.COLOR_BGRA2GRAY
-    return cv2.cvtColor(pixels, code)
+    layout = order + ("A" if pixels.shape[2] == 4 else "")
+    return cv2.cvtColor(np.ascontiguousarray(pixels), getattr(cv2, f"COLOR_{layout}2GRAY")), layout
 
 
 class FrameRelay:

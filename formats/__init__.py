@@ -52,6 +52,7 @@ class EventStream:
         self.info.format = format_name
         self.checker = StreamChecker(self.info, self.name, " (give the right --sensor-size)") if check else None
         self.cut: FormatError | None = None  # a network stream's error, raised on closing (see _chunks)
+        self._said_colour = False  # colour frames converted to gray: said once
         self.closed = False
 
     @property
@@ -71,6 +72,11 @@ class EventStream:
         taken = []
         while frames:
             taken.append(frames.popleft())
+        colour = next((frame.metadata["converted_from"] for frame in taken if frame.metadata.get("converted_from")),
+                      None)
+        if colour and not self._said_colour:
+            self._said_colour = True
+            log.warning(f"{self.name}: its {colour} colour frames are read as gray (OpenCV's weights)")
         return taken
 
     @property

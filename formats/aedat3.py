@@ -19,7 +19,6 @@ iniVation, AEDAT 3.1 file format; libcaer ``include/libcaer/events/common.h``, `
 
 from __future__ import annotations
 
-import logging
 import re
 import struct
 from collections import deque
@@ -28,7 +27,7 @@ from typing import BinaryIO, Iterator
 import numpy as np
 
 from evtools.events import EVENT_DTYPE, StreamInfo
-from evtools.frames import Frame
+from evtools.frames import Frame, gray
 from evtools.formats.errors import FormatError
 from evtools.formats.io import read_at_most, Source, resolve_sensor_size
 from evtools.formats.registry import ReadOptions
@@ -101,7 +100,6 @@ class Aedat3Reader:
         self.skipped_packets: dict[int, int] = {}
         self.frames: deque[Frame] = deque()  # read, not yet taken (EventStream.take_frames)
         self.frames_read = 0
-        self._said_colour = False
         self.info = StreamInfo(
             width, height, "aedat3",
             metadata={"version": text[0][2:], "sources": sources, "skipped_packets": self.skipped_packets,
@@ -179,20 +177,10 @@ class Aedat3Reader:
                 raise FormatError(f"{where}: a frame of {width} x {height} x {channels} channels at ({x0}, {y0}) "
                                   f"does not fit its {size}-byte event (a damaged packet?)")
             pixels = np.frombuffer(body, "<u2", width * height * channels, start + FRAME_HEADER.size)
-            image = pixels.reshape(height, width, channels)
-            if channels == 1:
-                image = image[:, :, 0].astype(np.uint16)
-            else:
-                import cv2
-
-                if not self._said_colour:
-                    self._said_colour = True
-                    logging.getLogger("evtools").warning(f"{self.name}: its colour frames are read as gray "
-                                                         "(OpenCV's weights)")
-                image = cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2GRAY if channels == 3
-                                     else cv2.COLOR_RGBA2GRAY)
+            image, layout = gray(pixels.reshape(height, width, channels).astype(np.uint16), "RGB")
             times = [int(base | value) for value in (frame_start, frame_end, exposure_start, exposure_end)]
-            frames.append(Frame(image, (times[2] + times[3]) // 2, times[2], times[3], times[0], times[1], x0, y0))
+            frames.append(Frame(image, (times[2] + times[3]) // 2, times[2], times[3], times[0], times[1], x0, y0,
+                                {"converted_from": layout} if layout else {}))
         for frame in frames:
             if self.frames_read and frame.order_us < self._last_frame_us:
                 raise FormatError(f"{where}: a frame ends its exposure at {frame.order_us} us, before the frame "

@@ -185,10 +185,9 @@ def _parse_frame(body: bytes, name: str, offset: int) -> Frame:
     if vector + 4 + count > len(body):
         raise FormatError(f"{where} is truncated")
     pixels = np.frombuffer(body, dtype, width * height * channels, vector + 4).reshape(height, width, channels)
-    metadata = {}
-    if channels > 1:
-        metadata["converted_from"] = "BGR" if channels == 3 else "BGRA"
-    image = gray(pixels[:, :, 0] if channels == 1 else pixels, pixel_format).copy()
+    image, layout = gray(pixels)
+    metadata = {"converted_from": layout} if layout else {}
+    image = image.copy()
     return Frame(image, times[0], times[3], times[4], times[1], times[2], offset_x, offset_y, metadata)
 
 
@@ -388,10 +387,6 @@ class Aedat4Reader:
             raise FormatError(f"{self.name}: frame packet at byte {offset} ends its exposure at {frame.order_us} us, "
                               f"before the frame before it ({self._last_frame_us} us): frames go back in time")
         self._last_frame_us = frame.order_us
-        if frame.metadata.get("converted_from") and not getattr(self, "_said_colour", False):
-            self._said_colour = True
-            logging.getLogger("evtools").warning(f"{self.name}: its {frame.metadata['converted_from']} colour frames are "
-                                                 "read as gray (OpenCV's weights)")
         self.frames.append(frame)
         self.frames_read += 1
 

@@ -8,7 +8,6 @@ Opened as a folder, its events are read by the text reader from ``events.txt`` a
 
 from __future__ import annotations
 
-import logging
 import os
 from collections import deque
 from typing import Iterator
@@ -16,7 +15,7 @@ from typing import Iterator
 import numpy as np
 
 from evtools.formats.errors import FormatError
-from evtools.frames import Frame
+from evtools.frames import Frame, gray
 
 EVENTS_FILE, IMAGES_FILE = "events.txt", "images.txt"
 
@@ -42,10 +41,9 @@ class RpgFrames:
         self.frames_read = 0
         self.entries = self._entries()
         self._next = 0
-        self._said_colour = False
-        if self.entries:
-            first = self._image(0)
-            self.info.metadata["frame_size"] = (first.shape[1], first.shape[0])
+        self._first = self._image(0) if self.entries else None  # read once: it gives the frame size
+        if self._first is not None:
+            self.info.metadata["frame_size"] = (self._first[0].shape[1], self._first[0].shape[0])
             self.info.metadata["layout"] = "rpg"
 
     def _entries(self) -> list[tuple[int, str]]:
@@ -68,7 +66,7 @@ class RpgFrames:
                 entries.append((t_us, name))
         return entries
 
-    def _image(self, k: int) -> np.ndarray:
+    def _image(self, k: int) -> tuple[np.ndarray, str | None]:
         import cv2
 
         t_us, name = self.entries[k]
@@ -79,25 +77,19 @@ class RpgFrames:
         image = cv2.imread(path, cv2.IMREAD_UNCHANGED)
         if image is None:
             raise FormatError(f"{path}: not a readable image (listed in {IMAGES_FILE})")
-        if image.ndim == 3:
-            if not self._said_colour:
-                self._said_colour = True
-                logging.getLogger("evtools").warning(f"{self.folder}: its colour images are read as gray "
-                                                     "(OpenCV's weights)")
-            image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY if image.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
         if image.dtype not in (np.uint8, np.uint16):
             raise FormatError(f"{path}: {image.dtype} pixels; frames are 8 or 16 bit gray")
-        return image
+        return gray(image, "BGR")
 
     def _queue_until(self, t_us: float) -> None:
         while self._next < len(self.entries) and self.entries[self._next][0] <= t_us:
             t = self.entries[self._next][0]
-            image = self._image(self._next)
+            image, layout = self._first if self._next == 0 else self._image(self._next)
             if (image.shape[1], image.shape[0]) != self.info.metadata["frame_size"]:
                 raise FormatError(f"{os.path.join(self.folder, self.entries[self._next][1])}: an image of "
                                   f"{image.shape[1]} x {image.shape[0]} among images of "
                                   f"{self.info.metadata['frame_size'][0]} x {self.info.metadata['frame_size'][1]}")
-            self.frames.append(Frame(image, t, t, t))
+            self.frames.append(Frame(image, t, t, t, metadata={"converted_from": layout} if layout else {}))
             self.frames_read += 1
             self._next += 1
 
