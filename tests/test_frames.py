@@ -63,6 +63,14 @@ def _frames(rng, count: int, width: int, height: int, dtype=np.uint8, t0_us: int
     return frames
 
 
+def _recording(path, seed: int, frame_count: int, event_count: int, width: int, height: int, dtype=np.uint8):
+    """An AEDAT 4.0 file at ``path`` of random events and frames (drawn from ``seed``): (events, frames)."""
+    frames = _frames(np.random.default_rng(seed), frame_count, width, height, dtype)
+    events = random_events(event_count, width, height, seed=seed)
+    evtools.write(path, events, evtools.StreamInfo(width, height), frames=frames)
+    return events, frames
+
+
 @settings(max_examples=8, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), width=st.integers(1, 80), height=st.integers(1, 60),
        count=st.integers(1, 5), compression=st.sampled_from(["none", "lz4", "zstd"]))
@@ -109,11 +117,8 @@ def test_frames_written_by_dv_processing_read_with_their_times_and_colour_conver
 
 @pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
 def test_hdf5_keeps_every_frame_field_and_csv_says_it_drops_them(tmp_path, dtype):
-    rng = np.random.default_rng(3)
-    frames = _frames(rng, 4, 20, 10, dtype)
-    events = random_events(300, 20, 10, seed=3)
     source = tmp_path / "s.aedat4"
-    evtools.write(source, events, evtools.StreamInfo(20, 10), frames=frames)
+    events, frames = _recording(source, 3, 4, 300, 20, 10, dtype)
     run("convert", source, "-o", tmp_path / "s.h5")
     back, info, ours = evtools.read(tmp_path / "s.h5", frames=True)
     assert_same_events(back, events)
@@ -175,11 +180,8 @@ def test_stages_pass_every_frame_on_after_the_events_before_it(tmp_path_factory,
 
 
 def test_a_pipeline_keeps_the_frames_and_convert_slices_them_as_the_events(tmp_path):
-    rng = np.random.default_rng(5)
-    frames = _frames(rng, 5, 32, 24)
-    events = random_events(3000, 32, 24, seed=5)
     source = tmp_path / "s.aedat4"
-    evtools.write(source, events, evtools.StreamInfo(32, 24), frames=frames)
+    events, frames = _recording(source, 5, 5, 3000, 32, 24)
     piped = run("bafilter", "-", input=run("convert", source, "-o", "-").stdout).stdout
     (tmp_path / "piped.aedat4").write_bytes(piped)
     _, _, back = evtools.read(tmp_path / "piped.aedat4", frames=True)
@@ -202,11 +204,8 @@ def _first_packet_of(data: bytes, stream_id: int) -> int:
 
 
 def test_bad_frames_are_one_line_errors_naming_the_file(tmp_path):
-    rng = np.random.default_rng(7)
-    frames = _frames(rng, 3, 16, 12)
-    events = random_events(200, 16, 12, seed=7)
     good = tmp_path / "good.aedat4"
-    evtools.write(good, events, evtools.StreamInfo(16, 12), frames=frames)
+    events, frames = _recording(good, 7, 3, 200, 16, 12)
     data = good.read_bytes()
     # frames whose times go backwards
     backwards = tmp_path / "backwards.aedat4"
