@@ -10,7 +10,7 @@ import numpy as np
 
 from evtools.cli.batch import batch_options, plan, run
 from evtools.cli.options import COUNT, MICROSECONDS, Duration, FiniteRange, slicing_options
-from evtools.cli.progress import with_progress
+from evtools.cli.progress import consume
 from evtools.transform import sliced
 from evtools.estimation import (
     DEFAULT_MAX_ERROR,
@@ -206,16 +206,9 @@ def estimate_one(input, output, *, input_format, sensor_size, aedat2_layout, par
     with open_events(input, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as opened:
         stream = sliced(opened, slicing)
         try:
-            if parameters["method"] == "frames":
-                estimator = FrameThresholdEstimator(stream.info.width, stream.info.height, check=False, **parameters)
-                for chunk in with_progress(stream, stream, f"estimating from {stream.name}"):
-                    estimator.process(chunk)
-                    estimator.add_frames(stream.take_frames())
-                estimator.add_frames(stream.take_frames())
-            else:
-                estimator = ThresholdEstimator(stream.info.width, stream.info.height, check=False, **parameters)
-                for chunk in with_progress(stream, stream, f"estimating from {stream.name}"):
-                    estimator.process(chunk)
+            kind = FrameThresholdEstimator if parameters["method"] == "frames" else ThresholdEstimator
+            estimator = kind(stream.info.width, stream.info.height, check=False, **parameters)
+            consume(stream, estimator, f"estimating from {stream.name}")
             result = estimator.result()
         except EvtoolsError as error:
             message = str(error) if str(error).startswith(stream.name) else f"{stream.name}: {error}"

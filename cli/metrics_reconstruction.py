@@ -10,6 +10,7 @@ import click
 import numpy as np
 
 from evtools.cli.options import FINITE, FiniteRange, figure_path, json_option, wants_json
+from evtools.cli.progress import consume
 from evtools.metrics.reconstruction import HighPassReconstructor, ReconstructionError, reconstruction_errors
 from evtools.formats import open_events
 from evtools.formats.thresholds import read_thresholds
@@ -121,10 +122,7 @@ def _against_frames(events_path, thresholds_path, contrast, black_level, as_json
             middle = (np.nanmedian(on), np.nanmedian(off)) if usable.any() else (contrast, contrast)
             on, off = np.where(usable, on, middle[0]), np.where(usable, off, middle[1])  # as correct uses a map
         scorer = FramePrediction(width, height, on, off, black_level=black_level, check=False)
-        for chunk in stream:
-            scorer.process(chunk)
-            scorer.add_frames(stream.take_frames())
-        scorer.add_frames(stream.take_frames())
+        consume(stream, scorer, f"scoring {stream.name}")
     try:
         result = {"events": events_path, "contrast": thresholds_path or contrast, **scorer.scores()}
     except ReconstructionError as error:

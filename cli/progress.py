@@ -36,6 +36,19 @@ def _stderr_console():
     return Console(stderr=True)
 
 
+def consume(stream, consumer, label: str) -> None:
+    """Feed every chunk of ``stream`` to ``consumer.process`` (an estimator, a scorer: nothing is written), with
+    progress labelled ``label``; a consumer with ``add_frames`` also gets the stream's APS frames as they are read
+    (each after the chunk that reached it) and the rest at the end."""
+    add_frames = getattr(consumer, "add_frames", None)
+    for chunk in with_progress(stream, stream, label):
+        consumer.process(chunk)
+        if add_frames is not None:
+            add_frames(stream.take_frames())
+    if add_frames is not None:
+        add_frames(stream.take_frames())
+
+
 def process_stream(stream, processor, writer, label: str) -> tuple[int, int]:
     """Feed every chunk of ``stream`` through ``processor`` (``process`` then ``flush``) into ``writer``, with
     progress labelled ``label``; empty results are not written. The stream's APS frames are passed on untouched,
