@@ -127,23 +127,28 @@ described stimulus (a calibration shows it to the whole view): an error rather t
 FIT_MIN_CHANGES = 8
 """stimulus: a pixel whose events make fewer level changes than this cannot show that it fits (two or three
 changes agree by chance on a natural scene) and is invalid."""
-DEFAULT_RADIUS_PX = 3
-"""natural: a pixel is compared with the pixels within 3 of it (a 7 x 7 window less itself: 48 neighbours)."""
+DEFAULT_RADIUS_PX = 1
+"""natural: a pixel is compared with its 8 nearest pixels (a 3 x 3 window less itself). Nearer neighbours share
+more of the pixel's excursion: on moving natural textures (issue 36's setups, independent generator) the RMS
+error over all pixels is 7-15 % at radius 1 against 13-22 % at radius 3."""
 MAX_SERIES_BYTES = 1 << 31
 """The most memory an online estimate's maps may take (2 GiB: about 1,100 maps of a 320x240 sensor, 93 of a
 1280x720 one); a shorter --interval is refused when it would go past it."""
 DEFAULT_MAX_ERROR = 0.25
-"""natural: a pixel whose two halves' estimates differ by more than 25 % of their mean, or with fewer than 16
-events of either polarity (the fit map: about its relative error from counting, 0.08-0.09 at the median on 280
-events a pixel of the texture scene) is invalid."""
+"""natural: a pixel whose fit (the largest of its error terms: the halves' disagreement, the counting error
+1 / sqrt(N) of its rarer polarity, the excitation gradient across its window, the scene error) exceeds 0.25 is
+invalid (offE's fit, its disagreement with natural, the same). On moving natural textures the valid pixels' RMS
+error is then 8-9 % on a wobble or a contrast boundary, 15 % on a slow pan (samples/natural.md); 0.15 gives 7 %
+on a wobble with 38 % of the pixels valid, not 89 %."""
 DEFAULT_FORGET_INTERVALS = 3
 """online: sums forget with a time constant of 3 intervals by default (each map then rests mostly on the last
 three intervals' events)."""
 BLOCK_US = 100_000
 """natural: the stream is cut into 100 ms blocks, alternately counted in one half or the other (absolute time, so
 chunking cannot matter); the halves see nearly the same scene, so their difference measures the estimate's error."""
-MIN_NEIGHBOURS = 8
-"""natural: a pixel with fewer countable neighbours than this has no reference and is invalid."""
+MIN_NEIGHBOURS = 3
+"""natural: a pixel with fewer countable neighbours than this has no reference and is invalid (a corner pixel
+has 3 at radius 1)."""
 MAX_TABLE_US = 1 << 21
 """stimulus: a flicker whose period is a whole number of microseconds up to this (2.1 s, a 16 MB table) is
 tabulated at 1 us over one period; longer periods compute L per event (the same values, slower)."""
@@ -703,7 +708,8 @@ class ThresholdEstimator:
         counts = self._counts[:, :6].reshape(self.height, self.width, 2, 3)  # [y, x, half, k]
         whole = counts[:, :, 0].astype(np.float64) + counts[:, :, 1]
         enough = (whole[..., 0] >= self.min_events) & (whole[..., 1] >= self.min_events)
-        relative, neighbours = _relative_to_neighbours(_effective_inverse(whole), enough, self.radius_px)
+        inverse = _effective_inverse(whole)
+        relative, neighbours = _relative_to_neighbours(inverse, enough, self.radius_px)
         halves = []
         for h in (0, 1):
             half = counts[:, :, h].astype(np.float64)
@@ -712,18 +718,20 @@ class ThresholdEstimator:
             del half
         with np.errstate(divide="ignore", invalid="ignore"):
             squares = ((halves[0] - halves[1]) / (halves[0] + halves[1]))**2
-            # the halves of a pixel with few events can agree by chance: the counting error 1 / sqrt(N) of its
-            # rarer polarity is a floor (a pixel needs 16 events of each for a fit of 0.25)
-            fit = np.maximum(np.sqrt((squares[..., 0] + squares[..., 1]) / 2),
-                             1.0 / np.sqrt(np.minimum(whole[..., 0], whole[..., 1])))
-            # neighbours that do not share the excursion (a contrast edge, the border of a texture region, a
-            # scene that excites one side more): the window's opposite halves disagree, and a pixel on one side
-            # is off by about their relative difference
-            gradient = _excitation_gradient(_effective_inverse(whole), enough, self.radius_px)
+            halves_error = np.sqrt((squares[..., 0] + squares[..., 1]) / 2)
+            counting = 1.0 / np.sqrt(np.minimum(whole[..., 0], whole[..., 1]))
+            gradient = _excitation_gradient(inverse, enough, self.radius_px)
+            scene = _scene_error(inverse, enough, self.radius_px)
+            # the counting error of the rarer polarity (a floor: halves of a pixel with few events agree by
+            # chance); neighbours that do not share the excursion: a contrast edge or a region's border (the
+            # window's opposite halves disagree), and a texture each neighbour sees its own patch of (the scene
+            # error, from the map's spatial autocovariance). Each is about the relative error it gives; the
+            # largest stands for them (measured the most predictive of the true error, issue 36)
+            fit = np.maximum(np.maximum(halves_error, counting), scene)
             fit = np.where(np.isnan(gradient), fit, np.maximum(fit, gradient))  # (a NaN fit stays NaN)
         fit = np.where(enough & (neighbours >= MIN_NEIGHBOURS), fit, np.nan)
         valid = np.isfinite(fit) & (fit <= max_fit)
-        extra = {"rejected_by_neighbours": int((enough & (neighbours < MIN_NEIGHBOURS)).sum()),
+        extra = {"scene_error": scene, "rejected_by_neighbours": int((enough & (neighbours < MIN_NEIGHBOURS)).sum()),
                  "rejected_by_fit": int((np.isfinite(fit) & ~valid).sum())}
         on = np.where(valid, self.nominal * relative[..., 0], 0.0)
         off = np.where(valid, self.nominal * relative[..., 1], 0.0)
@@ -829,6 +837,52 @@ def _excitation_gradient(inverse: np.ndarray, usable: np.ndarray, radius_px: int
         left, right = mean(-r, -1, -r, r), mean(1, r, -r, r)
         top, bottom = mean(-r, r, -r, -1), mean(-r, r, 1, r)
         return np.fmax(np.abs(left - right) / (left + right), np.abs(top - bottom) / (top + bottom))
+
+
+def _scene_error(inverse: np.ndarray, usable: np.ndarray, radius_px: int) -> float:
+    """The relative error that the neighbours' differing excursions give a pixel's estimate: the RMS of
+    ``log D_i - mean_j log D_j`` over the window, predicted from the spatial autocovariance of the map's
+    ``z = -log(u_on + u_off)`` (:func:`_effective_inverse`).
+
+    ``z`` is the log excursion ``s`` less the log threshold plus counting noise; the thresholds and the counting
+    are independent from pixel to pixel, so beyond lag 0 the autocovariance ``C(d)`` is the excursion's alone.
+    Its value at 0 is extrapolated from the lags within 2 pixels (``C(d) = c0 - a d^2``, a smooth field), the
+    rest of ``C(0)`` is the pixels' own (thresholds and counting, ``w``). Then for the mean over the window's
+    ``N`` pixels: ``E[(s_i - mean s_j)^2] = c0 - 2 mean C(d_ij) + mean C(d_jk)``, and their own parts add
+    ``w / N``. 0 where fewer than 16 pixels are usable."""
+    if usable.sum() < 16:
+        return 0.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = -np.log(inverse[..., 0] + inverse[..., 1])
+    z = np.where(usable, z - z[usable].mean(), 0.0)
+    weight = usable.astype(np.float64)
+    height, width = z.shape
+    reach = 2 * radius_px
+    covariance = {}
+    for dy in range(0, reach + 1):
+        for dx in range(-reach, reach + 1):
+            if dy == 0 and dx < 0:
+                continue
+            x0, x1 = max(0, -dx), width - max(0, dx)
+            if x1 <= x0 or dy >= height:
+                continue
+            pairs = (weight[:height - dy, x0:x1] * weight[dy:, x0 + dx:x1 + dx]).sum()
+            if pairs > 0:
+                covariance[dx, dy] = covariance[-dx, -dy] = float(
+                    (z[:height - dy, x0:x1] * z[dy:, x0 + dx:x1 + dx]).sum() / pairs)
+    near = [(d, c) for d, c in covariance.items() if 0 < d[0] ** 2 + d[1] ** 2 <= 4]
+    squared = np.array([d[0] ** 2 + d[1] ** 2 for d, _ in near], np.float64)
+    values = np.array([c for _, c in near])
+    slope, c0 = np.polyfit(squared, values, 1)
+    c0 = min(max(c0, covariance.get((1, 0), c0)), covariance[0, 0])
+    own = covariance[0, 0] - c0
+    window = [(dx, dy) for dy in range(-radius_px, radius_px + 1) for dx in range(-radius_px, radius_px + 1)
+              if (dx, dy) != (0, 0)]
+    n = len(window)
+    to_pixel = np.mean([covariance.get(d, 0.0) for d in window])
+    among = (sum(covariance.get((a[0] - b[0], a[1] - b[1]), 0.0) for a in window for b in window if a != b)
+             + n * c0) / n**2
+    return float(np.sqrt(max(c0 - 2 * to_pixel + among, 0.0) + own / n))
 
 
 def _integral(values: np.ndarray) -> np.ndarray:
