@@ -180,7 +180,8 @@ def main() -> None:
         table(noisy, "Leak 0.1 Hz + shot noise 1 Hz, `bafilter --method stcf --k 1 --dt-us 100000` first", False),
         phase_spread_table(spread),
         texture_table(texture),
-        "natural: each pixel's ON and OFF counts and reversals against its neighbours' within 3 pixels, scaled to a "
+        "natural: each pixel's ON and OFF counts and reversals against its 8 nearest neighbours' (the default "
+        "--radius 1), scaled to a "
         "mean of 0.2 (the nominal value, as offE); the constant guess's error is the thresholds' spread itself.",
     ])
     print(text)
