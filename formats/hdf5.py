@@ -64,12 +64,14 @@ more is refused, naming the span (two events 10^12 us apart, microseconds read a
 COMPRESSIONS = BY_NAME["hdf5"].compressions
 """The compressions written (the format table's, which ``--compression`` is checked against before writing)."""
 DEFAULT_COMPRESSION = COMPRESSIONS[0]
-"""Zstd level 1 (hdf5plugin's filter 32015, as DSEC publishes). Measured on 10 million random events (2 cores):
-zstd writes about 33 million events/s and reads 50-70 million/s at 3.8 bytes/event; none 30-50 / 110 million/s
-at 13 bytes/event; lzf 20 / 26 million/s; gzip 8 / 27 million/s. Zstd meets the 20 million/s write target with
-the smallest files but one (gzip), so it is the default. The bytes written do not depend on how the events were
-chunked, except with lzf: liblzf's encoder leaves its hash table unset, so its output (not what it decodes to)
-varies from run to run."""
+"""No compression: the file opens in any HDF5 reader (plain h5py, MATLAB, evlib, the C library) without a plugin
+(issue 39). Measured on 10 million events of the DAVIS346 lab recording, tiled (2 cores, this machine, two runs):
+none writes 9-15 million events/s, reads 19-39 million/s, 13.1 bytes/event; zstd (level 1, hdf5plugin's filter
+32015 as DSEC publishes: h5py needs ``import hdf5plugin``) 9-12 / 20-23 million/s at 3.3 bytes/event; lzf
+(h5py only) 6-8 / 12-13 million/s at 3.6; gzip (any reader) 4-5 / 13-15 million/s at 2.75-2.9 (levels 1 and 4
+alike). ``--compression zstd`` for a quarter of the size where the reader has the plugin, gzip for small files any
+reader opens. The bytes written do not depend on how the events were chunked, except with lzf: liblzf's encoder
+leaves its hash table unset, so its output (not what it decodes to) varies from run to run."""
 
 
 FRAME_TIMES = ("t_us", "begin_us", "end_us", "exposure_begin_us", "exposure_end_us")
@@ -494,8 +496,8 @@ class Hdf5Writer:
     info : evtools.StreamInfo
         Sensor size of the stream.
     options : evtools.formats.registry.WriteOptions
-        ``compression``: none, gzip, lzf or zstd; default zstd (level 1, readable with hdf5plugin), which writes
-        well above 20 million events/s.
+        ``compression``: none, gzip, lzf or zstd; default none (any HDF5 reader opens it:
+        :data:`DEFAULT_COMPRESSION` has the measured sizes and speeds).
     """
 
     def __init__(self, stream: BinaryIO, info: StreamInfo, options: WriteOptions) -> None:

@@ -105,7 +105,7 @@ FORMATS: tuple[Format, ...] = (
            "evtools.formats.aedat3:Aedat3Reader", None),
     Format("hdf5", "HDF5 (DSEC, event_utils, v2e, Metavision, evtools)", (".h5", ".hdf5", ".hdf"), _is_hdf5,
            "evtools.formats.hdf5:Hdf5Reader", "evtools.formats.hdf5:Hdf5Writer", writer_needs_seek=True,
-           compressions=("zstd", "none", "gzip", "lzf")),
+           compressions=("none", "zstd", "gzip", "lzf")),
     Format("prophesee", "Prophesee EVT 2.0 / 2.1 / 3.0 RAW (written as EVT 2.0)", (".raw",), _is_prophesee,
            "evtools.formats.prophesee:ProphesseeRawReader", "evtools.formats.prophesee:Evt2Writer"),
     Format("csv", "CSV with a header (t,x,y,p)", (".csv",), lambda h: _is_text(h, b","),

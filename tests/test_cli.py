@@ -211,7 +211,7 @@ def test_a_compression_the_output_format_lacks_is_a_usage_error(sample, tmp_path
     args = _stream_arguments(arguments, sample[0], tmp_path)
     for name, compression, needle in (("out.csv", "lz4", "is written uncompressed"),
                                       ("out.aedat4", "gzip", "none, lz4, lz4-high, zstd, zstd-high"),
-                                      ("out.h5", "lz4", "zstd, none, gzip, lzf")):
+                                      ("out.h5", "lz4", "none, zstd, gzip, lzf")):
         result = run(command, *args, "-o", tmp_path / name, "--compression", compression, check=False)
         stderr = result.stderr.decode()
         assert result.returncode == 2, stderr

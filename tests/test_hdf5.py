@@ -20,7 +20,7 @@ from evtools.formats import FormatError, ReadOptions, WriteOptions, create_event
 from evtools.formats.hdf5 import Hdf5Writer
 from evtools.formats.io import Source
 from tests.conftest import data_file
-from tests.helpers import assert_clean_error, read_all, run, write_bytes
+from tests.helpers import assert_clean_error, random_events, read_all, run, write_bytes
 
 COMPRESSIONS = ["none", "gzip", "lzf", "zstd"]
 
@@ -259,3 +259,18 @@ def test_a_damaged_time_chunk_disagrees_with_ms_to_idx_and_is_refused(tmp_path):
         t[20_000:30_000] = np.full(10_000, t[20_000])  # a run of one time where the events spread over ~400 ms
     with pytest.raises(FormatError, match=r"d\.h5.*ms_to_idx"):
         read_all(path)
+
+
+def test_the_default_output_opens_in_plain_h5py(tmp_path):
+    """Issue 39: the default HDF5 output needs no plugin (h5py alone, hdf5plugin never imported, reads it back)."""
+    import subprocess
+
+    events = random_events(1_000, 32, 24, seed=3)
+    path = tmp_path / "plain.h5"
+    with create_events(path, StreamInfo(32, 24)) as writer:
+        writer.write(events)
+    code = ("import sys, h5py, numpy; f = h5py.File(sys.argv[1]); x = f['events/x'][()]; "
+            "assert 'hdf5plugin' not in sys.modules; print(len(x), int(x.sum()))")
+    out = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == [str(len(events)), str(int(events["x"].sum()))]
