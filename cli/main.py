@@ -14,9 +14,10 @@ import threading
 import click
 
 from evtools import __version__, interrupt
-from evtools.errors import EvtoolsError
+from evtools.errors import EvtoolsError, UsageMistake
 
 EXIT_ERROR = 1
+EXIT_USAGE = 2  # as click: a mistake in the command line
 EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE, what `cat` returns when `| head` closes the pipe
 
 
@@ -123,12 +124,31 @@ def _timeout(ctx, param, value):
 
 
 class EvtoolsGroup(LazyGroup):
-    """Runs a subcommand; an :class:`EvtoolsError` becomes one line on stderr and exit code 1, never a traceback."""
+    """Runs a subcommand; an :class:`EvtoolsError` becomes one line on stderr and exit code 1, never a traceback; a
+    usage mistake (click's, or a :class:`UsageMistake` found when a value is used) one line and exit code 2."""
+
+    def parse_args(self, ctx: click.Context, args: list[str]) -> list[str]:
+        try:
+            return super().parse_args(ctx, args)
+        except click.UsageError as error:  # (the global options: one line too)
+            if type(error).__name__ == "NoArgsIsHelpError":  # (click >= 8.2: no arguments show the help)
+                raise
+            click.echo(f"evtools: usage: {error.format_message()} (see evtools --help)", err=True)
+            sys.exit(EXIT_USAGE)
 
     def invoke(self, ctx: click.Context):
         try:
             result = super().invoke(ctx)
             interrupt.work_done()
+        except click.UsageError as error:  # (a subcommand's options: one line, where click prints three)
+            if type(error).__name__ == "NoArgsIsHelpError":
+                raise
+            command = error.ctx.command_path if error.ctx is not None else "evtools"
+            click.echo(f"evtools: usage: {error.format_message()} (see {command} --help)", err=True)
+            ctx.exit(EXIT_USAGE)
+        except UsageMistake as error:
+            click.echo(f"evtools: usage: {error} (see {ctx.command_path} {ctx.invoked_subcommand} --help)", err=True)
+            ctx.exit(EXIT_USAGE)
         except EvtoolsError as error:
             click.echo(f"evtools: error: {error}", err=True)
             ctx.exit(EXIT_ERROR)

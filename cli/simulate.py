@@ -35,6 +35,7 @@ from evtools.simulation import (
     DvsSimulator,
     lin_log,
     SimulationError,
+    SimulationUsageError,
 )
 from evtools.formats import create_events, open_events
 from evtools.formats.io import STDIO, HEAD_BYTES, output_stream, same_file
@@ -70,14 +71,14 @@ class FrameSource:
 
 def scene_source(name: str, size: str | None, duration_us: int | None, options: dict[str, Any]) -> FrameSource:
     if name not in SCENES:
-        raise SimulationError(f"unknown scene {name!r}; choose one of {', '.join(SCENES)}")
+        raise SimulationUsageError(f"unknown scene {name!r}; choose one of {', '.join(SCENES)}")
     width, height = parse_sensor_size(size or DEFAULT_SCENE_SIZE)
     duration_us = duration_us or DEFAULT_DURATION_US
     accepted = inspect.signature(SCENES[name]).parameters
     for key in options:
         if key not in accepted:
             option = "--" + _SCENE_OPTIONS[key].replace("_", "-")
-            raise SimulationError(f"scene {name} has no option {option}")
+            raise SimulationUsageError(f"scene {name} has no option {option}")
     attributes = {"scene": name, "duration_us": duration_us, **options}
     if "image" in options:  # a path: the scene takes the image itself; the truth file records its name
         options = {**options, "image": read_image(options["image"])}

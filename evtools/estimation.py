@@ -146,6 +146,11 @@ three intervals' events)."""
 BLOCK_US = 100_000
 """natural: the stream is cut into 100 ms blocks, alternately counted in one half or the other (absolute time, so
 chunking cannot matter); the halves see nearly the same scene, so their difference measures the estimate's error."""
+GRADIENT_RADIUS_PX = 3
+"""natural: the excitation gradient is measured across a window of at least this half-width (21 pixels a half:
+over a radius-1 window's 3 a half the thresholds' own spread reads as a gradient)."""
+SCENE_MAX_LAG_PX = 8
+"""natural: the scene error's autocovariance is measured up to this lag (twice the radius, at most this)."""
 MIN_NEIGHBOURS = 3
 """natural: a pixel with fewer countable neighbours than this has no reference and is invalid (a corner pixel
 has 3 at radius 1)."""
@@ -720,7 +725,7 @@ class ThresholdEstimator:
             squares = ((halves[0] - halves[1]) / (halves[0] + halves[1]))**2
             halves_error = np.sqrt((squares[..., 0] + squares[..., 1]) / 2)
             counting = 1.0 / np.sqrt(np.minimum(whole[..., 0], whole[..., 1]))
-            gradient = _excitation_gradient(inverse, enough, self.radius_px)
+            gradient = _excitation_gradient(inverse, enough, max(self.radius_px, GRADIENT_RADIUS_PX))
             scene = _scene_error(inverse, enough, self.radius_px)
             # the counting error of the rarer polarity (a floor: halves of a pixel with few events agree by
             # chance); neighbours that do not share the excursion: a contrast edge or a region's border (the
@@ -849,7 +854,8 @@ def _scene_error(inverse: np.ndarray, usable: np.ndarray, radius_px: int) -> flo
     Its value at 0 is extrapolated from the lags within 2 pixels (``C(d) = c0 - a d^2``, a smooth field), the
     rest of ``C(0)`` is the pixels' own (thresholds and counting, ``w``). Then for the mean over the window's
     ``N`` pixels: ``E[(s_i - mean s_j)^2] = c0 - 2 mean C(d_ij) + mean C(d_jk)``, and their own parts add
-    ``w / N``. 0 where fewer than 16 pixels are usable."""
+    ``w / N``. Lags beyond :data:`SCENE_MAX_LAG_PX` count as uncorrelated. 0 where fewer than 16 pixels are
+    usable."""
     if usable.sum() < 16:
         return 0.0
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -857,31 +863,33 @@ def _scene_error(inverse: np.ndarray, usable: np.ndarray, radius_px: int) -> flo
     z = np.where(usable, z - z[usable].mean(), 0.0)
     weight = usable.astype(np.float64)
     height, width = z.shape
-    reach = 2 * radius_px
-    covariance = {}
-    for dy in range(0, reach + 1):
-        for dx in range(-reach, reach + 1):
+    reach = min(2 * radius_px, SCENE_MAX_LAG_PX)
+    covariance = np.zeros((2 * reach + 1, 2 * reach + 1))  # [dy + reach, dx + reach]
+    for dy in range(0, min(reach, height - 1) + 1):
+        for dx in range(-min(reach, width - 1), min(reach, width - 1) + 1):
             if dy == 0 and dx < 0:
                 continue
             x0, x1 = max(0, -dx), width - max(0, dx)
-            if x1 <= x0 or dy >= height:
-                continue
             pairs = (weight[:height - dy, x0:x1] * weight[dy:, x0 + dx:x1 + dx]).sum()
             if pairs > 0:
-                covariance[dx, dy] = covariance[-dx, -dy] = float(
-                    (z[:height - dy, x0:x1] * z[dy:, x0 + dx:x1 + dx]).sum() / pairs)
-    near = [(d, c) for d, c in covariance.items() if 0 < d[0] ** 2 + d[1] ** 2 <= 4]
-    squared = np.array([d[0] ** 2 + d[1] ** 2 for d, _ in near], np.float64)
-    values = np.array([c for _, c in near])
-    slope, c0 = np.polyfit(squared, values, 1)
-    c0 = min(max(c0, covariance.get((1, 0), c0)), covariance[0, 0])
-    own = covariance[0, 0] - c0
-    window = [(dx, dy) for dy in range(-radius_px, radius_px + 1) for dx in range(-radius_px, radius_px + 1)
-              if (dx, dy) != (0, 0)]
-    n = len(window)
-    to_pixel = np.mean([covariance.get(d, 0.0) for d in window])
-    among = (sum(covariance.get((a[0] - b[0], a[1] - b[1]), 0.0) for a in window for b in window if a != b)
-             + n * c0) / n**2
+                value = (z[:height - dy, x0:x1] * z[dy:, x0 + dx:x1 + dx]).sum() / pairs
+                covariance[reach + dy, reach + dx] = covariance[reach - dy, reach - dx] = value
+    lags_y, lags_x = np.mgrid[-reach:reach + 1, -reach:reach + 1]
+    squared = lags_x**2 + lags_y**2
+    near = (squared > 0) & (squared <= 4)
+    slope, c0 = np.polyfit(squared[near], covariance[near], 1)
+    whole = covariance[reach, reach]
+    c0 = min(max(c0, covariance[reach, reach + 1]), whole)
+    own = whole - c0
+    covariance[reach, reach] = c0
+    side = 2 * radius_px + 1
+    n = side * side - 1
+    in_window = (np.abs(lags_x) <= radius_px) & (np.abs(lags_y) <= radius_px) & (squared > 0)
+    to_pixel = covariance[in_window].sum() / n
+    # pairs of window pixels (the centre left out) at each lag: the full square's less those with the centre
+    pairs_at = np.clip(side - np.abs(lags_x), 0, None) * np.clip(side - np.abs(lags_y), 0, None) - 2.0 * in_window
+    pairs_at[reach, reach] = 0
+    among = ((covariance * pairs_at).sum() + n * c0) / n**2
     return float(np.sqrt(max(c0 - 2 * to_pixel + among, 0.0) + own / n))
 
 

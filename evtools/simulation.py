@@ -31,7 +31,7 @@ from evtools._kernels.pixel import (
     lin_log_frame,
     sort_events,
 )
-from evtools.errors import EvtoolsError
+from evtools.errors import EvtoolsError, UsageMistake
 from evtools.events import EVENT_DTYPE, MAX_TIME_US, check_sensor_size, empty_events, join
 
 __all__ = [
@@ -91,6 +91,10 @@ PRESETS: dict[str, dict[str, Any]] = {
 
 class SimulationError(EvtoolsError, ValueError):
     """A simulation parameter or input frame that cannot be used."""
+
+
+class SimulationUsageError(SimulationError, UsageMistake):
+    """A built-in scene or scene option that does not exist: a usage mistake (exit 2)."""
 
 
 def lin_log(intensity) -> np.ndarray:
@@ -801,6 +805,6 @@ SCENES: dict[str, Callable[..., Iterator[tuple[int, np.ndarray]]]] = {
 def scene_frames(name: str, width: int, height: int, duration_us: int, **options) -> Iterator[tuple[int, np.ndarray]]:
     """The frames ``(t_us, float32 frame)`` of the built-in scene ``name`` (see :data:`SCENES`)."""
     if name not in SCENES:
-        raise SimulationError(f"unknown scene {name!r}; choose one of {', '.join(SCENES)}")
+        raise SimulationUsageError(f"unknown scene {name!r}; choose one of {', '.join(SCENES)}")
     check_sensor_size(width, height)
     return SCENES[name](width, height, duration_us, **options)

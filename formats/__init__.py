@@ -13,7 +13,7 @@ import numpy as np
 from evtools import interrupt
 from evtools.events import (CHUNK_EVENTS, InvalidEventsError, StreamChecker, StreamInfo, check_sensor_size,
                             concatenate, parse_sensor_size)
-from evtools.formats.errors import FormatError
+from evtools.formats.errors import FormatError, UnknownOutputFormat
 from evtools.formats.io import (
     STDIO,
     TCP_PREFIX,
@@ -273,7 +273,7 @@ def output_format(path: str | os.PathLike | None, format: str | None):
         if fmt is None and os.path.exists(path) and not os.path.isfile(path) and not os.path.isdir(path):
             fmt = by_name(PIPE_FORMAT)
         if fmt is None:
-            raise FormatError(f"{path}: cannot tell the output format from the extension; give --format")
+            raise UnknownOutputFormat(f"{path}: cannot tell the output format from the extension; give --format")
     if fmt.writer is None:
         raise FormatError(f"{fmt.description} cannot be written (read-only format)")
     return fmt

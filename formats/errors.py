@@ -1,7 +1,11 @@
 """Errors of the readers and writers."""
 
-from evtools.errors import EvtoolsError
+from evtools.errors import EvtoolsError, UsageMistake
 
 
 class FormatError(EvtoolsError, ValueError):
     """A file is not what its format says (wrong magic, truncated, missing datasets, ...) or cannot be written."""
+
+
+class UnknownOutputFormat(FormatError, UsageMistake):
+    """An output path whose extension names no format, and no ``--format``: a usage mistake (exit 2)."""

@@ -5,6 +5,7 @@ option is one too; a missing input is a data error (exit 1, one line naming the 
 
 from __future__ import annotations
 
+import math
 import signal
 import subprocess
 import sys
@@ -146,12 +147,13 @@ def test_values_beyond_what_the_kernels_hold_are_usage_errors(tmp_path, args, op
 
 
 def test_a_radius_wider_than_the_sensor_is_the_sensor():
-    """(was "out of memory": a box-sum buffer of the radius's size) the same map as a radius of the sensor's side."""
+    """(was "out of memory": a box-sum buffer of the radius's size) the same map as a radius of the sensor's side.
+    (Unchecked, --max-fit inf: against the whole sensor's mean every pixel's scene error is large.)"""
     import evtools
 
     events, info = evtools.read(data_file("dvxplorer_sample.aedat4"))
-    wide = evtools.estimate(events, info, method="natural", radius_px=100_000, min_events=1)
-    side = evtools.estimate(events, info, method="natural", radius_px=320, min_events=1)
+    wide = evtools.estimate(events, info, method="natural", radius_px=100_000, min_events=1, max_fit=math.inf)
+    side = evtools.estimate(events, info, method="natural", radius_px=320, min_events=1, max_fit=math.inf)
     assert np.array_equal(wide.on, side.on, equal_nan=True) and wide.valid.any()
 
 
@@ -187,3 +189,59 @@ def test_a_stop_while_the_command_line_is_imported_is_one_line(signum):
             f"os.kill(os.getpid(), {int(signum)}); time.sleep(5)")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=30)
     assert done.returncode == 128 + signum and done.stderr == "evtools: interrupted\n"
+
+
+BAD_FILE = {"metrics thresholds": "{bad}.h5"}
+"""The input of each command that a damaged file replaces (the first input; a thresholds map for ``metrics
+thresholds``)."""
+
+
+@pytest.mark.parametrize("name", sorted(BASES))
+def test_one_grammar_usage_mistakes_exit_2_and_bad_files_exit_1_each_in_one_line(tmp_path, name):
+    """Issue 39 item 5, table-driven over every command: an unknown option and a value of the wrong kind are usage
+    mistakes (exit 2, one line naming them, nothing written); a damaged input file is a data error (exit 1, one
+    line naming the file, nothing written); ``--help`` shows no ``None`` and no raw limits."""
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    damaged = bad / "damaged.aedat4"
+    damaged.write_bytes(b"#!AER-DAT4.0\r\n" + bytes(range(256)) * 4)
+    (bad / "damaged.h5").write_bytes(b"\x89HDF\r\n\x1a\n" + bytes(200))
+    out = tmp_path / "out"
+    out.mkdir()
+    base = [part.format(out=out / "o") for part in BASES[name]]
+    for words in (["--no-such-option"], ["--quiet", "--no-such-option"]):
+        result = run(*name.split(), *base, *words, check=False)
+        stderr = result.stderr.decode()
+        assert result.returncode == 2, stderr
+        assert stderr.count("\n") == 1 and "--no-such-option" in stderr, stderr
+    first = BASES[name][0]
+    replaced = str(bad / "damaged.h5") if name in BAD_FILE else str(damaged)
+    args = [replaced if part == first else part.format(out=out / "o") for part in BASES[name]]
+    if name == "simulate":
+        args = [str(damaged), "-o", str(out / "o.aedat4")]
+    result = run(*name.split(), *args, check=False)
+    stderr = result.stderr.decode()
+    assert result.returncode == 1, (result.returncode, stderr)
+    assert stderr.count("\n") == 1 and "damaged" in stderr and "Traceback" not in stderr, stderr
+    assert not list(out.iterdir())
+    text = CliRunner().invoke(cli, [*name.split(), "--help"]).output
+    assert "None" not in text and "4611686018427387904" not in text
+
+
+@pytest.mark.parametrize("args", [
+    ["convert", str(STEP), "-o", "{out}/y.xyz"],
+    ["bafilter", str(STEP), "-o", "{out}/y.xyz"],
+    ["simulate", "scene:bars", "--size", "8x6", "--duration", "10ms", "-o", "{out}/y.xyz"],
+    ["render", str(STEP), "-o", "{out}/f.gif"],
+    ["simulate", "scene:nope", "-o", "{out}/s.aedat4"],
+    ["bafilter", str(STEP), "--method", "foo", "-o", "{out}/b.aedat4"],
+    ["metrics", "reconstruction", str(STEP), "--truth", str(TRUTH), "--plot", "{out}/x.xyz"],
+])
+def test_the_same_kind_of_mistake_gets_the_same_exit_code(tmp_path, args):
+    """Issue 39: an output whose extension names nothing and an unknown scene or method are all usage mistakes
+    (`convert -o y.xyz` and `simulate scene:nope` exited 1, `render -o f.gif` and `bafilter --method foo` 2)."""
+    result = run(*(a.format(out=tmp_path) for a in args), check=False)
+    stderr = result.stderr.decode()
+    assert result.returncode == 2, stderr
+    assert stderr.startswith("evtools: usage: ") and stderr.count("\n") == 1, stderr
+    assert not list(tmp_path.iterdir())
