@@ -165,7 +165,10 @@ def test_output_equal_to_input_is_refused(sample):
 
 def test_unknown_output_extension_asks_for_format(sample, tmp_path):
     path, _ = sample
-    assert_clean_error(run("convert", path, "-o", tmp_path / "out.xyz", check=False), "out.xyz", "--format")
+    result = run("convert", path, "-o", tmp_path / "out.xyz", check=False)  # a usage mistake (issue 39): exit 2
+    stderr = result.stderr.decode()
+    assert result.returncode == 2 and stderr.count("\n") == 1 and stderr.startswith("evtools: usage: "), stderr
+    assert "out.xyz" in stderr and "--format" in stderr and not (tmp_path / "out.xyz").exists()
 
 
 def test_usage_errors_exit_2(sample):
