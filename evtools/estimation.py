@@ -877,7 +877,7 @@ def _scene_error(inverse: np.ndarray, usable: np.ndarray, radius_px: int) -> flo
     lags_y, lags_x = np.mgrid[-reach:reach + 1, -reach:reach + 1]
     squared = lags_x**2 + lags_y**2
     near = (squared > 0) & (squared <= 4)
-    slope, c0 = np.polyfit(squared[near], covariance[near], 1)
+    _, c0 = np.polyfit(squared[near], covariance[near], 1)  # (the slope: how fast the scene decorrelates)
     whole = covariance[reach, reach]
     c0 = min(max(c0, covariance[reach, reach + 1]), whole)
     own = whole - c0
