@@ -31,11 +31,11 @@ from evtools.simulation import (
     FLICKER_PROFILES,
     LABELS,
     PRESETS,
-    SCENES,
     DvsSimulator,
     lin_log,
     SimulationError,
     SimulationUsageError,
+    scene_maker,
 )
 from evtools.formats import create_events, open_events
 from evtools.formats.io import STDIO, HEAD_BYTES, output_stream, same_file
@@ -70,11 +70,10 @@ class FrameSource:
 
 
 def scene_source(name: str, size: str | None, duration_us: int | None, options: dict[str, Any]) -> FrameSource:
-    if name not in SCENES:
-        raise SimulationUsageError(f"unknown scene {name!r}; choose one of {', '.join(SCENES)}")
+    make = scene_maker(name)
     width, height = parse_sensor_size(size or DEFAULT_SCENE_SIZE)
     duration_us = duration_us or DEFAULT_DURATION_US
-    accepted = inspect.signature(SCENES[name]).parameters
+    accepted = inspect.signature(make).parameters
     for key in options:
         if key not in accepted:
             option = "--" + _SCENE_OPTIONS[key].replace("_", "-")
@@ -82,7 +81,7 @@ def scene_source(name: str, size: str | None, duration_us: int | None, options: 
     attributes = {"scene": name, "duration_us": duration_us, **options}
     if "image" in options:  # a path: the scene takes the image itself; the truth file records its name
         options = {**options, "image": read_image(options["image"])}
-    frames = SCENES[name](width, height, duration_us, **options)
+    frames = make(width, height, duration_us, **options)
     rate = options.get("frame_rate_hz", accepted["frame_rate_hz"].default)
     count = int(math.floor(duration_us * 1e-6 * rate + 1e-9)) + 1
     return FrameSource(f"scene:{name}", width, height, frames, count, attributes)

@@ -804,7 +804,13 @@ SCENES: dict[str, Callable[..., Iterator[tuple[int, np.ndarray]]]] = {
 
 def scene_frames(name: str, width: int, height: int, duration_us: int, **options) -> Iterator[tuple[int, np.ndarray]]:
     """The frames ``(t_us, float32 frame)`` of the built-in scene ``name`` (see :data:`SCENES`)."""
+    make = scene_maker(name)
+    check_sensor_size(width, height)
+    return make(width, height, duration_us, **options)
+
+
+def scene_maker(name: str) -> Callable[..., Iterator[tuple[int, np.ndarray]]]:
+    """The frame generator of the built-in scene ``name``; an unknown name is a usage mistake naming the scenes."""
     if name not in SCENES:
         raise SimulationUsageError(f"unknown scene {name!r}; choose one of {', '.join(SCENES)}")
-    check_sensor_size(width, height)
-    return SCENES[name](width, height, duration_us, **options)
+    return SCENES[name]
