@@ -97,7 +97,8 @@ def _methods(ctx, param, value):
                    "100; dv: 2000; jaer: 25000].")
 @click.option("--k", type=COUNT, default=None, help="stcf: correlated neighbours needed [2]; dwf: events [1].")
 @click.option("--radius", type=click.IntRange(1, 10), default=None, help="stcf neighbourhood radius [1].")
-@click.option("--polarity/--no-polarity", default=None, help="stcf: count same-polarity neighbours only [on].")
+@click.option("--same-polarity/--any-polarity", "same_polarity", default=None,
+              help="stcf: count neighbours of the event's polarity only, or of any [same].")
 @click.option("--polarity-maps", is_flag=True, default=None,
               help="stcf: a time map per polarity: a neighbour's last event of the event's polarity counts even if "
                    "one of the other polarity came after it.")
@@ -122,10 +123,10 @@ def _methods(ctx, param, value):
 @click.option("--weights", type=click.Path(exists=True, dir_okay=False), default=None,
               help="mlpf: weights from `evtools metrics train-denoiser` [the ones shipped with evtools].")
 @compression_option
-@slicing_options(polarity=False)
+@slicing_options
 def bafilter(inputs, input_format, sensor_size, aedat2_layout, output, jobs, scheduler, as_json, methods, preset,
-             dt_us, k, radius, polarity, window, distance, learn_us, hot_ratio, hot_rate_hz, hot_min_events, hot_pixels_path,
-             save_hot_pixels, threshold, weights, polarity_maps, compression, slicing):
+             dt_us, k, radius, same_polarity, window, distance, learn_us, hot_ratio, hot_rate_hz, hot_min_events,
+             hot_pixels_path, save_hot_pixels, threshold, weights, polarity_maps, compression, slicing):
     """Remove background activity from IN (default stdin), writing OUT or -o OUT (default stdout).
 
     Several inputs go to the folder -o FOLDER (the same names), --jobs at a time.
@@ -146,7 +147,7 @@ def bafilter(inputs, input_format, sensor_size, aedat2_layout, output, jobs, sch
     used = {name for method in methods for name in DEFAULTS[preset][method]}
     unused = [flag for flag, name, value in (
         ("--dt-us", "dt_us", dt_us), ("--k", "k", k), ("--radius", "radius", radius),
-        ("--polarity", "polarity", polarity),
+        ("--same-polarity/--any-polarity", "polarity", same_polarity),
         ("--polarity-maps", "polarity_maps", polarity_maps), ("--window", "window", window),
         ("--distance", "distance", distance), ("--learn-us", "learn_us", learn_us),
         ("--hot-ratio", "hot_ratio", hot_ratio), ("--hot-rate-hz", "hot_rate_hz", hot_rate_hz),
@@ -164,7 +165,7 @@ def bafilter(inputs, input_format, sensor_size, aedat2_layout, output, jobs, sch
     if save_hot_pixels and len(pairs) > 1:
         raise click.UsageError("--save-hot-pixels writes one file: give one input")
     options = dict(input_format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout, methods=methods,
-                   preset=preset, dt_us=dt_us, k=k, radius=radius, polarity=polarity, window=window,
+                   preset=preset, dt_us=dt_us, k=k, radius=radius, polarity=same_polarity, window=window,
                    distance=distance, learn_us=learn_us, hot_ratio=hot_ratio, hot_rate_hz=hot_rate_hz,
                    hot_min_events=hot_min_events, hot_pixels_path=hot_pixels_path, save_hot_pixels=save_hot_pixels,
                    threshold=threshold, weights=weights, polarity_maps=polarity_maps, compression=compression,

@@ -9,7 +9,8 @@ import click
 import numpy as np
 
 from evtools.cli.batch import batch_options, plan, run
-from evtools.cli.options import FiniteRange, IntRange, check_compression, compression_option, slicing_options
+from evtools.cli.options import (MICROSECONDS, Microseconds, check_compression, compression_option,
+                                 slicing_options)
 from evtools.cli.progress import process_stream
 from evtools.correction import CORRECT_DEFAULTS, MAX_WINDOW_US, MODES, CorrectionError, ThresholdCorrector
 from evtools.events import MAX_TIME_US
@@ -46,14 +47,14 @@ def _target(ctx, param, value):
                    "exponential: turns, and where a run slows down the exponential approach through its last three "
                    "events, with the tail the pixel no longer fires for (a photoreceptor low-pass after a step); "
                    "highpass: turns plus a decay of the carried level over rests.")
-@click.option("--hold-us", type=IntRange(1, MAX_WINDOW_US), default=CORRECT_DEFAULTS["hold_us"],
+@click.option("--hold-us", type=Microseconds(maximum_us=MAX_WINDOW_US), default=CORRECT_DEFAULTS["hold_us"],
               show_default=True,
               help="All but foh: a gap longer than this is a rest (held constant, no interpolation).")
-@click.option("--max-gap-us", type=IntRange(1, MAX_WINDOW_US), default=CORRECT_DEFAULTS["max_gap_us"],
+@click.option("--max-gap-us", type=Microseconds(maximum_us=MAX_WINDOW_US), default=CORRECT_DEFAULTS["max_gap_us"],
               show_default=True, help="Interpolation never reaches further back than this: bounds latency/memory.")
-@click.option("--tau-us", type=FiniteRange(min=0, min_open=True), default=CORRECT_DEFAULTS["tau_us"],
+@click.option("--tau-us", type=MICROSECONDS, default=int(CORRECT_DEFAULTS["tau_us"]),
               show_default=True, help="highpass: time constant of the decay of the carried level over a rest.")
-@click.option("--start-us", type=IntRange(-MAX_TIME_US, MAX_TIME_US), default=None, metavar="T",
+@click.option("--start-us", type=Microseconds(minimum_us=-MAX_TIME_US), default=None, metavar="T",
               help="exponential, turns, highpass: time the sensor started (every pixel at its reference), at or "
                    "before the first event; default: the first event.")
 @compression_option

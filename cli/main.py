@@ -32,11 +32,36 @@ def _set_verbosity(ctx, param, value) -> None:
         logging.getLogger("evtools").setLevel(logging.ERROR if param.name == "quiet" else logging.DEBUG)
 
 
-VERBOSITY_OPTIONS = (
+def _max_latency(ctx, param, value):
+    if value is not None:
+        from evtools.cli.options import Duration
+        from evtools.formats import io
+
+        io.LIVE_MAX_LATENCY_S = Duration(minimum_us=0).convert(value, param, ctx) / 1e6
+    return value
+
+
+def _timeout(ctx, param, value):
+    if value is not None:
+        from evtools.cli.options import Duration
+        from evtools.formats import io
+
+        io.TCP_READ_TIMEOUT_S = io.TCP_CONNECT_TIMEOUT_S = Duration(minimum_us=1000).convert(value, param, ctx) / 1e6
+    return value
+
+
+MAX_LATENCY_HELP = ("How long a live input's (pipe, socket, tcp://) first waiting events may be held while more "
+                    "keep arriving (they then go on together); nothing waits when no more has arrived. [default: 20ms]")
+TIMEOUT_HELP = ("How long a network input (tcp://) may take to connect and may then stay silent before it is an "
+                "error. [default: 10s to connect, 60s of silence]")
+GLOBAL_OPTIONS = (
     lambda: click.Option(["-q", "--quiet"], is_flag=True, expose_value=False, callback=_set_verbosity,
                          help="Print errors only: no warnings, no counts."),
     lambda: click.Option(["-v", "--verbose"], is_flag=True, expose_value=False, callback=_set_verbosity,
                          help="Print details too (debug messages)."),
+    lambda: click.Option(["--max-latency"], metavar="TIME", expose_value=False, callback=_max_latency,
+                         help=MAX_LATENCY_HELP),
+    lambda: click.Option(["--timeout"], metavar="TIME", expose_value=False, callback=_timeout, help=TIMEOUT_HELP),
 )
 """Accepted before the subcommand (the group's) and after it (added to every subcommand)."""
 
@@ -57,8 +82,8 @@ class LazyGroup(click.Group):
         if name in self.lazy_commands and name not in self.commands:
             module, function = self.lazy_commands[name][0].split(":")
             command = getattr(importlib.import_module(module), function)
-            if not isinstance(command, click.Group):  # -q / -v after the subcommand too
-                command.params += [option() for option in VERBOSITY_OPTIONS]
+            if not isinstance(command, click.Group):  # -q, -v, --max-latency, --timeout after the subcommand too
+                command.params += [option() for option in GLOBAL_OPTIONS]
             self.add_command(command, name)
         return super().get_command(ctx, name)
 
@@ -103,24 +128,6 @@ COMMANDS = {
                 "Measure denoising (denoise, roc, esr), threshold estimation (thresholds), uniformity "
                 "(uniformity) and reconstruction (reconstruction)."),
 }
-
-
-def _max_latency(ctx, param, value):
-    if value is not None:
-        from evtools.cli.options import Duration
-        from evtools.formats import io
-
-        io.LIVE_MAX_LATENCY_S = Duration(minimum_us=0).convert(value, param, ctx) / 1e6
-    return value
-
-
-def _timeout(ctx, param, value):
-    if value is not None:
-        from evtools.cli.options import Duration
-        from evtools.formats import io
-
-        io.TCP_READ_TIMEOUT_S = io.TCP_CONNECT_TIMEOUT_S = Duration(minimum_us=1000).convert(value, param, ctx) / 1e6
-    return value
 
 
 class EvtoolsGroup(LazyGroup):
@@ -179,13 +186,8 @@ class EvtoolsGroup(LazyGroup):
 @click.version_option(__version__, prog_name="evtools")
 @click.option("-q", "--quiet", is_flag=True, help="Print errors only: no warnings, no counts.")
 @click.option("-v", "--verbose", is_flag=True, help="Print details too (debug messages).")
-@click.option("--max-latency", metavar="TIME", default=None, callback=_max_latency,
-              help="How long a live input's (pipe, socket, tcp://) first waiting events may be held while more "
-                   "keep arriving (they then go on together); nothing waits when no more has arrived. "
-                   "[default: 20ms]")
-@click.option("--timeout", metavar="TIME", default=None, callback=_timeout,
-              help="How long a network input (tcp://) may take to connect and may then stay silent before it is an "
-                   "error. [default: 10s to connect, 60s of silence]")
+@click.option("--max-latency", metavar="TIME", default=None, callback=_max_latency, help=MAX_LATENCY_HELP)
+@click.option("--timeout", metavar="TIME", default=None, callback=_timeout, help=TIMEOUT_HELP)
 def cli(quiet: bool, verbose: bool, max_latency, timeout) -> None:
     """Event-camera (DVS) noise toolkit: read, convert, simulate, filter, estimate and correct event streams.
 

@@ -9,7 +9,7 @@ import math
 import click
 import numpy as np
 
-from evtools.cli.options import figure_path, json_option, read_options, wants_json
+from evtools.cli.options import MICROSECONDS, figure_path, json_option, read_options, wants_json
 from evtools.cli.progress import with_progress
 from evtools.filters import METHODS, BAFilter, BAFilterError, parse_methods
 from evtools.metrics.denoise import LABEL_NAMES, DenoiseMatcher, DenoiseMetricsError, EsrMeter, roc_auc
@@ -122,10 +122,13 @@ def _sweep(ctx, param, value):
     name = name.strip().lstrip("-").replace("_", "-")
     if name not in SWEEPABLE:
         raise click.BadParameter(f"cannot sweep {name!r}; choose among {', '.join(SWEEPABLE)}")
-    try:
-        numbers = [float(v) for v in values.split(",") if v.strip()]
-    except ValueError:
-        raise click.BadParameter(f"values of {name} must be numbers, got {values!r}") from None
+    if name.endswith("-us"):  # times: microseconds, or with a unit (dt-us=1ms,3ms), as the options
+        numbers = [MICROSECONDS.convert(v, param, ctx) for v in values.split(",") if v.strip()]
+    else:
+        try:
+            numbers = [float(v) for v in values.split(",") if v.strip()]
+        except ValueError:
+            raise click.BadParameter(f"values of {name} must be numbers, got {values!r}") from None
     if not numbers:
         raise click.BadParameter("no value to sweep")
     if name not in ("hot-ratio", "hot-rate-hz", "threshold"):

@@ -6,7 +6,7 @@ import json
 
 import click
 
-from evtools.cli.options import figure_path, json_option, read_options, wants_json
+from evtools.cli.options import TimeBound, figure_path, json_option, read_options, wants_json
 from evtools.events import concatenate
 from evtools.metrics.uniformity import UniformityError, detect_edges, edge_uniformity, edges_from_starts, pixel_levels
 from evtools.formats import open_events
@@ -15,10 +15,7 @@ from evtools.formats import open_events
 def _edges_at(ctx, param, value):
     if value is None:
         return None
-    try:
-        return [int(round(float(part))) for part in value.split(",") if part.strip()]
-    except ValueError:
-        raise click.BadParameter(f"{value!r} is not a comma-separated list of times in microseconds") from None
+    return [TimeBound().convert(part, param, ctx) for part in value.split(",") if part.strip()]
 
 
 def _read(path, **options):
@@ -29,7 +26,8 @@ def _read(path, **options):
 @click.command()
 @read_options
 @click.option("--edges-at", callback=_edges_at, metavar="T1,T2,...", default=None,
-              help="Edge start times (us); default: detected from bursts of activity across pixels.")
+              help="Edge start times from the stream's first event (100ms,1.1s), or absolute after @ (@2.5s); "
+                   "default: detected from bursts of activity across pixels.")
 @click.option("--reference", metavar="IDEAL", type=click.Path(dir_okay=False), default=None,
               help="The stream of an ideal sensor with one uniform threshold: adds count and timing errors.")
 @click.option("--plot", metavar="FIG.png|svg|pdf", type=click.Path(dir_okay=False), default=None,
@@ -54,7 +52,9 @@ def uniformity(input, input_format, sensor_size, aedat2_layout, edges_at, refere
     options = dict(format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout)
     info, name, events = _read(input, **options)
     try:
-        edges = detect_edges(events) if edges_at is None else edges_from_starts(events, edges_at)
+        first_us = int(events["t"][0]) if len(events) else 0
+        edges = (detect_edges(events) if edges_at is None
+                 else edges_from_starts(events, [time.resolve(first_us) for time in edges_at]))
         ideal = None
         if reference is not None:
             ref_info, _, ideal = _read(reference, sensor_size=sensor_size)

@@ -47,9 +47,6 @@ class IntRange(click.IntRange):
         return _range_text(self.min, self.max, self.min_open, self.max_open, 2**31 - 1)
 
 
-MICROSECONDS = IntRange(1, MAX_TIME_US)
-"""Options named with their unit (``--dt-us``): whole microseconds up to evtools' time range, 2^62 (a larger
-value reached the kernels as more than int64 holds: a traceback, or a window that overflowed)."""
 COUNT = IntRange(1, 2**31 - 1)
 """Options that count (events, neighbours, windows): a positive int32."""
 
@@ -83,12 +80,13 @@ class Duration(click.ParamType):
 
     Every time option of the CLI whose name carries no unit takes this; a bare number is refused (is ``0.25``
     seconds or microseconds?) with the accepted forms. Options named with their unit (``--dt-us``) take plain
-    numbers in that unit instead. ``minimum_us``: the smallest value accepted (1: a positive duration)."""
+    numbers in that unit instead. ``minimum_us``, ``maximum_us``: the range accepted (from 1: a positive
+    duration; up to evtools' time range, 2^62 us)."""
 
     name = "duration"
 
-    def __init__(self, minimum_us: int = 1) -> None:
-        self.minimum_us = minimum_us
+    def __init__(self, minimum_us: int = 1, maximum_us: int = MAX_TIME_US) -> None:
+        self.minimum_us, self.maximum_us = minimum_us, maximum_us
 
     def convert(self, value, param, ctx):
         if isinstance(value, int) and not isinstance(value, bool):
@@ -100,12 +98,34 @@ class Duration(click.ParamType):
         if match.group(2) is None:
             self.fail(f"{value!r} has no unit; give one: {DURATION_FORMS}", param, ctx)
         value_us = round(float(match.group(1)) * DURATION_UNITS_US[match.group(2)])
-        if value_us > MAX_TIME_US:
-            self.fail(f"{value!r} is longer than evtools' time range (2^62 us, 146,000 years)", param, ctx)
+        if value_us > self.maximum_us:
+            self.fail(f"{value!r} is longer than evtools' time range (2^62 us, 146,000 years)"
+                      if self.maximum_us == MAX_TIME_US else f"{value!r} must be at most {self.maximum_us:,} us",
+                      param, ctx)
         if value_us < self.minimum_us:
             least = "longer than 0 us" if self.minimum_us == 1 else f"at least {self.minimum_us} us"
             self.fail(f"{value!r} must be {least}", param, ctx)
         return int(value_us)
+
+
+class Microseconds(Duration):
+    """Options named with their unit (``--dt-us``): a bare whole number in microseconds, or a duration with its
+    unit like every time option (``--dt-us 10ms``); up to evtools' time range, 2^62 us (a larger value reached the
+    kernels as more than int64 holds). ``minimum_us``: the smallest accepted (0 where zero means "off")."""
+
+    name = "us"
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, str) and re.fullmatch(r"\s*[-+]?[0-9]+\s*", value):
+            value = f"{value.strip()}us"
+        elif isinstance(value, str) and re.fullmatch(r"\s*[-+]?[0-9]*\.[0-9]*(?:[eE][-+]?[0-9]+)?\s*", value):
+            self.fail(f"{value!r} is not a whole number of microseconds; give one, or a time with its unit: "
+                      f"{DURATION_FORMS}", param, ctx)
+        return super().convert(value, param, ctx)
+
+
+MICROSECONDS = Microseconds()
+"""A positive time in microseconds (see :class:`Microseconds`)."""
 
 
 class TimeBound(click.ParamType):
@@ -135,41 +155,40 @@ def _rectangle(ctx, param, value):
 SLICING_NAMES = ("start", "end", "polarity", "crop", "flip_x", "flip_y", "transpose")
 
 
-def slicing_options(function=None, *, polarity: bool = True):
+def slicing_options(command):
     """--start, --end, --polarity, --crop, --flip-x, --flip-y, --transpose (see evtools.transform), given to the
-    command as one ``slicing`` dict (None when none is given). ``polarity=False`` leaves --polarity out (bafilter,
-    where it is STCF's option)."""
-    given = SLICING_NAMES if polarity else tuple(name for name in SLICING_NAMES if name != "polarity")
+    command as one ``slicing`` dict (None when none is given)."""
 
-    def decorate(command):
-        @functools.wraps(command)
-        def with_slicing(*args, **kwargs):
-            slicing = {name: kwargs.pop(name) if name in given else None for name in SLICING_NAMES}
-            return command(*args, slicing=slicing if any(slicing.values()) else None, **kwargs)
+    @functools.wraps(command)
+    def with_slicing(*args, **kwargs):
+        slicing = {name: kwargs.pop(name) for name in SLICING_NAMES}
+        return command(*args, slicing=slicing if any(slicing.values()) else None, **kwargs)
 
-        options = [
-            click.option("--start", type=TimeBound(), default=None, metavar="TIME",
-                         help="Keep events from this time on: from the stream's first event (2s, 500ms), or "
-                              "absolute after @ (@136.6s)."),
-            click.option("--end", type=TimeBound(), default=None, metavar="TIME",
-                         help="Keep events before this time (as --start)."),
-            click.option("--polarity", type=click.Choice(["on", "off"]), default=None, help="Keep one polarity.")
-            if polarity else None,
-            click.option("--crop", callback=_rectangle, default=None, metavar="X,Y,W,H",
-                         help="Keep the events inside this rectangle, moved to its origin: the sensor becomes "
-                              "W x H."),
-            click.option("--flip-x", is_flag=True, default=None, help="Mirror left-right (x -> W - 1 - x), after "
-                                                                       "--crop."),
-            click.option("--flip-y", is_flag=True, default=None, help="Mirror top-bottom (y -> H - 1 - y), after "
-                                                                       "--crop."),
-            click.option("--transpose", is_flag=True, default=None, help="Swap x and y, last: the sensor becomes "
-                                                                          "H x W."),
-        ]
-        for option in reversed([option for option in options if option is not None]):
-            with_slicing = option(with_slicing)
-        return with_slicing
+    options = [
+        click.option("--start", type=TimeBound(), default=None, metavar="TIME",
+                     help="Keep events from this time on: from the stream's first event (2s, 500ms), or absolute "
+                          "after @ (@136.6s)."),
+        click.option("--end", type=TimeBound(), default=None, metavar="TIME",
+                     help="Keep events before this time (as --start)."),
+        click.option("--polarity", type=click.Choice(["on", "off"]), default=None, help="Keep one polarity."),
+        click.option("--crop", callback=_rectangle, default=None, metavar="X,Y,W,H",
+                     help="Keep the events inside this rectangle, moved to its origin: the sensor becomes W x H."),
+        click.option("--flip-x", is_flag=True, default=None, help="Mirror left-right (x -> W - 1 - x), after --crop."),
+        click.option("--flip-y", is_flag=True, default=None, help="Mirror top-bottom (y -> H - 1 - y), after --crop."),
+        click.option("--transpose", is_flag=True, default=None, help="Swap x and y, last: the sensor becomes H x W."),
+    ]
+    for option in reversed(options):
+        with_slicing = option(with_slicing)
+    return with_slicing
 
-    return decorate if function is None else decorate(function)
+
+def merged_alias(name: str, value, alias: str, alias_value):
+    """An option given under its name or its older, hidden alias (not both, unless equal)."""
+    if alias_value is None:
+        return value
+    if value is not None and value != alias_value:
+        raise click.UsageError(f"{alias} is another name for {name}: give one of them")
+    return alias_value
 
 
 def figure_path(path: str | None, param_hint: str, inputs=()) -> str | None:

@@ -11,7 +11,8 @@ from collections import deque
 import click
 import numpy as np
 
-from evtools.cli.options import FINITE, MICROSECONDS, FiniteRange, TimeBound, figure_path, read_options
+from evtools.cli.options import (FINITE, MICROSECONDS, FiniteRange, TimeBound, figure_path, merged_alias,
+                                 read_options)
 from evtools.cli.progress import with_progress
 from evtools.render import (
     BACKGROUNDS,
@@ -69,8 +70,13 @@ def _known_colormap(ctx, param, value):
     return value
 
 
+OLD_NAMES = {"fps": "old_fps"}
+"""Options with an older, hidden name (``--fps`` is ``--frame-rate``, simulate's name)."""
+
+
 def _given(ctx: click.Context, name: str) -> bool:
-    return ctx.get_parameter_source(name) not in (None, click.core.ParameterSource.DEFAULT)
+    return any(ctx.get_parameter_source(one) not in (None, click.core.ParameterSource.DEFAULT)
+               for one in (name, OLD_NAMES.get(name)) if one)
 
 
 def _refuse(ctx: click.Context, names: dict[str, str], why: str) -> None:
@@ -93,8 +99,10 @@ def _refuse(ctx: click.Context, names: dict[str, str], why: str) -> None:
                    "to --end as one window.")
 @click.option("--scale", type=click.IntRange(1, 64), default=None, metavar="K",
               help="Enlarge K times, nearest neighbour (default: enough for about 480 pixels; maps: 256 per map).")
-@click.option("--fps", type=FiniteRange(min=0.01, max=1000), default=DEFAULT_FPS,
-              show_default=True, help="Video playback rate, frames per second (one frame per window).")
+@click.option("--frame-rate", "fps", type=FiniteRange(min=0.01, max=1000), default=None, metavar="HZ",
+              help=f"Video playback rate, frames per second (one frame per window).  [default: {DEFAULT_FPS:g}]")
+@click.option("--fps", "old_fps", type=FiniteRange(min=0.01, max=1000), default=None, hidden=True,
+              help="The same as --frame-rate (kept for older scripts).")
 @click.option("--background", type=click.Choice(sorted(BACKGROUNDS)), default="dark", show_default=True,
               help="Event frames: ON orange and OFF blue on dark, or vermillion and blue on white.")
 @click.option("--map", "map_path", type=click.Path(dir_okay=False), default=None, metavar="THRESHOLDS.h5",
@@ -119,7 +127,7 @@ def _refuse(ctx: click.Context, names: dict[str, str], why: str) -> None:
                    "instead of frames (-o FIG.png, .svg or .pdf).")
 @click.pass_context
 def render(ctx, input, input_format, sensor_size, aedat2_layout, output, window_us, start, end, scale, fps,
-           background, map_path, value_range, mode, colormap, caption, aps, rate):
+           old_fps, background, map_path, value_range, mode, colormap, caption, aps, rate):
     """Draw IN (default stdin) as event frames, or a thresholds map with --map: users look before they read.
 
     A frame colours each pixel by the events of one time window: ON (brighter) orange, OFF (darker) blue,
@@ -133,8 +141,9 @@ def render(ctx, input, input_format, sensor_size, aedat2_layout, output, window_
 
     Videos are H.264 where the OpenCV build encodes it, else MPEG-4 Part 2 (the PyPI wheels), which is said.
     """
+    fps = merged_alias("--frame-rate", fps, "--fps", old_fps)
     if rate:
-        _refuse(ctx, {"window_us": "--window-us", "start": "--start", "end": "--end", "fps": "--fps",
+        _refuse(ctx, {"window_us": "--window-us", "start": "--start", "end": "--end", "fps": "--frame-rate",
                       "background": "--background", "map_path": "--map", "value_range": "--range", "scale": "--scale",
                       "mode": "--mode", "colormap": "--colormap", "caption": "--caption", "aps": "--aps"},
                 "does not apply to --rate")
@@ -144,7 +153,7 @@ def render(ctx, input, input_format, sensor_size, aedat2_layout, output, window_
     if map_path is not None:
         if input != STDIO:
             raise click.UsageError("give either an event stream IN or --map THRESHOLDS.h5, not both")
-        _refuse(ctx, {"window_us": "--window-us", "start": "--start", "end": "--end", "fps": "--fps",
+        _refuse(ctx, {"window_us": "--window-us", "start": "--start", "end": "--end", "fps": "--frame-rate",
                       "background": "--background", "input_format": "--input-format", "sensor_size": "--sensor-size",
                       "aedat2_layout": "--aedat2-layout", "mode": "--mode", "caption": "--caption", "aps": "--aps"},
                 "applies to event streams, not to --map")
@@ -159,7 +168,7 @@ def render(ctx, input, input_format, sensor_size, aedat2_layout, output, window_
     if start is not None and end is not None and start.absolute == end.absolute and end.us <= start.us:
         raise click.BadParameter(f"the end ({end.us} us) is not after the start ({start.us} us)", param_hint="--end")
     if extension in IMAGE_EXTENSIONS:
-        _refuse(ctx, {"fps": "--fps"}, "applies to video outputs (.mp4, .avi) only")
+        _refuse(ctx, {"fps": "--frame-rate"}, "applies to video outputs (.mp4, .avi) only")
     if input != STDIO and same_file(output, input):
         raise RenderError(f"{output}: output would overwrite the input; choose another -o")
     with open_events(input, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as opened:
@@ -183,7 +192,7 @@ def render(ctx, input, input_format, sensor_size, aedat2_layout, output, window_
         if extension in IMAGE_EXTENSIONS:
             _render_image(chunks, stream, framer, output, extension, scale, start_us, caption, backdrop)
         else:
-            _render_video(chunks, stream, framer, output, extension, scale, fps, start_us, caption, backdrop)
+            _render_video(chunks, stream, framer, output, extension, scale, fps or DEFAULT_FPS, start_us, caption, backdrop)
         if backdrop is not None and backdrop.current is None:
             log.warning("%s: no APS frame before the windows drawn (--aps): the events are drawn on the background",
                         stream.name)

@@ -19,7 +19,8 @@ import numpy as np
 
 from evtools import interrupt
 from evtools.aps import APS_DEFAULTS, ApsSensor
-from evtools.cli.options import (FINITE, Duration, FiniteRange, IntRange, aedat2_layout_option,
+from evtools.cli.options import (FINITE, Duration, FiniteRange, IntRange, Microseconds, aedat2_layout_option,
+                                 merged_alias,
                                  check_compression, compression_option, input_format_option)
 from evtools.cli.progress import with_progress
 from evtools.events import CHUNK_EVENTS, MAX_TIME_US, StreamInfo, join, parse_sensor_size
@@ -303,15 +304,6 @@ _SCENE_OPTIONS = {  # keyword of the scene functions -> command-line option
 }
 
 
-def _merged(name: str, value, alias: str, alias_value):
-    """An option given under its name or its older alias (not both, unless equal)."""
-    if alias_value is None:
-        return value
-    if value is not None and value != alias_value:
-        raise click.UsageError(f"{alias} is another name for {name}: give one of them")
-    return alias_value
-
-
 def model_parameters(preset: str | None, given: dict[str, Any]) -> dict[str, Any]:
     """v2e's defaults, then the preset's values, then every option the user gave."""
     parameters = dict(DEFAULT_PARAMETERS)
@@ -410,7 +402,7 @@ def _float_option(name: str, help: str, low: float | None = 0.0, high: float | N
                "Per-pixel spread of the leak rate, decades (default 0.1; 0.5 for an event stream).")
 @_float_option("--shot-noise-rate-hz",
                "Shot-noise rate per pixel in the dark (any intensity for an event stream), ON+OFF (default 0).")
-@click.option("--refractory-us", type=IntRange(0, MAX_TIME_US), default=None,
+@click.option("--refractory-us", type=Microseconds(minimum_us=0), default=None,
               help="Refractory period, microseconds (default 0).")
 @_float_option("--hot-pixel-fraction", "Fraction of hot pixels (default 0).", high=1.0)
 @_float_option("--hot-pixel-rate-hz", "Event rate of a hot pixel (default 100).")
@@ -480,8 +472,8 @@ def simulate(source, output, output_format, truth, truth_frame_rate, input_forma
     if aps and "aps_rate_hz" not in aps:
         raise click.UsageError(f"{', '.join('--' + n.replace('_us', '').replace('_', '-') for n in aps)} require "
                                "--aps-rate")
-    size = _merged("--size", size, "--sensor-size", sensor_size)
-    fps = options["frame_rate"] = _merged("--frame-rate", options["frame_rate"], "--fps", fps)
+    size = merged_alias("--size", size, "--sensor-size", sensor_size)
+    fps = options["frame_rate"] = merged_alias("--frame-rate", options["frame_rate"], "--fps", fps)
     given = {name: value for name, value in options.items() if value is not None}
     if is_event_stream(source, input_format):
         if aps:

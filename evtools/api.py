@@ -11,7 +11,7 @@ Heavy modules (h5py, OpenCV, numba) are imported inside the functions, so ``impo
 Examples
 --------
 >>> import evtools
->>> events, truth = evtools.simulate("flicker", width=16, height=12, duration_us=1_000_000, seed=1)
+>>> events, truth = evtools.simulate("flicker", size=(16, 12), duration_us=1_000_000, seed=1)
 >>> info = evtools.StreamInfo(16, 12)
 >>> kept = evtools.bafilter(events, info, method="baf", dt_us=100_000)
 >>> thresholds = evtools.estimate(kept, info, method="stimulus")
@@ -31,7 +31,8 @@ from typing import Any, Iterable, Iterator
 import numpy as np
 
 from evtools.errors import EvtoolsError, InvalidEventsError
-from evtools.events import EVENT_DTYPE, StreamChecker, StreamInfo, as_chunk, empty_events, event_fields
+from evtools.events import (EVENT_DTYPE, StreamChecker, StreamInfo, as_chunk, empty_events, event_fields,
+                            parse_sensor_size)
 
 __all__ = [
     "bafilter", "correct", "estimate", "from_columns", "from_dv", "from_tonic", "inject_noise", "open", "read",
@@ -54,7 +55,7 @@ def read(path: str | os.PathLike, *, frames: bool = False, **options) -> tuple:
     Returns
     -------
     events : ndarray of EVENT_DTYPE
-    info : StreamInfo
+    info : StreamInfo, (width, height) or "WxH"
         Sensor size, format and what the file said about itself (``metadata``; ``frame_size`` when it has APS
         frames).
     frames : list of evtools.Frame
@@ -107,7 +108,7 @@ def write(path: str | os.PathLike, events: np.ndarray, info: StreamInfo, frames=
         The output; its extension chooses the format unless ``format`` is given (``"-"``: standard output, AEDAT
         4.0).
     events : ndarray of EVENT_DTYPE
-    info : StreamInfo
+    info : StreamInfo, (width, height) or "WxH"
     frames : sequence of evtools.Frame
         APS frames to write among the events, each after the events before the end of its exposure (AEDAT 4.0;
         other formats store none and say so). ``info.metadata["frame_size"]`` gives the frame stream's size;
@@ -153,11 +154,14 @@ def writer(path: str | os.PathLike | None, info: StreamInfo, **options) -> Itera
 
 
 def _stream_info(info) -> StreamInfo:
-    """``info`` if it is a :class:`StreamInfo` (a sensor size given otherwise is refused saying how to give it)."""
-    if not isinstance(info, StreamInfo):
-        raise EvtoolsError(f"info must be an evtools.StreamInfo (e.g. evtools.StreamInfo(width, height)), got "
-                           f"{type(info).__name__} {info!r:.40}")
-    return info
+    """``info`` as a :class:`StreamInfo`: one, or a sensor size, ``(width, height)`` or ``"WxH"``."""
+    if isinstance(info, StreamInfo):
+        return info
+    try:
+        return StreamInfo(*parse_sensor_size(info))
+    except InvalidEventsError as error:
+        raise EvtoolsError(f"info must be an evtools.StreamInfo or a sensor size, (width, height) or 'WxH': "
+                           f"{error}") from None
 
 
 class _CheckedSink:
@@ -181,10 +185,11 @@ def bafilter(events: np.ndarray, info: StreamInfo, method: str = "baf", **params
     Parameters
     ----------
     events : ndarray of EVENT_DTYPE
-    info : StreamInfo
+    info : StreamInfo, (width, height) or "WxH"
     method : str
-        One filter or a comma-separated chain: ``baf`` (Delbruck 2008), ``stcf`` (Guo & Delbruck 2022), ``dwf``,
-        ``ynoise``, ``knoise``, ``refractory``, ``hotpixel``, ... (README, section Bafilter).
+        One filter or a comma-separated chain (:data:`evtools.filters.METHODS`): ``baf`` (Delbruck 2008),
+        ``stcf`` (Guo & Delbruck 2022), ``dwf``, ``orderN`` (Khodamoradi & Kastner 2018), ``refractory``,
+        ``hotpixel``, ``mlpf`` (README, section Bafilter).
     **params
         The filters' parameters by their command-line names (``dt_us``, ``k``, ``radius``, ``preset``, ...).
 
@@ -208,7 +213,7 @@ def estimate(events: np.ndarray, info: StreamInfo, method: str = "offe", **param
     Parameters
     ----------
     events : ndarray of EVENT_DTYPE
-    info : StreamInfo
+    info : StreamInfo, (width, height) or "WxH"
     method : {"offe", "stimulus", "natural"}
         offE (Wang et al., ACRA 2019), a known calibration stimulus (absolute; Nozaki & Delbruck 2017), or an
         ordinary moving scene (counts against the neighbours').
@@ -221,7 +226,7 @@ def estimate(events: np.ndarray, info: StreamInfo, method: str = "offe", **param
     Examples
     --------
     >>> import evtools
-    >>> events, truth = evtools.simulate("flicker", width=8, height=6, duration_us=2_000_000, seed=3)
+    >>> events, truth = evtools.simulate("flicker", size=(8, 6), duration_us=2_000_000, seed=3)
     >>> result = evtools.estimate(events, evtools.StreamInfo(8, 6), method="stimulus")
     >>> bool(result.valid.all()), bool(abs(result.on / truth["on"] - 1).max() < 0.01)
     (True, True)
@@ -245,7 +250,7 @@ def correct(events: np.ndarray, info: StreamInfo, thresholds, **params) -> np.nd
     Parameters
     ----------
     events : ndarray of EVENT_DTYPE
-    info : StreamInfo
+    info : StreamInfo, (width, height) or "WxH"
     thresholds : ThresholdEstimate, ThresholdMap, str or path-like
         An estimate (:func:`estimate`), a thresholds map, or a thresholds or truth file (HDF5); an online
         estimate's series is used map by map.
@@ -257,7 +262,7 @@ def correct(events: np.ndarray, info: StreamInfo, thresholds, **params) -> np.nd
     Examples
     --------
     >>> import evtools
-    >>> events, truth = evtools.simulate("flicker", width=4, height=3, duration_us=1_000_000, seed=2,
+    >>> events, truth = evtools.simulate("flicker", size=(4, 3), duration_us=1_000_000, seed=2,
     ...                                  sigma_thres=0.05, leak_rate_hz=0)
     >>> corrected = evtools.correct(events, evtools.StreamInfo(4, 3), truth, target=0.2)
     >>> counts = evtools.to_columns(corrected)[1].size
@@ -292,7 +297,7 @@ def correct(events: np.ndarray, info: StreamInfo, thresholds, **params) -> np.nd
     return correct_thresholds(events, info.width, info.height, on, off, valid, **params)
 
 
-def simulate(source: str | Iterable[tuple[int, np.ndarray]] = "flicker", *, width: int = 346, height: int = 260,
+def simulate(source: str | Iterable[tuple[int, np.ndarray]] = "flicker", *, size=(346, 260),
              duration_us: int = 1_000_000, scene: dict | None = None, **parameters) -> tuple[np.ndarray, dict]:
     """Simulate a DVS (``evtools simulate``): v2e's pixel model (Hu, Liu, Delbruck 2021) with ESIM's per-pixel
     crossing times (Rebecq et al. 2018).
@@ -302,8 +307,10 @@ def simulate(source: str | Iterable[tuple[int, np.ndarray]] = "flicker", *, widt
     source : str or iterable of (t_us, frame)
         A built-in scene's name (flicker, gradient, bars, step, static, texture) or frames: times in
         microseconds, increasing, and intensity images (height x width, 0-255).
-    width, height, duration_us : int
-        The scene's size and length (a built-in scene only).
+    size : (width, height) or "WxH"
+        The scene's size (a built-in scene only).
+    duration_us : int
+        The scene's length (a built-in scene only).
     scene : dict, optional
         The scene's options (``period_s``, ``speed_px_s``, ``profile``, ``phase_spread``, ``image``, ...).
     **parameters
@@ -320,14 +327,14 @@ def simulate(source: str | Iterable[tuple[int, np.ndarray]] = "flicker", *, widt
     Examples
     --------
     >>> import evtools
-    >>> events, truth = evtools.simulate("bars", width=32, height=24, duration_us=200_000, seed=0)
+    >>> events, truth = evtools.simulate("bars", size=(32, 24), duration_us=200_000, seed=0)
     >>> truth["on"].shape, bool(len(events) > 100), truth["parameters"]["seed"]
     ((24, 32), True, 0)
     """
     from evtools.simulation import DvsSimulator, run_simulator, scene_frames
 
     if isinstance(source, str):
-        frames = scene_frames(source, width, height, duration_us, **(scene or {}))
+        frames = scene_frames(source, *parse_sensor_size(size), duration_us, **(scene or {}))
     elif scene:
         raise EvtoolsError("scene options apply to a built-in scene, not to frames")
     else:

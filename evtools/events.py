@@ -79,15 +79,22 @@ def check_sensor_size(width: int, height: int) -> None:
             "real size (--sensor-size / --size)")
 
 
-def parse_sensor_size(text: str) -> tuple[int, int]:
-    """Parse ``"WxH"`` (e.g. ``"346x260"``) into ``(width, height)``."""
-    parts = text.lower().replace(",", "x").split("x")
-    try:
-        width, height = (int(part) for part in parts)
-    except ValueError:
-        raise InvalidEventsError(f"sensor size {text!r} is not of the form WIDTHxHEIGHT, e.g. 346x260") from None
+def parse_sensor_size(size) -> tuple[int, int]:
+    """``(width, height)`` from ``"WxH"`` (e.g. ``"346x260"``, the command line's form) or a pair; a one-line
+    :class:`InvalidEventsError` for anything else."""
+    if isinstance(size, str):
+        parts = size.lower().replace(",", "x").split("x")
+        try:
+            width, height = (int(part) for part in parts)
+        except ValueError:
+            raise InvalidEventsError(f"sensor size {size!r} is not of the form WIDTHxHEIGHT, e.g. 346x260") from None
+    else:
+        try:
+            width, height = size
+        except (TypeError, ValueError):
+            raise InvalidEventsError(f"a sensor size is (width, height) or 'WxH', not {size!r:.40}") from None
     check_sensor_size(width, height)
-    return width, height
+    return int(width), int(height)
 
 
 def empty_events(n: int = 0) -> np.ndarray:

@@ -11,8 +11,7 @@ from typing import Iterator
 import numpy as np
 
 from evtools import interrupt
-from evtools.events import (CHUNK_EVENTS, InvalidEventsError, StreamChecker, StreamInfo, check_sensor_size,
-                            concatenate, parse_sensor_size)
+from evtools.events import CHUNK_EVENTS, StreamChecker, StreamInfo, concatenate, parse_sensor_size
 from evtools.formats.errors import FormatError, UnknownOutputFormat
 from evtools.formats.io import (
     STDIO,
@@ -149,7 +148,7 @@ def open_events(
     earlier than the one before it. A live input (pipe, socket, FIFO) of AEDAT 4.0 yields every packet as it
     arrives.
     """
-    sensor_size = _sensor_size(sensor_size)
+    sensor_size = None if sensor_size is None else parse_sensor_size(sensor_size)
     folder = None
     if path is not None and os.fspath(path) != STDIO and os.path.isdir(path):  # the RPG dataset layout
         from evtools.formats.rpg import rpg_events_path
@@ -181,20 +180,6 @@ def open_events(
     except BaseException:
         source.close()
         raise
-
-
-def _sensor_size(size) -> tuple[int, int] | None:
-    """``(width, height)`` from a pair or ``"WxH"`` (the command line's form); a one-line error for anything else."""
-    if size is None:
-        return None
-    if isinstance(size, str):
-        return parse_sensor_size(size)
-    try:
-        width, height = (int(side) for side in size)
-    except (TypeError, ValueError):
-        raise InvalidEventsError(f"sensor_size must be (width, height) or 'WxH', not {size!r}") from None
-    check_sensor_size(width, height)
-    return width, height
 
 
 def _named(target: str, function, *args):

@@ -79,7 +79,7 @@ def test_api_pipeline_gives_the_cli_pipeline_bytes(tmp_path):
 
 
 def test_correct_takes_an_online_series_and_a_file(tmp_path):
-    events, truth = evtools.simulate("flicker", width=8, height=6, duration_us=3_000_000, seed=4, leak_rate_hz=0)
+    events, truth = evtools.simulate("flicker", size=(8, 6), duration_us=3_000_000, seed=4, leak_rate_hz=0)
     info = evtools.StreamInfo(8, 6)
     online = evtools.estimate(events, info, method="stimulus", interval_us=1_000_000)
     assert online.series is not None and len(online.series.t_us) == 3
@@ -227,8 +227,10 @@ def test_the_doors_say_what_info_and_thresholds_must_be():
     for door in (lambda info: evtools.bafilter(events, info), lambda info: evtools.estimate(events, info),
                  lambda info: evtools.inject_noise(events, info),
                  lambda info: evtools.write("/tmp/x.aedat4", events, info)):
-        with pytest.raises(evtools.EvtoolsError, match=r"info must be an evtools.StreamInfo .* got tuple \(8, 6\)"):
-            door((8, 6))
+        with pytest.raises(evtools.EvtoolsError, match=r"info must be an evtools.StreamInfo or a sensor size.*8x"):
+            door("8x")
+        with pytest.raises(evtools.EvtoolsError, match=r"info must be an evtools.StreamInfo or a sensor size"):
+            door(None)
     with pytest.raises(evtools.EvtoolsError, match=r"thresholds must be an estimate .* got float \(a target"):
         evtools.correct(events, evtools.StreamInfo(8, 6), 0.2)
     with pytest.raises(evtools.InvalidEventsError, match=r"sensor width 8.5 is not a whole number of pixels"):
@@ -242,6 +244,15 @@ def test_a_sensor_size_is_taken_as_a_pair_or_as_the_command_lines_text(tmp_path)
     evtools.write(path, evtools.from_columns([1, 2], [0, 31], [0, 23], [1, 0]), evtools.StreamInfo(32, 24))
     assert evtools.read(path, sensor_size="40x30")[1].size == (40, 30)
     assert evtools.read(path, sensor_size=(40, 30))[1].size == (40, 30)
-    for bad in (32, "32", (1, 2, 3), "axb"):
+    for bad in (32, "32", (1, 2, 3), "axb", (32.5, 24)):
         with pytest.raises(evtools.InvalidEventsError, match="sensor"):
             evtools.read(path, sensor_size=bad)
+    events, _ = evtools.simulate("flicker", size=(32, 24), duration_us=1_000_000, seed=0)
+    for size in ("32x24", (32, 24), [32, 24], evtools.StreamInfo(32, 24)):  # every door that takes a sensor
+        assert np.array_equal(evtools.bafilter(events, size, method="refractory", dt_us=1), events)
+        assert evtools.inject_noise(events, size, seed=1)[0].size >= events.size
+        assert evtools.estimate(events, size).on.shape == (24, 32)
+        evtools.write(tmp_path / "s.aedat4", events, size)
+        assert evtools.read(tmp_path / "s.aedat4")[1].size == (32, 24)
+        assert evtools.simulate("bars", size=size if not isinstance(size, evtools.StreamInfo) else size.size,
+                                duration_us=100_000, seed=0)[1]["on"].shape == (24, 32)

@@ -18,7 +18,7 @@ from click.testing import CliRunner
 
 from evtools.cli.main import COMMANDS, cli
 from evtools.cli.metrics import metrics
-from evtools.cli.options import Duration, TimeBound
+from evtools.cli.options import Duration, Microseconds, TimeBound
 from tests.conftest import data_file
 from tests.helpers import run
 
@@ -133,6 +133,7 @@ def test_unknown_options_missing_inputs_and_help(tmp_path, name):
      "--refractory-us"),
     (["simulate", "scene:bars", "--size", "8x8", "--duration", "1e20s", "-o", "{T}/s.aedat4"], "--duration"),
     (["simulate", "scene:bars", "--size", "8x8", "--speed", "nan", "-o", "{T}/s.aedat4"], "--speed"),
+    (["render", "{S}", "-o", "{T}/v.mp4", "--frame-rate", "nan"], "--frame-rate"),
     (["render", "{S}", "-o", "{T}/v.mp4", "--fps", "nan"], "--fps"),
     (["convert", "{S}", "-o", "{T}/c.aedat4", "--realtime", "--speed", "1e-300"], "--speed"),
 ])
@@ -244,4 +245,77 @@ def test_the_same_kind_of_mistake_gets_the_same_exit_code(tmp_path, args):
     stderr = result.stderr.decode()
     assert result.returncode == 2, stderr
     assert stderr.startswith("evtools: usage: ") and stderr.count("\n") == 1, stderr
+    assert not list(tmp_path.iterdir())
+
+
+def _time_options() -> list[tuple[str, click.Option]]:
+    return [(name, option) for name, command in _commands().items() for option in command.params
+            if isinstance(option, click.Option) and isinstance(option.type, Duration)]
+
+
+def test_every_time_option_takes_a_duration_with_its_unit():
+    """Issue 39 item 5: every time option of every command accepts ``10ms``; one named with its unit
+    (``--dt-us``) also takes a bare number in that unit; an option whose name ends in ``-us`` is never a plain
+    integer, and an option described as a time is never a plain number."""
+    options = _time_options()
+    assert len(options) >= 15
+    for name, command in _commands().items():
+        for option in command.params:
+            if not isinstance(option, click.Option):
+                continue
+            if option.opts[0].endswith("-us"):
+                assert isinstance(option.type, Microseconds), (name, option.opts)
+            if isinstance(option.type, (click.types.IntParamType, click.types.FloatParamType)):
+                assert not any(word in (option.help or "") for word in (" us", "microsecond")), (name, option.opts)
+    for name, option in options:
+        context = click.Context(click.Command(name))
+        assert option.type.convert("10ms", option, context) == 10_000, (name, option.opts)
+        assert option.type.convert("0.5s", option, context) == 500_000, (name, option.opts)
+        bare = "10000"
+        if isinstance(option.type, Microseconds):
+            assert option.type.convert(bare, option, context) == 10_000, (name, option.opts)
+        else:
+            with pytest.raises(click.BadParameter, match="has no unit"):
+                option.type.convert(bare, option, context)
+
+
+def test_a_time_with_its_unit_runs_as_the_same_time_in_microseconds(tmp_path):
+    """End to end: ``--dt-us 10ms`` filters as ``--dt-us 10000``, ``--edges-at`` takes times with units, and the
+    sweep of a ``-us`` parameter takes them too."""
+    a, b = tmp_path / "a.aedat4", tmp_path / "b.aedat4"
+    run("bafilter", STEP, "--dt-us", "10ms", "-o", a)
+    run("bafilter", STEP, "--dt-us", "10000", "-o", b)
+    assert a.read_bytes() == b.read_bytes()
+    assert run("bafilter", STEP, "--dt-us", "3", "-o", a, "-q").returncode == 0
+    assert a.read_bytes() != b.read_bytes()  # (the option is used)
+    first = read_first_time_us(STEP)
+    relative = run("metrics", "uniformity", STEP, "--edges-at", "0ms,500ms", "--json").stdout
+    absolute = run("metrics", "uniformity", STEP, "--edges-at", f"@{first}us,@{first + 500_000}us",
+                   "--json").stdout
+    assert relative == absolute and b'"edges"' in relative
+    sweep = [run("metrics", "roc", STEP, "--truth", TRUTH, "-m", "baf", "--sweep", words, "--json").stdout
+             for words in ("dt-us=1ms,3ms", "dt-us=1000,3000")]
+    assert sweep[0] == sweep[1]
+
+
+def read_first_time_us(path) -> int:
+    import evtools
+
+    return int(evtools.read(path)[0]["t"][0])
+
+
+@pytest.mark.parametrize("name", sorted(BASES))
+def test_global_options_are_taken_after_the_subcommand_too(tmp_path, name):
+    """Issue 39 item 5: ``--max-latency``, ``--timeout``, ``-q`` and ``-v`` anywhere on the line (``--max-latency``
+    worked only before the subcommand); a bad value is a usage error naming it, wherever it is."""
+    base = [part.format(out=tmp_path / "out") for part in BASES[name]]
+    runner = CliRunner()
+    for words in (["--max-latency", "5ms"], ["--timeout", "3s"], ["-q"]):
+        after = runner.invoke(cli, [*name.split(), *base, *words, "--help"])
+        assert after.exit_code == 0, (words, after.stderr)
+    for where in ("before", "after"):
+        argv = (["--max-latency", "soon", *name.split(), *base] if where == "before"
+                else [*name.split(), *base, "--max-latency", "soon"])
+        result = runner.invoke(cli, argv)
+        assert result.exit_code == 2 and "--max-latency" in result.stderr, (where, result.stderr)
     assert not list(tmp_path.iterdir())

@@ -322,7 +322,7 @@ def test_a_stop_at_any_moment_of_an_hdf5_write_is_clean(tmp_path, signal_number)
     Python file object. At moments spread over the whole run (its start, the stream, the commit, the exit): exit
     0 (it had ended), 130 / 143, never a crash or a traceback; an output left behind is a readable HDF5 file."""
     source = tmp_path / "big.aedat4"
-    events, _ = evtools.simulate("bars", width=128, height=96, duration_us=1_500_000, seed=4)
+    events, _ = evtools.simulate("bars", size=(128, 96), duration_us=1_500_000, seed=4)
     evtools.write(source, events, evtools.StreamInfo(128, 96))
     out = tmp_path / "x.h5"
     started = time.monotonic()

@@ -47,7 +47,7 @@ with open_events("-") as stream:
 @pytest.fixture(scope="module")
 def recording(tmp_path_factory) -> Path:
     """An AEDAT 4.0 file of several packets (32,768 events each)."""
-    events, _ = evtools.simulate("bars", width=64, height=48, duration_us=1_500_000, seed=3)
+    events, _ = evtools.simulate("bars", size=(64, 48), duration_us=1_500_000, seed=3)
     assert len(events) > 4 * 32_768
     path = tmp_path_factory.mktemp("live") / "bars.aedat4"
     evtools.write(path, events, evtools.StreamInfo(64, 48))

@@ -141,7 +141,7 @@ def test_a_late_client_gets_the_header_and_then_live_events(tmp_path):
     a contiguous part of the recording from a packet on, up to its end; a client that leaves early does not stop
     the server. (dv-processing's NetworkReader may drop the packets still queued when its server closes, so the
     end of the stream is checked on the bytes a plain socket received, read back by dv-processing.)"""
-    events, _ = evtools.simulate("bars", width=WIDTH, height=HEIGHT, duration_us=3_000_000, seed=2)
+    events, _ = evtools.simulate("bars", size=(WIDTH, HEIGHT), duration_us=3_000_000, seed=2)
     recording = tmp_path / "bars.aedat4"
     evtools.write(recording, events, evtools.StreamInfo(WIDTH, HEIGHT))
     port = _free_port()
@@ -206,7 +206,7 @@ def _network_form(path: Path) -> tuple[bytes, list[bytes]]:
 
 
 def test_bad_servers_give_one_line_errors_naming_the_address(tmp_path):
-    events, _ = evtools.simulate("bars", width=WIDTH, height=HEIGHT, duration_us=500_000, seed=4)
+    events, _ = evtools.simulate("bars", size=(WIDTH, HEIGHT), duration_us=500_000, seed=4)
     recording = tmp_path / "bars.aedat4"
     evtools.write(recording, events, evtools.StreamInfo(WIDTH, HEIGHT))
     header, packets = _network_form(recording)

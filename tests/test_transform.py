@@ -110,6 +110,8 @@ def _slicing_argv(case) -> list[str]:
         argv += ["--start", f"{case['start_us']}us"]
     if case["end_us"] is not None:
         argv += ["--end", f"{case['end_us']}us"]
+    if case["polarity"]:
+        argv += ["--polarity", case["polarity"]]
     if case["crop"]:
         argv += ["--crop", ",".join(map(str, case["crop"]))]
     argv += [flag for flag in ("--flip-x", "--flip-y", "--transpose") if case[flag[2:].replace("-", "_")]]
@@ -139,7 +141,8 @@ def _inside(x, y, case):
 @settings(max_examples=20, deadline=None)
 @given(cases())
 def test_every_stream_command_slices_as_convert_does(tmp_path_factory, case):
-    """bafilter, estimate and correct take the slicing options too (issue 18 item 3): their output on a sliced
+    """bafilter, estimate and correct take the slicing options too (issue 18 item 3; --polarity in bafilter too
+    since issue 39): their output on a sliced
     stream equals their output on the stream sliced beforehand (slow reference), and correct's thresholds map is cut
     and turned with the events (reference: the map moved pixel by pixel)."""
     from click.testing import CliRunner
@@ -153,7 +156,7 @@ def test_every_stream_command_slices_as_convert_does(tmp_path_factory, case):
     with create_events(folder / "in.aedat4", StreamInfo(case["width"], case["height"])) as writer:
         writer.write(events)
     kept, (width, height) = naive_transform(_tuples(events), case["width"], case["height"], case["start_us"],
-                                            case["end_us"], None, case["crop"], case["flip_x"], case["flip_y"],
+                                            case["end_us"], case["polarity"], case["crop"], case["flip_x"], case["flip_y"],
                                             case["transpose"])
     if not kept:
         return
