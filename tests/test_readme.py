@@ -1,4 +1,5 @@
-"""Every code block of the README runs (issue 18 item 4): each in an empty folder of its own, with only the
+"""Every code block of the README runs (issue 18 item 4) and shows the effect it claims (issue 39 item 3: a block's
+checker in :data:`EFFECTS` reads what it made): each in an empty folder of its own, with only the
 repository's ``samples/`` beside it (as ``samples``) and the environment's ``evtools`` first on the PATH. A block
 makes the files it reads in its own earlier lines. A block that cannot run here says why in an HTML comment on the
 line before it (``<!-- not run: REASON -->``), which the README shows to nobody; there are few, and each names its
@@ -13,7 +14,10 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
+
+import evtools
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
@@ -61,3 +65,192 @@ def test_a_readme_block_runs(tmp_path, line, language, code, reason):
     run = subprocess.run(argv, cwd=tmp_path, env=environment, capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, f"README line {line}: exit {run.returncode}\n{run.stderr[-3000:]}"
     assert "Traceback" not in run.stderr, f"README line {line}:\n{run.stderr[-3000:]}"
+    effect = _checker(code)
+    if effect is not None:
+        effect(tmp_path, run)
+
+
+def _checker(code: str):
+    found = [check for key, check in EFFECTS.items() if key in code]
+    assert len(found) <= 1, "two checkers claim one block: make their keys unique"
+    return found[0] if found else None
+
+
+def test_every_block_that_makes_something_is_checked():
+    """A block that runs has a checker (the set-up block's effect is `make demo` itself; the live block's is read
+    by a client in tests/test_network.py)."""
+    unchecked = [line for line, _, code, _ in RUNNABLE if _checker(code) is None and not code.startswith("make demo")]
+    assert not unchecked, f"README blocks at lines {unchecked} have no checker in EFFECTS"
+
+
+def _evtools_json(folder: Path, *args) -> dict:
+    import json
+
+    done = subprocess.run([Path(sys.executable).parent / "evtools", *map(str, args), "--json"], cwd=folder,
+                          capture_output=True, text=True, check=True)
+    return json.loads(done.stdout)
+
+
+def _count(path: Path) -> int:
+    return len(evtools.read(path)[0])
+
+
+def _valid_and_error(folder: Path, estimate: str, truth: str) -> tuple[float, float]:
+    """(valid fraction, ON relative RMSE over valid pixels) of a thresholds map against a truth file."""
+    result = _evtools_json(folder, "metrics", "thresholds", estimate, "--truth", truth)
+    return result["valid_pixels"] / result["pixels"], result["on"]["rel_rmse"]
+
+
+def _quickstart(folder, run):  # "~7 % error, 96 % valid"; "count CV 0.19 -> 0.12, count error 0.89 -> 0.57"
+    import json
+
+    valid, error = _valid_and_error(folder, "thresholds.h5", "truth.h5")
+    assert valid > 0.9 and error < 0.1, (valid, error)
+    before, after = (json.loads((folder / name).read_text())["summary"] for name in ("before.json", "after.json"))
+    assert after["count_cv"] < 0.8 * before["count_cv"], (before, after)
+    assert after["count_error"] < 0.8 * before["count_error"], (before, after)
+
+
+def _formats(folder, run):  # every format holds the same events; the slice is the window and the crop
+    counts = {name: _count(folder / name) for name in ("recording.aedat4", "recording.aedat", "recording.h5",
+                                                         "recording.raw", "lz4.aedat4", "data.csv", "data.h5")}
+    assert len(set(counts.values())) == 1 and counts["recording.aedat4"] > 10_000, counts
+    assert 0 < _count(folder / "clean.aedat4") < counts["lz4.aedat4"]
+    events = evtools.read(folder / "recording.aedat4")[0]
+    part, info = evtools.read(folder / "part.aedat4")
+    assert info.size == (64, 64) and len(part) > 0
+    first = int(events["t"][0])
+    assert first + 200_000 <= part["t"].min() and part["t"].max() < first + 700_000
+    assert b"lz4" in (folder / "lz4.aedat4").read_bytes()[:400].lower()
+
+
+def _completion(folder, run):
+    for script in (folder / ".evtools-complete.zsh", folder / ".config/fish/completions/evtools.fish"):
+        assert "evtools" in script.read_text() and len(script.read_text()) > 200, script
+
+
+def _batch(folder, run):  # one output per input; maps "100 % valid, < 1 % error"
+    for seed in (1, 2, 3):
+        assert 0 < _count(folder / f"clean/bars{seed}.aedat4") < _count(folder / f"recordings/bars{seed}.aedat4")
+        assert _count(folder / f"converted/bars{seed}.h5") == _count(folder / f"recordings/bars{seed}.aedat4")
+        valid, error = _valid_and_error(folder, f"maps/camera{seed}.h5", f"truth{seed}.h5")
+        assert valid == 1.0 and error < 0.01, (seed, valid, error)
+
+
+def _noise_sources(folder, run):  # a video, images and a recording become events; noise is added with labels
+    import h5py
+
+    for name in ("video.aedat4", "frames.aedat4"):
+        assert _count(folder / name) > 1_000, name
+    noisy = _count(folder / "noisy.aedat4")
+    assert noisy > _count(folder / "flicker.aedat")
+    with h5py.File(folder / "t.h5") as truth:
+        labels = truth["label"][:]
+    assert len(labels) == noisy and (labels == 0).sum() == _count(folder / "flicker.aedat")
+    assert (labels == 1).any() and (labels == 2).any()
+
+
+def _davis(folder, run):  # "APS frames 300 (25 /s) ... 64x48"; frames pass through cropped
+    events, info, frames = evtools.read(folder / "davis.aedat4", frames=True)
+    assert len(frames) == 300 and frames[0].image.shape == (48, 64)
+    _, part_info, part_frames = evtools.read(folder / "part.h5", frames=True)
+    assert part_info.size == (32, 24) and len(part_frames) == 300 and part_frames[0].image.shape == (24, 32)
+    valid, error = _valid_and_error(folder, "absolute.h5", "davis.truth.h5")
+    assert valid > 0.5 and error < 0.15, (valid, error)
+
+
+def _render(folder, run):
+    import cv2
+
+    for name in ("frame.png", "part.png", "thresholds.png"):
+        image = cv2.imread(str(folder / name))
+        assert image is not None and image.shape[0] >= 200 and image.std() > 5, name
+    video = cv2.VideoCapture(str(folder / "bars.mp4"))
+    assert int(video.get(cv2.CAP_PROP_FRAME_COUNT)) >= 20
+
+
+def _bafilter(folder, run):  # each filter removes events; the hot pixels are found and dropped in another take
+    import csv
+
+    noisy, other = _count(folder / "noisy.aedat4"), _count(folder / "other.aedat4")
+    for name in ("clean.aedat4", "dv.aedat4", "mlpf.aedat4", "a.aedat4"):
+        assert 0 < _count(folder / name) < noisy, name
+    with open(folder / "hot.csv") as file:
+        hot = {(int(row["x"]), int(row["y"])) for row in csv.DictReader(file)}
+    assert len(hot) >= 5  # --hot-pixel-fraction 0.001 of 128 x 96: about 12
+    events = evtools.read(folder / "other.aedat4")[0]
+    kept = evtools.read(folder / "b.aedat4")[0]
+    at_hot = lambda e: sum(int(((e["x"] == x) & (e["y"] == y)).sum()) for x, y in hot)  # noqa: E731
+    assert at_hot(events) > 100 * len(hot) and at_hot(kept) == 0 and len(kept) < other
+
+
+def _train(folder, run):
+    import json
+
+    assert json.loads(run.stdout[:run.stdout.index("}") + 1])["held_out_auc"] > 0.8  # (JSON: stdout is a pipe)
+    assert (folder / "weights.npz").stat().st_size > 1_000
+    assert 0 < _count(folder / "denoised.aedat4") < _count(folder / "other.aedat4")
+
+
+def _denoise_metrics(folder, run):
+    assert (folder / "roc.svg").read_bytes().lstrip()[:5] in (b"<?xml", b"<svg ")
+    roc = _evtools_json(folder, "metrics", "roc", "noisy.aedat4", "--truth", "t.h5", "--method", "stcf", "--sweep",
+                        "dt-us=1000,10000")
+    assert roc["methods"][0]["auc"] > 0.8
+
+
+def _estimate(folder, run):  # offE and the stimulus methods on the same camera
+    for name in ("thresholds.h5", "t.h5"):
+        valid, error = _valid_and_error(folder, name, "flicker.truth.h5")
+        assert valid > 0.9 and error < 0.12, (name, valid, error)
+    valid, error = _valid_and_error(folder, "gradient.h5", "flicker.truth.h5")
+    assert valid > 0.9 and error < 0.12, ("gradient", valid, error)
+    valid, error = _valid_and_error(folder, "natural.h5", "flicker.truth.h5")
+    assert valid > 0.85 and error < 0.1, ("natural", valid, error)  # guessing the median: 17 % off
+    assert (folder / "errors.png").stat().st_size > 10_000
+
+
+def _correct(folder, run):  # the corrected step is more uniform than the raw one
+    before = _evtools_json(folder, "metrics", "uniformity", "step.aedat4", "--reference", "ideal.aedat4")
+    after = _evtools_json(folder, "metrics", "uniformity", "corrected.aedat4", "--reference", "ideal.aedat4")
+    assert after["summary"]["count_cv"] < 0.8 * before["summary"]["count_cv"], (before["summary"], after["summary"])
+    assert (folder / "edge.png").stat().st_size > 10_000
+
+
+def _reconstruction(folder, run):
+    raw = _evtools_json(folder, "metrics", "reconstruction", "step.aedat4", "--truth", "t.h5", "--contrast", "0.2")
+    fixed = _evtools_json(folder, "metrics", "reconstruction", "corrected.aedat4", "--truth", "t.h5", "--contrast",
+                          "0.2")
+    assert fixed["rmse"] < 0.8 * raw["rmse"] and fixed["ssim"] > raw["ssim"], (raw["rmse"], fixed["rmse"])
+    assert (folder / "recon.png").stat().st_size > 10_000
+
+
+def _prediction(folder, run):  # the true maps predict the frames better than one threshold for every pixel
+    true = _evtools_json(folder, "metrics", "reconstruction", "davis.aedat4", "--thresholds", "davis.truth.h5")
+    flat = _evtools_json(folder, "metrics", "reconstruction", "davis.aedat4", "--contrast", "0.2")
+    assert true["rmse"] < flat["rmse"], (true["rmse"], flat["rmse"])
+
+
+def _replay(folder, run):  # served to no client: said, not a silent success
+    assert "no client" in run.stderr, run.stderr
+
+
+EFFECTS = {
+    "evtools metrics uniformity step.aedat4 --reference ideal.aedat4 > before.json": _quickstart,
+    "evtools convert recording.aedat4 -o part.aedat4": _formats,
+    "_EVTOOLS_COMPLETE=bash_source": _completion,
+    "evtools estimate flicker/*.aedat4 -o maps/": _batch,
+    "evtools simulate flicker.aedat --shot-noise-rate-hz 5": _noise_sources,
+    "--truth davis.truth.h5 -o davis.aedat4   ": _davis,
+    "evtools render --map truth.h5": _render,
+    "--save-hot-pixels hot.csv": _bafilter,
+    "evtools metrics train-denoiser noisy.aedat4": _train,
+    "evtools metrics esr rec.aedat4": _denoise_metrics,
+    "evtools bafilter street.aedat4 | evtools estimate - -o natural.h5": _estimate,
+    "--before step.aedat4 --plot edge.png": _correct,
+    "--contrast 0.2 --plot recon.png": _reconstruction,
+    "evtools metrics reconstruction davis.aedat4 --thresholds": _prediction,
+    "--thresholds samples/step.truth.h5 -o tcp://:7778": _replay,
+    "evtools.simulate(\"flicker\"": lambda folder, run: None,  # the block asserts its own effect (the count CV)
+}
+"""A distinctive line of each block -> its checker: what the block's comments claim, read from what it made."""
