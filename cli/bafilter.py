@@ -9,7 +9,7 @@ import sys
 import click
 import numpy as np
 
-from evtools.cli.batch import batch_options, plan, run
+from evtools.cli.batch import Outcome, batch_options, plan, run
 from evtools.cli.options import (COUNT, MICROSECONDS, FiniteRange, check_compression, compression_option,
                                  slicing_options)
 from evtools.cli.progress import process_stream
@@ -176,8 +176,8 @@ def bafilter(inputs, input_format, sensor_size, aedat2_layout, output, jobs, sch
 def filter_one(input, output, *, input_format, sensor_size, aedat2_layout, methods, preset, dt_us, k, radius,
                polarity, window, distance, learn_us, hot_ratio, hot_rate_hz, hot_min_events, hot_pixels_path,
                save_hot_pixels, threshold=None, weights=None, polarity_maps=None, compression=None,
-               slicing=None) -> tuple[int, int]:
-    """Filter one file (the command's whole work for one input): (events in, events kept); ``slicing``: the
+               slicing=None) -> Outcome:
+    """Filter one file (the command's whole work for one input): its :class:`Outcome` (events in, kept); ``slicing``: the
     shared slicing options (:func:`evtools.transform.sliced`), applied as the events are read."""
     if save_hot_pixels:
         _check_hot_pixels_target(save_hot_pixels, input, output)
@@ -209,4 +209,5 @@ def filter_one(input, output, *, input_format, sensor_size, aedat2_layout, metho
     share = removed / ba.events_in if ba.events_in else 0.0
     log.info(f"bafilter {','.join(methods)}: {ba.events_in:,} in, {ba.events_out:,} kept, {removed:,} removed "
              f"({100 * share:.1f} %)")
-    return ba.events_in, ba.events_out
+    kept = 1 - share if ba.events_in else 0.0
+    return Outcome(ba.events_in, ba.events_out, {"kept_fraction": round(kept, 6)}, f"{100 * kept:.1f} % kept")

@@ -2,9 +2,10 @@
 each output keeps its input's name (with the output format's extension), and the files run ``--jobs`` at a time
 in a process pool, or on a Dask cluster with ``--scheduler`` (the ``cluster`` extra).
 
-A command supplies ``one(input, output, **options) -> (events_in, events_out)``, a module-level function (so a
-worker process or a Dask worker can import it), which does the whole work for one file and raises
-:class:`EvtoolsError` on bad input. One input runs in this process exactly as before; several run as a batch:
+A command supplies ``one(input, output, **options) -> Outcome``, a module-level function (so a worker process or a
+Dask worker can import it), which does the whole work for one file and raises :class:`EvtoolsError` on bad input;
+its :class:`Outcome` carries the command's measure of success (valid pixels, events kept), which ``--json`` and the
+summary table report beside the counts. One input runs in this process exactly as before; several run as a batch:
 a failing file is listed and the others complete, a summary table goes to stderr, and the exit code is 1 when
 any file failed.
 """
@@ -17,7 +18,7 @@ import os
 import sys
 import time
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, NamedTuple
 
 import click
 
@@ -25,6 +26,22 @@ from evtools.errors import EvtoolsError
 from evtools.formats.io import STDIO, same_file
 
 log = logging.getLogger("evtools")
+
+
+class Outcome(NamedTuple):
+    """What one file's run did: events read and written (``events_out`` None: the command writes no events), its
+    measure of success as numbers (``measures``, in ``--json``) and in words (``note``, in the table)."""
+
+    events_in: int
+    events_out: int | None
+    measures: dict | None = None
+    note: str = ""
+
+    def as_json(self) -> dict:
+        counts = {"events_in": self.events_in}
+        if self.events_out is not None:
+            counts["events_out"] = self.events_out
+        return {**counts, **(self.measures or {}), **({"note": self.note} if self.note else {})}
 
 
 class BatchError(EvtoolsError):
@@ -51,9 +68,9 @@ def batch_options(function=None, *, output_help: str = OUTPUT_HELP):
     input_format, sensor_size, aedat2_layout, output, jobs, scheduler, as_json``)."""
     if function is None:
         return lambda decorated: batch_options(decorated, output_help=output_help)
-    from evtools.cli.options import aedat2_layout_option, input_format_option, sensor_size_option
+    from evtools.cli.options import aedat2_layout_option, input_format_option, sensor_size_option, serve_early
 
-    batch_output_option = click.option("-o", "--output", default=None, metavar="OUT",
+    batch_output_option = click.option("-o", "--output", default=None, metavar="OUT", callback=serve_early,
                                        type=click.Path(allow_dash=True), help=output_help)
 
     json_counts = click.option("--json", "as_json", is_flag=True,
@@ -128,7 +145,7 @@ def _checked(pairs: list[tuple[str, str]], check) -> list[tuple[str, str]]:
     return pairs
 
 
-def run(one: Callable[..., tuple[int, int]], pairs: list[tuple[str, str]], options: dict[str, Any],
+def run(one: Callable[..., Outcome], pairs: list[tuple[str, str]], options: dict[str, Any],
         jobs: int | None = None, scheduler: str | None = None, as_json: bool = False) -> None:
     """Run ``one`` on every pair: in this process for a single pair (errors propagate as they always did),
     else as a batch (see the module docstring). ``as_json``: the counts as JSON (see :func:`_echo_json`)."""
@@ -136,10 +153,10 @@ def run(one: Callable[..., tuple[int, int]], pairs: list[tuple[str, str]], optio
         started = time.perf_counter()
         if as_json:
             logging.getLogger("evtools").setLevel(logging.WARNING)  # the JSON replaces the text line
-        events_in, events_out = one(*pairs[0], **options)
+        outcome = one(*pairs[0], **options)
         if as_json:
-            _echo_json({"input": pairs[0][0], "output": pairs[0][1], "events_in": events_in,
-                        "events_out": events_out, "seconds": round(time.perf_counter() - started, 6)}, pairs)
+            _echo_json({"input": pairs[0][0], "output": pairs[0][1], **outcome.as_json(),
+                        "seconds": round(time.perf_counter() - started, 6)}, pairs)
         return
     jobs = jobs or os.cpu_count() or 1
     started = time.perf_counter()
@@ -162,8 +179,8 @@ def run(one: Callable[..., tuple[int, int]], pairs: list[tuple[str, str]], optio
                 display.done(name, result)
     rows = [(name, results[name]) for name, _ in pairs]
     if as_json:
-        files = [{"input": name, "output": output, "events_in": result[1], "events_out": result[2],
-                  "seconds": round(result[3], 6)} if result[0] == "ok" else
+        files = [{"input": name, "output": output, **result[1].as_json(),
+                  "seconds": round(result[2], 6)} if result[0] == "ok" else
                  {"input": name, "output": output, "error": result[1]} for (name, output), (_, result) in
                  zip(pairs, rows)]
         _echo_json({"files": files, "failed": sum("error" in f for f in files),
@@ -186,13 +203,12 @@ def _echo_json(summary: dict, pairs: list[tuple[str, str]]) -> None:
     click.echo(json.dumps({"command": name, **summary}), err=to_stderr)
 
 
-def run_one(one: Callable[..., tuple[int, int]], input: str, output: str, options: dict[str, Any]) -> tuple:
-    """``("ok", events in, events out, seconds)`` or ``("error", message, seconds)``: a worker never raises for a
-    bad file (the batch goes on)."""
+def run_one(one: Callable[..., Outcome], input: str, output: str, options: dict[str, Any]) -> tuple:
+    """``("ok", Outcome, seconds)`` or ``("error", message, seconds)``: a worker never raises for a bad file (the
+    batch goes on)."""
     start = time.perf_counter()
     try:
-        events_in, events_out = one(input, output, **options)
-        return "ok", events_in, events_out, time.perf_counter() - start
+        return "ok", one(input, output, **options), time.perf_counter() - start
     except EvtoolsError as error:
         return "error", str(error), time.perf_counter() - start
     except click.ClickException as error:
@@ -278,19 +294,22 @@ def _summary(rows: list[tuple[str, tuple]], seconds: float) -> None:
     from rich.table import Table
 
     table = Table(title=f"{len(rows)} files in {seconds:.1f} s", title_justify="left")
-    for column, justify in (("file", "left"), ("events in", "right"), ("events out", "right"), ("s", "right"),
-                            ("", "left")):
+    writes_events = any(result[0] == "ok" and result[1].events_out is not None for _, result in rows)
+    columns = [("file", "left"), ("events in", "right")] + ([("events out", "right")] if writes_events else [])
+    for column, justify in columns + [("result", "left"), ("s", "right"), ("", "left")]:
         table.add_column(column, justify=justify)
     total_in = total_out = 0
     for name, result in rows:
         if result[0] == "ok":
-            total_in += result[1]
-            total_out += result[2]
-            table.add_row(name, f"{result[1]:,}", f"{result[2]:,}", f"{result[3]:.2f}", "ok")
+            outcome = result[1]
+            total_in += outcome.events_in
+            total_out += outcome.events_out or 0
+            out = [f"{outcome.events_out:,}"] if writes_events else []
+            table.add_row(name, f"{outcome.events_in:,}", *out, outcome.note, f"{result[2]:.2f}", "ok")
         else:
-            table.add_row(name, "", "", f"{result[2]:.2f}", "failed")
+            table.add_row(name, "", *([""] if writes_events else []), "", f"{result[2]:.2f}", "failed")
     failed = sum(result[0] == "error" for _, result in rows)
-    table.add_row("all", f"{total_in:,}", f"{total_out:,}", f"{seconds:.2f}",
+    table.add_row("all", f"{total_in:,}", *([f"{total_out:,}"] if writes_events else []), "", f"{seconds:.2f}",
                   f"{failed} failed" if failed else "ok", style="bold")
     console = Console(stderr=True, width=None if sys.stderr.isatty() else 120)
     console.print(table)

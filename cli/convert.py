@@ -6,7 +6,7 @@ import logging
 
 import click
 
-from evtools.cli.batch import batch_options, plan, run
+from evtools.cli.batch import Outcome, batch_options, plan, run
 from evtools.cli.options import FiniteRange, check_compression, compression_option, slicing_options
 from evtools.cli.progress import with_progress
 from evtools.formats import create_events, open_events
@@ -58,10 +58,11 @@ def convert(inputs, input_format, sensor_size, aedat2_layout, output, jobs, sche
 
 
 def convert_one(input, output, *, input_format, sensor_size, aedat2_layout, output_format, compression, speed=None,
-                slicing=None):
-    """Convert one file: (events in, events out); ``speed``: replayed at that many times the recorded speed;
+                slicing=None) -> Outcome:
+    """Convert one file: its :class:`Outcome` (events in and out, whether it was read to its end); ``speed``: replayed at that many times the recorded speed;
     ``slicing``: :class:`evtools.transform.Transform`'s options (time slice, polarity, crop, flips, transpose)."""
     events_in = events_out = 0
+    stopped = False
     with open_events(input, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as stream:
         transform = Transform(stream.info, **slicing) if slicing else None
         with create_events(
@@ -80,8 +81,10 @@ def convert_one(input, output, *, input_format, sensor_size, aedat2_layout, outp
                 events_out += len(chunk)
                 frames.release(last_us)
                 if transform and transform.done:  # past --end: the rest of the input is not read
+                    stopped = True
                     break
             frames.release(None)
             writer.cut = getattr(stream, "was_cut", False)  # a cut input's output ends without the end mark too
-    log.info(f"convert: {events_in:,} events in, {events_out:,} out")
-    return events_in, events_out
+    read = f"{events_in:,} events read (then --end: the rest not read)" if stopped else f"{events_in:,} events in"
+    log.info(f"convert: {read}, {events_out:,} out")
+    return Outcome(events_in, events_out, {"read_to_the_end": not stopped}, "stopped at --end" if stopped else "")

@@ -8,7 +8,7 @@ from dataclasses import replace
 import click
 import numpy as np
 
-from evtools.cli.batch import batch_options, plan, run
+from evtools.cli.batch import Outcome, batch_options, plan, run
 from evtools.cli.options import (MICROSECONDS, Microseconds, check_compression, compression_option,
                                  slicing_options)
 from evtools.cli.progress import process_stream
@@ -82,8 +82,8 @@ def correct(inputs, input_format, sensor_size, aedat2_layout, output, jobs, sche
 
 
 def correct_one(input, output, *, input_format, sensor_size, aedat2_layout, thresholds_path, target, mode, hold_us,
-                max_gap_us, tau_us, start_us, compression=None, slicing=None) -> tuple[int, int]:
-    """Correct one file: (events in, events out); ``slicing``: the shared slicing options
+                max_gap_us, tau_us, start_us, compression=None, slicing=None) -> Outcome:
+    """Correct one file: its :class:`Outcome` (events in and out); ``slicing``: the shared slicing options
     (:func:`evtools.transform.sliced`), the thresholds map cut and turned with the events."""
     thresholds = read_thresholds(thresholds_path, series=True)
     with open_events(input, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as opened:
@@ -105,4 +105,5 @@ def correct_one(input, output, *, input_format, sensor_size, aedat2_layout, thre
             events_in, events_out = process_stream(stream, corrector, writer, f"correcting {stream.name}")
     log.info(f"correct {mode}: {events_in:,} events in, {events_out:,} out (target {corrector.target_on:.4g} ON, "
              f"{corrector.target_off:.4g} OFF)")
-    return events_in, events_out
+    change = events_out / events_in - 1 if events_in else 0.0
+    return Outcome(events_in, events_out, {"events_change": round(change, 6)}, f"{100 * change:+.1f} % events")

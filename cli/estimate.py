@@ -8,7 +8,7 @@ import math
 import click
 import numpy as np
 
-from evtools.cli.batch import batch_options, plan, run
+from evtools.cli.batch import Outcome, batch_options, plan, run
 from evtools.cli.options import COUNT, MICROSECONDS, Duration, FiniteRange, slicing_options
 from evtools.cli.progress import consume
 from evtools.transform import sliced
@@ -197,8 +197,8 @@ def _write_maps_so_far(estimator, output, name: str, message: str) -> None:
 
 
 def estimate_one(input, output, *, input_format, sensor_size, aedat2_layout, parameters, slicing=None
-                 ) -> tuple[int, int]:
-    """Estimate one file's thresholds into ``output``: (events in, 0); ``slicing``: the shared slicing options
+                 ) -> Outcome:
+    """Estimate one file's thresholds into ``output``: its :class:`Outcome` (events in, valid pixels); ``slicing``: the shared slicing options
     (:func:`evtools.transform.sliced`): the map is of the sliced sensor."""
     if input != STDIO and same_file(output, input):
         raise EstimationError(f"{output}: the thresholds file would overwrite the input; choose another -o")
@@ -228,4 +228,7 @@ def estimate_one(input, output, *, input_format, sensor_size, aedat2_layout, par
     maps = f", {len(thresholds.t_us)} maps over time" if thresholds.t_us is not None else ""
     log.info(f"estimate {parameters['method']}: {result.attributes['events']:,} events, {int(usable.sum()):,} of "
              f"{usable.size:,} pixels estimated ({100 * usable.mean():.1f} %){medians}{maps} -> {output}")
-    return result.attributes["events"], 0
+    valid = int(usable.sum())
+    return Outcome(result.attributes["events"], None,
+                   {"valid_pixels": valid, "pixels": int(usable.size), "valid_fraction": round(valid / usable.size, 6)},
+                   f"{valid:,} of {usable.size:,} pixels valid ({100 * valid / usable.size:.1f} %)")

@@ -211,10 +211,19 @@ def figure_path(path: str | None, param_hint: str, inputs=()) -> str | None:
 
 
 input_argument = click.argument("input", default="-", metavar="[IN]", type=click.Path(dir_okay=False, allow_dash=True))
-output_option = click.option(
-    "-o", "--output", default="-", metavar="OUT", type=click.Path(dir_okay=False, allow_dash=True),
-    help="Output file; `-` or absent: stdout (AEDAT 4.0 unless --format says otherwise).",
-)
+def serve_early(ctx, param, value):
+    """``-o tcp://HOST:PORT`` listens from the command's start, before the input is opened, so a client that
+    connects meanwhile gets the whole stream (it listened only once the first output was ready)."""
+    if isinstance(value, str) and value.startswith("tcp://"):
+        from evtools.formats.io import listen_early
+
+        try:
+            listen_early(value)
+        except EvtoolsError as error:
+            raise click.BadParameter(str(error)) from None
+    return value
+
+
 input_format_option = click.option(
     "--input-format", type=click.Choice(sorted(BY_NAME), case_sensitive=False), default=None,
     help="Input format; default: recognised by magic bytes, then by extension.",

@@ -20,7 +20,7 @@ import numpy as np
 from evtools import interrupt
 from evtools.aps import APS_DEFAULTS, ApsSensor
 from evtools.cli.options import (FINITE, Duration, FiniteRange, IntRange, Microseconds, aedat2_layout_option,
-                                 merged_alias,
+                                 merged_alias, serve_early,
                                  check_compression, compression_option, input_format_option)
 from evtools.cli.progress import with_progress
 from evtools.events import CHUNK_EVENTS, MAX_TIME_US, StreamInfo, join, parse_sensor_size
@@ -357,7 +357,7 @@ def _float_option(name: str, help: str, low: float | None = 0.0, high: float | N
 @click.argument("source", metavar="SOURCE")
 @click.option(
     "-o", "--output", default="-", metavar="OUT", type=click.Path(dir_okay=False, allow_dash=True),
-    help="Output event file; `-` or absent: stdout (AEDAT 4.0 unless --format says otherwise).",
+    callback=serve_early, help="Output event file; `-` or absent: stdout (AEDAT 4.0 unless --format says otherwise).",
 )
 @click.option(
     "--format", "output_format", default=None,

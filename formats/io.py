@@ -6,6 +6,7 @@ import array
 import contextlib
 import fcntl
 import io
+import logging
 import os
 import shutil
 import stat
@@ -235,7 +236,8 @@ class TcpServer:
     ``NetworkWriter`` does: every client that connects gets the stream's header (the first write) at once and then
     what is written from the next ``flush()`` on, whole packets only; a client that goes away (or stalls for
     :data:`SEND_TIMEOUT_S`) is dropped and the server goes on. ``network`` tells the AEDAT 4.0 writer to leave out
-    the file's first line, as network streams do."""
+    the file's first line, as network streams do. At the end it says how many clients got how much, and warns when
+    none connected (the stream went to nobody)."""
 
     network = True
     SEND_TIMEOUT_S = 5.0
@@ -253,6 +255,8 @@ class TcpServer:
         self.pending = bytearray()
         self.clients: list = []
         self.arrived: list = []  # accepted, not yet sent the header (they join at the next flush)
+        self.packets_sent = 0  # flushes that sent data: a client joined at 0 gets the whole stream
+        self.served: dict = {}  # client -> [bytes received, whole stream so far, dropped]
         self.lock = threading.Lock()
         threading.Thread(target=self._accept, name="evtools-tcp-accept", daemon=True).start()
 
@@ -264,6 +268,7 @@ class TcpServer:
                 return
             client.settimeout(self.SEND_TIMEOUT_S)
             with self.lock:  # the header now (clients wait for it), packets from the next flush on
+                self.served[client] = [0, self.packets_sent == 0, False]
                 if self.header is None:
                     self.arrived.append(client)
                 elif self._send(client, self.header):
@@ -284,14 +289,16 @@ class TcpServer:
             self.clients += [client for client in arrived if self._send(client, self.header or b"")]
             if data:
                 self.clients = [client for client in self.clients if self._send(client, data)]
+                self.packets_sent += 1
 
-    @staticmethod
-    def _send(client, data: bytes) -> bool:
+    def _send(self, client, data: bytes) -> bool:
         try:
             client.sendall(data)
+            self.served[client][0] += len(data)
             return True
         except OSError:  # gone or stalled: drop it
             client.close()
+            self.served[client][2] = True
             return False
 
     def isatty(self) -> bool:
@@ -304,6 +311,17 @@ class TcpServer:
             for client in self.clients + self.arrived:
                 self._hang_up(client)
             self.clients, self.arrived = [], []
+        self._report()
+
+    def _report(self) -> None:
+        log = logging.getLogger("evtools")
+        if not self.served:
+            log.warning(f"{self.name}: no client connected: the stream went to nobody")
+            return
+        parts = [f"{sent / 1e6:.2f} MB ({'left early' if dropped else 'the whole stream' if whole else 'joined late'})"
+                 for sent, whole, dropped in self.served.values()]
+        count = len(self.served)
+        log.info(f"{self.name}: served {count} client{'s' if count > 1 else ''}: {', '.join(parts)}")
 
     def _hang_up(self, client) -> None:
         """Ends a client's stream so that it gets every byte sent: our end first, then its end (a close with
@@ -318,6 +336,18 @@ class TcpServer:
         except OSError:
             pass
         client.close()
+
+
+LISTENING: dict[str, TcpServer] = {}
+"""Network outputs opened ahead of their writer (:func:`listen_early`), by name."""
+
+
+def listen_early(name: str) -> None:
+    """Serve the network output ``tcp://HOST:PORT`` from now on (a command's start, before it reads its input), so
+    that a client that connects while the input is opened gets the stream from its first packet; the output's
+    writer (:func:`output_stream`) takes this server over."""
+    if name.startswith(TCP_PREFIX) and name not in LISTENING:
+        LISTENING[name] = TcpServer(name)
 
 
 def _read_up_to(raw, n: int, enough: int) -> bytes:
@@ -374,7 +404,7 @@ def output_stream(path: str | os.PathLike | None, *, binary_name: str, needs_see
     """
     path = STDIO if path is None else os.fspath(path)
     if path.startswith(TCP_PREFIX):
-        server = TcpServer(path)
+        server = LISTENING.pop(path, None) or TcpServer(path)
         try:
             yield server
         finally:
@@ -505,8 +535,6 @@ def resolve_sensor_size(source: Source, from_file, sensor_size, scan=None) -> tu
     callable returning (max x + 1, max y + 1) by reading a seekable file once (it must leave the stream where it
     found it). Without any of them the stream cannot be read: the message asks for ``--sensor-size``.
     """
-    import logging
-
     from evtools.errors import EvtoolsError
     from evtools.events import check_sensor_size
 

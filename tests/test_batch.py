@@ -3,6 +3,8 @@ while the others complete, and no input ever overwritten."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 import evtools
@@ -94,3 +96,40 @@ def test_one_inputs_output_never_replaces_another_input(tmp_path):
     done = run("bafilter", "link.aedat4", "a.csv", "-o", "./", "--jobs", "1", check=False, cwd=tmp_path)
     assert done.returncode == 2 and "would replace the input" in done.stderr.decode(), done.stderr.decode()
     assert (tmp_path / "a.aedat4").read_bytes() == original
+
+
+def test_summaries_and_json_report_each_commands_measure_of_success(tmp_path):
+    """Issue 39 item 3: a batch said "ok" with "events out 0" for maps 5 % valid. Now each command reports its
+    measure: estimate its valid pixels (and no events out, it writes none), bafilter the share kept, correct the
+    change in events, convert whether it read its input to the end; in the table and in --json, each equal to
+    what the outputs hold."""
+    import json
+
+    from evtools.formats.thresholds import read_thresholds
+
+    files = _recordings(tmp_path / "in", count=3)
+    done = run("estimate", *files, "-o", tmp_path / "maps", "--min-events", "1", "--max-fit", "inf", "--json")
+    summary = json.loads(done.stdout)
+    for entry in summary["files"]:
+        valid = read_thresholds(str(tmp_path / "maps" / (Path(entry["input"]).stem + ".h5"))).usable()
+        assert entry["valid_pixels"] == int(valid.sum()) and entry["pixels"] == valid.size == 64 * 48
+        assert "events_out" not in entry and entry["events_in"] > 0
+    table = run("estimate", *files, "-o", tmp_path / "maps2", "--min-events", "1", "--max-fit", "inf").stderr.decode()
+    assert "pixels valid" in table and "events out" not in table
+    single = json.loads(run("bafilter", files[0], "-o", tmp_path / "f.aedat4", "--json").stdout)
+    kept = len(evtools.read(tmp_path / "f.aedat4")[0])
+    assert single["events_out"] == kept and abs(single["kept_fraction"] - kept / single["events_in"]) < 1e-5
+    table = run("bafilter", *files, "-o", tmp_path / "clean").stderr.decode()
+    assert "% kept" in table and "events out" in table
+    # convert stops reading past --end: what it counts is what it read, and it says so
+    long = tmp_path / "long.aedat4"
+    n = 600_000
+    evtools.write(long, evtools.from_columns(np.arange(n) * 10, np.zeros(n), np.zeros(n), np.ones(n)),
+                  evtools.StreamInfo(4, 4))
+    part = run("convert", long, "-o", tmp_path / "part.aedat4", "--end", "100ms", "--json")
+    counts = json.loads(part.stdout)
+    assert counts["read_to_the_end"] is False and counts["events_in"] < n and counts["events_out"] == 10_000
+    whole = json.loads(run("convert", long, "-o", tmp_path / "whole.aedat4", "--json").stdout)
+    assert whole["read_to_the_end"] is True and whole["events_in"] == n
+    said = run("convert", long, "-o", tmp_path / "part2.aedat4", "--end", "100ms").stderr.decode()
+    assert "events read (then --end: the rest not read)" in said

@@ -305,3 +305,44 @@ def test_the_timeout_option_bounds_a_silent_server_from_the_command_line(tmp_pat
     bad = subprocess.run([*EVTOOLS, "--timeout", "soon", "info", f"tcp://127.0.0.1:{port}"], capture_output=True,
                          text=True, env=_environment(), cwd=ROOT)
     assert bad.returncode == 2 and "--timeout" in bad.stderr
+
+
+def test_a_client_waiting_from_the_start_gets_the_whole_stream_and_no_client_is_said(tmp_path):
+    """Issue 39 item 4: ``-o tcp://`` listens from the command's start, before its input is opened, so a client that
+    connects while the input is not there yet gets every event (it listened only once the first output was ready:
+    a waiting client missed the first packets); at the end the server says whom it served, and a stream served
+    to nobody is a warning, not a silent success."""
+    events, _ = evtools.simulate("bars", size=(WIDTH, HEIGHT), duration_us=500_000, seed=5)
+    recording = tmp_path / "bars.aedat4"
+    evtools.write(recording, events, evtools.StreamInfo(WIDTH, HEIGHT))
+    fifo = tmp_path / "in.fifo"
+    os.mkfifo(fifo)
+    port = _free_port()
+    stage = subprocess.Popen([EVTOOLS[0], "bafilter", str(fifo), "-o", f"tcp://127.0.0.1:{port}"],
+                             stderr=subprocess.PIPE, text=True, env=_environment(), cwd=ROOT)
+    try:
+        deadline, client = time.monotonic() + 60, None
+        while client is None:  # the stage is waiting for its input: a state, whatever the machine's load
+            assert time.monotonic() < deadline and stage.poll() is None
+            try:
+                client = socket.create_connection(("127.0.0.1", port), timeout=60)
+            except OSError:
+                time.sleep(0.05)
+        stream = bytearray()
+        thread = threading.Thread(target=_received_bytes, args=(client, stream), daemon=True)
+        thread.start()
+        with open(fifo, "wb") as feed:
+            feed.write(recording.read_bytes())
+        assert stage.wait(timeout=60) == 0
+        thread.join(timeout=60)
+        stderr = stage.stderr.read()
+    finally:
+        stage.kill()
+        stage.wait()
+    (tmp_path / "received.aedat4").write_bytes(b"#!AER-DAT4.0\r\n" + bytes(stream))
+    assert_same_events(evtools.read(tmp_path / "received.aedat4")[0],
+                       evtools.bafilter(events, (WIDTH, HEIGHT)))
+    assert "served 1 client" in stderr and "(the whole stream)" in stderr, stderr
+    nobody = subprocess.run([EVTOOLS[0], "convert", str(recording), "-o", f"tcp://127.0.0.1:{_free_port()}"],
+                            capture_output=True, text=True, env=_environment(), cwd=ROOT, timeout=60)
+    assert nobody.returncode == 0 and "no client connected: the stream went to nobody" in nobody.stderr
