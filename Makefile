@@ -7,7 +7,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 OUT := samples/out
 
-.PHONY: demo test bench fuzz docs clean
+.PHONY: demo test bench fuzz docs figures clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -70,6 +70,38 @@ bench: $(VENV)/.installed-test
 	$(BIN)/python -m tests.bench.bench_latency
 	$(BIN)/python -m tests.bench.bench_frames
 	$(BIN)/python -m tests.bench.bench_render
+
+# the README's figures (docs/figures/*.png), made from built-in scenes by the commands the README shows
+FIGURES := docs/figures
+FIG_TMP := $(OUT)/figures
+figures: $(VENV)/.installed
+	@mkdir -p $(FIGURES) $(FIG_TMP)
+	$(BIN)/evtools simulate scene:texture --size 64x48 --seed 7 --duration 2s --speed 200 -o $(FIG_TMP)/texture.aedat4
+	$(BIN)/evtools render $(FIG_TMP)/texture.aedat4 -o $(FIGURES)/events.png --start 1s --window-us 20000 --scale 6
+	$(BIN)/evtools simulate scene:flicker $(CAMERA) $(NOISE) --duration 2s --truth $(FIG_TMP)/flicker.truth.h5 \
+	  -o $(FIG_TMP)/flicker.aedat4
+	$(BIN)/evtools bafilter $(FIG_TMP)/flicker.aedat4 --method stcf --k 1 --dt-us 100000 \
+	  | $(BIN)/evtools estimate - --method stimulus --stimulus-levels 50,200 --stimulus-period 500ms \
+	  -o $(FIG_TMP)/thresholds.h5
+	$(BIN)/evtools render --map $(FIG_TMP)/thresholds.h5 -o $(FIGURES)/map.png
+	$(BIN)/evtools metrics thresholds $(FIG_TMP)/thresholds.h5 --truth $(FIG_TMP)/flicker.truth.h5 \
+	  --plot $(FIGURES)/thresholds.png > /dev/null
+	$(BIN)/evtools simulate scene:bars --size 128x96 --seed 1 --duration 2s --shot-noise-rate-hz 5 \
+	  --hot-pixel-fraction 0.001 --hot-pixel-rate-hz 1000 -o $(FIG_TMP)/noisy.aedat4
+	$(BIN)/evtools render $(FIG_TMP)/noisy.aedat4 --rate -o $(FIGURES)/rate.png
+	$(BIN)/evtools bafilter $(FIG_TMP)/noisy.aedat4 --method hotpixel --save-hot-pixels $(FIGURES)/hot.png \
+	  -o $(FIG_TMP)/cool.aedat4
+	$(BIN)/evtools simulate $(STEP) $(NOISE) -o $(FIG_TMP)/step.aedat4
+	$(BIN)/evtools correct $(FIG_TMP)/step.aedat4 --thresholds $(FIG_TMP)/flicker.truth.h5 -o $(FIG_TMP)/corrected.aedat4
+	$(BIN)/evtools metrics uniformity $(FIG_TMP)/corrected.aedat4 --before $(FIG_TMP)/step.aedat4 \
+	  --plot $(FIGURES)/edge.png > /dev/null
+	$(BIN)/evtools simulate scene:step --size 20x20 --duration 2s --cutoff-hz 8 --fixed-cutoff \
+	  --truth $(FIG_TMP)/step20.truth.h5 -o $(FIG_TMP)/step20.aedat4
+	$(BIN)/evtools correct $(FIG_TMP)/step20.aedat4 --thresholds $(FIG_TMP)/step20.truth.h5 \
+	  -o $(FIG_TMP)/step20.corrected.aedat4
+	$(BIN)/evtools metrics reconstruction $(FIG_TMP)/step20.corrected.aedat4 --truth $(FIG_TMP)/step20.truth.h5 \
+	  --contrast 0.2 --plot $(FIGURES)/reconstruction.png > /dev/null
+	@echo "figures: $(FIGURES)/*.png"
 
 # the API reference from the docstrings (pdoc, an optional extra) into docs/api/
 docs: $(VENV)/.installed

@@ -21,7 +21,6 @@ from evtools.render import (
     RenderError,
     auto_scale,
     check_image_size,
-    thresholds_picture,
     upscale,
 )
 from evtools.formats import open_events
@@ -98,7 +97,7 @@ def _refuse(ctx: click.Context, names: dict[str, str], why: str) -> None:
               help="Events from this time on are not drawn (as --start); a PNG without --window-us shows --start "
                    "to --end as one window.")
 @click.option("--scale", type=click.IntRange(1, 64), default=None, metavar="K",
-              help="Enlarge K times, nearest neighbour (default: enough for about 480 pixels; maps: 256 per map).")
+              help="Enlarge K times, nearest neighbour (default: enough for about 480 pixels).")
 @click.option("--frame-rate", "fps", type=FiniteRange(min=0.01, max=1000), default=None, metavar="HZ",
               help=f"Video playback rate, frames per second (one frame per window).  [default: {DEFAULT_FPS:g}]")
 @click.option("--fps", "old_fps", type=FiniteRange(min=0.01, max=1000), default=None, hidden=True,
@@ -155,11 +154,11 @@ def render(ctx, input, input_format, sensor_size, aedat2_layout, output, window_
             raise click.UsageError("give either an event stream IN or --map THRESHOLDS.h5, not both")
         _refuse(ctx, {"window_us": "--window-us", "start": "--start", "end": "--end", "fps": "--frame-rate",
                       "background": "--background", "input_format": "--input-format", "sensor_size": "--sensor-size",
-                      "aedat2_layout": "--aedat2-layout", "mode": "--mode", "caption": "--caption", "aps": "--aps"},
-                "applies to event streams, not to --map")
-        if extension not in IMAGE_EXTENSIONS:
-            raise RenderError(f"{output}: a thresholds map is drawn as an image; give -o MAP.png")
-        _render_map(map_path, output, extension, scale, value_range, colormap)
+                      "aedat2_layout": "--aedat2-layout", "mode": "--mode", "caption": "--caption", "aps": "--aps",
+                      "scale": "--scale"},
+                "applies to event streams, not to --map (a figure, drawn at print resolution)")
+        figure_path(output, "-o", (map_path,))
+        _render_map(map_path, output, value_range, colormap)
         return
     _refuse(ctx, {"value_range": "--range"}, "applies to --map only")
     if colormap is not None and mode == "accumulate":
@@ -427,14 +426,14 @@ def _quiet_stderr():
         os.close(saved)
 
 
-def _render_map(path: str, output: str, extension: str, scale: int | None, value_range, colormap=None) -> None:
+def _render_map(path: str, output: str, value_range, colormap=None) -> None:
+    """The ON and OFF maps of a thresholds file (its last map, for a series) as a matplotlib figure."""
+    from evtools.plots import PlotError, map_figure, save
+
     thresholds = read_thresholds(path)
     on, off, valid, units = thresholds.on, thresholds.off, thresholds.valid, thresholds.attributes["units"]
-    if same_file(output, path):
-        raise RenderError(f"{output}: output would overwrite the input; choose another -o")
     try:
-        picture = thresholds_picture(on, off, valid, value_range=value_range, scale=scale, units=units,
-                                     colormap=colormap)
-    except RenderError as error:
+        figure = map_figure(on, off, valid, value_range=value_range, units=units, colormap=colormap)
+    except PlotError as error:
         raise RenderError(f"{path}: {error}") from None
-    _write_image(output, extension, picture.image)
+    save(figure, output)

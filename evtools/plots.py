@@ -1,5 +1,7 @@
-"""Plots with matplotlib (figures a paper can use): ROC curves and threshold maps, written as PNG, SVG or PDF by
-the file's extension. Event frames and video stay with OpenCV (:mod:`evtools.render`), the fast path.
+"""Plots with matplotlib (figures a paper can use): ROC curves, threshold maps, rates and hot pixels, written as PNG,
+SVG or PDF (vector text) by the file's extension. Every map has pixel axes (x, y in sensor pixels), a colour bar
+with round ticks, and a key for pixels without a value. Event frames and video stay with OpenCV
+(:mod:`evtools.render`), the fast path.
 
 Colour scales of maps are clipped at robust percentiles (2 and 98) so that one wild pixel cannot flatten the rest;
 the clipping is written on the colour bar. Estimate and truth share one scale; errors use a diverging scale centred
@@ -18,6 +20,10 @@ FORMATS = {".png": "png", ".svg": "svg", ".pdf": "pdf"}
 """Figure formats, by the extension of the file name."""
 CLIP_PERCENTILES = (2.0, 98.0)
 """Where colour scales of maps are clipped (the bars say so)."""
+INVALID_GREY = "0.75"
+"""The colour of map pixels without a valid value (the key says so)."""
+FAR_OUT_IQR = 3.0
+"""A map's default colour range: min..max narrowed to Tukey's far-out fences (quartile -+ 3 IQR)."""
 
 
 class PlotError(EvtoolsError, ValueError):
@@ -48,13 +54,124 @@ def save(figure, path: str) -> None:
     kind = figure_format(path)
     plt = _pyplot()
     try:
-        with atomic_path(path, os.path.splitext(str(path))[1]) as temporary:
+        # text stays text in SVG and PDF (selectable, searchable, editable), not outlines
+        with atomic_path(path, os.path.splitext(str(path))[1]) as temporary, \
+                plt.rc_context({"svg.fonttype": "none", "pdf.fonttype": 42}):
             figure.savefig(temporary, format=kind, dpi=150, bbox_inches="tight",
                            metadata={"Date": None} if kind in ("svg", "pdf") else None)
     except OSError as error:
         raise PlotError(f"{path}: cannot write ({error.strerror or error})") from None
     finally:
         plt.close(figure)
+
+
+def _pixel_axes(axis, width: int, height: int) -> None:
+    """Sensor pixels on both axes, whole numbers only, y downwards as images are."""
+    from matplotlib.ticker import MaxNLocator
+
+    axis.xaxis.set_major_locator(MaxNLocator(nbins=6, integer=True))
+    axis.yaxis.set_major_locator(MaxNLocator(nbins=6, integer=True))
+    axis.set_xlabel("x, px", fontsize=8)
+    axis.set_ylabel("y, px", fontsize=8)
+    axis.tick_params(labelsize=7)
+    axis.set_xlim(-0.5, width - 0.5)
+    axis.set_ylim(height - 0.5, -0.5)
+
+
+def _invalid_key(figure, count: int, total: int) -> None:
+    """A grey square and how many pixels it stands for, under the figure."""
+    from matplotlib.patches import Patch
+
+    if count:
+        figure.legend(handles=[Patch(facecolor=INVALID_GREY, edgecolor="0.4",
+                                     label=f"no valid value: {count:,} of {total:,} pixels")],
+                      loc="lower left", fontsize=8, frameon=False)
+
+
+def display_range(values: np.ndarray) -> tuple[float, float]:
+    """min..max of ``values``, narrowed to Tukey's far-out fences (quartile -+ 3 IQR) so that a few wild pixels
+    (dead pixels, failed fits) do not squash everyone else's colours into one end of the colour map."""
+    low, high = float(values.min()), float(values.max())
+    q1, q3 = np.percentile(values, [25.0, 75.0])
+    iqr = float(q3 - q1)
+    if iqr > 0:
+        low, high = max(low, float(q1) - FAR_OUT_IQR * iqr), min(high, float(q3) + FAR_OUT_IQR * iqr)
+    return low, high
+
+
+def _valid_masks(on: np.ndarray, off: np.ndarray, valid) -> tuple[np.ndarray, np.ndarray]:
+    on_valid, off_valid = np.isfinite(on), np.isfinite(off)
+    if valid is not None:
+        valid = np.asarray(valid).astype(bool)
+        if valid.shape == on.shape:
+            on_valid &= valid
+            off_valid &= valid
+        elif valid.shape == (2, *on.shape):
+            on_valid &= valid[0]
+            off_valid &= valid[1]
+        else:
+            raise PlotError(f"valid mask of shape {valid.shape} does not match the {on.shape[0]} x {on.shape[1]} "
+                            "maps")
+    return on_valid, off_valid
+
+
+def _stats(name: str, values: np.ndarray, count: int) -> str:
+    if not len(values):
+        return f"{name}: no valid pixels"
+    text = (f"{name}: mean {values.mean():.4g}, std {values.std():.4g}, min {values.min():.4g}, "
+            f"max {values.max():.4g}")
+    return text + (f", {count - len(values):,} invalid" if len(values) < count else "")
+
+
+def map_figure(on, off, valid=None, *, value_range: tuple[float, float] | None = None, colormap: str | None = None,
+               units: str = "", titles: tuple[str, str] = ("ON threshold", "OFF threshold")):
+    """An ON and an OFF map side by side on one colour scale (``evtools render --map``): pixel axes, one colour
+    bar with round ticks (arrows where values lie beyond it), invalid and non-finite pixels grey with a key, and
+    each map's mean, std, min and max under it.
+
+    ``valid``: one mask for both maps or ``(2, H, W)``, ON's then OFF's. ``value_range``: the values at the bar's
+    ends (default: :func:`display_range` of the valid values). ``colormap``: a matplotlib name (viridis)."""
+    plt = _pyplot()
+    on, off = np.asarray(on), np.asarray(off)
+    if on.ndim != 2 or on.shape != off.shape or 0 in on.shape:
+        raise PlotError(f"ON and OFF maps must be two non-empty 2-D maps of one shape, got {on.shape} and "
+                        f"{off.shape}")
+    try:
+        on, off = on.astype(np.float64), off.astype(np.float64)
+    except (TypeError, ValueError):
+        raise PlotError("the maps do not hold numbers") from None
+    masks = _valid_masks(on, off, valid)
+    values = np.concatenate([on[masks[0]], off[masks[1]]])
+    if not len(values):
+        raise PlotError("no pixel of the maps has a valid (finite, unmasked) value")
+    low, high = display_range(values) if value_range is None else (float(v) for v in value_range)
+    if not (np.isfinite(low) and np.isfinite(high)) or high < low:
+        raise PlotError(f"value range {low} .. {high} is not an increasing pair of finite numbers")
+    if high == low:  # one value everywhere: a bar around it
+        low, high = low - 0.5 * max(abs(low), 1e-3), high + 0.5 * max(abs(high), 1e-3)
+    try:
+        cmap = plt.get_cmap(colormap or "viridis").with_extremes(bad=INVALID_GREY)
+    except ValueError:
+        raise PlotError(f"unknown colormap {colormap!r}") from None
+    height, width = on.shape
+    panel_w = 4.2
+    figure, axes = plt.subplots(1, 2, figsize=(2 * panel_w + 1.4, panel_w * height / width + 1.5),
+                                constrained_layout=True)
+    for axis, title, values_map, mask in zip(axes, titles, (on, off), masks):
+        image = axis.imshow(np.where(mask, values_map, np.nan), cmap=cmap, vmin=low, vmax=high,
+                            interpolation="nearest")
+        axis.set_title(title, fontsize=10)
+        _pixel_axes(axis, width, height)
+        axis.text(0.0, -0.16, _stats(title.split()[0], values_map[mask], mask.size), transform=axis.transAxes,
+                  fontsize=7, va="top")
+    extend = {(False, False): "neither", (True, False): "min", (False, True): "max", (True, True): "both"}[
+        (bool(values.min() < low), bool(values.max() > high))]
+    bar = figure.colorbar(image, ax=list(axes), shrink=0.9, extend=extend)
+    bar.set_label(f"threshold{', ' + units if units else ''}" + ("" if extend == "neither" else
+                  "\n(arrows: values beyond the bar)"), fontsize=8)
+    bar.ax.tick_params(labelsize=7)
+    _invalid_key(figure, int((~masks[0] | ~masks[1]).sum()), on.size)
+    return figure
 
 
 def roc_figure(curves: list[dict], title: str = ""):
@@ -130,8 +247,8 @@ def thresholds_figure(estimated_on, estimated_off, valid, true_on, true_off, uni
         error_bar = figure.colorbar(wrong, ax=axes[row, 2], shrink=0.9, extend="both")
         error_bar.set_label(f"error, %\nclipped at ±{limit:.3g} (98th percentile of |error|)", fontsize=8)
         for axis in axes[row]:
-            axis.set_xticks([])
-            axis.set_yticks([])
+            _pixel_axes(axis, truth.shape[1], truth.shape[0])
+    _invalid_key(figure, int((~np.isfinite(np.stack(shown))).any(axis=0).sum()), valid[0].size)
     return figure
 
 
@@ -213,8 +330,7 @@ def rate_figure(counter: RateCounter, title: str = ""):
     image = bottom.imshow(np.maximum(rates, low * 0.999), cmap=cmap, norm=LogNorm(vmin=low, vmax=max(high, low * 1.01)),
                           interpolation="nearest")
     bottom.set_title(f"events/s per pixel over {span_s:.3g} s")
-    bottom.set_xticks([])
-    bottom.set_yticks([])
+    _pixel_axes(bottom, counter.width, counter.height)
     bar = figure.colorbar(image, ax=bottom, shrink=0.85, extend="both")
     bar.set_label(f"events/s, log scale, clipped at the 98th percentile ({high:.3g}); black: no event", fontsize=8)
     figure.tight_layout()
@@ -243,6 +359,5 @@ def hot_pixels_figure(hot: np.ndarray, counts: np.ndarray | None, duration_s: fl
     axes.scatter(xs, ys, s=60, facecolors="none", edgecolors="cyan", linewidths=1.2, label=f"{len(xs)} hot pixels")
     axes.set_title(f"hot pixels: {len(xs)} of {hot.size:,}")
     axes.legend(loc="upper right", fontsize=8)
-    axes.set_xticks([])
-    axes.set_yticks([])
+    _pixel_axes(axes, hot.shape[1], hot.shape[0])
     return figure

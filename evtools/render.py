@@ -1,13 +1,10 @@
-"""Pictures of event streams and of thresholds maps, as arrays: no files, only numpy and OpenCV.
+"""Pictures of event streams, as arrays: no files, only numpy and OpenCV (thresholds maps are figures:
+:func:`evtools.plots.map_figure`).
 
 Event frames: :class:`EventFramer` cuts a stream into consecutive time windows of ``window_us`` and, per window,
 counts each pixel's ON and OFF events; :func:`event_frame` colours those counts (ON in one colour, OFF in
 another, on a dark or white background). Like every stream processor of evtools, the frames never depend on
 where the chunks were cut.
-
-Thresholds maps: :func:`thresholds_picture` draws the ON and OFF maps side by side in a perceptual colormap
-(viridis) on one shared scale, with a colour bar, the value range and a line of statistics per map; pixels
-without a valid value are grey.
 
 Every picture is RGB (``uint8``, height x width x 3); OpenCV's writers want BGR (``image[..., ::-1]``).
 """
@@ -27,20 +24,17 @@ __all__ = [
     "BACKGROUNDS",
     "EventFramer",
     "FramePalette",
-    "INVALID_RGB",
-    "MapPicture",
     "RenderError",
     "accumulate_events",
     "auto_scale",
     "event_frame",
     "event_frames",
-    "thresholds_picture",
     "upscale",
 ]
 
 
 class RenderError(EvtoolsError, ValueError):
-    """A picture that cannot be made: nothing to draw, maps of the wrong shape, bad parameters."""
+    """A picture that cannot be made: nothing to draw, bad parameters."""
 
 
 # -- event frames --------------------------------------------------------------------------------------------------
@@ -369,215 +363,3 @@ def auto_scale(width: int, height: int, target_px: int = 480, max_factor: int = 
     return int(min(max_factor, max(1, math.ceil(target_px / max(width, height)))))
 
 
-# -- thresholds maps -----------------------------------------------------------------------------------------------
-
-INVALID_RGB = (128, 128, 128)
-"""Colour of map pixels without a valid value."""
-
-_WHITE, _BLACK, _FRAME_RGB = (255, 255, 255), (0, 0, 0), (90, 90, 90)
-_FONT_SCALE = 0.45
-_MARGIN_PX, _GAP_PX, _BAR_WIDTH_PX, _LINE_PX = 16, 24, 20, 20
-_FAR_OUT_IQR = 3.0
-
-
-@dataclass
-class MapPicture:
-    """A picture of an ON and an OFF thresholds map.
-
-    Attributes
-    ----------
-    image : ndarray of uint8, shape (rows, columns, 3)
-        The RGB picture.
-    on_origin, off_origin : tuple of int
-        ``(x, y)`` of each map's top-left pixel in ``image``; map pixel ``(row, col)`` covers
-        ``image[y + row * scale : y + (row + 1) * scale, x + col * scale : ...]``.
-    scale : int
-        Picture pixels per map pixel, in each direction.
-    value_range : tuple of float
-        Values drawn at the two ends of the colormap (values beyond are drawn as the end colours).
-    """
-
-    image: np.ndarray
-    on_origin: tuple[int, int]
-    off_origin: tuple[int, int]
-    scale: int
-    value_range: tuple[float, float]
-
-
-def _valid_masks(on: np.ndarray, off: np.ndarray, valid) -> tuple[np.ndarray, np.ndarray]:
-    on_valid, off_valid = np.isfinite(on), np.isfinite(off)
-    if valid is not None:
-        valid = np.asarray(valid).astype(bool)
-        if valid.shape == on.shape:
-            on_valid &= valid
-            off_valid &= valid
-        elif valid.shape == (2, *on.shape):
-            on_valid &= valid[0]
-            off_valid &= valid[1]
-        else:
-            raise RenderError(
-                f"valid mask of shape {valid.shape} does not match the {on.shape[0]} x {on.shape[1]} maps"
-            )
-    return on_valid, off_valid
-
-
-def _display_range(values: np.ndarray) -> tuple[float, float]:
-    """min..max of ``values``, narrowed to Tukey's far-out fences (quartile -+ 3 IQR) so that a few wild pixels
-    (dead pixels, failed fits) do not squash everyone else's colours into one end of the colormap."""
-    low, high = float(values.min()), float(values.max())
-    q1, q3 = np.percentile(values, [25.0, 75.0])
-    iqr = float(q3 - q1)
-    if iqr > 0:
-        low, high = max(low, float(q1) - _FAR_OUT_IQR * iqr), min(high, float(q3) + _FAR_OUT_IQR * iqr)
-    return low, high
-
-
-def _colour(values: np.ndarray, value_range: tuple[float, float], colormap: int) -> np.ndarray:
-    import cv2
-
-    low, high = value_range
-    if high > low:
-        unit = np.clip((values.astype(np.float64) - low) / (high - low), 0.0, 1.0)
-    else:
-        unit = np.full(values.shape, 0.5)
-    levels = np.nan_to_num(np.rint(unit * 255.0), nan=0.0).astype(np.uint8)
-    return cv2.applyColorMap(levels, colormap)[..., ::-1]  # OpenCV's BGR to RGB
-
-
-def _number(value: float) -> str:
-    return f"{value:.4g}"
-
-
-def _stats(name: str, values: np.ndarray, count: int) -> str:
-    if not len(values):
-        return f"{name}: no valid pixels"
-    text = (f"{name}: mean {_number(values.mean())}, std {_number(values.std())}, "
-            f"min {_number(values.min())}, max {_number(values.max())}")
-    return text + (f", {count - len(values)} invalid" if len(values) < count else "")
-
-
-def thresholds_picture(
-    on: np.ndarray,
-    off: np.ndarray,
-    valid: np.ndarray | None = None,
-    *,
-    value_range: tuple[float, float] | None = None,
-    scale: int | None = None,
-    colormap: str | None = None,
-    units: str = "",
-    titles: tuple[str, str] = ("ON threshold", "OFF threshold"),
-) -> MapPicture:
-    """Draw an ON and an OFF thresholds map side by side, on one colour scale, with a colour bar.
-
-    Parameters
-    ----------
-    on, off : ndarray, shape (height, width)
-        The maps (log units for evtools' thresholds; any real values).
-    valid : ndarray of bool, shape (height, width) or (2, height, width), optional
-        False where a map has no trustworthy value (one mask for both maps, or ON's then OFF's). Those pixels,
-        and non-finite ones, are drawn grey (:data:`INVALID_RGB`) and left out of the scale and statistics.
-    value_range : (float, float), optional
-        Values at the two ends of the colormap, to compare pictures on one scale. Default: the valid values'
-        min to max, narrowed to Tukey's far-out fences (quartiles -+ 3 interquartile ranges) so that a few
-        wild pixels do not flatten the rest; a bar end that clips values is labelled with ``<=`` or ``>=``.
-    scale : int, optional
-        Picture pixels per map pixel (nearest neighbour). Default: enough for maps about 256 pixels wide.
-    colormap : str, optional
-        A matplotlib colormap name; default viridis, perceptually uniform and colour-blind safe.
-    units : str
-        Unit of the values, written under the colour bar.
-    titles : (str, str)
-        Written above the maps.
-
-    Returns
-    -------
-    MapPicture
-        The RGB picture and where each map lies in it.
-
-    Raises
-    ------
-    RenderError
-        When the maps differ in shape or are not 2-D, the mask does not fit, or no pixel has a valid value.
-    """
-    import cv2
-
-    on, off = np.asarray(on), np.asarray(off)
-    if on.ndim != 2 or on.shape != off.shape or 0 in on.shape:
-        raise RenderError(
-            f"ON and OFF maps must be two non-empty 2-D maps of one shape, got {on.shape} and {off.shape}"
-        )
-    try:
-        on, off = on.astype(np.float64), off.astype(np.float64)
-    except (TypeError, ValueError):
-        raise RenderError("the maps do not hold numbers") from None
-    on_valid, off_valid = _valid_masks(on, off, valid)
-    values = np.concatenate([on[on_valid], off[off_valid]])
-    if not len(values):
-        raise RenderError("no pixel of the maps has a valid (finite, unmasked) value")
-    if value_range is None:
-        value_range = _display_range(values)
-    low, high = (float(v) for v in value_range)
-    if not (math.isfinite(low) and math.isfinite(high)) or high < low:
-        raise RenderError(f"value range {low} .. {high} is not an increasing pair of finite numbers")
-    colormap = cv2.COLORMAP_VIRIDIS if colormap is None else colormap_table(colormap)[:, ::-1].reshape(256, 1, 3).copy()
-    height, width = on.shape
-    scale = auto_scale(width, height, target_px=256) if scale is None else int(scale)
-    if scale < 1:
-        raise RenderError(f"scale must be a whole number >= 1, got {scale}")
-    check_image_size(width, height, scale)
-    map_w, map_h = width * scale, height * scale
-
-    font = cv2.FONT_HERSHEY_SIMPLEX
-    (_, text_h), baseline = cv2.getTextSize("Ag", font, _FONT_SCALE, 1)
-    title_h = text_h + baseline + 8
-    top = _MARGIN_PX + title_h
-    on_origin = (_MARGIN_PX, top)
-    off_origin = (_MARGIN_PX + map_w + _GAP_PX, top)
-    bar_x = off_origin[0] + map_w + _GAP_PX
-    clipped_low = bool(values.min() < low)
-    clipped_high = bool(values.max() > high)
-    ticks = [((">= " if clipped_high else "") + _number(high), top),
-             (("<= " if clipped_low else "") + _number(low), top + map_h - 1)]
-    if map_h >= 4 * (text_h + baseline):
-        ticks.append((_number((low + high) / 2), top + (map_h - 1) // 2))
-    label_x = bar_x + _BAR_WIDTH_PX + 6
-    labels_w = max(cv2.getTextSize(text, font, _FONT_SCALE, 1)[0][0] for text, _ in ticks + [(units, 0)])
-    lines = [_stats(titles[0], on[on_valid], on.size), _stats(titles[1], off[off_valid], off.size)]
-    invalid = int((~on_valid).sum() + (~off_valid).sum())
-    if invalid:
-        lines.append("grey: no valid value")
-    lines_w = max(cv2.getTextSize(text, font, _FONT_SCALE, 1)[0][0] for text in lines)
-    picture_w = max(label_x + labels_w, _MARGIN_PX + lines_w + (_LINE_PX if invalid else 0)) + _MARGIN_PX
-    units_h = _LINE_PX if units else 0
-    picture_h = top + map_h + units_h + 10 + _LINE_PX * len(lines) + _MARGIN_PX
-
-    image = np.full((picture_h, picture_w, 3), _WHITE, dtype=np.uint8)
-    for (x, y), values_map, valid_map, title in (
-        (on_origin, on, on_valid, titles[0]), (off_origin, off, off_valid, titles[1])
-    ):
-        rgb = _colour(values_map, (low, high), colormap)
-        rgb[~valid_map] = INVALID_RGB
-        image[y:y + map_h, x:x + map_w] = upscale(rgb, scale)
-        cv2.rectangle(image, (x - 1, y - 1), (x + map_w, y + map_h), _FRAME_RGB, 1)
-        cv2.putText(image, title, (x, top - baseline - 4), font, _FONT_SCALE, _BLACK, 1, cv2.LINE_AA)
-
-    bar_values = np.linspace(high, low, map_h)[:, None]
-    bar = _colour(bar_values, (low, high), colormap)
-    image[top:top + map_h, bar_x:bar_x + _BAR_WIDTH_PX] = bar
-    cv2.rectangle(image, (bar_x - 1, top - 1), (bar_x + _BAR_WIDTH_PX, top + map_h), _FRAME_RGB, 1)
-    for text, y in ticks:
-        cv2.line(image, (bar_x + _BAR_WIDTH_PX, y), (bar_x + _BAR_WIDTH_PX + 3, y), _BLACK, 1)
-        y_text = min(max(y + text_h // 2, top + text_h), top + map_h)
-        cv2.putText(image, text, (label_x, y_text), font, _FONT_SCALE, _BLACK, 1, cv2.LINE_AA)
-    if units:
-        cv2.putText(image, units, (bar_x, top + map_h + text_h + 8), font, _FONT_SCALE, _BLACK, 1, cv2.LINE_AA)
-
-    y = top + map_h + units_h + 10
-    for k, text in enumerate(lines):
-        x = _MARGIN_PX
-        if k == len(lines) - 1 and invalid:
-            cv2.rectangle(image, (x, y + 2), (x + text_h + 1, y + text_h + 3), INVALID_RGB, -1)
-            x += _LINE_PX
-        cv2.putText(image, text, (x, y + text_h + 2), font, _FONT_SCALE, _BLACK, 1, cv2.LINE_AA)
-        y += _LINE_PX
-    return MapPicture(image, on_origin, off_origin, scale, (low, high))

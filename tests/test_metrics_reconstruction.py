@@ -125,3 +125,28 @@ def test_errors(tmp_path):
     assert result.returncode == 2 and b"Invalid value for '--contrast': 'nan' is not a finite number" in result.stderr
     assert_clean_error(run("metrics", "reconstruction", str(tmp_path / "o.aedat4"), "--truth", str(other),
                            "--thresholds", str(truth), check=False), "16x12")
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(2, 40), st.integers(1, 6), st.integers(0, 2**31 - 1))
+def test_the_figure_shows_settled_frames_never_a_step_edge(frames, steps, seed):
+    """Issue 39 item 6: the reconstruction figure sampled exactly at step edges, where the reconstruction lags, so
+    truth and reconstruction disagreed in every panel. Each of its frames is the one of its stretch longest after
+    the truth last changed (checked by brute force over every frame of the stretch)."""
+    from evtools.cli.metrics_reconstruction import steady_frames
+
+    rng = np.random.default_rng(seed)
+    levels = np.zeros(frames)
+    for edge in rng.integers(1, frames, steps):
+        levels[edge:] += rng.uniform(0.1, 1.0)
+    truth = np.broadcast_to(levels[:, None, None], (frames, 3, 4)).copy()
+    picks = steady_frames(truth)
+    assert len(picks) == min(5, frames) and np.all(np.diff(picks) > 0)
+
+    def since_change(k):
+        return next(k - j for j in range(k, -1, -1) if j == 0 or levels[j] != levels[j - 1])
+
+    bounds = np.linspace(0, frames, min(5, frames) + 1).round().astype(int)
+    for pick, start, stop in zip(picks, bounds[:-1], bounds[1:]):
+        assert start <= pick < stop
+        assert since_change(pick) == max(since_change(k) for k in range(start, stop))

@@ -16,13 +16,11 @@ from hypothesis import strategies as st
 from evtools.events import StreamInfo, make_events
 from evtools.render import (
     BACKGROUNDS,
-    INVALID_RGB,
     EventFramer,
     RenderError,
     accumulate_events,
     event_frame,
     event_frames,
-    thresholds_picture,
     upscale,
 )
 from evtools.formats import create_events, open_events
@@ -163,45 +161,64 @@ def test_reading_with_other_chunk_sizes_gives_identical_frames(tmp_path):
 # --- thresholds maps: the pure function ---------------------------------------------------------------------------
 
 
-def test_map_picture_shows_both_maps_and_marks_invalid_pixels_grey():
-    on = np.zeros((4, 5), np.float32)
-    off = np.ones((4, 5), np.float32)
+def _round(tick: float) -> bool:
+    """A tick a person reads at once: at most two significant digits."""
+    return tick == 0 or float(f"{tick:.2g}") == pytest.approx(tick, rel=1e-9, abs=1e-12)
+
+
+def _images(figure):
+    return [axis for axis in figure.axes if axis.get_images() and axis.get_xlabel() == "x, px"]
+
+
+def test_map_figure_draws_both_maps_with_pixel_axes_round_ticks_and_a_key_for_invalid_pixels():
+    """Issue 39 item 6: the maps are matplotlib figures: each map's values where valid, NaN (drawn grey, with a
+    key saying how many) elsewhere; pixel axes with whole-number ticks; one colour bar with round ticks."""
+    from evtools.plots import INVALID_GREY, map_figure
+
+    rng = np.random.default_rng(3)
+    on = rng.normal(0.2, 0.03, (24, 32))
+    off = rng.normal(0.25, 0.03, (24, 32))
     off[0, 0] = np.nan
-    valid = np.ones((4, 5), bool)
+    valid = np.ones((24, 32), bool)
     valid[1, 2] = False
-    picture = thresholds_picture(on, off, valid, value_range=(0.0, 1.0), scale=7, units="log intensity")
-    image, s = picture.image, picture.scale
-    low = tuple(int(v) for v in cv2.applyColorMap(np.array([[0]], np.uint8), cv2.COLORMAP_VIRIDIS)[0, 0, ::-1])
-    high = tuple(int(v) for v in cv2.applyColorMap(np.array([[255]], np.uint8), cv2.COLORMAP_VIRIDIS)[0, 0, ::-1])
-
-    def block(origin, row, col):
-        x, y = origin
-        pixels = image[y + row * s: y + (row + 1) * s, x + col * s: x + (col + 1) * s].reshape(-1, 3)
-        assert (pixels == pixels[0]).all(), "a map pixel is a uniform block"
-        return tuple(int(v) for v in pixels[0])
-
-    for row in range(4):
-        for col in range(5):
-            invalid_both = (row, col) == (1, 2)
-            assert block(picture.on_origin, row, col) == (INVALID_RGB if invalid_both else low)
-            invalid_off = invalid_both or (row, col) == (0, 0)
-            assert block(picture.off_origin, row, col) == (INVALID_RGB if invalid_off else high)
-    assert picture.off_origin[0] >= picture.on_origin[0] + 5 * s  # side by side
-    assert picture.value_range == (0.0, 1.0)
-    assert image.shape[1] > picture.off_origin[0] + 5 * s  # room for the colour bar
+    figure = map_figure(on, off, valid, units="log intensity")
+    maps = _images(figure)
+    assert [axis.get_title() for axis in maps] == ["ON threshold", "OFF threshold"]
+    for axis, values, invalid in zip(maps, (on, off), ([(1, 2)], [(1, 2), (0, 0)])):
+        drawn = np.ma.filled(axis.get_images()[0].get_array().astype(float), np.nan)
+        expected = values.copy()
+        for pixel in invalid:
+            expected[pixel] = np.nan
+        np.testing.assert_array_equal(drawn, expected)
+        assert axis.get_ylabel() == "y, px"
+        ticks = [t for t in axis.get_xticks() if 0 <= t <= 31]
+        assert len(ticks) >= 3 and all(float(t).is_integer() for t in ticks)
+        image = axis.get_images()[0]
+        assert image.cmap.get_bad()[:3] == pytest.approx((float(INVALID_GREY),) * 3)
+    bar = next(axis for axis in figure.axes if axis not in maps)
+    low, high = maps[0].get_images()[0].get_clim()
+    ticks = [t for t in bar.get_yticks() if low <= t <= high]
+    assert len(ticks) >= 3 and all(_round(t) for t in ticks), ticks
+    assert "log intensity" in bar.get_ylabel()
+    keys = [text.get_text() for legend in figure.legends for text in legend.get_texts()]
+    assert keys == ["no valid value: 2 of 768 pixels"]
 
 
 def test_map_range_ignores_wild_pixels_and_needs_valid_values():
+    from evtools.plots import PlotError, map_figure
+
     rng = np.random.default_rng(0)
     on = rng.normal(0.2, 0.03, (20, 30))
     off = rng.normal(0.2, 0.03, (20, 30))
     off[3, 4] = 100.0  # a dead pixel
-    low, high = thresholds_picture(on, off).value_range
+    figure = map_figure(on, off)
+    low, high = _images(figure)[0].get_images()[0].get_clim()
     assert high < 0.5 and low > 0.0
-    with pytest.raises(RenderError, match="no pixel"):
-        thresholds_picture(np.full((2, 2), np.nan), np.full((2, 2), np.inf))
-    with pytest.raises(RenderError, match="shape"):
-        thresholds_picture(on, off[:, :5])
+    assert not figure.legends  # every pixel has a value: no key
+    with pytest.raises(PlotError, match="no pixel"):
+        map_figure(np.full((2, 2), np.nan), np.full((2, 2), np.inf))
+    with pytest.raises(PlotError, match="shape"):
+        map_figure(on, off[:, :5])
 
 
 # --- the command ---------------------------------------------------------------------------------------------------
@@ -242,7 +259,9 @@ def test_video_has_one_frame_per_window(tmp_path):
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []  # no temporary left
 
 
-def test_map_png_is_the_picture_of_the_file(tmp_path):
+def test_map_figures_are_what_their_names_say_with_text_as_text(tmp_path):
+    """render --map writes a PNG, an SVG or a PDF by the extension (the SVG's and PDF's text is text, not outlines);
+    the PNG is the map's figure; --scale (pictures of events) and other extensions are usage errors."""
     rng = np.random.default_rng(2)
     on = rng.normal(0.2, 0.03, (12, 16)).astype(np.float32)
     off = rng.normal(0.25, 0.03, (12, 16)).astype(np.float32)
@@ -251,13 +270,17 @@ def test_map_png_is_the_picture_of_the_file(tmp_path):
     valid[5, 5] = False
     with h5py.File(tmp_path / "t.h5", "w") as h5:
         h5["on"], h5["off"], h5["valid"] = on, off, valid
-    run("render", "--map", tmp_path / "t.h5", "-o", tmp_path / "m.png")
+    for name, magic in (("m.png", b"\x89PNG"), ("m.svg", b"<?xml"), ("m.pdf", b"%PDF")):
+        run("render", "--map", tmp_path / "t.h5", "-o", tmp_path / name)
+        assert (tmp_path / name).read_bytes()[:len(magic)] == magic, name
+    assert b"ON threshold" in (tmp_path / "m.svg").read_bytes() and b"no valid value: 2 of 192" in (
+        tmp_path / "m.svg").read_bytes()
     image = cv2.imread(str(tmp_path / "m.png"))
-    expected = thresholds_picture(on, off, valid)
-    np.testing.assert_array_equal(image[..., ::-1], expected.image)
-    x, y = expected.on_origin
-    s = expected.scale
-    assert tuple(image[y + 5 * s, x + 5 * s]) == INVALID_RGB
+    assert image.shape[1] > 800 and (image == 191).all(axis=2).any()  # the invalid grey (0.75) is drawn
+    for extra, output in ((["--scale", "3"], "x.png"), ([], "x.jpg"), ([], "t.h5")):
+        done = run("render", "--map", tmp_path / "t.h5", "-o", tmp_path / output, *extra, check=False)
+        assert done.returncode == 2 and done.stderr.count(b"\n") == 1, done.stderr
+    assert not (tmp_path / "x.png").exists() and not (tmp_path / "x.jpg").exists()
 
 
 def test_bad_inputs_give_one_line_and_exit_1(tmp_path):
@@ -280,7 +303,8 @@ def test_bad_inputs_give_one_line_and_exit_1(tmp_path):
                        "half.h5", "off")
     assert_clean_error(run("render", "--map", tmp_path / "nothing.h5", "-o", tmp_path / "x.png", check=False),
                        "nothing.h5")
-    assert_clean_error(run("render", "--map", tmp_path / "half.h5", "-o", tmp_path / "h.mp4", check=False), "h.mp4")
+    video = run("render", "--map", tmp_path / "half.h5", "-o", tmp_path / "h.mp4", check=False)  # a map is a figure
+    assert video.returncode == 2 and b"h.mp4" in video.stderr and video.stderr.count(b"\n") == 1
     assert run("render", stream, "--map", garbage, "-o", tmp_path / "b.png", check=False).returncode == 2
     assert sorted(p.name for p in tmp_path.iterdir()) == ["empty.aedat4", "garbage.h5", "half.h5", "s.aedat4"]
 
