@@ -26,6 +26,7 @@ def test_the_wheel_has_one_top_level_package(tmp_path):
     build = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--quiet", "-w", str(tmp_path),
                             str(source)], capture_output=True, text=True, timeout=600)
     assert build.returncode == 0, build.stderr
+    assert "Warning" not in build.stderr, build.stderr  # (issue 39: "Package 'evtools.data' is absent ...")
     (wheel,) = tmp_path.glob("evtools-*.whl")
     names = zipfile.ZipFile(wheel).namelist()
     top = {name.split("/")[0] for name in names}
@@ -33,6 +34,7 @@ def test_the_wheel_has_one_top_level_package(tmp_path):
     assert "evtools/cli/main.py" in names and "evtools/formats/aedat4.py" in names
     assert "evtools/_kernels/correct.py" in names and "evtools/metrics/thresholds.py" in names
     assert "evtools/estimation.py" in names and "evtools/estimate.py" not in names
+    assert "evtools/data/mlpf.npz" in names  # the shipped weights
     entry_points = next(n for n in names if n.endswith("entry_points.txt"))
     assert "evtools = evtools.cli:run" in zipfile.ZipFile(wheel).read(entry_points).decode()
 
