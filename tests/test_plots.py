@@ -177,4 +177,5 @@ def test_the_reconstruction_figure_is_what_its_name_says(tmp_path, suffix, magic
     data = figure.read_bytes()
     assert data.startswith(magic)
     if suffix == ".svg":
-        assert "log intensity" in data.decode() and "500 ms" in data.decode()
+        text = data.decode()  # (text as <text>, not outlines)
+        assert "log intensity" in text and ">990 ms<" in text and ">RMSE " in text and ">x, px<" in text

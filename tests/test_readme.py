@@ -95,6 +95,19 @@ def _count(path: Path) -> int:
     return len(evtools.read(path)[0])
 
 
+def _better_than_a_guess(estimate_path: Path, truth_path: Path) -> tuple[float, float]:
+    """(the estimate's relative RMSE over its valid pixels, a constant 0.2's over the same pixels), ON and OFF
+    together; the estimate must be valid somewhere (issue 36 item 4: an estimate must beat guessing)."""
+    from evtools.formats.thresholds import read_thresholds
+
+    estimate, truth = read_thresholds(str(estimate_path)), read_thresholds(str(truth_path))
+    valid = estimate.valid
+    assert valid.any()
+    errors = np.concatenate([(estimate.on / truth.on - 1)[valid], (estimate.off / truth.off - 1)[valid]])
+    guess = np.concatenate([(0.2 / truth.on - 1)[valid], (0.2 / truth.off - 1)[valid]])
+    return float(np.sqrt(np.mean(errors**2))), float(np.sqrt(np.mean(guess**2)))
+
+
 def _valid_and_error(folder: Path, estimate: str, truth: str) -> tuple[float, float]:
     """(valid fraction, ON relative RMSE over valid pixels) of a thresholds map against a truth file."""
     result = _evtools_json(folder, "metrics", "thresholds", estimate, "--truth", truth)
@@ -106,9 +119,12 @@ def _quickstart(folder, run):  # "~7 % error, 96 % valid"; "count CV 0.19 -> 0.1
 
     valid, error = _valid_and_error(folder, "thresholds.h5", "truth.h5")
     assert valid > 0.9 and error < 0.1, (valid, error)
+    mine, guess = _better_than_a_guess(folder / "thresholds.h5", folder / "truth.h5")
+    assert mine < 0.6 * guess, (mine, guess)
     before, after = (json.loads((folder / name).read_text())["summary"] for name in ("before.json", "after.json"))
     assert after["count_cv"] < 0.8 * before["count_cv"], (before, after)
     assert after["count_error"] < 0.8 * before["count_error"], (before, after)
+    assert after["last_std_ms"] < before["last_std_ms"], (before, after)
 
 
 def _formats(folder, run):  # every format holds the same events; the slice is the window and the crop
@@ -135,6 +151,8 @@ def _batch(folder, run):  # one output per input; maps "100 % valid, < 1 % error
         assert _count(folder / f"converted/bars{seed}.h5") == _count(folder / f"recordings/bars{seed}.aedat4")
         valid, error = _valid_and_error(folder, f"maps/camera{seed}.h5", f"truth{seed}.h5")
         assert valid == 1.0 and error < 0.01, (seed, valid, error)
+        mine, guess = _better_than_a_guess(folder / f"maps/camera{seed}.h5", folder / f"truth{seed}.h5")
+        assert mine < 0.1 * guess, (seed, mine, guess)
 
 
 def _noise_sources(folder, run):  # a video, images and a recording become events; noise is added with labels
@@ -200,9 +218,11 @@ def _denoise_metrics(folder, run):
 
 
 def _estimate(folder, run):  # offE and the stimulus methods on the same camera
-    for name in ("thresholds.h5", "t.h5"):
+    for name, factor in (("thresholds.h5", 0.6), ("t.h5", 0.3)):  # offE; the noisy monitor's stimulus, filtered
         valid, error = _valid_and_error(folder, name, "flicker.truth.h5")
         assert valid > 0.9 and error < 0.12, (name, valid, error)
+        mine, guess = _better_than_a_guess(folder / name, folder / "flicker.truth.h5")
+        assert mine < factor * guess, (name, mine, guess)
     valid, error = _valid_and_error(folder, "gradient.h5", "flicker.truth.h5")
     assert valid > 0.9 and error < 0.12, ("gradient", valid, error)
     valid, error = _valid_and_error(folder, "natural.h5", "flicker.truth.h5")
@@ -214,6 +234,7 @@ def _correct(folder, run):  # the corrected step is more uniform than the raw on
     before = _evtools_json(folder, "metrics", "uniformity", "step.aedat4", "--reference", "ideal.aedat4")
     after = _evtools_json(folder, "metrics", "uniformity", "corrected.aedat4", "--reference", "ideal.aedat4")
     assert after["summary"]["count_cv"] < 0.8 * before["summary"]["count_cv"], (before["summary"], after["summary"])
+    assert after["summary"]["count_error"] < before["summary"]["count_error"]
     assert (folder / "edge.png").stat().st_size > 10_000
 
 
