@@ -580,8 +580,19 @@ def _packet_prefix(count: int) -> bytes:
     return struct.pack("<II4s3HxxiII", 28 + 16 * count, 16, b"EVTS", 6, 8, 4, 8, 4, count)
 
 
+CHECKSUMS = True
+"""Compressed AEDAT 4.0 packets written with their codec's checksum. Measured on 10M events (the DAVIS346 lab
+recording tiled, 2 cores): LZ4 write 14.4 -> 14.9 Mev/s, read 43.3 -> 35.3 Mev/s; zstd write 10.6 -> 10.4, read
+21.5 -> 19.9; 4 bytes a packet. In ``make fuzz``'s payload damage, packets read as other events without a word:
+LZ4 84 -> 0 of 1,000, zstd 81 -> 0 (README, Robustness)."""
+
+
 class Aedat4Writer:
-    """Writes an AEDAT 4.0 event stream (compression none, lz4 or zstd) that DV, dv-processing and ``aedat`` read."""
+    """Writes an AEDAT 4.0 event stream (compression none, lz4 or zstd) that DV, dv-processing and ``aedat`` read.
+
+    Compressed packets carry their codec's own checksum of the content (LZ4 frame: xxHash32, flag 0x04; zstd:
+    XXH64, 4 bytes), which every LZ4 and zstd decoder checks, DV's and dv-processing's included: damage to a
+    packet's bytes is an error at the packet instead of other events (:data:`CHECKSUMS`)."""
 
     def __init__(self, stream: BinaryIO, info: StreamInfo, options: WriteOptions) -> None:
         name = (options.compression or "none").lower()
@@ -593,7 +604,7 @@ class Aedat4Writer:
             import lz4.frame
 
             level = lz4.frame.COMPRESSIONLEVEL_MINHC if self.code == 2 else 0
-            self.compress = lambda data: lz4.frame.compress(data, compression_level=level)
+            self.compress = lambda data: lz4.frame.compress(data, compression_level=level, content_checksum=CHECKSUMS)
         elif self.code in (3, 4):
             import zstandard
 
@@ -601,7 +612,7 @@ class Aedat4Writer:
 
             def compress(data: bytes) -> bytes:  # a compressor per thread: one is not safe to share
                 if not hasattr(local, "compressor"):
-                    local.compressor = zstandard.ZstdCompressor(level=level)
+                    local.compressor = zstandard.ZstdCompressor(level=level, write_checksum=CHECKSUMS)
                 return local.compressor.compress(data)
 
             self.compress = compress

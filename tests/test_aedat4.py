@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 import evtools
 from evtools.events import StreamInfo, join, make_events
 from evtools.formats import FormatError, create_events, open_events
-from evtools.formats.aedat4 import Aedat4Writer
+from evtools.formats.aedat4 import Aedat4Writer, _parse_ioheader
 from evtools.formats.registry import WriteOptions
 from tests.conftest import data_file
 from tests.helpers import assert_same_events, cut, random_events, read_all
@@ -447,3 +447,43 @@ def test_any_source_name_gives_a_file_every_reader_parses(tmp_path_factory, sour
                    or c in "\ufffe\uffff" else c for c in (source or "evtools"))
     assert info.metadata["source"] == kept.replace("\r\n", "\n").replace("\r", "\n")
     assert len(faery.events_stream_from_file(path).to_array()) == 2
+
+
+@given(st.data())
+@settings(max_examples=60, deadline=None)
+def test_damage_to_a_compressed_packet_evtools_wrote_is_an_error_not_other_events(data):
+    """Issue 37 item 5: payload damage in AEDAT 4.0 read as other events in 5-8 % of mutants. evtools' LZ4 and
+    zstd packets carry their codec's content checksum (which DV's and dv-processing's decoders check too): one
+    flipped bit anywhere in a packet's body is an error naming the file, or changes nothing the packet decodes to
+    (a compressed match copying zeros from another offset of zeros), never other events."""
+    import tempfile
+    from pathlib import Path
+
+    import evtools
+    from evtools.errors import EvtoolsError
+
+    n = data.draw(st.integers(1, 40_000))
+    rng = np.random.default_rng(data.draw(st.integers(0, 2**31 - 1)))
+    events = evtools.from_columns(np.sort(rng.integers(0, 10_000_000, n)), rng.integers(0, 346, n),
+                                  rng.integers(0, 260, n), rng.integers(0, 2, n))
+    compression = data.draw(st.sampled_from(["lz4", "lz4-high", "zstd", "zstd-high"]))
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "e.aedat4"
+        evtools.write(path, events, evtools.StreamInfo(346, 260), compression=compression)
+        raw = bytearray(path.read_bytes())
+        position = len(b"#!AER-DAT4.0\r\n")
+        header_size = struct.unpack_from("<I", raw, position)[0]
+        _, table_at, _ = _parse_ioheader(bytes(raw[position + 4:position + 4 + header_size]), "e")
+        position += 4 + header_size
+        bodies = []  # the packets up to the file's data table (an index that readers may ignore)
+        while position + 8 <= (table_at if table_at > 0 else len(raw)):
+            size = struct.unpack_from("<I", raw, position + 4)[0]
+            bodies.append((position + 8, size))
+            position += 8 + size
+        start, size = data.draw(st.sampled_from([body for body in bodies if body[1] > 0]))
+        raw[start + data.draw(st.integers(0, size - 1))] ^= 1 << data.draw(st.integers(0, 7))
+        path.write_bytes(bytes(raw))
+        try:
+            assert_same_events(evtools.read(path)[0], events)
+        except EvtoolsError as error:
+            assert "e.aedat4" in str(error)
