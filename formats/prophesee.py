@@ -114,7 +114,7 @@ def header_size(header: dict[str, str]) -> tuple[int, int] | None:
     return None
 
 
-class ProphesseeRawReader:
+class PropheseeRawReader:
     """Read the CD events of a Prophesee EVT 2.0, 2.1 or 3.0 RAW file chunk by chunk.
 
     Parameters
