@@ -197,12 +197,13 @@ def filter_one(input, output, *, input_format, sensor_size, aedat2_layout, metho
             if save_hot_pixels:  # inside the output's block: when the list cannot be written, no output is left
                 hot = ba.hot_map if ba.hot_map is not None else np.zeros((info.height, info.width), bool)
                 if os.path.splitext(save_hot_pixels)[1].lower() in (".png", ".svg", ".pdf"):
-                    from evtools.plots import hot_pixels_figure, save
+                    from evtools.formats.figures import save_figure
+                    from evtools.plots import hot_pixels_figure
 
                     stage = next(stage for stage in ba.stages if stage.method == "hotpixel")
                     counts = getattr(stage, "counts", None)
-                    save(hot_pixels_figure(hot, None if counts is None else counts.reshape(hot.shape),
-                                           getattr(stage, "learned_duration_s", 0.0)), save_hot_pixels)
+                    save_figure(hot_pixels_figure(hot, None if counts is None else counts.reshape(hot.shape),
+                                                  getattr(stage, "learned_duration_s", 0.0)), save_hot_pixels)
                 else:
                     write_hot_pixels(save_hot_pixels, hot)
     removed = ba.events_in - ba.events_out

@@ -202,10 +202,11 @@ def roc(noisy, truth, methods, sweep, preset, weights, polarity_maps, settings, 
         results.append({"method": chain, "parameter": name, "held": settings, "points": rows, "auc": area})
         curves.append((chain, curve, area))
     if plot:
-        from evtools.plots import roc_figure, save
+        from evtools.formats.figures import save_figure
+        from evtools.plots import roc_figure
 
-        save(roc_figure([{"label": result["method"], "parameter": result["parameter"], "points": result["points"],
-                          "auc": result["auc"]} for result in results]), plot)
+        save_figure(roc_figure([{"label": result["method"], "parameter": result["parameter"],
+                                 "points": result["points"], "auc": result["auc"]} for result in results]), plot)
     if wants_json(as_json):
         click.echo(json.dumps(_clean({"file": noisy, "preset": preset, "methods": results}), indent=2))
         return

@@ -137,46 +137,8 @@ def _against_frames(events_path, thresholds_path, contrast, black_level, as_json
                         f"{100 * result['explained']:.1f} % of its squared error)")
 
 
-def steady_frames(truth: np.ndarray, count: int = 5) -> np.ndarray:
-    """Indices of ``count`` frames spread over ``truth``, each the one of its stretch longest after the truth last
-    changed (a change: mean |difference| above 0.1 % of the truth's range; the middle one among equals): a frame at
-    or just after a step edge shows the reconstruction's lag, not its error, in every panel."""
-    flat = truth.reshape(len(truth), -1)
-    spread = float(flat.max() - flat.min()) or 1.0
-    changed = np.concatenate([[True], np.abs(np.diff(flat, axis=0)).mean(axis=1) > 1e-3 * spread])
-    last_change = np.maximum.accumulate(np.where(changed, np.arange(len(truth)), 0))
-    since = np.arange(len(truth)) - last_change
-    bounds = np.linspace(0, len(truth), min(count, len(truth)) + 1).round().astype(int)
-    picks = []
-    for start, stop in zip(bounds[:-1], bounds[1:]):
-        stretch = np.arange(start, stop)
-        picks.append(int(stretch[np.lexsort((np.abs(stretch - (start + stop - 1) / 2), -since[start:stop]))[0]]))
-    return np.unique(picks)
-
-
 def _plot(path: str, truth: np.ndarray, estimated: np.ndarray, times: np.ndarray) -> None:
-    """True (top row) and reconstructed (bottom row) log intensity at five settled times (:func:`steady_frames`),
-    one grey scale (the true range), each panel's RMSE in its title, drawn by matplotlib in the format of the
-    name's extension (PNG, SVG or PDF: vector text)."""
-    from evtools.plots import _pixel_axes, _pyplot, save
+    from evtools.formats.figures import save_figure
+    from evtools.plots import reconstruction_figure
 
-    plt = _pyplot()
-    picks = steady_frames(truth)
-    low, high = float(truth.min()), float(truth.max())
-    height, width = truth.shape[1:]
-    figure, axes = plt.subplots(2, len(picks), figsize=(2.4 * len(picks), 5.0), squeeze=False,
-                                constrained_layout=True)
-    for column, k in enumerate(picks):
-        for row, (frames, label) in enumerate(((truth, "true"), (estimated, "reconstructed"))):
-            axis = axes[row][column]
-            shown = axis.imshow(frames[k], cmap="gray", vmin=low, vmax=high, interpolation="nearest")
-            _pixel_axes(axis, width, height)
-            if row == 0:
-                axis.set_title(f"{times[k] / 1e3:.0f} ms", fontsize=9)
-            else:
-                error = float(np.sqrt(np.mean((estimated[k] - truth[k]) ** 2)))
-                axis.set_title(f"RMSE {error:.3f}", fontsize=8)
-            if column == 0:
-                axis.set_ylabel(f"{label}\ny, px", fontsize=9)
-    figure.colorbar(shown, ax=axes, shrink=0.8, label="log intensity")
-    save(figure, path)
+    save_figure(reconstruction_figure(truth, estimated, times), path)

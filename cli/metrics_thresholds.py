@@ -44,9 +44,10 @@ def thresholds(estimate_path, truth_path, plot_path, as_json):
         if key in estimate.attributes:
             result[key] = str(estimate.attributes[key])
     if plot_path is not None:
-        from evtools.plots import save, thresholds_figure
+        from evtools.formats.figures import save_figure
+        from evtools.plots import thresholds_figure
 
-        save(thresholds_figure(estimate.on, estimate.off, estimate.valid, truth.on, truth.off), plot_path)
+        save_figure(thresholds_figure(estimate.on, estimate.off, estimate.valid, truth.on, truth.off), plot_path)
     if wants_json(as_json):
         click.echo(json.dumps(result, indent=2))
     else:

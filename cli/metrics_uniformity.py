@@ -74,7 +74,8 @@ def uniformity(input, input_format, sensor_size, aedat2_layout, edges_at, refere
 
 
 def _plot(path, events, info, edges, index, before, options) -> None:
-    from evtools.plots import edge_levels_figure, save
+    from evtools.formats.figures import save_figure
+    from evtools.plots import edge_levels_figure
 
     if index >= len(edges):
         raise UniformityError(f"--plot-edge {index}: the stream has {len(edges)} edges")
@@ -87,7 +88,7 @@ def _plot(path, events, info, edges, index, before, options) -> None:
                                   f"stream is {info.width}x{info.height}")
         panels.append((f"before: {before_name}", list(pixel_levels(before_events, width, edge).values())))
     panels.append(("after" if before is not None else "events", list(pixel_levels(events, width, edge).values())))
-    save(edge_levels_figure(panels, edge.start_us, edge.end_us), path)
+    save_figure(edge_levels_figure(panels, edge.start_us, edge.end_us), path)
 
 
 def _print_table(result: dict) -> None:

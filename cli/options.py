@@ -196,8 +196,8 @@ def figure_path(path: str | None, param_hint: str, inputs=()) -> str | None:
     (the same file through a symbolic or a hard link too), else a usage error: checked before any work is done."""
     if path is None:
         return None
+    from evtools.formats.figures import FigureError, figure_format
     from evtools.formats.io import STDIO, same_file
-    from evtools.plots import PlotError, figure_format
 
     for named in inputs:
         if named is not None and os.fspath(named) != STDIO and same_file(path, os.fspath(named)):
@@ -205,7 +205,7 @@ def figure_path(path: str | None, param_hint: str, inputs=()) -> str | None:
                                      "choose another file", param_hint=param_hint)
     try:
         figure_format(path)
-    except PlotError as error:
+    except FigureError as error:
         raise click.BadParameter(str(error), param_hint=param_hint) from None
     return path
 

@@ -198,7 +198,8 @@ def render(ctx, input, input_format, sensor_size, aedat2_layout, output, window_
 
 
 def _render_rate(input: str, output: str, options: dict) -> None:
-    from evtools.plots import RateCounter, rate_figure, save
+    from evtools.formats.figures import save_figure
+    from evtools.plots import RateCounter, rate_figure
 
     figure_path(output, "-o")
     if input != STDIO and same_file(output, input):
@@ -209,7 +210,7 @@ def _render_rate(input: str, output: str, options: dict) -> None:
             counter.add(chunk)
     if counter.first_us is None:
         raise RenderError(f"{stream.name}: no events to plot (the stream is empty)")
-    save(rate_figure(counter, f"event rate of {os.path.basename(stream.name)}"), output)
+    save_figure(rate_figure(counter, f"event rate of {os.path.basename(stream.name)}"), output)
 
 
 def _frames(chunks, framer: EventFramer, backdrop=None):
@@ -428,7 +429,8 @@ def _quiet_stderr():
 
 def _render_map(path: str, output: str, value_range, colormap=None) -> None:
     """The ON and OFF maps of a thresholds file (its last map, for a series) as a matplotlib figure."""
-    from evtools.plots import PlotError, map_figure, save
+    from evtools.formats.figures import save_figure
+    from evtools.plots import PlotError, map_figure
 
     thresholds = read_thresholds(path)
     on, off, valid, units = thresholds.on, thresholds.off, thresholds.valid, thresholds.attributes["units"]
@@ -436,4 +438,4 @@ def _render_map(path: str, output: str, value_range, colormap=None) -> None:
         figure = map_figure(on, off, valid, value_range=value_range, units=units, colormap=colormap)
     except PlotError as error:
         raise RenderError(f"{path}: {error}") from None
-    save(figure, output)
+    save_figure(figure, output)

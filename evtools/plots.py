@@ -1,7 +1,7 @@
-"""Plots with matplotlib (figures a paper can use): ROC curves, threshold maps, rates and hot pixels, written as PNG,
-SVG or PDF (vector text) by the file's extension. Every map has pixel axes (x, y in sensor pixels), a colour bar
-with round ticks, and a key for pixels without a value. Event frames and video stay with OpenCV
-(:mod:`evtools.render`), the fast path.
+"""Plots with matplotlib (figures a paper can use): ROC curves, threshold maps, rates and hot pixels, as figures
+(:func:`evtools.formats.figures.save_figure` writes them: PNG, SVG or PDF). Every map has pixel axes (x, y in
+sensor pixels), a colour bar with round ticks, and a key for pixels without a value. Event frames and video stay
+with OpenCV (:mod:`evtools.render`), the fast path.
 
 Colour scales of maps are clipped at robust percentiles (2 and 98) so that one wild pixel cannot flatten the rest;
 the clipping is written on the colour bar. Estimate and truth share one scale; errors use a diverging scale centred
@@ -10,14 +10,10 @@ on 0.
 
 from __future__ import annotations
 
-import os
-
 import numpy as np
 
 from evtools.errors import EvtoolsError
 
-FORMATS = {".png": "png", ".svg": "svg", ".pdf": "pdf"}
-"""Figure formats, by the extension of the file name."""
 CLIP_PERCENTILES = (2.0, 98.0)
 """Where colour scales of maps are clipped (the bars say so)."""
 INVALID_GREY = "0.75"
@@ -27,15 +23,7 @@ FAR_OUT_IQR = 3.0
 
 
 class PlotError(EvtoolsError, ValueError):
-    """A figure that cannot be made or written."""
-
-
-def figure_format(path: str) -> str:
-    """The matplotlib format of ``path`` (png, svg, pdf) from its extension; a clear error otherwise."""
-    extension = os.path.splitext(str(path))[1].lower()
-    if extension not in FORMATS:
-        raise PlotError(f"{path}: give a figure name ending in {', '.join(FORMATS)}")
-    return FORMATS[extension]
+    """A figure that cannot be made (no values to draw, maps of the wrong shape)."""
 
 
 def _pyplot():
@@ -45,24 +33,6 @@ def _pyplot():
     import matplotlib.pyplot as plt
 
     return plt
-
-
-def save(figure, path: str) -> None:
-    """Write ``figure`` to ``path`` (atomically: a failed write leaves nothing) and close it."""
-    from evtools.formats.io import atomic_path
-
-    kind = figure_format(path)
-    plt = _pyplot()
-    try:
-        # text stays text in SVG and PDF (selectable, searchable, editable), not outlines
-        with atomic_path(path, os.path.splitext(str(path))[1]) as temporary, \
-                plt.rc_context({"svg.fonttype": "none", "pdf.fonttype": 42}):
-            figure.savefig(temporary, format=kind, dpi=150, bbox_inches="tight",
-                           metadata={"Date": None} if kind in ("svg", "pdf") else None)
-    except OSError as error:
-        raise PlotError(f"{path}: cannot write ({error.strerror or error})") from None
-    finally:
-        plt.close(figure)
 
 
 def _pixel_axes(axis, width: int, height: int) -> None:
@@ -360,4 +330,46 @@ def hot_pixels_figure(hot: np.ndarray, counts: np.ndarray | None, duration_s: fl
     axes.set_title(f"hot pixels: {len(xs)} of {hot.size:,}")
     axes.legend(loc="upper right", fontsize=8)
     _pixel_axes(axes, hot.shape[1], hot.shape[0])
+    return figure
+
+
+def steady_frames(truth: np.ndarray, count: int = 5) -> np.ndarray:
+    """Indices of ``count`` frames spread over ``truth``, each the one of its stretch longest after the truth last
+    changed (a change: mean |difference| above 0.1 % of the truth's range; the middle one among equals): a frame at
+    or just after a step edge shows the reconstruction's lag, not its error, in every panel."""
+    flat = truth.reshape(len(truth), -1)
+    spread = float(flat.max() - flat.min()) or 1.0
+    changed = np.concatenate([[True], np.abs(np.diff(flat, axis=0)).mean(axis=1) > 1e-3 * spread])
+    last_change = np.maximum.accumulate(np.where(changed, np.arange(len(truth)), 0))
+    since = np.arange(len(truth)) - last_change
+    bounds = np.linspace(0, len(truth), min(count, len(truth)) + 1).round().astype(int)
+    picks = []
+    for start, stop in zip(bounds[:-1], bounds[1:]):
+        stretch = np.arange(start, stop)
+        picks.append(int(stretch[np.lexsort((np.abs(stretch - (start + stop - 1) / 2), -since[start:stop]))[0]]))
+    return np.unique(picks)
+
+
+def reconstruction_figure(truth: np.ndarray, estimated: np.ndarray, times):
+    """True (top row) and reconstructed (bottom row) log intensity at five settled times (:func:`steady_frames`),
+    one grey scale (the true range), each panel's RMSE in its title (``metrics reconstruction --plot``)."""
+    plt = _pyplot()
+    picks = steady_frames(truth)
+    low, high = float(truth.min()), float(truth.max())
+    height, width = truth.shape[1:]
+    figure, axes = plt.subplots(2, len(picks), figsize=(2.4 * len(picks), 5.0), squeeze=False,
+                                constrained_layout=True)
+    for column, k in enumerate(picks):
+        for row, (frames, label) in enumerate(((truth, "true"), (estimated, "reconstructed"))):
+            axis = axes[row][column]
+            shown = axis.imshow(frames[k], cmap="gray", vmin=low, vmax=high, interpolation="nearest")
+            _pixel_axes(axis, width, height)
+            if row == 0:
+                axis.set_title(f"{times[k] / 1e3:.0f} ms", fontsize=9)
+            else:
+                error = float(np.sqrt(np.mean((estimated[k] - truth[k]) ** 2)))
+                axis.set_title(f"RMSE {error:.3f}", fontsize=8)
+            if column == 0:
+                axis.set_ylabel(f"{label}\ny, px", fontsize=9)
+    figure.colorbar(shown, ax=axes, shrink=0.8, label="log intensity")
     return figure

@@ -133,7 +133,7 @@ def test_the_figure_shows_settled_frames_never_a_step_edge(frames, steps, seed):
     """Issue 39 item 6: the reconstruction figure sampled exactly at step edges, where the reconstruction lags, so
     truth and reconstruction disagreed in every panel. Each of its frames is the one of its stretch longest after
     the truth last changed (checked by brute force over every frame of the stretch)."""
-    from evtools.cli.metrics_reconstruction import steady_frames
+    from evtools.plots import steady_frames
 
     rng = np.random.default_rng(seed)
     levels = np.zeros(frames)

@@ -10,7 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from evtools.formats.thresholds import ThresholdMap, write_thresholds
-from evtools.plots import PlotError, roc_figure, save, thresholds_figure
+from evtools.formats.figures import FigureError, save_figure
+from evtools.plots import roc_figure, thresholds_figure
 from tests.helpers import run
 
 CURVES = [{"label": "stcf", "parameter": "dt_us", "auc": 0.9,
@@ -35,7 +36,7 @@ def test_every_figure_in_every_format(tmp_path, suffix, magic):
     for name, figure in (("roc", roc_figure(CURVES)),
                          ("maps", thresholds_figure(estimated_on, true_off, valid, true_on, true_off))):
         path = tmp_path / f"{name}{suffix}"
-        save(figure, path)
+        save_figure(figure, path)
         data = path.read_bytes()
         assert data.startswith(magic) and len(data) > 5000, (name, len(data))
         if suffix == ".svg":
@@ -71,8 +72,8 @@ def test_cli_plots_by_extension_and_refuses_others(tmp_path):
     bad = run("metrics", "thresholds", tmp_path / "e.h5", "--truth", tmp_path / "t.h5", "--plot", tmp_path / "m.gif",
               check=False)
     assert bad.returncode == 2 and b".png, .svg, .pdf" in bad.stderr
-    with pytest.raises(PlotError, match="m.bmp"):
-        save(roc_figure(CURVES), tmp_path / "m.bmp")
+    with pytest.raises(FigureError, match="m.bmp"):
+        save_figure(roc_figure(CURVES), tmp_path / "m.bmp")
     assert json.loads(run("metrics", "thresholds", tmp_path / "e.h5", "--truth", tmp_path / "t.h5",
                           "--json").stdout)["on"]["rel_rmse"] > 0
 
