@@ -8,6 +8,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+try:  # the repository's formats/ and cli/ are evtools.formats and evtools.cli only once installed (package-dir)
+    import evtools.cli  # noqa: F401
+    import evtools.formats  # noqa: F401
+except ImportError:
+    pytest.exit("evtools is not installed in this Python: run `make test`, or `pip install -e '.[test]'` and then "
+                "pytest (the tests run the installed `evtools` command too)", returncode=4)
+
 ROOT = Path(__file__).resolve().parent.parent
 SHARED_DATA = ROOT.parent / "shared" / "data"
 
