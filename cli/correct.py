@@ -38,7 +38,8 @@ def _target(ctx, param, value):
 @click.option("--thresholds", "thresholds_path", required=True, metavar="FILE.h5",
               type=click.Path(dir_okay=False),
               help="Per-pixel thresholds: from `evtools estimate` or the truth file of `evtools simulate`.")
-@click.option("--target", default="0.2", show_default=True, callback=_target, metavar="THETA|median",
+@click.option("--target", default=str(CORRECT_DEFAULTS["target"]), show_default=True, callback=_target,
+              metavar="THETA|median",
               help="The threshold every pixel is re-sampled at (log units), or the median of the maps.")
 @click.option("--mode", type=click.Choice(list(MODES)), default=CORRECT_DEFAULTS["mode"], show_default=True,
               help="foh: the report's first-order hold; step: its step-aware variant (held over gaps > --hold-us); "

@@ -239,10 +239,6 @@ def estimate(events: np.ndarray, info: StreamInfo, method: str = "offe", **param
     return estimate_thresholds(events, info.width, info.height, method, **params)
 
 
-DEFAULT_TARGET = 0.2
-"""``correct``'s target threshold when none is given: the command line's default (v2e's nominal 0.2)."""
-
-
 def correct(events: np.ndarray, info: StreamInfo, thresholds, **params) -> np.ndarray:
     """Re-sample every pixel's events at one target threshold (``evtools correct``; the founding report's
     section 4.2).
@@ -271,8 +267,6 @@ def correct(events: np.ndarray, info: StreamInfo, thresholds, **params) -> np.nd
     """
     from evtools.correction import correct_thresholds
     from evtools.formats.thresholds import read_thresholds
-
-    params.setdefault("target", DEFAULT_TARGET)
 
     series = None
     if isinstance(thresholds, (str, os.PathLike)):

@@ -96,12 +96,14 @@ that approach's tail re-sampled when the pixel stops firing (a photoreceptor's f
 step)."""
 
 CORRECT_DEFAULTS: dict[str, Any] = {
+    "target": 0.2,
     "mode": "exponential",
     "hold_us": 300_000,
     "max_gap_us": 1_000_000,
     "tau_us": 100_000.0,
 }
-"""Defaults: ``exponential`` (it wins on the Table 2 metrics and is exact on log-linear ramps, see the README), 300 ms hold (above the inter-event times
+"""Defaults: target 0.2 (v2e's nominal threshold), ``exponential`` (it wins on the Table 2 metrics and is exact on
+log-linear ramps, see the README), 300 ms hold (above the inter-event times
 in the tail of a photoreceptor low-pass of ~20 ms, below the rests between stimulus edges), 100 ms decay time
 constant, a 1 s reordering bound."""
 
@@ -161,7 +163,8 @@ class ThresholdCorrector:
         Pixels that hold an estimate; pixels not valid (or whose thresholds are not finite and positive) take the
         median of the usable pixels' thresholds, ON and OFF separately.
     target : float or "median"
-        The threshold every pixel is re-sampled at (one value for ON and OFF), or the median of the maps.
+        The threshold every pixel is re-sampled at (one value for ON and OFF), or the median of the maps; default
+        0.2 (v2e's nominal threshold), the same in the command line and the API.
     mode : {"exponential", "highpass", "turns", "step", "foh"}
         ``foh``: the report's first-order hold; ``step``: stepwise over gaps longer than ``hold_us`` (the report's
         section 5.2); ``turns``: ``step`` anchored at the stream's start, with the extremum of every polarity
@@ -205,7 +208,7 @@ class ThresholdCorrector:
     The founding report, sections 4.2 and 5.2; Scheerlinck, Barnes, Mahony, ACCV 2018 (high-pass decay).
     """
 
-    def __init__(self, width: int, height: int, on, off, valid=None, *, target="median",
+    def __init__(self, width: int, height: int, on, off, valid=None, *, target=CORRECT_DEFAULTS["target"],
                  mode: str = CORRECT_DEFAULTS["mode"], hold_us: int = CORRECT_DEFAULTS["hold_us"],
                  max_gap_us: int = CORRECT_DEFAULTS["max_gap_us"], tau_us: float = CORRECT_DEFAULTS["tau_us"],
                  turns: bool | None = None, curves: bool | None = None, start_us: int | None = None,

@@ -256,3 +256,23 @@ def test_a_sensor_size_is_taken_as_a_pair_or_as_the_command_lines_text(tmp_path)
         assert evtools.read(tmp_path / "s.aedat4")[1].size == (32, 24)
         assert evtools.simulate("bars", size=size if not isinstance(size, evtools.StreamInfo) else size.size,
                                 duration_us=100_000, seed=0)[1]["on"].shape == (24, 32)
+
+
+def test_correct_has_one_default_target_everywhere():
+    """Issue 40 item 5: the class said 'median', the function and the command line 0.2. One default (0.2, in
+    CORRECT_DEFAULTS) for the processor, the function, the API and the command's help."""
+    import inspect
+
+    from click.testing import CliRunner
+
+    from evtools.cli.main import cli
+    from evtools.correction import CORRECT_DEFAULTS, ThresholdCorrector
+
+    assert CORRECT_DEFAULTS["target"] == 0.2
+    assert inspect.signature(ThresholdCorrector).parameters["target"].default == CORRECT_DEFAULTS["target"]
+    on = np.full((3, 4), 0.3)
+    assert ThresholdCorrector(4, 3, on, on).target_on == pytest.approx(0.2)  # (float32, as the maps)
+    events = evtools.from_columns([0, 10, 20], [1, 1, 1], [1, 1, 1], [1, 1, 1])
+    assert np.array_equal(evtools.correct(events, (4, 3), {"on": on, "off": on}),
+                          evtools.correct(events, (4, 3), {"on": on, "off": on}, target=0.2))
+    assert "[default: 0.2]" in CliRunner().invoke(cli, ["correct", "--help"]).output
