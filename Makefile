@@ -7,7 +7,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 OUT := samples/out
 
-.PHONY: demo test bench fuzz docs figures clean
+.PHONY: demo test test-numba bench fuzz docs figures clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -54,6 +54,14 @@ demo: $(VENV)/.installed
 # the slowest tests are listed at the end: the whole run is to stay under 10 minutes on 2 cores
 test: $(VENV)/.installed-test
 	$(BIN)/python -m pytest -q -n 2 --durations=15
+
+# the tests of every module with kernels, run on numba's own dispatchers instead of the stored machine code
+# (EVTOOLS_KERNELS=numba: the fence around evtools/_kernels/jit.py; .ci/run runs it after `make test`)
+KERNEL_TESTS := tests/test_bafilter.py tests/test_correct.py tests/test_correct_exact.py tests/test_estimate.py \
+  tests/test_estimate_frames.py tests/test_noise.py tests/test_simulate.py tests/test_mlpf.py tests/test_jit.py \
+  tests/test_metrics_reconstruction.py tests/test_hdf5.py tests/test_prophesee.py tests/test_text.py tests/test_ecf.py
+test-numba: $(VENV)/.installed-test
+	EVTOOLS_KERNELS=numba $(BIN)/python -m pytest -q -n 2 $(KERNEL_TESTS)
 
 # the readers against 2,000 mutants of every format, each format in a child under a memory and time limit
 fuzz: $(VENV)/.installed-test

@@ -213,6 +213,10 @@ own threads need on a small machine; the only BLAS call, MLPF's two small produc
 def main() -> None:
     for name, value in BLAS_THREADS.items():  # before numpy is imported (``evtools`` loads it on first use)
         os.environ.setdefault(name, value)
+    kernels = os.environ.get("EVTOOLS_KERNELS", "").strip().lower()
+    if kernels not in ("", "store", "numba"):  # (checked before a kernel module is imported, deep in a command)
+        sys.stderr.write(f"evtools: usage: EVTOOLS_KERNELS={kernels!r}: choose store (the default) or numba\n")
+        sys.exit(EXIT_USAGE)
     interrupt.install()  # Ctrl-C / SIGTERM end the input stream: outputs complete, exit 130 / 143
     try:
         cli(prog_name="evtools")

@@ -311,3 +311,32 @@ def test_a_terminal_is_told_once_that_kernels_are_being_compiled(monkeypatch):
     monkeypatch.setattr("sys.stderr", piped)
     jit._say_compiling("a.kernel")
     assert piped.getvalue() == ""
+
+
+def test_the_numba_mode_runs_numbas_dispatchers_and_gives_the_same_results(tmp_path):
+    """Issue 40 item 3, the fence: EVTOOLS_KERNELS=numba runs every kernel on numba's own dispatcher (no stored
+    machine code is made or loaded) with the same results; an unknown mode is refused in one line (exit 2)."""
+    code = (
+        "import gc, numpy as np, evtools\n"
+        "from evtools._kernels import jit\n"
+        "events, _ = evtools.simulate('bars', size=(32, 24), duration_us=300_000, seed=1)\n"
+        "kept = evtools.bafilter(events, (32, 24), method='stcf')\n"
+        "calls = sum(len(k._calls) for k in gc.get_objects() if isinstance(k, jit.Kernel))\n"
+        "print(jit.MODE, len(kept), int(kept['t'].sum() % 1000003), calls)\n"
+    )
+    results = {}
+    for mode in ("store", "numba"):
+        environment = {**os.environ, "EVTOOLS_KERNELS": mode, "XDG_CACHE_HOME": str(tmp_path / mode)}
+        done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=environment)
+        assert done.returncode == 0, done.stderr
+        results[mode] = done.stdout.split()
+    assert results["store"][0] == "store" and results["numba"][0] == "numba"
+    assert results["store"][1:3] == results["numba"][1:3]  # the same events kept
+    assert int(results["store"][3]) > 0 and int(results["numba"][3]) == 0  # no native call made in numba mode
+    assert not (tmp_path / "numba" / "evtools" / "native").exists() or not any(
+        (tmp_path / "numba" / "evtools" / "native").rglob("*.pkl"))
+    assert any((tmp_path / "store" / "evtools" / "native").rglob("*.pkl"))  # the store: the user's cache, never
+    # inside the package
+    bad = subprocess.run([str(Path(sys.executable).with_name("evtools")), "info", "--help"], capture_output=True,
+                         text=True, env={**os.environ, "EVTOOLS_KERNELS": "fast"})
+    assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "EVTOOLS_KERNELS" in bad.stderr

@@ -39,6 +39,14 @@ from pathlib import Path
 
 import numpy as np
 
+KERNEL_MODES = ("store", "numba")
+"""``EVTOOLS_KERNELS``: ``store`` (the default: stored machine code called through ctypes, this module) or ``numba``
+(numba's own dispatchers and on-disk cache, ``@njit(cache=True, nogil=True)`` as DESIGN.md writes them): the fence
+around the store, for a numba it does not know yet or a doubt about its results (CI runs the suite both ways)."""
+MODE = os.environ.get("EVTOOLS_KERNELS", "store").strip().lower() or "store"
+if MODE not in KERNEL_MODES:
+    raise ValueError(f"EVTOOLS_KERNELS={MODE!r}: choose {' or '.join(KERNEL_MODES)}")
+
 _LOCK = threading.RLock()
 _DEFERRED: list["Deferred"] = []
 _NUMBA = None  # the numba module, once imported by numba_module()
@@ -104,6 +112,8 @@ class Kernel:
         return self._dispatcher
 
     def __call__(self, *args):
+        if MODE == "numba":
+            return self.dispatcher(*args)
         kinds = tuple(map(_describe, args))
         call = self._calls.get(kinds)
         if call is None:
@@ -165,14 +175,25 @@ def _kernels_cache(kernel: Kernel):
     class UserProvided(Stamped, caching.UserProvidedCacheLocator):  # NUMBA_CACHE_DIR, when set
         pass
 
-    class InTree(Stamped, caching.InTreeCacheLocator):  # __pycache__ beside the source
-        pass
+    class InUserCache(Stamped, caching.UserProvidedCacheLocator):  # else evtools' folder of the user's cache
+        def __init__(self, py_func, py_file):
+            super().__init__(py_func, py_file)
+            self._cache_path = os.path.join(user_cache() / "numba", self.get_suitable_cache_subpath(py_file))
 
-    class UserWide(Stamped, caching.UserWideCacheLocator):  # a read-only installation: the user's cache folder
-        pass
+        @classmethod
+        def from_function(cls, py_func, py_file):
+            if not os.path.exists(py_file):
+                return None
+            locator = cls(py_func, py_file)
+            try:
+                locator.ensure_cache_path()
+            except OSError:
+                return None
+            return locator
 
     class Impl(caching.CompileResultCacheImpl):
-        _locator_classes = [UserProvided, InTree, UserWide]  # numba's own order
+        _locator_classes = [UserProvided, InUserCache]  # never inside the package (a cache left there by an
+        # uninstalled version broke the next editable install)
 
     class Cache(caching.FunctionCache):
         _impl_class = Impl
@@ -243,18 +264,22 @@ def _describe_array(value: np.ndarray):
 
 # ---- the stored machine code ----
 
-def cache_dir() -> Path | None:
-    """Where objects are stored: ``__pycache__/native`` beside the kernels, else ``$XDG_CACHE_HOME/evtools``
-    (``~/.cache/evtools``) when the package is read-only; None when neither is writable."""
+def user_cache() -> Path:
+    """evtools' folder of the user's cache, ``$XDG_CACHE_HOME/evtools`` (``~/.cache/evtools``): the kernel store
+    and numba's cache live there, never inside the installed package."""
     home = Path(os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"))  # no error without a home
-    for directory in (Path(__file__).parent / "__pycache__" / "native", home / "evtools" / "native"):
-        try:
-            directory.mkdir(parents=True, exist_ok=True)
-            if os.access(directory, os.W_OK):
-                return directory
-        except OSError:
-            continue
-    return None
+    return home / "evtools"
+
+
+def cache_dir() -> Path | None:
+    """Where objects are stored: ``native`` in :func:`user_cache`; None when it cannot be written (kernels are then
+    compiled in every process)."""
+    directory = user_cache() / "native"
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        return None
+    return directory if os.access(directory, os.W_OK) else None
 
 
 _ENVIRONMENT = None
