@@ -60,7 +60,8 @@ def test_a_readme_block_runs(tmp_path, line, language, code, reason):
     if tmp_path != ROOT:
         (tmp_path / "samples").symlink_to(ROOT / "samples")
     environment = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}",
-                   "HOME": str(tmp_path)}
+                   "HOME": str(tmp_path),  # (the completion block writes into ~)
+                   "XDG_CACHE_HOME": os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache")}  # the kernels
     argv = ["bash", "-e", "-o", "pipefail", "-c", code] if language == "sh" else [sys.executable, "-c", code]
     run = subprocess.run(argv, cwd=tmp_path, env=environment, capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, f"README line {line}: exit {run.returncode}\n{run.stderr[-3000:]}"

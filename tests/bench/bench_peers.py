@@ -1,8 +1,9 @@
 """Peers benchmark (issue 15): evtools beside dv-processing, aedat and faery, measured in one run.
 
 The files: the real DVXplorer recording (111,954 events) repeated in time to ``--events`` events (10 M and 50 M),
-stored as DV stores recordings: AEDAT 4.0, LZ4 and uncompressed, in packets of the recording's own size (1,898
-events, about 10 ms: a reader's cost per packet counts), in ``/dev/shm`` when it has room. Every row is a
+written by dv-processing's ``MonoCameraWriter`` as DV stores recordings (issue 42: files evtools wrote flattered
+it): AEDAT 4.0, LZ4 (DV's linked blocks) and uncompressed, in packets of the recording's own size (1,898 events,
+about 10 ms: a reader's cost per packet counts), in ``/dev/shm`` when it has room. Every row is a
 whole process (interpreter start-up and imports included), the fastest of ``--repeat`` runs (the tools compared
 in a row measured in turns), with its peak RSS from ``wait4``:
 
@@ -75,28 +76,42 @@ def recorded_packet_events(path: Path) -> int:
     return max(1, round(events / max(packets, 1)))
 
 
-def make_file(path: Path, events: int, compression: str, denser: int = 1) -> None:
-    """``events`` events of the recording repeated in time, in packets of the recording's own size (as DV wrote
-    them: the reader's cost per packet counts), compressed as DV can; ``denser``: times divided by it (a busier
-    scene: 50 gives 9.5 Mev/s)."""
+def make_file(path: Path, events: int, compression: str, denser: int = 1, packet_events: int | None = None) -> None:
+    """``events`` events of the recording repeated in time, written by dv-processing's ``MonoCameraWriter`` as DV
+    writes a recording (its LZ4: linked blocks, no stored size), in packets of the recording's own size (the
+    reader's cost per packet counts) or of ``packet_events``; ``denser``: times divided by it (a busier scene: 50
+    gives 9.5 Mev/s)."""
+    import dv_processing as dv
+
     import evtools
-    import evtools.formats.aedat4 as aedat4
 
     recording, info = evtools.read(RECORDING)
     recording["t"] -= recording["t"][0]
     recording["t"] //= denser
     span_us = int(recording["t"][-1]) + 1
-    packet_events, aedat4.PACKET_EVENTS = aedat4.PACKET_EVENTS, recorded_packet_events(RECORDING)
-    try:
-        _write_tiled(path, recording, info, span_us, events, compression)
-    finally:
-        aedat4.PACKET_EVENTS = packet_events
+    packet_events = packet_events or recorded_packet_events(RECORDING)
+    config = dv.io.MonoCameraWriter.Config("bench")
+    config.addEventStream((info.width, info.height))
+    config.compression = dv.CompressionType.LZ4 if compression == "lz4" else dv.CompressionType.NONE
+    writer = dv.io.MonoCameraWriter(str(path), config)
+    with tempfile.TemporaryDirectory(dir=path.parent) as folder:  # the tiled events, read back by dv in batches
+        tiled = Path(folder) / "tiled.aedat4"
+        _write_tiled(tiled, recording, info, span_us, events)
+        source, pending = dv.io.MonoCameraRecording(str(tiled)), dv.EventStore()
+        while (batch := source.getNextEventBatch()) is not None:
+            pending.add(batch)
+            while pending.size() >= packet_events:
+                writer.writeEvents(pending.slice(0, packet_events))
+                pending = pending.slice(packet_events)
+        if pending.size():
+            writer.writeEvents(pending)
+    del writer  # (closes the file: dv-processing writes its index on destruction)
 
 
-def _write_tiled(path: Path, recording, info, span_us: int, events: int, compression: str) -> None:
+def _write_tiled(path: Path, recording, info, span_us: int, events: int) -> None:
     import evtools
 
-    with evtools.writer(path, info, compression=compression) as sink:
+    with evtools.writer(path, info) as sink:
         done, k = 0, 0
         while done < events:
             part = recording[: events - done].copy()
