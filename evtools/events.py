@@ -267,32 +267,27 @@ class StreamChecker:
     def check(self, chunk: np.ndarray) -> np.ndarray:
         chunk = as_chunk(chunk, self.name)
         if len(chunk):
+            from evtools._kernels.check import first_faults
+
             t = chunk["t"]
-            # negative int16 coordinates become large as uint16: one maximum per axis finds any bad event
-            x, y = chunk["x"].view(np.uint16), chunk["y"].view(np.uint16)
-            if x.max() >= self.info.width or y.max() >= self.info.height:
-                i = int(np.argmax((x >= self.info.width) | (y >= self.info.height)))
+            outside, polarity, out_of_range, backwards = first_faults(
+                t, chunk["x"], chunk["y"], chunk["p"].view(np.uint8), self.info.width, self.info.height,
+                self.last_t if self.last_t is not None else 0, self.last_t is not None, MAX_TIME_US)
+            if outside >= 0:
                 raise InvalidEventsError(
-                    f"{self.name}: event {self.events_seen + i} at (x={chunk['x'][i]}, y={chunk['y'][i]}) lies "
-                    f"outside the {self.info.width}x{self.info.height} sensor{self.hint}"
+                    f"{self.name}: event {self.events_seen + outside} at (x={chunk['x'][outside]}, "
+                    f"y={chunk['y'][outside]}) lies outside the {self.info.width}x{self.info.height} sensor{self.hint}"
                 )
-            polarity = chunk["p"].view(np.uint8)  # a bool byte other than 0 or 1 is damage: read as ON and copied
-            if polarity.max() > 1:
-                i = int(np.argmax(polarity > 1))
+            if polarity >= 0:  # a bool byte other than 0 or 1 is damage: it would be read as ON and copied
                 raise InvalidEventsError(
-                    f"{self.name}: event {self.events_seen + i} has a polarity byte of {int(polarity[i])}, not 0 (OFF) "
-                    "or 1 (ON): a damaged file?")
-            if t[0] < -MAX_TIME_US or t[-1] > MAX_TIME_US:  # sorted (checked below): the ends bound the rest
-                i = 0 if t[0] < -MAX_TIME_US else int(np.argmax(t > MAX_TIME_US))
+                    f"{self.name}: event {self.events_seen + polarity} has a polarity byte of "
+                    f"{int(chunk['p'].view(np.uint8)[polarity])}, not 0 (OFF) or 1 (ON): a damaged file?")
+            if out_of_range >= 0:
                 raise InvalidEventsError(
-                    f"{self.name}: event {self.events_seen + i} has time {int(t[i])} us, outside the +-2^62 us "
-                    "(+-146,000 years) that evtools supports")
-            if self.last_t is not None and t[0] < self.last_t:
-                self._backwards(0, self.last_t, t[0])
-            backwards = t[1:] < t[:-1]
-            if backwards.any():
-                i = int(np.argmax(backwards)) + 1
-                self._backwards(i, t[i - 1], t[i])
+                    f"{self.name}: event {self.events_seen + out_of_range} has time {int(t[out_of_range])} us, outside "
+                    "the +-2^62 us (+-146,000 years) that evtools supports")
+            if backwards >= 0:
+                self._backwards(backwards, self.last_t if backwards == 0 else t[backwards - 1], t[backwards])
             self.last_t = int(t[-1])
         self.events_seen += len(chunk)
         return chunk

@@ -6,8 +6,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from evtools.errors import InvalidEventsError
-from evtools.events import (EVENT_DTYPE, StreamChecker, StreamInfo, concatenate, join, make_events, parse_sensor_size,
-                            rechunk)
+from evtools.events import (EVENT_DTYPE, MAX_TIME_US, StreamChecker, StreamInfo, concatenate, join, make_events,
+                            parse_sensor_size, rechunk)
 from tests.helpers import cut, random_events
 
 
@@ -115,3 +115,62 @@ def test_a_whole_read_sized_beyond_what_the_system_reserves_still_reads(monkeypa
     expected = np.concatenate(chunks)
     assert len(out) == len(expected)
     assert all(np.array_equal(out[field], expected[field]) for field in ("t", "x", "y", "p"))
+
+
+def _first_faults_naive(t, x, y, p, width, height, last_t):
+    """The first event of each kind of fault, one plain loop (the reference of evtools/_kernels/check.py)."""
+    found = [-1, -1, -1, -1]
+    for i in range(len(t)):
+        tests = (not (0 <= int(x[i]) < width and 0 <= int(y[i]) < height), int(p[i]) > 1,
+                 not -MAX_TIME_US <= int(t[i]) <= MAX_TIME_US,
+                 (i > 0 and int(t[i]) < int(t[i - 1])) or (i == 0 and last_t is not None and int(t[0]) < last_t))
+        for kind, bad in enumerate(tests):
+            if bad and found[kind] < 0:
+                found[kind] = i
+    return tuple(found)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(0, 60), st.integers(1, 9), st.integers(1, 9), st.lists(st.tuples(
+    st.sampled_from(["x", "y", "p", "t", "back", "far"]), st.integers(0, 59)), max_size=4),
+    st.one_of(st.none(), st.integers(-5, 2000)), st.integers(0, 2**31 - 1))
+def test_the_check_kernel_finds_each_first_fault_as_a_plain_loop_does(n, width, height, faults, last_t, seed):
+    """The stream check in one compiled pass (issue 42): on random chunks with random faults planted (coordinates
+    off the sensor or negative, polarity bytes above 1, times beyond 2^62 us, time going backwards, within the
+    chunk or against the last event of the one before), the first index of each kind equals a plain loop's, and
+    the checker raises the first kind in its order with the stream index."""
+    from evtools._kernels.check import first_faults
+
+    rng = np.random.default_rng(seed)
+    chunk = make_events(np.sort(rng.integers(0, 1000, n)), rng.integers(0, width, n), rng.integers(0, height, n),
+                        rng.integers(0, 2, n))
+    for kind, at in faults:
+        if at >= n:
+            continue
+        if kind == "x":
+            chunk["x"][at] = rng.choice([width, -1, 32767])
+        elif kind == "y":
+            chunk["y"][at] = rng.choice([height, -3])
+        elif kind == "p":
+            chunk["p"].view(np.uint8)[at] = rng.integers(2, 256)
+        elif kind == "t":
+            chunk["t"][at] = rng.choice([MAX_TIME_US + 1, -MAX_TIME_US - 1])
+        elif kind == "back" and at > 0:
+            chunk["t"][at] = chunk["t"][at - 1] - 1
+        else:
+            chunk["t"][at] = 10**12 + at
+    expected = _first_faults_naive(chunk["t"], chunk["x"], chunk["y"], chunk["p"].view(np.uint8), width, height,
+                                   last_t)
+    got = first_faults(chunk["t"], chunk["x"], chunk["y"], chunk["p"].view(np.uint8), width, height,
+                       0 if last_t is None else last_t, last_t is not None, MAX_TIME_US)
+    assert tuple(got) == expected
+    checker = StreamChecker(StreamInfo(width, height), "s")
+    checker.events_seen, checker.last_t = 1000, last_t
+    messages = ("sensor", "polarity byte", "+-2^62", "time goes backwards")
+    first = next((kind for kind in range(4) if expected[kind] >= 0), None)
+    if first is None:
+        assert len(checker.check(chunk)) == n
+    else:
+        with pytest.raises(InvalidEventsError) as caught:
+            checker.check(chunk)
+        assert f"event {1000 + expected[first]}" in str(caught.value) and messages[first] in str(caught.value)
