@@ -60,7 +60,7 @@ test: $(VENV)/.installed-test
 KERNEL_TESTS := tests/test_bafilter.py tests/test_correct.py tests/test_correct_exact.py tests/test_estimate.py \
   tests/test_estimate_frames.py tests/test_noise.py tests/test_simulate.py tests/test_mlpf.py tests/test_jit.py \
   tests/test_metrics_reconstruction.py tests/test_hdf5.py tests/test_prophesee.py tests/test_text.py tests/test_ecf.py \
-  tests/test_events.py
+  tests/test_events.py tests/test_aedat4.py
 test-numba: $(VENV)/.installed-test
 	EVTOOLS_KERNELS=numba $(BIN)/python -m pytest -q -n 2 $(KERNEL_TESTS)
 

@@ -38,6 +38,12 @@ from evtools.formats.registry import ReadOptions, WriteOptions
 MAGIC = b"#!AER-DAT4.0\r\n"
 COMPRESSION_CODES = {"none": 0, "lz4": 1, "lz4-high": 2, "zstd": 3, "zstd-high": 4}
 COMPRESSION_XML = {0: "NONE", 1: "LZ4", 2: "LZ4_HIGH", 3: "ZSTD", 4: "ZSTD_HIGH"}
+SCAN_PACKETS = True
+"""Uncompressed files are read a block of whole packets at a time by a compiled kernel (:meth:`Aedat4Reader.
+_scan_uncompressed`; the per-packet path cost 17 us a packet in Python). False: the per-packet path alone (the
+tests compare the two)."""
+SCAN_BLOCK_BYTES = 1 << 20
+"""Bytes read at a time by the scan: whole packets of it are copied, the rest is read again with the next block."""
 PACKET_HEAD_BYTES = 256
 """How much of an uncompressed packet is read to find its event vector before reading the events in place."""
 PAYLOAD_MASK = np.uint64((1 << 40) - 1)
@@ -284,7 +290,7 @@ class Aedat4Reader:
         """Chunks of about ``chunk_events`` events (whole packets); uncompressed packets are read straight into them,
         compressed ones are decompressed by :data:`DECODE_THREADS` threads (the codecs release the GIL) in groups of
         about a chunk (:meth:`_decode_group`), up to :data:`DECODE_AHEAD` groups ahead, and placed in file order."""
-        stream, skipped_packets = self.source.stream, 0
+        stream, self._skipped_packets = self.source.stream, 0
         self._recycled = formats_io.Recycled()
         self._chunk, self._filled = self._recycled.take(self.options.chunk_events), 0
         pending: deque = deque()  # futures of decoded groups, in file order
@@ -294,8 +300,13 @@ class Aedat4Reader:
         live, first_arrival_s = self.source.live, 0.0
         file_bytes = self._file_bytes = os.fstat(stream.fileno()).st_size \
             if self.source.seekable and hasattr(stream, "fileno") else float("inf")
+        scan = SCAN_PACKETS and pool is None and not live and file_bytes < float("inf") and hasattr(stream, "readinto")
         try:
             while self.data_position < 0 or self.position < self.data_position:
+                if scan:  # many whole event packets at once; the per-packet path below takes the one it leaves
+                    yield from self._scan_uncompressed()
+                    if self.position >= (self.data_position if self.data_position >= 0 else file_bytes):
+                        break
                 # a live input: what has arrived is passed on, unless the next packet has arrived whole and the
                 # chunk is younger than LIVE_MAX_LATENCY_S (packets that arrived together go on together)
                 if live and (self._filled or pending or group) and not (
@@ -322,9 +333,9 @@ class Aedat4Reader:
                                       f"{size:,} bytes: the file was cut or damaged)")
                 if stream_id != self.stream_id:
                     if stream_id == self.frame_stream_id and self.frame_stream_id is not None:
-                        self._read_frame(size, offset)
+                        self._take_frame(self._read_packet(size, size, offset), offset)
                         continue
-                    skipped_packets += 1
+                    self._skipped_packets += 1
                     self._skip(size, offset)
                     continue
                 if pool is not None:
@@ -364,13 +375,57 @@ class Aedat4Reader:
             self._recycled.arrays.clear()  # the chunks given out stay valid; nothing more is recycled
         if self._filled:
             yield self._chunk[:self._filled]
-        self.info.metadata["skipped_packets"] = skipped_packets
+        self.info.metadata["skipped_packets"] = self._skipped_packets
         if self.expects_end_mark and self._last_count != 0:
             self._cut()
 
-    def _read_frame(self, size: int, offset: int) -> None:
+    def _scan_uncompressed(self) -> Iterator[np.ndarray]:
+        """Whole packets of a seekable uncompressed file, a block at a time: event packets copied into the chunk by
+        a compiled kernel (:func:`evtools._kernels.aedat4.copy_event_packets`), frame packets and other streams'
+        taken from the block too. Returns with the stream at :attr:`position`, at the first packet it leaves to the
+        per-packet path (a layout the kernel does not read, a packet larger than a block or cut by the file's end,
+        more events than a chunk holds) or at the end."""
+        from evtools._kernels.aedat4 import COPIED, FULL, OTHER, copy_event_packets
+
+        stream = self.source.stream
+        limit = self.data_position if self.data_position >= 0 else self._file_bytes
+        block = self._scan_block = getattr(self, "_scan_block", None)
+        if block is None:
+            block = self._scan_block = np.empty(SCAN_BLOCK_BYTES, np.uint8)
+        while self.position < limit:
+            got = stream.readinto(memoryview(block)[:min(len(block), limit - self.position)])
+            start = status = 0
+            while True:
+                end, self._filled, status, last = copy_event_packets(block, start, got, self.stream_id,
+                                                                     self._chunk.view(np.uint8), self._filled,
+                                                                     MAX_PACKET_BYTES)
+                self.position += end - start
+                start = end
+                if last >= 0:
+                    self._last_count = last
+                if status == FULL and self._filled:
+                    yield self._chunk[:self._filled]
+                    self._chunk, self._filled = self._recycled.take(self.options.chunk_events), 0
+                    continue
+                if status == OTHER and start + 8 <= got:  # another stream's packet, whole in the block: here too
+                    stream_id, size = struct.unpack_from("<iI", block, start)
+                    whole = start + 8 + size <= got
+                    if whole and stream_id == self.frame_stream_id and self.frame_stream_id is not None:
+                        self._take_frame(block[start + 8:start + 8 + size].tobytes(), self.position)
+                    elif whole and stream_id != self.stream_id and stream_id != self.frame_stream_id:
+                        self._skipped_packets += 1
+                    else:
+                        break
+                    self.position += 8 + size
+                    start += 8 + size
+                    continue
+                break
+            stream.seek(self.position)  # (the block read past it)
+            if status != COPIED or start == 0:  # a packet for the per-packet path (or one larger than a block)
+                return
+
+    def _take_frame(self, body: bytes, offset: int) -> None:
         """A frame packet: decoded (at once: frames are few) and queued for :meth:`EventStream.take_frames`."""
-        body = self._read_packet(size, size, offset)
         if self.decompress is not None:
             try:
                 body = self.decompress(body)
