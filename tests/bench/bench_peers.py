@@ -97,14 +97,10 @@ def make_file(path: Path, events: int, compression: str, denser: int = 1, packet
     with tempfile.TemporaryDirectory(dir=path.parent) as folder:  # the tiled events, read back by dv in batches
         tiled = Path(folder) / "tiled.aedat4"
         _write_tiled(tiled, recording, info, span_us, events)
-        source, pending = dv.io.MonoCameraRecording(str(tiled)), dv.EventStore()
-        while (batch := source.getNextEventBatch()) is not None:
-            pending.add(batch)
-            while pending.size() >= packet_events:
-                writer.writeEvents(pending.slice(0, packet_events))
-                pending = pending.slice(packet_events)
-        if pending.size():
-            writer.writeEvents(pending)
+        source = dv.io.MonoCameraRecording(str(tiled))
+        while (batch := source.getNextEventBatch()) is not None:  # (a batch: one of evtools' large packets)
+            for start in range(0, batch.size(), packet_events):
+                writer.writeEventPacket(batch.slice(start, min(packet_events, batch.size() - start)).toPacket())
     del writer  # (closes the file: dv-processing writes its index on destruction)
 
 
