@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 import evtools
@@ -431,6 +431,7 @@ def _stream(draw):
 
 @settings(max_examples=60, deadline=None)
 @given(_stream(), st.lists(st.integers(0, 60), max_size=4))
+@example(stream=(1, 1, [(2368, 0, 0, 0)]), cuts=[])  # a first word whose low byte is "%" (37 << 6 us)
 def test_evt2_writer_round_trips_through_the_naive_decoder(tmp_path_factory, stream, cuts):
     """evtools writes Prophesee RAW as EVT 2.0: decoded word by word by the specification (tests/naive), the file
     holds the events (times modulo 2^34 us, the rest of a late start in a ``% t0`` line) and the sensor size,

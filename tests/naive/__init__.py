@@ -256,11 +256,13 @@ def evt2_decode_naive(data: bytes) -> tuple[dict[str, str], list[tuple[int, int,
     Prophesee, "EVT 2.0 Format", https://docs.prophesee.ai/stable/data/encoding_formats/evt2.html
     """
     header, position = {}, 0
-    while data[position:position + 1] == b"%":
+    while data[position:position + 1] == b"%":  # the header ends at "% end" (a first word may start with "%")
         end = data.index(b"\n", position)
         key, _, value = data[position + 1:end].decode("ascii").strip().partition(" ")
-        header[key] = value
         position = end + 1
+        if key == "end":
+            break
+        header[key] = value
     events, time_high, previous, wraps = [], None, None, 0
     for i in range(position, len(data) - 3, 4):
         word = int.from_bytes(data[i:i + 4], "little")
