@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import logging
 import os
-import sys
 
 import click
 import numpy as np
@@ -14,54 +13,12 @@ from evtools.cli.options import (COUNT, MICROSECONDS, FiniteRange, check_compres
                                  slicing_options)
 from evtools.cli.progress import process_stream
 from evtools.filters import DEFAULTS, METHODS, PRESETS, BAFilter, BAFilterError, parse_methods
-from evtools.errors import EvtoolsError
 from evtools.formats import create_events, open_events
-from evtools.formats.io import STDIO, atomic_path, same_file
+from evtools.formats.hotpixels import HotPixelsError, read_hot_pixels, write_hot_pixels
+from evtools.formats.io import STDIO, same_file
 from evtools.transform import on_sliced_sensor, sliced
 
 log = logging.getLogger("evtools")
-
-
-class HotPixelsError(EvtoolsError, ValueError):
-    """A hot-pixel list that cannot be read or does not fit the sensor."""
-
-
-def read_hot_pixels(path: str, width: int, height: int) -> np.ndarray:
-    """A hot-pixel CSV file (header ``x,y``, one pixel a line) as a (height, width) boolean map."""
-    hot = np.zeros((height, width), dtype=bool)
-    try:
-        with open(path, encoding="utf-8") as file:
-            lines = file.read().splitlines()
-    except OSError as error:
-        raise HotPixelsError(f"{path}: {error.strerror}") from None
-    if not lines or lines[0].strip().lower() != "x,y":
-        raise HotPixelsError(f"{path}: not a hot-pixel list (first line must be `x,y`)")
-    for number, line in enumerate(lines[1:], start=2):
-        if not line.strip() or line.startswith("#"):
-            continue
-        try:
-            x, y = (int(v) for v in line.split(","))
-        except ValueError:
-            raise HotPixelsError(f"{path}: line {number}: expected `x,y` integers, got {line!r}") from None
-        if not (0 <= x < width and 0 <= y < height):
-            raise HotPixelsError(f"{path}: line {number}: pixel ({x}, {y}) is outside the {width}x{height} sensor")
-        hot[y, x] = True
-    return hot
-
-
-def write_hot_pixels(path: str, hot: np.ndarray) -> None:
-    """Write the hot pixels of ``hot`` as CSV (``x,y`` header, row-major order), atomically (``-``: stdout)."""
-    ys, xs = np.nonzero(hot)
-    text = "x,y\n" + "".join(f"{x},{y}\n" for x, y in zip(xs.tolist(), ys.tolist()))
-    if path == STDIO:
-        sys.stdout.write(text)
-        sys.stdout.flush()
-        return
-    try:
-        with atomic_path(path) as temporary, open(temporary, "w", encoding="utf-8") as file:
-            file.write(text)
-    except OSError as error:
-        raise HotPixelsError(f"{path}: cannot write the hot-pixel list ({error.strerror})") from None
 
 
 def _check_hot_pixels_target(path: str, input: str, output: str | None) -> None:

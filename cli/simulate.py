@@ -11,7 +11,6 @@ import math
 import os
 import re
 import sys
-from dataclasses import dataclass, field
 from typing import Any, Iterator
 
 import click
@@ -41,33 +40,15 @@ from evtools.simulation import (
 from evtools.formats import create_events, open_events
 from evtools.formats.io import STDIO, HEAD_BYTES, output_stream, same_file
 from evtools.formats.registry import FORMATS, detect
+from evtools.formats.video import TIMESTAMPS_FILE, FrameSource, open_frames, read_image
 
 log = logging.getLogger("evtools")
 
 DEFAULT_SCENE_SIZE = "346x260"
 """A DAVIS346, the sensor v2e and the report emulate."""
 DEFAULT_DURATION_US = 1_000_000
-IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".pbm", ".webp", ".exr")
-TIMESTAMPS_FILE = "timestamps.txt"
-"""Looked for inside an image folder when --timestamps is not given."""
 
 # -- frame sources -----------------------------------------------------------------------------------------------
-
-
-@dataclass
-class FrameSource:
-    """Frames ``(t_us, height x width luma 0-255)`` with what is known about them beforehand.
-
-    Frames are uint8 when the images are 8-bit and not resized (the simulator then reads lin-log from a table of
-    the 256 levels), float32 otherwise.
-    """
-
-    name: str
-    width: int
-    height: int
-    frames: Iterator[tuple[int, np.ndarray]]
-    count: int | None = None
-    attributes: dict[str, Any] = field(default_factory=dict)
 
 
 def scene_source(name: str, size: str | None, duration_us: int | None, options: dict[str, Any]) -> FrameSource:
@@ -88,173 +69,6 @@ def scene_source(name: str, size: str | None, duration_us: int | None, options: 
     return FrameSource(f"scene:{name}", width, height, frames, count, attributes)
 
 
-def read_image(path: str) -> np.ndarray:
-    """An image file as luma, 0-255 (``--image``)."""
-    import cv2
-
-    if not os.path.isfile(path):
-        raise SimulationError(f"{path}: no such image file")
-    image = cv2.imread(path, cv2.IMREAD_UNCHANGED)
-    if image is None:
-        raise SimulationError(f"{path}: cannot read this image (not a format OpenCV reads)")
-    return _luma(image, path)
-
-
-def _luma(frame: np.ndarray, name: str) -> np.ndarray:
-    """8-bit (or 16-bit) grey or BGR(A) image as luma on the 0-255 scale (Rec. 601 weights, OpenCV's): uint8 for an
-    8-bit image, float32 otherwise."""
-    import cv2
-
-    if frame.ndim == 3 and frame.shape[2] == 4:
-        frame = cv2.cvtColor(frame, cv2.COLOR_BGRA2GRAY)
-    elif frame.ndim == 3 and frame.shape[2] == 3:
-        frame = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
-    elif frame.ndim == 3 and frame.shape[2] == 1:
-        frame = frame[:, :, 0]
-    if frame.ndim != 2:
-        raise SimulationError(f"{name}: unsupported image layout {frame.shape}")
-    if frame.dtype == np.uint8:
-        return frame
-    if frame.dtype == np.uint16:
-        return frame.astype(np.float32) * np.float32(255.0 / 65535.0)
-    return np.clip(frame.astype(np.float32) * 255.0, 0.0, 255.0)  # float images: 0-1
-
-
-def _resize(frame: np.ndarray, size: tuple[int, int] | None) -> np.ndarray:
-    if size is None or (frame.shape[1], frame.shape[0]) == size:
-        return frame
-    import cv2
-
-    # in float32, so that the averaged intensities are not rounded to whole levels
-    return cv2.resize(frame.astype(np.float32, copy=False), size, interpolation=cv2.INTER_AREA)
-
-
-def video_source(path: str, fps: float | None, size: str | None) -> FrameSource:
-    """A video file read with OpenCV; frame times from its frame rate (or ``fps``)."""
-    # FFmpeg prints its own complaints about broken files on stderr (read when OpenCV first uses it): errors are
-    # ours to report, in one line
-    os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
-    import cv2
-
-    capture = cv2.VideoCapture(path)
-    if not capture.isOpened():
-        raise SimulationError(f"{path}: cannot read it as a video (OpenCV could not open it)")
-    ok, first = capture.read()
-    if not ok or first is None:
-        capture.release()
-        raise SimulationError(f"{path}: cannot read a frame from this video")
-    rate = float(fps) if fps else float(capture.get(cv2.CAP_PROP_FPS) or 0.0)
-    if not rate > 0 or math.isinf(rate):
-        capture.release()
-        raise SimulationError(f"{path}: the video does not say its frame rate; give --fps")
-    target = parse_sensor_size(size) if size else None
-    first = _resize(_luma(first, path), target)
-    height, width = first.shape
-    parse_sensor_size(f"{width}x{height}")
-    count = int(capture.get(cv2.CAP_PROP_FRAME_COUNT) or 0) or None
-
-    def frames():
-        try:
-            yield 0, first
-            index = 1
-            while True:
-                ok, frame = capture.read()
-                if not ok or frame is None:
-                    return
-                yield round(index * 1e6 / rate), _resize(_luma(frame, path), target)
-                index += 1
-        finally:
-            capture.release()
-
-    return FrameSource(path, width, height, frames(), count, {"video": os.path.basename(path), "fps": rate})
-
-
-def _natural_key(name: str):
-    return [int(part) if part.isdigit() else part.lower() for part in re.split(r"(\d+)", name)]
-
-
-def read_timestamps_us(path: str) -> np.ndarray:
-    """One time per line in seconds (blank lines and ``#`` comments skipped), as microseconds."""
-    times = []
-    try:
-        with open(path, encoding="utf-8") as file:
-            for number, line in enumerate(file, 1):
-                text = line.split("#", 1)[0].strip()
-                if not text:
-                    continue
-                try:
-                    value = float(text.split()[0].rstrip(","))
-                except ValueError:
-                    raise SimulationError(f"{path}: line {number} is not a time in seconds: {text!r}") from None
-                if not math.isfinite(value):
-                    raise SimulationError(f"{path}: line {number} is not a finite time: {text!r}")
-                times.append(value)
-    except OSError as error:
-        raise SimulationError(f"{path}: cannot read timestamps ({error.strerror})") from None
-    except UnicodeDecodeError:
-        raise SimulationError(f"{path}: not a text file of timestamps") from None
-    if len(times) > 1 and np.median(np.diff(times)) > 60:  # (microseconds read as seconds: days of leak noise)
-        log.warning(
-            f"{path}: the frames are {np.median(np.diff(times)):,.0f} s apart (median): timestamps are read as "
-            "seconds; if these are microseconds, divide them by 1e6")
-    return np.round(np.asarray(times, dtype=np.float64) * 1e6).astype(np.int64)
-
-
-def folder_source(folder: str, timestamps: str | None, fps: float | None, size: str | None) -> FrameSource:
-    """The images of ``folder`` in natural name order, timed by a timestamps file or ``fps``."""
-    import cv2
-
-    names = sorted((n for n in os.listdir(folder) if n.lower().endswith(IMAGE_EXTENSIONS)), key=_natural_key)
-    if not names:
-        raise SimulationError(f"{folder}: no images in this folder ({', '.join(IMAGE_EXTENSIONS[:5])}, ...)")
-    if timestamps is None and os.path.isfile(os.path.join(folder, TIMESTAMPS_FILE)) and not fps:
-        timestamps = os.path.join(folder, TIMESTAMPS_FILE)
-    if timestamps is not None:
-        times = read_timestamps_us(timestamps)
-        if len(times) != len(names):
-            raise SimulationError(f"{timestamps}: {len(times)} timestamps for {len(names)} images in {folder}")
-        if np.any(np.diff(times) <= 0):
-            i = int(np.argmax(np.diff(times) <= 0)) + 1
-            raise SimulationError(f"{timestamps}: times must increase (line {i + 1} is not after line {i})")
-        offset_us = int(times[0])
-        times = times - offset_us  # events start at 0; the truth file keeps the offset
-    elif fps:
-        if not fps > 0 or math.isinf(fps):
-            raise SimulationError(f"--fps must be positive, got {fps}")
-        times = np.round(np.arange(len(names)) * (1e6 / fps)).astype(np.int64)
-        offset_us = 0
-    else:
-        raise SimulationError(f"{folder}: no {TIMESTAMPS_FILE}; give --timestamps FILE or --fps")
-    target = parse_sensor_size(size) if size else None
-
-    def read(name: str) -> np.ndarray:
-        path = os.path.join(folder, name)
-        image = cv2.imread(path, cv2.IMREAD_UNCHANGED)
-        if image is None:
-            raise SimulationError(f"{path}: cannot read this image")
-        return _resize(_luma(image, path), target)
-
-    first = read(names[0])
-    height, width = first.shape
-    parse_sensor_size(f"{width}x{height}")
-
-    def frames():
-        yield int(times[0]), first
-        for t_us, name in zip(times[1:], names[1:]):
-            frame = read(name)
-            if frame.shape != first.shape:
-                raise SimulationError(
-                    f"{os.path.join(folder, name)}: {frame.shape[1]}x{frame.shape[0]} image among "
-                    f"{width}x{height} ones (give --size to resize them all)"
-                )
-            yield int(t_us), frame
-
-    attributes = {
-        "folder": os.path.basename(os.path.normpath(folder)), "images": len(names), "time_offset_us": offset_us,
-    }
-    return FrameSource(folder, width, height, frames(), len(names), attributes)
-
-
 def open_source(source: str, size, duration, fps, timestamps, scene_options) -> FrameSource:
     if source.startswith("scene:"):
         return scene_source(source[len("scene:"):], size, duration, scene_options)
@@ -262,13 +76,11 @@ def open_source(source: str, size, duration, fps, timestamps, scene_options) -> 
         raise click.UsageError("scene options (--period, --speed, ...) apply to scene:NAME sources only")
     if duration is not None:
         raise click.UsageError("--duration applies to scene:NAME sources only")
-    if os.path.isdir(source):
-        return folder_source(source, timestamps, fps, size)
     if not os.path.exists(source):
         raise SimulationError(f"{source}: no such file or folder (a scene is given as scene:NAME)")
-    if timestamps is not None:
+    if timestamps is not None and not os.path.isdir(source):
         raise click.UsageError("--timestamps applies to image folders only")
-    return video_source(source, fps, size)
+    return open_frames(source, fps, size, timestamps)
 
 
 def is_event_stream(source: str, input_format: str | None) -> bool:

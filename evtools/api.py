@@ -291,20 +291,24 @@ def correct(events: np.ndarray, info: StreamInfo, thresholds, **params) -> np.nd
     return correct_thresholds(events, info.width, info.height, on, off, valid, **params)
 
 
-def simulate(source: str | Iterable[tuple[int, np.ndarray]] = "flicker", *, size=(346, 260),
-             duration_us: int = 1_000_000, scene: dict | None = None, **parameters) -> tuple[np.ndarray, dict]:
+def simulate(source: str | os.PathLike | Iterable[tuple[int, np.ndarray]] = "flicker", *, size=None,
+             duration_us: int = 1_000_000, frame_rate: float | None = None, scene: dict | None = None,
+             **parameters) -> tuple[np.ndarray, dict]:
     """Simulate a DVS (``evtools simulate``): v2e's pixel model (Hu, Liu, Delbruck 2021) with ESIM's per-pixel
     crossing times (Rebecq et al. 2018).
 
     Parameters
     ----------
-    source : str or iterable of (t_us, frame)
-        A built-in scene's name (flicker, gradient, bars, step, static, texture) or frames: times in
-        microseconds, increasing, and intensity images (height x width, 0-255).
-    size : (width, height) or "WxH"
-        The scene's size (a built-in scene only).
+    source : str, path or iterable of (t_us, frame)
+        A built-in scene's name (flicker, gradient, bars, step, static, texture), a video file or a folder of
+        images (with its ``timestamps.txt``, else ``frame_rate``), as ``evtools simulate`` reads them, or frames:
+        times in microseconds, increasing, and intensity images (height x width, 0-255).
+    size : (width, height) or "WxH", optional
+        The scene's size (default 346 x 260), or the size a video's or folder's frames are resized to.
     duration_us : int
         The scene's length (a built-in scene only).
+    frame_rate : float, optional
+        Frames per second of a video that does not say it, or of a folder without timestamps.
     scene : dict, optional
         The scene's options (``period_s``, ``speed_px_s``, ``profile``, ``phase_spread``, ``image``, ...).
     **parameters
@@ -327,8 +331,14 @@ def simulate(source: str | Iterable[tuple[int, np.ndarray]] = "flicker", *, size
     """
     from evtools.simulation import DvsSimulator, run_simulator, scene_frames
 
-    if isinstance(source, str):
-        frames = scene_frames(source, *parse_sensor_size(size), duration_us, **(scene or {}))
+    if isinstance(source, os.PathLike) or (isinstance(source, str) and os.path.exists(source)):  # a video, images
+        from evtools.formats.video import open_frames
+
+        if scene:
+            raise EvtoolsError("scene options apply to a built-in scene, not to a video or images")
+        frames = open_frames(os.fspath(source), frame_rate, size).frames
+    elif isinstance(source, str):
+        frames = scene_frames(source, *parse_sensor_size(size or (346, 260)), duration_us, **(scene or {}))
     elif scene:
         raise EvtoolsError("scene options apply to a built-in scene, not to frames")
     else:

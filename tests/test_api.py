@@ -276,3 +276,27 @@ def test_correct_has_one_default_target_everywhere():
     assert np.array_equal(evtools.correct(events, (4, 3), {"on": on, "off": on}),
                           evtools.correct(events, (4, 3), {"on": on, "off": on}, target=0.2))
     assert "[default: 0.2]" in CliRunner().invoke(cli, ["correct", "--help"]).output
+
+
+def test_simulate_takes_a_video_or_an_image_folder_from_python(tmp_path):
+    """Issue 40 item 4: video and image-folder sources live in formats/ (formats/video.py), so
+    evtools.simulate("clip.mp4") works from Python as `evtools simulate clip.mp4` does: the same events."""
+    import cv2
+
+    from tests.helpers import run
+
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for i, level in enumerate((40, 90, 160, 220)):
+        cv2.imwrite(str(folder / f"{i}.png"), np.full((12, 16), level, np.uint8))
+    events, truth = evtools.simulate(folder, frame_rate=50, seed=3, leak_rate_hz=0)
+    run("simulate", folder, "--frame-rate", 50, "--seed", 3, "--leak-rate-hz", 0, "-o", tmp_path / "cli.aedat4")
+    cli_events, info = evtools.read(tmp_path / "cli.aedat4")
+    assert info.size == (16, 12) and len(events) > 100 and np.array_equal(events, cli_events)
+    assert truth["on"].shape == (12, 16)
+    resized, _ = evtools.simulate(str(folder), frame_rate=50, size="8x6", seed=3)
+    assert resized["x"].max() < 8 and resized["y"].max() < 6
+    with pytest.raises(evtools.EvtoolsError, match="no such file or folder"):
+        evtools.simulate(tmp_path / "missing.mp4")
+    with pytest.raises(evtools.EvtoolsError, match="no timestamps.txt; give --timestamps FILE or --frame-rate"):
+        evtools.simulate(folder)  # no timestamps.txt and no frame rate
