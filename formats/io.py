@@ -276,8 +276,11 @@ class TcpServer:
 
     def write(self, data) -> int:
         data = memoryview(data).cast("B")  # bytes or an array's buffer
-        if self.header is None:
-            self.header = bytes(data)
+        if self.header is None:  # the header goes at once to the clients that wait for it (a reader learns the
+            with self.lock:  # sensor size before the first events, which may be long in coming)
+                self.header = bytes(data)
+                arrived, self.arrived = self.arrived, []
+                self.clients += [client for client in arrived if self._send(client, self.header)]
         else:
             self.pending += data
         return len(data)

@@ -346,3 +346,43 @@ def test_a_client_waiting_from_the_start_gets_the_whole_stream_and_no_client_is_
     nobody = subprocess.run([EVTOOLS[0], "convert", str(recording), "-o", f"tcp://127.0.0.1:{_free_port()}"],
                             capture_output=True, text=True, env=_environment(), cwd=ROOT, timeout=60)
     assert nobody.returncode == 0 and "no client connected: the stream went to nobody" in nobody.stderr
+
+
+def test_a_client_waiting_for_the_header_gets_it_before_any_event(tmp_path):
+    """A client that connects to `-o tcp://` before the stage has its input's header gets the header (the sensor
+    size) as soon as the stage has it, not with the first events (which may be long in coming): dv-processing's
+    NetworkReader waits for the header in its constructor, and under load it waited for events that its own
+    process's writer had not sent yet."""
+    fifo = tmp_path / "in.fifo"
+    os.mkfifo(fifo)
+    port = _free_port()
+    stage = subprocess.Popen([EVTOOLS[0], "-q", "convert", str(fifo), "-o", f"tcp://127.0.0.1:{port}"],
+                             stderr=subprocess.PIPE, text=True, env=_environment(), cwd=ROOT)
+    try:
+        deadline, client = time.monotonic() + 60, None
+        while client is None:
+            assert time.monotonic() < deadline and stage.poll() is None
+            try:
+                client = socket.create_connection(("127.0.0.1", port), timeout=60)
+            except OSError:
+                time.sleep(0.05)
+        header = (tmp_path / "h.aedat4")
+        evtools.write(header, evtools.make_events([], [], [], []), evtools.StreamInfo(WIDTH, HEIGHT))
+        with open(fifo, "wb") as feed:
+            data = header.read_bytes()
+            (length,) = struct.unpack_from("<I", data, 14)
+            feed.write(data[:18 + length])  # the header alone: no event yet
+            feed.flush()
+            received = b""
+            while len(received) < 4 + length:  # the header arrives while the input is still open (a state)
+                piece = client.recv(1 << 16)
+                assert piece, "the server closed"
+                received += piece
+            assert received[4:4 + length] == data[18:18 + length]
+            feed.write(data[18 + length:])  # then the rest (its end mark): the stream ends normally
+        assert stage.wait(timeout=60) == 0
+    finally:
+        stage.kill()
+        stage.wait()
+        if client is not None:
+            client.close()
