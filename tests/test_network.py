@@ -84,39 +84,61 @@ def _store(events) -> "dv.EventStore":
     return store
 
 
-def test_a_dv_server_through_evtools_to_a_dv_client():
+DV_SERVER = """
+import sys, numpy as np, dv_processing as dv
+port, width, height, path = int(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
+writer = dv.io.NetworkWriter("127.0.0.1", port, dv.io.Stream.EventStream(0, "events", "test", (width, height)))
+print("listening", flush=True)
+sys.stdin.readline()  # the test's go: its client is connected to the stage's output
+batches = np.load(path)
+for k in sorted(batches.files):
+    store = dv.EventStore()
+    for t, x, y, p in zip(*(batches[k][name].tolist() for name in ("t", "x", "y", "p"))):
+        store.push_back(t, x, y, bool(p))
+    writer.writeEvents(store)
+print("sent", flush=True)
+sys.stdin.read()  # until the test says it is done
+"""
+"""dv-processing's NetworkWriter as DV serves a camera, in a process of its own: its destructor waits for its
+clients to leave holding the interpreter's lock, which hung the test process once in a loaded run."""
+
+
+def test_a_dv_server_through_evtools_to_a_dv_client(tmp_path):
     """dv-processing NetworkWriter -> `evtools convert tcp://... -o tcp://...` -> dv-processing NetworkReader: the
-    client gets every event the server wrote, in order, with the sensor size; Ctrl-C ends the live stage cleanly.
-    (A NetworkWriter's destructor waits for its clients to leave, holding the GIL: so the stage stops first.)"""
+    client gets every event the server wrote, in order, with the sensor size; Ctrl-C ends the live stage cleanly."""
     source_port, sink_port = _free_port(), _free_port()
-    writer = dv.io.NetworkWriter("127.0.0.1", source_port, dv.io.Stream.EventStream(0, "events", "test", (WIDTH, HEIGHT)))
-    stage = subprocess.Popen([*EVTOOLS, "convert", f"tcp://127.0.0.1:{source_port}", "-o", f"tcp://127.0.0.1:{sink_port}"],
-                             stderr=subprocess.PIPE, text=True, env=_environment(), cwd=ROOT)
+    sent = list(_batches(1))
+    np.savez(tmp_path / "batches.npz", **{f"b{k}": batch for k, batch in enumerate(sent)})
+    server = subprocess.Popen([sys.executable, "-c", DV_SERVER, str(source_port), str(WIDTH), str(HEIGHT),
+                               str(tmp_path / "batches.npz")], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                              text=True)
+    stage = None
     try:
+        assert server.stdout.readline().strip() == "listening"
+        stage = subprocess.Popen([*EVTOOLS, "convert", f"tcp://127.0.0.1:{source_port}", "-o",
+                                  f"tcp://127.0.0.1:{sink_port}"], stderr=subprocess.PIPE, text=True,
+                                 env=_environment(), cwd=ROOT)
         _wait_for_server(sink_port, stage)
-        reader = dv.io.NetworkReader("127.0.0.1", sink_port)
-        assert reader.getEventResolution() == (WIDTH, HEIGHT)
+        reader = dv.io.NetworkReader("127.0.0.1", sink_port)  # (the stage sends the header as soon as it has it,
+        assert reader.getEventResolution() == (WIDTH, HEIGHT)  # so its input is connected: the server has it)
         pieces: list = []
         thread = threading.Thread(target=_read_all, args=(reader, pieces), daemon=True)
         thread.start()
-        deadline = time.monotonic() + 30
-        while writer.getClientCount() < 1 and time.monotonic() < deadline:
-            time.sleep(0.05)
-        sent = list(_batches(1))
-        for batch in sent:
-            writer.writeEvents(_store(batch))
-            time.sleep(0.05)
-        total = sum(len(batch) for batch in sent)
+        server.stdin.write("go\n")
+        server.stdin.flush()
+        assert server.stdout.readline().strip() == "sent"
+        total, deadline = sum(len(batch) for batch in sent), time.monotonic() + 120
         while sum(len(piece) for piece in pieces) < total and time.monotonic() < deadline:
-            time.sleep(0.05)
+            time.sleep(0.05)  # (every event arrived: a state; the deadline only bounds a failure)
         stage.send_signal(signal.SIGINT)
-        assert stage.wait(timeout=30) == 130, stage.stderr.read()
-        thread.join(timeout=30)
+        assert stage.wait(timeout=60) == 130, stage.stderr.read()
+        thread.join(timeout=60)
         assert not thread.is_alive(), "the client did not see the server close"
     finally:
-        stage.kill()
-        stage.wait()
-    del writer
+        for process in (stage, server):
+            if process is not None:
+                process.kill()
+                process.wait()
     assert_same_events(_joined(pieces), np.concatenate(sent).astype(evtools.EVENT_DTYPE))
 
 
