@@ -56,9 +56,10 @@ test: $(VENV)/.installed-test
 	$(BIN)/python -m pytest -q -n 2 --durations=15
 
 # the tests of every module with kernels, run on numba's own dispatchers instead of the stored machine code
-# (EVTOOLS_KERNELS=numba: the fence around evtools/_kernels/jit.py; .ci/run runs it after `make test`)
+# (EVTOOLS_KERNELS=numba: the fence around evtools/_kernels/jit.py; .ci/run runs it after `make test`); the store's
+# own tests (tests/test_jit.py) are not among them: that mode turns the store off (one of them runs both modes)
 KERNEL_TESTS := tests/test_bafilter.py tests/test_correct.py tests/test_correct_exact.py tests/test_estimate.py \
-  tests/test_estimate_frames.py tests/test_noise.py tests/test_simulate.py tests/test_mlpf.py tests/test_jit.py \
+  tests/test_estimate_frames.py tests/test_noise.py tests/test_simulate.py tests/test_mlpf.py \
   tests/test_metrics_reconstruction.py tests/test_hdf5.py tests/test_prophesee.py tests/test_text.py tests/test_ecf.py \
   tests/test_events.py tests/test_aedat4.py
 test-numba: $(VENV)/.installed-test
