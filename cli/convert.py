@@ -59,8 +59,9 @@ def convert(inputs, input_format, sensor_size, aedat2_layout, output, jobs, sche
 
 def convert_one(input, output, *, input_format, sensor_size, aedat2_layout, output_format, compression, speed=None,
                 slicing=None) -> Outcome:
-    """Convert one file: its :class:`Outcome` (events in and out, whether it was read to its end); ``speed``: replayed at that many times the recorded speed;
-    ``slicing``: :class:`evtools.transform.Transform`'s options (time slice, polarity, crop, flips, transpose)."""
+    """Convert one file: its :class:`Outcome` (events in and out, whether it was read to its end); ``speed``:
+    replayed at that many times the recorded speed; ``slicing``: :class:`evtools.transform.Transform`'s options
+    (time slice, polarity, crop, flips, transpose)."""
     events_in = events_out = 0
     stopped = False
     with open_events(input, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as stream:

@@ -198,8 +198,8 @@ def _write_maps_so_far(estimator, output, name: str, message: str) -> None:
 
 def estimate_one(input, output, *, input_format, sensor_size, aedat2_layout, parameters, slicing=None
                  ) -> Outcome:
-    """Estimate one file's thresholds into ``output``: its :class:`Outcome` (events in, valid pixels); ``slicing``: the shared slicing options
-    (:func:`evtools.transform.sliced`): the map is of the sliced sensor."""
+    """Estimate one file's thresholds into ``output``: its :class:`Outcome` (events in, valid pixels);
+    ``slicing``: the shared slicing options (:func:`evtools.transform.sliced`): the map is of the sliced sensor."""
     if input != STDIO and same_file(output, input):
         raise EstimationError(f"{output}: the thresholds file would overwrite the input; choose another -o")
     estimator = None
