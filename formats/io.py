@@ -233,8 +233,8 @@ def _connect(name: str):
 
 class TcpServer:
     """A binary output that serves ``tcp://HOST:PORT`` (``tcp://:PORT``: every interface) the way dv-processing's
-    ``NetworkWriter`` does: every client that connects gets the stream's header (the first write) at once and then
-    what is written from the next ``flush()`` on, whole packets only; a client that goes away (or stalls for
+    ``NetworkWriter`` does: every client that connects gets the stream's header (the first write) as soon as there
+    is one and then what is written from the next ``flush()`` on, whole packets only; a client that goes away (or stalls for
     :data:`SEND_TIMEOUT_S`) is dropped and the server goes on. ``network`` tells the AEDAT 4.0 writer to leave out
     the file's first line, as network streams do. At the end it says how many clients got how much, and warns when
     none connected (the stream went to nobody)."""
@@ -254,7 +254,7 @@ class TcpServer:
         self.header: bytes | None = None
         self.pending = bytearray()
         self.clients: list = []
-        self.arrived: list = []  # accepted, not yet sent the header (they join at the next flush)
+        self.arrived: list = []  # accepted before the header was written: they get it when it is
         self.packets_sent = 0  # flushes that sent data: a client joined at 0 gets the whole stream
         self.served: dict = {}  # client -> [bytes received, whole stream so far, dropped]
         self.lock = threading.Lock()
@@ -288,8 +288,6 @@ class TcpServer:
     def flush(self) -> None:
         data, self.pending = bytes(self.pending), bytearray()
         with self.lock:
-            arrived, self.arrived = self.arrived, []
-            self.clients += [client for client in arrived if self._send(client, self.header or b"")]
             if data:
                 self.clients = [client for client in self.clients if self._send(client, data)]
                 self.packets_sent += 1
