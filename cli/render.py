@@ -140,7 +140,7 @@ def render(ctx, input, input_format, sensor_size, aedat2_layout, output, window_
 
     Videos are H.264 where the OpenCV build encodes it, else MPEG-4 Part 2 (the PyPI wheels), which is said.
     """
-    fps = merged_alias("--frame-rate", fps, "--fps", old_fps)
+    fps = merged_alias("--frame-rate", fps, "--fps", old_fps) or DEFAULT_FPS  # (given or not: _refuse asks ctx)
     if rate:
         _refuse(ctx, {"window_us": "--window-us", "start": "--start", "end": "--end", "fps": "--frame-rate",
                       "background": "--background", "map_path": "--map", "value_range": "--range", "scale": "--scale",
@@ -191,7 +191,7 @@ def render(ctx, input, input_format, sensor_size, aedat2_layout, output, window_
         if extension in IMAGE_EXTENSIONS:
             _render_image(chunks, stream, framer, output, extension, scale, start_us, caption, backdrop)
         else:
-            _render_video(chunks, stream, framer, output, extension, scale, fps or DEFAULT_FPS, start_us, caption, backdrop)
+            _render_video(chunks, stream, framer, output, extension, scale, fps, start_us, caption, backdrop)
         if backdrop is not None and backdrop.current is None:
             log.warning("%s: no APS frame before the windows drawn (--aps): the events are drawn on the background",
                         stream.name)
