@@ -90,17 +90,58 @@ def _filter_ids(dataset) -> list[int]:
     return [plist.get_filter(i)[0] for i in range(plist.get_nfilters())]
 
 
-def _attr_size(*nodes) -> tuple[int, int] | None:
+MAX_ATTRIBUTE_BYTES = 1 << 16
+"""An attribute is read only when it stores at most this many bytes (64 KiB: every attribute a camera's software
+writes is a few words)."""
+READABLE_ATTRIBUTE_CLASSES = (0, 1, 3, 8)
+"""HDF5 type classes of the attributes read: integer, float, string (fixed or variable length), enum (h5py's
+booleans), and arrays of them. Others are
+refused before HDF5 reads them: a damaged string attribute can look like a variable-length sequence (class 9), and
+reading that crashes the HDF5 library (SIGSEGV, found by mutating a Metavision file's attribute headers)."""
+
+
+def attribute(node, name: str, default=None, *, source: str = ""):
+    """``node``'s attribute ``name`` (``default`` when it has none), its type and size checked before HDF5 reads
+    the value (:data:`READABLE_ATTRIBUTE_CLASSES`, :data:`MAX_ATTRIBUTE_BYTES`); a damaged one raises
+    :class:`FormatError` naming ``source``."""
+    h5py = _h5py()
+    if name not in node.attrs:
+        return default
+    try:
+        raw = h5py.h5a.open(node.id, name.encode())
+        dtype = raw.get_type()
+        kind = dtype.get_super() if dtype.get_class() == h5py.h5t.ARRAY else dtype
+        size = raw.get_storage_size()
+    except (KeyError, OSError, RuntimeError, ValueError) as error:
+        raise FormatError(f"{source}: attribute {name!r} of {node.name} cannot be read ({error}; a damaged "
+                          "file?)") from None
+    if kind.get_class() not in READABLE_ATTRIBUTE_CLASSES or size > MAX_ATTRIBUTE_BYTES:
+        raise FormatError(f"{source}: attribute {name!r} of {node.name} is not a number or text of at most "
+                          f"{MAX_ATTRIBUTE_BYTES:,} bytes (HDF5 type class {dtype.get_class()}, {size:,} bytes; "
+                          "a damaged file?)")
+    try:
+        return node.attrs[name]
+    except (OSError, RuntimeError, TypeError, ValueError) as error:
+        raise FormatError(f"{source}: attribute {name!r} of {node.name} cannot be read ({error}; a damaged "
+                          "file?)") from None
+
+
+def attributes(node, *, source: str = "") -> dict:
+    """All of ``node``'s attributes, each read by :func:`attribute`."""
+    return {str(name): attribute(node, name, source=source) for name in node.attrs}
+
+
+def _attr_size(source: str, *nodes) -> tuple[int, int] | None:
     """(width, height) from ``width``/``height`` or ``sensor_resolution = (H, W)`` attributes, if any."""
     for node in nodes:
         if node is None:
             continue
-        attrs = node.attrs
-        if "width" in attrs and "height" in attrs:
-            return int(np.asarray(attrs["width"]).item()), int(np.asarray(attrs["height"]).item())
+        if "width" in node.attrs and "height" in node.attrs:
+            return (int(np.asarray(attribute(node, "width", source=source)).item()),
+                    int(np.asarray(attribute(node, "height", source=source)).item()))
     for node in nodes:
         if node is not None and "sensor_resolution" in node.attrs:
-            resolution = np.asarray(node.attrs["sensor_resolution"]).ravel()
+            resolution = np.asarray(attribute(node, "sensor_resolution", source=source)).ravel()
             if resolution.size >= 2:
                 return int(resolution[1]), int(resolution[0])
     return None
@@ -159,7 +200,7 @@ class Hdf5Reader:
             return
         self._refuse_ecf()
         if isinstance(group, h5py.Group) and all(k in group for k in ("x", "y", "t", "p")):
-            self.layout = "evtools" if _text(f.attrs.get("format")) == "evtools" else "dsec"
+            self.layout = "evtools" if _text(attribute(f, "format", source=self.name)) == "evtools" else "dsec"
             self.columns = [group[k] for k in ("t", "x", "y", "p")]
             index = f.get("ms_to_idx")
             if isinstance(index, h5py.Dataset) and index.ndim == 1 and index.dtype.kind in "iu" and (
@@ -168,7 +209,7 @@ class Hdf5Reader:
             if "t_offset" in f:
                 self.t_offset_us = int(np.asarray(f["t_offset"][()]).item())
             elif "t_offset" in f.attrs:
-                self.t_offset_us = int(np.asarray(f.attrs["t_offset"]).item())
+                self.t_offset_us = int(np.asarray(attribute(f, "t_offset", source=self.name)).item())
         elif isinstance(group, h5py.Group) and all(k in group for k in ("xs", "ys", "ts", "ps")):
             self.layout = "event_utils"
             self.columns = [group[k] for k in ("ts", "xs", "ys", "ps")]
@@ -190,7 +231,7 @@ class Hdf5Reader:
         self._open_frames()
         events_group = group if isinstance(group, h5py.Group) else None
         width, height = resolve_sensor_size(
-            self.source, _attr_size(f, events_group), options.sensor_size, self._scan_size
+            self.source, _attr_size(self.name, f, events_group), options.sensor_size, self._scan_size
         )
         metadata = {"layout": self.layout, "events": self.n_events}
         if getattr(self, "info_frame_size", None):
@@ -218,7 +259,8 @@ class Hdf5Reader:
             names = sorted(name for name, node in self.file["images"].items() if isinstance(node, h5py.Dataset))
             datasets = [self.file["images"][name] for name in names]
             try:
-                seconds = np.array([float(np.asarray(d.attrs["timestamp"]).item()) for d in datasets])
+                seconds = np.array([float(np.asarray(attribute(d, "timestamp", source=self.name)).item())
+                                    for d in datasets])
             except (KeyError, TypeError, ValueError):
                 raise FormatError(f"{self.name}: an image in images/ has no numeric 'timestamp' attribute") from None
             t_us = np.round(seconds * 1e6).astype(np.int64)
@@ -267,7 +309,7 @@ class Hdf5Reader:
                               f"chunk holds at most {MAX_BLOCK_EVENTS:,} (a damaged file?)")
         self.layout, self.dataset, self.n_events = "prophesee", dataset, len(dataset)
         self.columns = [dataset]
-        header = {str(key).lower(): _text(value) for key, value in self.file.attrs.items()}
+        header = {key.lower(): _text(value) for key, value in attributes(self.file, source=self.name).items()}
         try:
             stated = header_size(header)
         except ValueError:

@@ -17,6 +17,8 @@ import numpy as np
 from evtools import interrupt
 from evtools.formats.errors import FormatError
 from evtools.formats.io import output_stream
+from evtools.formats.hdf5 import attribute
+from evtools.formats.hdf5 import attributes as hdf5_attributes
 
 
 @dataclass
@@ -101,8 +103,8 @@ def read_thresholds(path: str, series: bool = False) -> ThresholdMap:
                 on, off, valid, fit, phase_us, t_us = _maps(h5)
             except (ImportError, OSError) as error:
                 raise FormatError(f"{path}: cannot read the maps ({error})") from None
-        attributes = {key: _text(value) for key, value in h5.attrs.items()}
-        units = _text(h5["on"].attrs.get("units", ""))
+        attributes = {key: _text(value) for key, value in hdf5_attributes(h5, source=path).items()}
+        units = _text(attribute(h5["on"], "units", "", source=path))
     maps = (valid, fit)
     if t_us is not None:
         if t_us.ndim != 1 or not np.issubdtype(t_us.dtype, np.integer) or on.ndim != 3 or len(on) != len(t_us):

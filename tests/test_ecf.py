@@ -1,5 +1,8 @@
 """Prophesee's HDF5 event files: the ECF kernel against the naive decoder, Metavision-style files read back."""
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 from hypothesis import example, given, settings
@@ -148,3 +151,41 @@ def test_an_unfiltered_prophesee_file_is_read_through_h5py(tmp_path):
     info, read = read_all(path, chunk_events=2)
     assert (info.width, info.height, info.metadata["ecf"]) == (640, 480, False)
     assert read["x"].tolist() == [1, 2, 3, 4, 5] and read["p"].tolist() == [True, False, True, True, False]
+
+
+@pytest.mark.parametrize("name", ["version", "format"])
+def test_a_damaged_attribute_type_is_refused_before_hdf5_reads_it(tmp_path, name):
+    """Issue 37 item 6, found by mutating the attribute headers of a Metavision file: one bit field byte of a
+    variable-length string attribute's type turns it into a variable-length sequence, and reading that crashed the
+    HDF5 library (SIGSEGV, plain h5py too). Its type is checked before its value is read: one line, exit 1."""
+    path = tmp_path / "damaged.hdf5"
+    write_metavision_h5(path, [(t, t % 300, t % 200, t % 2) for t in range(40)], 320, 240, seed=0, chunk=16)
+    data = bytearray(path.read_bytes())
+    at = data.index(name.encode() + b"\0")
+    message = at + (len(name) + 8) // 8 * 8  # the type follows the name, padded to 8 bytes
+    assert data[message] & 0x0F == 9 and data[message] >> 4 == 1, "not a variable-length string type"
+    data[message + 1] = 0xC9  # its class bits: a sequence of a type HDF5 then reads from the damage
+    path.write_bytes(bytes(data))
+    assert_clean_error(run("info", path, check=False), "damaged.hdf5", f"attribute '{name}'", "a damaged file?")
+
+
+def test_every_damage_to_the_attribute_headers_is_read_or_refused(tmp_path):
+    """Every byte of the root's two attribute messages set to three values (the fuzz that found the crash above):
+    each mutant is read or refused with FormatError, in one child process that must neither crash nor hang."""
+    path = tmp_path / "seed.hdf5"
+    write_metavision_h5(path, [(t, t % 300, t % 200, t % 2) for t in range(40)], 320, 240, seed=0, chunk=16)
+    data = path.read_bytes()
+    start, end = data.index(b"version\0") - 16, data.index(b"format\0") + 48
+    mutants = []
+    for at in range(start, end):
+        for value in {0xFF, data[at] ^ 0x01, 0xC9} - {data[at]}:
+            mutant = tmp_path / f"m{len(mutants)}.hdf5"
+            mutant.write_bytes(data[:at] + bytes([value]) + data[at + 1:])
+            mutants.append(str(mutant))
+    child = ("import sys, evtools\nfrom evtools.formats import FormatError\nread = refused = 0\n"
+             "for path in sys.argv[1:]:\n    try:\n        evtools.read(path)\n        read += 1\n"
+             "    except FormatError:\n        refused += 1\nprint(read, refused)\n")
+    result = subprocess.run([sys.executable, "-c", child, *mutants], capture_output=True, timeout=300)
+    assert result.returncode == 0, result.stderr.decode()[-2000:]
+    read, refused = map(int, result.stdout.split())
+    assert read + refused == len(mutants) > 300 and refused > 0
