@@ -9,10 +9,12 @@ import click
 import numpy as np
 
 from evtools.cli.batch import Outcome, batch_options, plan, run
-from evtools.cli.options import (COUNT, MICROSECONDS, FiniteRange, check_compression, compression_option,
+from evtools.cli.options import (MICROSECONDS, FiniteRange, IntRange, check_compression, compression_option,
                                  slicing_options)
 from evtools.cli.progress import process_stream
-from evtools.filters import DEFAULTS, METHODS, PRESETS, BAFilter, BAFilterError, parse_methods
+from evtools.filters import (METHODS, PRESETS, BAFilter, BAFilterError, Param, check_preset, not_applying,
+                             parse_methods)
+from evtools.filters.registry import option_help, parameters
 from evtools.formats import create_events, open_events
 from evtools.formats.hotpixels import HotPixelsError, read_hot_pixels, write_hot_pixels
 from evtools.formats.io import STDIO, same_file
@@ -40,6 +42,47 @@ def _methods(ctx, param, value):
         raise click.BadParameter(str(error)) from None
 
 
+def _click_type(declarations: list[Param]):
+    """The option's type from the parameter's declarations (one name, several filters: the loosest bounds)."""
+    kind = declarations[0].kind
+    lows = [p.low for p in declarations if p.low is not None]
+    highs = [p.high for p in declarations]
+    high = None if any(h is None or callable(h) for h in highs) else max(highs)
+    if kind == "time_us":
+        return MICROSECONDS
+    if kind == "int":  # (at most an int32 on the command line, as every count option)
+        return IntRange(min(lows), min(high, 2**31 - 1) if high is not None else 2**31 - 1)
+    if kind == "float":
+        return FiniteRange(min=min(lows))
+    if kind == "probability":
+        return FiniteRange(0.0, 1.0, min_open=True, max_open=True)
+    if kind == "weights":
+        return click.Path(exists=True, dir_okay=False)
+    raise ValueError(f"no command-line type for {kind}")
+
+
+def filter_options(command):
+    """One click option per filter parameter of :data:`evtools.filters.REGISTRY` (default None: the preset's),
+    typed, named and documented from the declarations; the command gets them as ``params`` (``filter_NAME``)."""
+    for name, uses in reversed(list(parameters().items())):
+        declarations = [param for _, param in uses]
+        first = declarations[0]
+        if not first.cli:
+            continue
+        if any(param.kind != first.kind or param.option != first.option for param in declarations):
+            raise TypeError(f"filter parameter {name} is declared with different kinds or options")
+        flags = [first.flag or first.option, FILTER_PREFIX + name]  # (prefixed: --polarity is the slicing's)
+        if first.kind == "bool":
+            switch = {} if "/" in flags[0] else {"is_flag": True}  # --on/--off, or a flag alone
+            command = click.option(*flags, default=None, help=option_help(name), **switch)(command)
+        else:
+            command = click.option(*flags, type=_click_type(declarations), default=None,
+                                   help=option_help(name))(command)
+    return command
+
+
+FILTER_PREFIX = "filter_"
+"""The Python names of the filter options start with this; the command takes it off."""
 
 
 @click.command()
@@ -49,41 +92,16 @@ def _methods(ctx, param, value):
 @click.option("--preset", type=click.Choice(PRESETS), default="evtools", show_default=True,
               help="Semantics and defaults: evtools (maps start long ago), dv (dv-processing's "
                    "BackgroundActivityNoiseFilter, baf only), jaer (jAER's filters).")
-@click.option("--dt-us", type=MICROSECONDS, default=None,
-              help="Correlation window (baf, stcf, orderN) or refractory period, us [evtools: 10000, refractory "
-                   "100; dv: 2000; jaer: 25000].")
-@click.option("--k", type=COUNT, default=None, help="stcf: correlated neighbours needed [2]; dwf: events [1].")
-@click.option("--radius", type=click.IntRange(1, 10), default=None, help="stcf neighbourhood radius [1].")
-@click.option("--same-polarity/--any-polarity", "same_polarity", default=None,
-              help="stcf: count neighbours of the event's polarity only, or of any [same].")
-@click.option("--polarity-maps", is_flag=True, default=None,
-              help="stcf: a time map per polarity: a neighbour's last event of the event's polarity counts even if "
-                   "one of the other polarity came after it.")
-@click.option("--window", type=click.IntRange(1, 1 << 16), default=None,
-              help="dwf: length of each FIFO window [36; jaer 256].")
-@click.option("--distance", type=click.IntRange(1, 1 << 16), default=None,
-              help="dwf: L1 distance, support when < this [9; jaer 5].")
-@click.option("--learn-us", type=MICROSECONDS, default=None, help="hotpixel: learning stretch, us [1000000].")
-@click.option("--hot-ratio", type=FiniteRange(min=1.0), default=None,
-              help="hotpixel: hot when >= this times its 4 neighbours' largest count [5].")
-@click.option("--hot-rate-hz", type=FiniteRange(min=0.0), default=None,
-              help="hotpixel: hot when its rate is at least this [10000].")
-@click.option("--hot-min-events", type=COUNT, default=None,
-              help="hotpixel: a hot pixel has at least this many events in the stretch [20].")
+@filter_options
 @click.option("--hot-pixels", "hot_pixels_path", type=click.Path(dir_okay=False), default=None,
               help="hotpixel: drop the pixels of this CSV list (`x,y` lines) instead of learning.")
 @click.option("--save-hot-pixels", "save_hot_pixels", type=click.Path(dir_okay=False), default=None,
               help="hotpixel: write the hot pixels (learned or given) to this CSV file, or draw them on the "
                    "learning stretch's rate map (.png, .svg, .pdf).")
-@click.option("--threshold", type=FiniteRange(0.0, 1.0, min_open=True, max_open=True), default=None,
-              help="mlpf: keep an event when its probability of being signal is above this [0.5].")
-@click.option("--weights", type=click.Path(exists=True, dir_okay=False), default=None,
-              help="mlpf: weights from `evtools metrics train-denoiser` [the ones shipped with evtools].")
 @compression_option
 @slicing_options
 def bafilter(inputs, input_format, sensor_size, aedat2_layout, output, jobs, scheduler, as_json, methods, preset,
-             dt_us, k, radius, same_polarity, window, distance, learn_us, hot_ratio, hot_rate_hz, hot_min_events,
-             hot_pixels_path, save_hot_pixels, threshold, weights, polarity_maps, compression, slicing):
+             hot_pixels_path, save_hot_pixels, compression, slicing, **params):
     """Remove background activity from IN (default stdin), writing OUT or -o OUT (default stdout).
 
     Several inputs go to the folder -o FOLDER (the same names), --jobs at a time.
@@ -97,45 +115,34 @@ def bafilter(inputs, input_format, sensor_size, aedat2_layout, output, jobs, sch
     A stage sees only the events the stages before it kept; within a stage a rejected event still updates the
     time map. Prints `N in, K kept, R removed` on stderr (not with -q).
     """
-    missing = [method for method in methods if method not in DEFAULTS[preset]]
-    if missing:
-        raise click.UsageError(f"--preset {preset} has no method {', '.join(missing)} (it has "
-                               f"{', '.join(DEFAULTS[preset])}); use --preset evtools")
-    used = {name for method in methods for name in DEFAULTS[preset][method]}
-    unused = [flag for flag, name, value in (
-        ("--dt-us", "dt_us", dt_us), ("--k", "k", k), ("--radius", "radius", radius),
-        ("--same-polarity/--any-polarity", "polarity", same_polarity),
-        ("--polarity-maps", "polarity_maps", polarity_maps), ("--window", "window", window),
-        ("--distance", "distance", distance), ("--learn-us", "learn_us", learn_us),
-        ("--hot-ratio", "hot_ratio", hot_ratio), ("--hot-rate-hz", "hot_rate_hz", hot_rate_hz),
-        ("--hot-min-events", "hot_min_events", hot_min_events)) if value is not None and name not in used]
+    try:
+        check_preset(methods, preset)
+    except BAFilterError as error:
+        raise click.UsageError(str(error)) from None
+    given = {name[len(FILTER_PREFIX):]: value for name, value in params.items() if value is not None}
+    unused = not_applying(methods, preset, given)
     if unused:  # (was ignored: `-m baf --k 3` ran baf as if --k were not there)
-        raise click.UsageError(f"{', '.join(unused)} do(es) not apply to --method {','.join(methods)} "
-                               f"(--preset {preset})")
+        flags = ", ".join(next(param.option for _, param in parameters()[name]) for name in unused)
+        raise click.UsageError(f"{flags} do(es) not apply to --method {','.join(methods)} (--preset {preset})")
     if (hot_pixels_path or save_hot_pixels) and "hotpixel" not in methods:
         raise click.UsageError("--hot-pixels and --save-hot-pixels need --method hotpixel")
-    if (threshold is not None or weights) and "mlpf" not in methods:
-        raise click.UsageError("--threshold and --weights need --method mlpf")
     if save_hot_pixels == STDIO and output in (None, STDIO):
         raise click.UsageError("--save-hot-pixels - and the events cannot both go to stdout; give -o FILE")
     pairs = plan(inputs, output, ".aedat4", check=lambda pairs: check_compression(compression, pairs))
     if save_hot_pixels and len(pairs) > 1:
         raise click.UsageError("--save-hot-pixels writes one file: give one input")
     options = dict(input_format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout, methods=methods,
-                   preset=preset, dt_us=dt_us, k=k, radius=radius, polarity=same_polarity, window=window,
-                   distance=distance, learn_us=learn_us, hot_ratio=hot_ratio, hot_rate_hz=hot_rate_hz,
-                   hot_min_events=hot_min_events, hot_pixels_path=hot_pixels_path, save_hot_pixels=save_hot_pixels,
-                   threshold=threshold, weights=weights, polarity_maps=polarity_maps, compression=compression,
-                   slicing=slicing)
+                   preset=preset, params=given, hot_pixels_path=hot_pixels_path, save_hot_pixels=save_hot_pixels,
+                   compression=compression, slicing=slicing)
     run(filter_one, pairs, options, jobs, scheduler, as_json)
 
 
-def filter_one(input, output, *, input_format, sensor_size, aedat2_layout, methods, preset, dt_us, k, radius,
-               polarity, window, distance, learn_us, hot_ratio, hot_rate_hz, hot_min_events, hot_pixels_path,
-               save_hot_pixels, threshold=None, weights=None, polarity_maps=None, compression=None,
-               slicing=None) -> Outcome:
-    """Filter one file (the command's whole work for one input): its :class:`Outcome` (events in, kept); ``slicing``: the
-    shared slicing options (:func:`evtools.transform.sliced`), applied as the events are read."""
+def filter_one(input, output, *, input_format, sensor_size, aedat2_layout, methods, preset, params=None,
+               hot_pixels_path=None, save_hot_pixels=None, compression=None, slicing=None) -> Outcome:
+    """Filter one file (the command's whole work for one input): its :class:`Outcome` (events in, kept).
+
+    ``params``: the filters' parameters given (:class:`evtools.filters.BAFilter`); ``slicing``: the shared slicing
+    options (:func:`evtools.transform.sliced`), applied as the events are read."""
     if save_hot_pixels:
         _check_hot_pixels_target(save_hot_pixels, input, output)
     with open_events(input, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as opened:
@@ -145,10 +152,8 @@ def filter_one(input, output, *, input_format, sensor_size, aedat2_layout, metho
         if hot_pixels_path:  # the list is in the file's coordinates
             hot_map = on_sliced_sensor(stream, read_hot_pixels(hot_pixels_path, opened.info.width,
                                                                opened.info.height))
-        ba = BAFilter(info.width, info.height, methods, preset=preset, dt_us=dt_us, k=k, radius=radius,
-                      polarity=polarity, window=window, distance=distance, learn_us=learn_us, hot_ratio=hot_ratio,
-                      hot_rate_hz=hot_rate_hz, hot_min_events=hot_min_events, hot_map=hot_map, threshold=threshold,
-                      weights=weights, polarity_maps=polarity_maps, check=False)  # checked by the reader
+        ba = BAFilter(info.width, info.height, methods, preset=preset, check=False,  # checked by the reader
+                      **(params or {}), **({"hot_map": hot_map} if hot_map is not None else {}))
         with create_events(output, info, compression=compression, inputs=(input,)) as writer:
             process_stream(stream, ba, writer, f"filtering {stream.name}")
             if save_hot_pixels:  # inside the output's block: when the list cannot be written, no output is left
@@ -157,7 +162,7 @@ def filter_one(input, output, *, input_format, sensor_size, aedat2_layout, metho
                     from evtools.formats.figures import save_figure
                     from evtools.plots import hot_pixels_figure
 
-                    stage = next(stage for stage in ba.stages if stage.method == "hotpixel")
+                    stage = next(stage for stage in ba.stages if stage.name == "hotpixel")
                     counts = getattr(stage, "counts", None)
                     save_figure(hot_pixels_figure(hot, None if counts is None else counts.reshape(hot.shape),
                                                   getattr(stage, "learned_duration_s", 0.0)), save_hot_pixels)

@@ -11,7 +11,8 @@ import numpy as np
 
 from evtools.cli.options import MICROSECONDS, figure_path, json_option, read_options, wants_json
 from evtools.cli.progress import with_progress
-from evtools.filters import METHODS, BAFilter, BAFilterError, parse_methods
+from evtools.filters import METHODS, BAFilter, BAFilterError, check_preset, not_applying, parse_methods
+from evtools.filters.registry import parameters
 from evtools.metrics.denoise import LABEL_NAMES, DenoiseMatcher, DenoiseMetricsError, EsrMeter, roc_auc
 from evtools.formats import open_events
 from evtools.formats.thresholds import read_labels
@@ -111,8 +112,9 @@ def denoise(filtered, truth, noisy, as_json):
            f"F1 {_fmt(score.f1)}", ["label", "kept", "total"], rows)
 
 
-SWEEPABLE = ("dt-us", "k", "radius", "window", "distance", "learn-us", "hot-ratio", "hot-rate-hz", "hot-min-events",
-             "threshold")
+SWEEPABLE = {name.replace("_", "-"): uses[0][1].kind for name, uses in parameters().items()
+             if uses[0][1].sweepable and uses[0][1].cli}
+"""The filter parameters ``--sweep`` and ``--set`` take (command-line spelling -> kind), from the filters' declarations."""
 
 
 def _sweep(ctx, param, value):
@@ -122,7 +124,7 @@ def _sweep(ctx, param, value):
     name = name.strip().lstrip("-").replace("_", "-")
     if name not in SWEEPABLE:
         raise click.BadParameter(f"cannot sweep {name!r}; choose among {', '.join(SWEEPABLE)}")
-    if name.endswith("-us"):  # times: microseconds, or with a unit (dt-us=1ms,3ms), as the options
+    if SWEEPABLE[name] == "time_us":  # times: microseconds, or with a unit (dt-us=1ms,3ms), as the options
         numbers = [MICROSECONDS.convert(v, param, ctx) for v in values.split(",") if v.strip()]
     else:
         try:
@@ -131,7 +133,7 @@ def _sweep(ctx, param, value):
             raise click.BadParameter(f"values of {name} must be numbers, got {values!r}") from None
     if not numbers:
         raise click.BadParameter("no value to sweep")
-    if name not in ("hot-ratio", "hot-rate-hz", "threshold"):
+    if SWEEPABLE[name] == "int":
         numbers = [int(v) if v == int(v) else v for v in numbers]
     return name.replace("-", "_"), numbers
 
@@ -180,14 +182,19 @@ def roc(noisy, truth, methods, sweep, preset, weights, polarity_maps, settings, 
     \b
     evtools metrics roc noisy.aedat4 --truth t.h5 --method baf --method stcf --sweep dt-us=1000,3000,10000,30000
     """
+    name, values = sweep
     for chain in methods:
         try:
-            parse_methods(chain)
+            stages = parse_methods(chain)
+            check_preset(stages, preset)
         except BAFilterError as error:
             raise click.BadParameter(str(error), param_hint="--method") from None
+        unused = not_applying(stages, preset, [name, *settings])
+        if unused:  # (every point would have been the same filter)
+            raise click.UsageError(f"{', '.join(n.replace('_', '-') for n in unused)} do(es) not apply to --method "
+                                   f"{chain} (--preset {preset})")
     figure_path(plot, "--plot", (noisy, truth, weights))
     labels = _labels_for(truth, _count_events(noisy), noisy)
-    name, values = sweep
     results, curves = [], []
     for chain in methods:
         points, rows = [], []

@@ -189,9 +189,12 @@ def bafilter(events: np.ndarray, info: StreamInfo, method: str = "baf", **params
     method : str
         One filter or a comma-separated chain (:data:`evtools.filters.METHODS`): ``baf`` (Delbruck 2008),
         ``stcf`` (Guo & Delbruck 2022), ``dwf``, ``orderN`` (Khodamoradi & Kastner 2018), ``refractory``,
-        ``hotpixel``, ``mlpf`` (README, section Bafilter).
+        ``hotpixel``, ``mlpf``, ``ynoise`` (Feng et al. 2020) (README, section Bafilter).
+    preset : {"evtools", "dv", "jaer"}
+        Semantics and defaults (README, section Bafilter).
     **params
-        The filters' parameters by their command-line names (``dt_us``, ``k``, ``radius``, ``preset``, ...).
+        The filters' parameters, named as on the command line (listed below, from the filters' declarations;
+        None or absent: the preset's default). One that no method of the chain has is refused.
 
     Examples
     --------
@@ -204,6 +207,23 @@ def bafilter(events: np.ndarray, info: StreamInfo, method: str = "baf", **params
 
     info = _stream_info(info)
     return ba_filter(events, info.width, info.height, method, **params)
+
+
+def _document_bafilter() -> None:
+    """:func:`bafilter`'s signature and docstring list every filter parameter (``help()``, tab completion)."""
+    import inspect
+
+    from evtools.filters.registry import api_doc, api_signature
+
+    kind = inspect.Parameter.POSITIONAL_OR_KEYWORD
+    bafilter.__signature__ = api_signature(inspect.Parameter("events", kind), inspect.Parameter("info", kind),
+                                           inspect.Parameter("method", kind, default="baf"))
+    head, examples = bafilter.__doc__.split("    Examples\n")
+    bafilter.__doc__ = (head + "    Filter parameters\n    -----------------\n" +
+                        "".join(f"    {line}\n" for line in api_doc().splitlines()) + "\n    Examples\n" + examples)
+
+
+_document_bafilter()
 
 
 def estimate(events: np.ndarray, info: StreamInfo, method: str = "offe", **params):

@@ -1,13 +1,17 @@
 """Hash what every command writes on the samples and the shared recordings: run before and after a refactoring
 that must not change any output, then compare (issue 40: "byte-identical outputs for every command").
 
-    python -m tests.hash_outputs > before.txt      # at the old commit
-    python -m tests.hash_outputs > after.txt       # at the new one
+    python -m tests.hash_outputs > after.txt       # this checkout
+    git worktree add /tmp/old OLD_COMMIT; mkdir /tmp/imp; cp -r /tmp/old/evtools /tmp/imp/
+    cp -r /tmp/old/cli /tmp/old/formats /tmp/imp/evtools/; cp tests/hash_outputs.py /tmp/old/tests/
+    PYTHONPATH=/tmp/imp:.venv/lib/python3.11/site-packages .venv/bin/python -S /tmp/old/tests/hash_outputs.py \
+        > before.txt                               # the old commit (-S: without this checkout's editable install)
     diff before.txt after.txt                      # nothing: every output is the same, byte for byte
 
 Each line is ``sha256  command``; a command that fails prints its exit code in place of the hash (a refactoring
 must not change that either). AEDAT 4.0 outputs are hashed as written (evtools writes no time of writing into
-them); HDF5 files by their datasets and attributes (HDF5 stores creation times in its object headers).
+them); HDF5 files by their datasets and attributes (HDF5 stores creation times in its object headers; the scratch
+folder's name is taken out of the attributes that name the input).
 """
 
 from __future__ import annotations
@@ -32,7 +36,7 @@ FILTERS = ["baf", "stcf", "stcf --polarity-maps", "stcf --any-polarity --radius 
 
 def _commands(scratch: Path) -> list[str]:
     step, flicker, texture = SAMPLES / "step.aedat4", SAMPLES / "flicker.aedat4", scratch / "texture.aedat4"
-    subprocess.run([str(_evtools()), "-q", "simulate", "scene:texture", "--size", "32x24", "--duration", "6s",
+    subprocess.run([*_evtools(), "-q", "simulate", "scene:texture", "--size", "32x24", "--duration", "6s",
                     "--speed", "200", "--seed", "3", "-o", str(texture)], check=True)
     inputs = [step, flicker]
     for name in ("dvs128_walk.aedat", "davis346_lab_frames.aedat4", "gen41_sample.evt3.raw"):
@@ -55,7 +59,7 @@ def _commands(scratch: Path) -> list[str]:
     return commands
 
 
-def _hash_file(path: Path) -> str:
+def _hash_file(path: Path, scratch: str) -> str:
     if path.suffix != ".h5":
         return hashlib.sha256(path.read_bytes()).hexdigest()
     import h5py
@@ -66,7 +70,9 @@ def _hash_file(path: Path) -> str:
         def visit(name, node):
             digest.update(name.encode())
             for key in sorted(node.attrs):
-                digest.update(key.encode() + repr(np.asarray(node.attrs[key]).tolist()).encode())
+                value = repr(np.asarray(node.attrs[key]).tolist())  # (the input's name without the folders)
+                value = value.replace(scratch, "SCRATCH").replace(str(ROOT) + "/", "")
+                digest.update(key.encode() + value.encode())
             if isinstance(node, h5py.Dataset):
                 digest.update(np.ascontiguousarray(node[()]).tobytes())
         visit("/", f)
@@ -74,8 +80,10 @@ def _hash_file(path: Path) -> str:
     return digest.hexdigest()
 
 
-def _evtools() -> Path:
-    return Path(sys.executable).with_name("evtools")
+def _evtools() -> list[str]:
+    """The command line, as the console script runs it; under ``-S`` too (an old checkout on PYTHONPATH is then
+    compared without this checkout's editable install, whose finder maps ``evtools.cli`` here)."""
+    return [sys.executable, *(["-S"] if sys.flags.no_site else []), "-c", "from evtools.cli import run; run()"]
 
 
 def main() -> int:
@@ -84,15 +92,15 @@ def main() -> int:
         for index, command in enumerate(_commands(Path(scratch))):
             out = Path(scratch) / f"out{index}"
             line = command.format(out=out)
-            result = subprocess.run([str(evtools), "-q", *shlex.split(line)], capture_output=True,
+            result = subprocess.run([*evtools, "-q", *shlex.split(line)], capture_output=True, cwd=scratch,
                                     env={**os.environ, "NO_COLOR": "1"})
             written = sorted(Path(scratch).glob(f"out{index}.*"))
-            shown = command.replace(str(ROOT) + "/", "").replace(str(SHARED.parent.parent) + "/", "../").replace(
-                scratch, "SCRATCH")
+            shown = command.replace(scratch, "SCRATCH").replace(str(ROOT) + "/", "").replace(
+                str(SHARED.parent.parent) + "/", "../")
             if result.returncode or not written:
                 print(f"exit {result.returncode}  {shown}", flush=True)
             else:
-                print(f"{_hash_file(written[0])}  {shown}", flush=True)
+                print(f"{_hash_file(written[0], scratch)}  {shown}", flush=True)
     return 0
 
 

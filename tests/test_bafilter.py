@@ -11,13 +11,13 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from evtools.filters import BAFilter, BAFilterError, ba_filter
+from evtools.filters import BY_NAME, BAFilter, BAFilterError, ba_filter, not_applying
 from evtools.events import StreamInfo, join, make_events
 from evtools.formats import create_events
 from tests.conftest import data_file
 from tests.helpers import EVTOOLS, assert_clean_error, assert_same_events, cut, read_all, run
 from tests.naive.bafilter import (naive_baf, naive_dwf, naive_hot_pixels, naive_order_n, naive_refractory,
-                                  naive_stcf, naive_stcf_polarity_maps)
+                                  naive_stcf, naive_stcf_polarity_maps, naive_ynoise)
 
 W, H = 12, 9
 
@@ -97,6 +97,16 @@ def test_stcf_polarity_maps_equals_reference(k, radius):
     assert (single <= got).all()
 
 
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**31), radius=st.integers(1, 3), k=st.integers(1, 6), dt_us=st.integers(1, 3_000),
+       width=st.integers(1, 20), height=st.integers(1, 20))
+def test_ynoise_equals_reference(seed, radius, k, dt_us, width, height):
+    """The filter added to show what adding one takes (issue 40): its kernel against its naive reference."""
+    events = dense_events(800, seed, width, height)
+    expected = np.array(naive_ynoise(tuples(events), dt_us, radius, k), dtype=bool)
+    assert_same_events(ba_filter(events, width, height, "ynoise", dt_us=dt_us, radius=radius, k=k), events[expected])
+
+
 @pytest.mark.parametrize("preset", ["evtools", "jaer"])
 @pytest.mark.parametrize("window,distance,k", [(1, 2, 1), (8, 3, 1), (20, 4, 3)])
 def test_dwf_equals_reference(preset, window, distance, k):
@@ -140,8 +150,8 @@ def test_hot_pixels_equal_reference_and_are_found():
 
 # -- chunk invariance ---------------------------------------------------------------------------------------------
 
-CHAINS = ["baf", "stcf", "dwf", "orderN", "refractory", "hotpixel", "hotpixel,refractory,stcf",
-          "refractory,hotpixel,dwf", "orderN,baf"]
+CHAINS = ["baf", "stcf", "dwf", "orderN", "refractory", "hotpixel", "ynoise", "hotpixel,refractory,stcf",
+          "refractory,hotpixel,dwf", "orderN,baf", "refractory,ynoise"]
 
 
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -149,12 +159,28 @@ CHAINS = ["baf", "stcf", "dwf", "orderN", "refractory", "hotpixel", "hotpixel,re
        preset=st.sampled_from(["evtools", "jaer"]), seed=st.integers(0, 3))
 def test_chunking_does_not_change_the_output(cuts, chain, preset, seed):
     events = dense_events(2_000, seed, span_us=100)
-    params = {"learn_us": 30_000, "hot_min_events": 5, "dt_us": 300, "window": 10, "distance": 3}
+    if any(preset not in BY_NAME[method].defaults for method in chain.split(",")):
+        preset = "evtools"  # (jAER has no ynoise)
+    params = applying(chain, preset, learn_us=30_000, hot_min_events=5, dt_us=300, window=10, distance=3)
     expected = ba_filter(events, W, H, chain, preset=preset, **params)
     ba = BAFilter(W, H, chain, preset=preset, **params)
     got = join([ba.process(part) for part in cut(events, cuts)] + [ba.flush()])
     assert_same_events(got, expected)
     assert ba.events_in == len(events) and ba.events_out == len(expected)
+
+
+def applying(chain, preset, **params):
+    """Those of ``params`` some stage of ``chain`` has (the others are refused, as on the command line)."""
+    stray = not_applying(chain.split(","), preset, params)
+    return {name: value for name, value in params.items() if name not in stray}
+
+
+def test_a_parameter_no_stage_has_is_refused():
+    """(It was ignored: `ba_filter(..., "baf", k=3)` ran baf as if k were not there.)"""
+    with pytest.raises(BAFilterError, match=r"k, window do\(es\) not apply to baf,refractory \(preset evtools\)"):
+        ba_filter(dense_events(10, 0), W, H, "baf,refractory", k=3, window=4, dt_us=100)
+    with pytest.raises(BAFilterError, match="polarity_maps do"):
+        BAFilter(W, H, "stcf", preset="jaer", polarity_maps=True)
 
 
 @settings(max_examples=30, deadline=None)
@@ -167,9 +193,9 @@ def test_stcf_polarity_maps_chunking_does_not_change_the_output(cuts, seed, radi
 
 
 def test_learning_stretch_cap_is_chunk_invariant(monkeypatch):
-    import evtools.filters
+    import evtools.filters.hotpixel
 
-    monkeypatch.setattr(evtools.filters, "MAX_LEARN_EVENTS", 100)
+    monkeypatch.setattr(evtools.filters.hotpixel, "MAX_LEARN_EVENTS", 100)
     events = dense_events(1_000, 3)
     expected = ba_filter(events, W, H, "hotpixel", hot_min_events=3, hot_ratio=2.0)
     for cuts in ([100], [50, 100], [99], [101, 500]):
@@ -198,7 +224,7 @@ def test_empty_and_single_event():
 def test_bad_parameters():
     for kwargs, needle in (({"methods": "bogus"}, "unknown method"), ({"dt_us": 0}, "dt_us"),
                            ({"methods": "stcf", "k": 9}, "k must"), ({"methods": "dwf", "window": 0}, "window"),
-                           ({"methods": "stcf", "preset": "dv"}, "baf only"), ({"preset": "x"}, "preset"),
+                           ({"methods": "stcf", "preset": "dv"}, r"has no method stcf \(it has baf\)"), ({"preset": "x"}, "preset"),
                            ({"methods": "hotpixel", "hot_map": np.zeros((2, 2), bool)}, "hot-pixel map")):
         with pytest.raises(BAFilterError, match=needle):
             BAFilter(W, H, **{"methods": "baf", **kwargs})

@@ -129,6 +129,32 @@ def stcf(words, time_map, dt_us, radius, k, use_polarity, first_rejected, jaer_w
 
 
 @kernel
+def ynoise(words, time_map, dt_us, radius, k, out):
+    """YNoise (Feng et al. 2020): keep an event when at least ``k`` pixels of its (2r+1)^2 window, itself
+    included, last fired with its polarity less than ``dt_us`` before it (the event density of the window).
+
+    ``time_map`` as :func:`stcf`'s: padded by ``radius``, ``2 t + p`` of each pixel's last event.
+    """
+    width = time_map.shape[1]
+    flat = time_map.ravel()
+    n = 0
+    for i in range(words.shape[0]):
+        ti = words[i, 0]
+        x, y, pi = unpack(words[i, 1])
+        c = (y + radius) * width + x + radius
+        bound = 2 * (ti - dt_us) + 1  # 2 T + p > bound  <=>  t - T < dt_us
+        count = 0
+        for dy in range(-radius, radius + 1):
+            row = c + dy * width
+            for dx in range(-radius, radius + 1):
+                v = flat[row + dx]
+                count += (v > bound) & ((v & 1) == pi)
+        flat[c] = 2 * ti + pi
+        n = _keep(words, i, out, n, count >= k)
+    return n
+
+
+@kernel
 def stcf_polarity_maps(words, maps, dt_us, radius, k, out):
     """STCF with a time map per polarity (``maps``: (2, height + 2 r, width + 2 r), ON then OFF, padded by
     ``radius``): keep an event when at least ``k`` pixels of its window (itself excluded) had an event of its

@@ -171,3 +171,16 @@ def naive_stcf_polarity_maps(events, dt_us, k, radius):
         kept.append(count >= k)
         same[(x, y)] = t
     return kept
+
+
+def naive_ynoise(events, dt_us, radius, k):
+    """YNoise (Feng et al. 2020): the window's pixels (the event's own included) whose last event has its polarity
+    and is less than ``dt_us`` old; kept when at least ``k``."""
+    last = {}  # (x, y) -> (time, polarity)
+    kept = []
+    for t, x, y, p in events:
+        density = sum(1 for nx in range(x - radius, x + radius + 1) for ny in range(y - radius, y + radius + 1)
+                      if (nx, ny) in last and last[(nx, ny)][1] == p and t - last[(nx, ny)][0] < dt_us)
+        kept.append(density >= k)
+        last[(x, y)] = (t, p)
+    return kept

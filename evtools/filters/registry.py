@@ -1,0 +1,112 @@
+"""The filters evtools has, one line each, and what is derived from their declarations: the parameters by name,
+the README's table, the API's signature and docstring."""
+
+from __future__ import annotations
+
+import inspect
+from typing import Any
+
+from evtools.filters.baf import Baf
+from evtools.filters.dwf import Dwf
+from evtools.filters.hotpixel import HotPixel
+from evtools.filters.mlpf import Mlpf
+from evtools.filters.order_n import OrderN
+from evtools.filters.refractory import Refractory
+from evtools.filters.spec import PRESETS, Filter, Param
+from evtools.filters.stcf import Stcf
+from evtools.filters.ynoise import YNoise
+
+REGISTRY: tuple[type[Filter], ...] = (
+    Baf,
+    Stcf,
+    Dwf,
+    OrderN,
+    Refractory,
+    HotPixel,
+    Mlpf,
+    YNoise,
+)
+"""Every filter, in the order the help and the README list them."""
+
+METHODS = tuple(f.name for f in REGISTRY)
+BY_NAME = {f.name: f for f in REGISTRY}
+
+
+def parameters() -> dict[str, list[tuple[type[Filter], Param]]]:
+    """Parameter name -> (filter, its declaration) for every filter that has it, in registry order."""
+    found: dict[str, list[tuple[type[Filter], Param]]] = {}
+    for f in REGISTRY:
+        for param in f.params:
+            found.setdefault(param.name, []).append((f, param))
+    return found
+
+
+def _value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "on" if value else "off"
+    if isinstance(value, float) and value == int(value):
+        return str(int(value))
+    return str(value)
+
+
+def default_text(f: type[Filter], name: str) -> str:
+    """``f``'s defaults of parameter ``name`` per preset: ``"10000; dv 2000; jaer 25000"``."""
+    own = f.defaults["evtools"].get(name)
+    text = f.default_notes.get(name) if own is None else _value(own)
+    others = [f"{preset} {_value(f.defaults[preset][name])}" for preset in PRESETS[1:]
+              if name in f.defaults.get(preset, {}) and f.defaults[preset][name] != own]
+    return "; ".join([text or "none", *others])
+
+
+def option_help(name: str) -> str:
+    """The command-line help of parameter ``name``: what it does for each filter that has it, with defaults;
+    filters with the same text share it (``stcf, orderN: correlation window, us [10000; jaer 25000]``)."""
+    groups: dict[str, list[str]] = {}
+    for f, param in parameters()[name]:
+        groups.setdefault(f"{param.help} [{default_text(f, name)}]", []).append(f.name)
+    return " ".join(f"{', '.join(names)}: {text}." for text, names in groups.items())
+
+
+def markdown_table() -> str:
+    """The README's table of filters: when each keeps an event, and its parameters with evtools' defaults."""
+    rows = ["| method | keeps an event when | parameters (evtools defaults) |", "|---|---|---|"]
+    for f in REGISTRY:
+        shown = []
+        for param in f.params:
+            if not param.cli:
+                continue
+            value = f.defaults["evtools"][param.name]
+            if param.kind == "bool":  # on: its option; off: the off form where there is one
+                forms = (param.flag or param.option).split("/")
+                if value or len(forms) > 1:
+                    shown.append(f"`{forms[0] if value else forms[1]}`")
+            elif value is None:
+                shown.append(f"`{param.option}` {f.default_notes.get(param.name, 'none')}")
+            else:
+                shown.append(f"`{param.option} {_value(value)}`")
+        text = " ".join(shown)
+        rows.append(f"| `{f.name}` | {f.keeps} | {text}{f' ({f.defaults_from})' if f.defaults_from else ''} |")
+    return "\n".join(rows)
+
+
+def api_signature(*leading: inspect.Parameter) -> inspect.Signature:
+    """A signature with ``leading`` then ``preset`` and every filter parameter as a keyword (None: the preset's
+    default), for ``help()`` and tab completion of the functions that take ``**params``."""
+    keywords = [inspect.Parameter("preset", inspect.Parameter.KEYWORD_ONLY, default="evtools", annotation=str)]
+    keywords += [inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=None)
+                 for name in parameters()]
+    return inspect.Signature([*leading, *keywords])
+
+
+def api_doc() -> str:
+    """The filters' parameters as a numpy-style docstring section (name, kind, what each filter does with it)."""
+    lines = []
+    for name, uses in parameters().items():
+        lines.append(f"{name} : {uses[0][1].kind}, optional")
+        for f, param in uses:
+            lines.append(f"    {f.name}: {param.help} [{default_text(f, name)}].")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":  # the README's table: python -m evtools.filters.registry
+    print(markdown_table())
