@@ -17,6 +17,7 @@ Layouts read (see FORMATS.md):
 from __future__ import annotations
 
 import contextlib
+import os
 from collections import deque
 from typing import BinaryIO, Iterator
 
@@ -100,6 +101,61 @@ refused before HDF5 reads them: a damaged string attribute can look like a varia
 reading that crashes the HDF5 library (SIGSEGV, found by mutating a Metavision file's attribute headers)."""
 
 
+HEAP_SCAN_BYTES = 1 << 20
+"""Global heap collections are looked for in a file's first and last MiB (where HDF5 puts those it makes as a file's
+attributes are written: at its start, or at its end when they are written on closing)."""
+
+
+def check_global_heaps(file, name: str) -> None:
+    """Refuse a file (a path or a binary file, read from its start) whose HDF5 global heap collections (where variable-length strings live: the attributes of
+    Metavision's files, h5py's string attributes) are inconsistent: HDF5 loops forever reading one whose objects do
+    not fill it exactly (found by mutating a Metavision file: a damaged collection or object size hung the read,
+    deaf to signals). Layout (HDF5 file format spec, III.E): ``GCOL``, version 1, 3 reserved bytes, the collection
+    size (8 bytes, at least 4096), then objects of a 16-byte header (index 2, reference count 2, reserved 4, size
+    8) and their data padded to 8 bytes; object 0 is the free space, last, its size counting its header."""
+    if isinstance(file, (str, os.PathLike)):
+        with open(file, "rb") as opened:
+            return check_global_heaps(opened, name)
+    size = file.seek(0, os.SEEK_END)
+    file.seek(0)
+    head = file.read(min(size, HEAP_SCAN_BYTES))
+    tail_start = max(len(head), size - HEAP_SCAN_BYTES)
+    file.seek(tail_start)
+    parts = ((0, head), (tail_start, file.read()))
+    file.seek(0)
+    for base, data in parts:
+        at = data.find(b"GCOL\x01")
+        while at >= 0:
+            problem = _heap_problem(data, at, size - base)
+            if problem:
+                raise FormatError(f"{name}: HDF5's global heap at byte {base + at:,} is damaged ({problem}; its "
+                                  "variable-length strings cannot be read)")
+            at = data.find(b"GCOL\x01", at + 1)
+
+
+def _heap_problem(data: bytes, at: int, room: int) -> str | None:
+    """What is wrong with the global heap collection at ``data[at:]`` (``room``: bytes from ``data[0]`` to the
+    file's end), or None."""
+    if at + 16 > len(data):
+        return None  # (its header crosses the end of what was read: a later scan reads it)
+    size = int.from_bytes(data[at + 8:at + 16], "little")
+    if size < 4096 or at + size > room:
+        return f"a collection of {size:,} bytes, {'less than 4,096' if size < 4096 else 'beyond the end of the file'}"
+    end = min(at + size, len(data))
+    position = at + 16
+    while position + 16 <= end:
+        index = int.from_bytes(data[position:position + 2], "little")
+        length = int.from_bytes(data[position + 8:position + 16], "little")
+        if index == 0:  # the free space: the rest of the collection, header included
+            return None if position + length == at + size else "its free space does not end the collection"
+        position += 16 + (length + 7) // 8 * 8
+        if position > at + size:
+            return f"object {index} of {length:,} bytes runs past the collection"
+    if at + size <= len(data) and at + size - position >= 16:
+        return "its objects do not fill the collection"
+    return None
+
+
 def attribute(node, name: str, default=None, *, source: str = ""):
     """``node``'s attribute ``name`` (``default`` when it has none), its type and size checked before HDF5 reads
     the value (:data:`READABLE_ATTRIBUTE_CLASSES`, :data:`MAX_ATTRIBUTE_BYTES`); a damaged one raises
@@ -166,6 +222,7 @@ class Hdf5Reader:
         self._recycled = Recycled()
         self.frames: deque[Frame] = deque()  # APS frames read, not yet taken (EventStream.take_frames)
         self.frames_read, self._frame_times, self._next_frame = 0, None, 0
+        check_global_heaps(source.spooled(), self.name)
         try:
             self.file = h5py.File(source.spooled(), "r")
         except (OSError, ValueError, RuntimeError, KeyError, TypeError, OverflowError) as error:  # h5py's, damaged
