@@ -100,7 +100,7 @@ FILTER_PREFIX = "filter_"
                    "learning stretch's rate map (.png, .svg, .pdf).")
 @compression_option
 @slicing_options
-def bafilter(inputs, input_format, sensor_size, aedat2_layout, output, jobs, scheduler, as_json, methods, preset,
+def bafilter(inputs, reading, output, jobs, scheduler, as_json, methods, preset,
              hot_pixels_path, save_hot_pixels, compression, slicing, **params):
     """Remove background activity from IN (default stdin), writing OUT or -o OUT (default stdout).
 
@@ -131,21 +131,21 @@ def bafilter(inputs, input_format, sensor_size, aedat2_layout, output, jobs, sch
     pairs = plan(inputs, output, ".aedat4", check=lambda pairs: check_compression(compression, pairs))
     if save_hot_pixels and len(pairs) > 1:
         raise click.UsageError("--save-hot-pixels writes one file: give one input")
-    options = dict(input_format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout, methods=methods,
+    options = dict(reading=reading, methods=methods,
                    preset=preset, params=given, hot_pixels_path=hot_pixels_path, save_hot_pixels=save_hot_pixels,
                    compression=compression, slicing=slicing)
     run(filter_one, pairs, options, jobs, scheduler, as_json)
 
 
-def filter_one(input, output, *, input_format, sensor_size, aedat2_layout, methods, preset, params=None,
+def filter_one(input, output, *, reading, methods, preset, params=None,
                hot_pixels_path=None, save_hot_pixels=None, compression=None, slicing=None) -> Outcome:
     """Filter one file (the command's whole work for one input): its :class:`Outcome` (events in, kept).
 
-    ``params``: the filters' parameters given (:class:`evtools.filters.BAFilter`); ``slicing``: the shared slicing
+    ``reading``: how to read the input (:class:`evtools.formats.ReadOptions`); ``params``: the filters' parameters given (:class:`evtools.filters.BAFilter`); ``slicing``: the shared slicing
     options (:func:`evtools.transform.sliced`), applied as the events are read."""
     if save_hot_pixels:
         _check_hot_pixels_target(save_hot_pixels, input, output)
-    with open_events(input, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as opened:
+    with open_events(input, reading) as opened:
         stream = sliced(opened, slicing)
         info = stream.info
         hot_map = None

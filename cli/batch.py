@@ -65,10 +65,11 @@ OUTPUT_HELP = "Output file (`-` or absent: stdout), or with several inputs the f
 def batch_options(function=None, *, output_help: str = OUTPUT_HELP):
     """The options of a stream command that takes one or several inputs: ``IN...``, the input options, ``-o``
     (described by ``output_help``), ``--jobs``, ``--scheduler`` and ``--json`` (the function takes ``inputs,
-    input_format, sensor_size, aedat2_layout, output, jobs, scheduler, as_json``)."""
+    reading, output, jobs, scheduler, as_json``; ``reading``: the :class:`evtools.formats.ReadOptions` of
+    :func:`evtools.cli.options.input_options`)."""
     if function is None:
         return lambda decorated: batch_options(decorated, output_help=output_help)
-    from evtools.cli.options import aedat2_layout_option, input_format_option, sensor_size_option, serve_early
+    from evtools.cli.options import input_options, serve_early
 
     batch_output_option = click.option("-o", "--output", default=None, metavar="OUT", callback=serve_early,
                                        type=click.Path(allow_dash=True), help=output_help)
@@ -76,8 +77,7 @@ def batch_options(function=None, *, output_help: str = OUTPUT_HELP):
     json_counts = click.option("--json", "as_json", is_flag=True,
                                help="Print the counts as JSON (on stdout when the events go to files, else on "
                                     "stderr) instead of the line or table on stderr.")
-    for option in (json_counts, scheduler_option, jobs_option, batch_output_option, aedat2_layout_option,
-                   sensor_size_option, input_format_option, inputs_argument):
+    for option in (json_counts, scheduler_option, jobs_option, batch_output_option, input_options, inputs_argument):
         function = option(function)
     return function
 

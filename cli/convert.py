@@ -32,7 +32,7 @@ log = logging.getLogger("evtools")
 @click.option("--speed", type=FiniteRange(min=1e-6, max=1e6), default=None, metavar="X",
               help="With --realtime: X times the recorded speed (2: twice as fast; 1e-6 to 1e6).")
 @slicing_options
-def convert(inputs, input_format, sensor_size, aedat2_layout, output, jobs, scheduler, as_json, output_format,
+def convert(inputs, reading, output, jobs, scheduler, as_json, output_format,
             compression, realtime, speed, slicing):
     """Convert IN (default stdin) to OUT or -o OUT (default stdout), chunk by chunk in bounded memory.
 
@@ -51,24 +51,24 @@ def convert(inputs, input_format, sensor_size, aedat2_layout, output, jobs, sche
         raise click.UsageError(f"-o {output}: a network output carries AEDAT 4.0, not --format {output_format}")
     suffix = by_name(output_format or "aedat4").extensions[0]
     pairs = plan(inputs, output, suffix, check=lambda pairs: check_compression(compression, pairs, output_format))
-    options = dict(input_format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout,
+    options = dict(reading=reading,
                    output_format=output_format, compression=compression, speed=speed or 1.0 if realtime else None,
                    slicing=slicing)
     run(convert_one, pairs, options, jobs, scheduler, as_json)
 
 
-def convert_one(input, output, *, input_format, sensor_size, aedat2_layout, output_format, compression, speed=None,
+def convert_one(input, output, *, reading, output_format, compression, speed=None,
                 slicing=None) -> Outcome:
     """Convert one file: its :class:`Outcome` (events in and out, whether it was read to its end); ``speed``:
     replayed at that many times the recorded speed; ``slicing``: :class:`evtools.transform.Transform`'s options
     (time slice, polarity, crop, flips, transpose)."""
     events_in = events_out = 0
     stopped = False
-    with open_events(input, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as stream:
+    with open_events(input, reading) as stream:
         transform = Transform(stream.info, **slicing) if slicing else None
         with create_events(
             output, transform.info if transform else stream.info, format=output_format, compression=compression,
-            aedat2_layout=aedat2_layout, inputs=(input,),
+            aedat2_layout=reading.aedat2_layout, inputs=(input,),
         ) as writer:
             chunks = stream if speed is None else paced(stream, speed)
             frames = FrameRelay(SlicedStream(stream, transform) if transform else stream, writer)

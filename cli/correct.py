@@ -60,7 +60,7 @@ def _target(ctx, param, value):
                    "before the first event; default: the first event.")
 @compression_option
 @slicing_options
-def correct(inputs, input_format, sensor_size, aedat2_layout, output, jobs, scheduler, as_json, thresholds_path,
+def correct(inputs, reading, output, jobs, scheduler, as_json, thresholds_path,
             target, mode, hold_us, max_gap_us, tau_us, start_us, compression, slicing):
     """Re-sample every pixel of IN (default stdin) at one target threshold; write -o OUT (default stdout).
 
@@ -76,18 +76,18 @@ def correct(inputs, input_format, sensor_size, aedat2_layout, output, jobs, sche
     evtools correct drifting.aedat4 --thresholds series.h5 --target 0.2 -o corrected.aedat4  # estimate --online
     """
     pairs = plan(inputs, output, ".aedat4", check=lambda pairs: check_compression(compression, pairs))
-    options = dict(input_format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout,
+    options = dict(reading=reading,
                    thresholds_path=thresholds_path, target=target, mode=mode, hold_us=hold_us,
                    max_gap_us=max_gap_us, tau_us=tau_us, start_us=start_us, compression=compression, slicing=slicing)
     run(correct_one, pairs, options, jobs, scheduler, as_json)
 
 
-def correct_one(input, output, *, input_format, sensor_size, aedat2_layout, thresholds_path, target, mode, hold_us,
+def correct_one(input, output, *, reading, thresholds_path, target, mode, hold_us,
                 max_gap_us, tau_us, start_us, compression=None, slicing=None) -> Outcome:
     """Correct one file: its :class:`Outcome` (events in and out); ``slicing``: the shared slicing options
     (:func:`evtools.transform.sliced`), the thresholds map cut and turned with the events."""
     thresholds = read_thresholds(thresholds_path, series=True)
-    with open_events(input, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as opened:
+    with open_events(input, reading) as opened:
         thresholds.check_size(opened.info.width, opened.info.height, thresholds_path)  # the file's sensor
         stream = sliced(opened, slicing)
         thresholds = replace(thresholds, **{name: on_sliced_sensor(stream, getattr(thresholds, name))

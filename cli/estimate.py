@@ -141,7 +141,7 @@ def _black_level(ctx, param, value):
               help="frames: the APS frames' value of no light [default: 0, as DV's black-subtracted DAVIS frames]; "
                    "`fit`: estimated from the data (approximate: give it when known).")
 @slicing_options
-def estimate(inputs, input_format, sensor_size, aedat2_layout, output, jobs, scheduler, as_json,
+def estimate(inputs, reading, output, jobs, scheduler, as_json,
              method, segment_us, nominal, radius, online,
              interval, forget, min_events,
              max_fit, stimulus_amplitude, stimulus_levels, stimulus_period, stimulus_profile, stimulus_rise,
@@ -175,7 +175,7 @@ def estimate(inputs, input_format, sensor_size, aedat2_layout, output, jobs, sch
         stimulus = _stimulus(stimulus_levels, stimulus_period, stimulus_profile, stimulus_amplitude, stimulus_speed,
                              stimulus_wavelength, stimulus_rise)
     pairs = plan(inputs, output, ".h5", second_is_output=False)
-    options = dict(input_format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout,
+    options = dict(reading=reading,
                    parameters=dict(method=method, nominal=nominal, segment_us=segment_us, stimulus=stimulus,
                                    phase=stimulus_phase, min_events=min_events, max_fit=max_fit, radius_px=radius,
                                    interval_us=interval_us, forget_us=forget,
@@ -196,14 +196,14 @@ def _write_maps_so_far(estimator, output, name: str, message: str) -> None:
                           f"{int(maps.t_us[-1]):,} us are written to {output} (attribute partial)")
 
 
-def estimate_one(input, output, *, input_format, sensor_size, aedat2_layout, parameters, slicing=None
+def estimate_one(input, output, *, reading, parameters, slicing=None
                  ) -> Outcome:
     """Estimate one file's thresholds into ``output``: its :class:`Outcome` (events in, valid pixels);
     ``slicing``: the shared slicing options (:func:`evtools.transform.sliced`): the map is of the sliced sensor."""
     if input != STDIO and same_file(output, input):
         raise EstimationError(f"{output}: the thresholds file would overwrite the input; choose another -o")
     estimator = None
-    with open_events(input, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as opened:
+    with open_events(input, reading) as opened:
         stream = sliced(opened, slicing)
         try:
             kind = FrameThresholdEstimator if parameters["method"] == "frames" else ThresholdEstimator

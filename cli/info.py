@@ -6,7 +6,7 @@ import json
 
 import click
 
-from evtools.cli.options import aedat2_layout_option, input_format_option, json_option, sensor_size_option, wants_json
+from evtools.cli.options import input_options, json_option, wants_json
 from evtools.cli.progress import with_progress
 from evtools.summary import StreamSummary
 from evtools.formats import open_events
@@ -14,16 +14,14 @@ from evtools.formats import open_events
 
 @click.command()
 @click.argument("inputs", nargs=-1, metavar="FILE...", type=click.Path(allow_dash=True))
-@input_format_option
-@sensor_size_option
-@aedat2_layout_option
+@input_options
 @json_option
-def info(inputs, input_format, sensor_size, aedat2_layout, as_json):
+def info(inputs, reading, as_json):
     """Format, sensor size, event count, time span, rate and ON fraction of each FILE (`-` = stdin), and its APS
     frames (count, rate, exposure, size) where it has them."""
     rows = []
     for path in inputs or ("-",):
-        with open_events(path, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as stream:
+        with open_events(path, reading) as stream:
             summary = StreamSummary()
             for chunk in with_progress(stream, stream, f"reading {stream.name}"):
                 summary.add(chunk)

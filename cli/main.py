@@ -33,20 +33,21 @@ def _set_verbosity(ctx, param, value) -> None:
 
 
 def _max_latency(ctx, param, value):
+    """``--max-latency`` into the reading options of the command (:func:`evtools.cli.options.input_options`)."""
     if value is not None:
-        from evtools.cli.options import Duration
-        from evtools.formats import io
+        from evtools.cli.options import LIVE_OPTIONS, Duration
 
-        io.LIVE_MAX_LATENCY_S = Duration(minimum_us=0).convert(value, param, ctx) / 1e6
+        ctx.meta.setdefault(LIVE_OPTIONS, {})["max_latency_s"] = Duration(minimum_us=0).convert(value, param, ctx) / 1e6
     return value
 
 
 def _timeout(ctx, param, value):
+    """``--timeout`` into the reading options of the command: to connect to a network input, and its silence."""
     if value is not None:
-        from evtools.cli.options import Duration
-        from evtools.formats import io
+        from evtools.cli.options import LIVE_OPTIONS, Duration
 
-        io.TCP_READ_TIMEOUT_S = io.TCP_CONNECT_TIMEOUT_S = Duration(minimum_us=1000).convert(value, param, ctx) / 1e6
+        seconds = Duration(minimum_us=1000).convert(value, param, ctx) / 1e6
+        ctx.meta.setdefault(LIVE_OPTIONS, {}).update(connect_timeout_s=seconds, read_timeout_s=seconds)
     return value
 
 

@@ -231,12 +231,12 @@ def roc(noisy, truth, methods, sweep, preset, weights, polarity_maps, settings, 
 @click.option("--slice-events", type=click.IntRange(min=2), default=30_000, show_default=True,
               help="Events per slice (E-MLB: 30,000).")
 @json_option
-def esr(input, input_format, sensor_size, aedat2_layout, slice_events, as_json):
+def esr(input, reading, slice_events, as_json):
     """E-MLB's event structural ratio per slice of IN and its mean, MESR (higher is better; no labels needed).
 
     Full slices only; a stream shorter than one slice is one slice.
     """
-    with open_events(input, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as stream:
+    with open_events(input, reading) as stream:
         meter = EsrMeter(stream.info.width, stream.info.height, slice_events)
         for chunk in with_progress(stream, stream, f"measuring {stream.name}"):
             meter.add(chunk)

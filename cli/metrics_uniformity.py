@@ -18,8 +18,8 @@ def _edges_at(ctx, param, value):
     return [TimeBound().convert(part, param, ctx) for part in value.split(",") if part.strip()]
 
 
-def _read(path, **options):
-    with open_events(path, **options) as stream:
+def _read(path, reading, **fields):
+    with open_events(path, reading, **fields) as stream:
         return stream.info, stream.name, concatenate(stream)
 
 
@@ -36,7 +36,7 @@ def _read(path, **options):
               help="With --plot: the uncorrected stream, drawn beside IN.")
 @click.option("--plot-edge", type=click.IntRange(min=0), default=0, show_default=True, help="Edge drawn by --plot.")
 @json_option
-def uniformity(input, input_format, sensor_size, aedat2_layout, edges_at, reference, plot, before, plot_edge,
+def uniformity(input, reading, edges_at, reference, plot, before, plot_edge,
                as_json):
     """Per stimulus edge of IN: std across pixels of the first and last event times, count CV, errors vs IDEAL.
 
@@ -49,15 +49,14 @@ def uniformity(input, input_format, sensor_size, aedat2_layout, edges_at, refere
     evtools metrics uniformity corrected.aedat4 --before raw.aedat4 --plot edges.png
     """
     figure_path(plot, "--plot", (input, reference, before))
-    options = dict(format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout)
-    info, name, events = _read(input, **options)
+    info, name, events = _read(input, reading)
     try:
         first_us = int(events["t"][0]) if len(events) else 0
         edges = (detect_edges(events) if edges_at is None
                  else edges_from_starts(events, [time.resolve(first_us) for time in edges_at]))
         ideal = None
         if reference is not None:
-            ref_info, _, ideal = _read(reference, sensor_size=sensor_size)
+            ref_info, _, ideal = _read(reference, None, sensor_size=reading.sensor_size)
             if ref_info.size != info.size:
                 raise UniformityError(f"{reference}: the reference is {ref_info.width}x{ref_info.height} but "
                                       f"{name} is {info.width}x{info.height}")
@@ -66,14 +65,14 @@ def uniformity(input, input_format, sensor_size, aedat2_layout, edges_at, refere
         raise UniformityError(f"{name}: {error}") from None
     result = {"file": name, **result}
     if plot:
-        _plot(plot, events, info, edges, plot_edge, before, options)
+        _plot(plot, events, info, edges, plot_edge, before, reading)
     if wants_json(as_json):
         click.echo(json.dumps(result, indent=2))
     else:
         _print_table(result)
 
 
-def _plot(path, events, info, edges, index, before, options) -> None:
+def _plot(path, events, info, edges, index, before, reading) -> None:
     from evtools.formats.figures import save_figure
     from evtools.plots import edge_levels_figure
 
@@ -82,7 +81,7 @@ def _plot(path, events, info, edges, index, before, options) -> None:
     edge, width = edges[index], info.width
     panels = []
     if before is not None:
-        before_info, before_name, before_events = _read(before, **options)
+        before_info, before_name, before_events = _read(before, reading)
         if before_info.size != info.size:  # (its pixels were drawn as the other sensor's, silently)
             raise UniformityError(f"{before_name}: --before is {before_info.width}x{before_info.height} but the "
                                   f"stream is {info.width}x{info.height}")

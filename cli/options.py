@@ -240,12 +240,39 @@ json_option = click.option(
     "--json", "as_json", is_flag=True, help="Print JSON (the default when stdout is not a terminal)."
 )
 
+LIVE_OPTIONS = "evtools.reading"
+"""The key in click's context ``meta`` where the global ``--max-latency`` and ``--timeout`` leave their values
+(:class:`evtools.formats.ReadOptions` field -> value), for :func:`input_options` to put into the reading options."""
+
+
+def reading_options(**fields):
+    """The :class:`evtools.formats.ReadOptions` of ``fields`` and of the global ``--max-latency`` and ``--timeout``
+    given to the running command."""
+    from evtools.formats import ReadOptions
+
+    context = click.get_current_context(silent=True)
+    return ReadOptions(**(context.meta.get(LIVE_OPTIONS, {}) if context is not None else {}), **fields)
+
+
+def input_options(function):
+    """``--input-format``, ``--sensor-size`` and ``--aedat2-layout``, given to the command as one ``reading``
+    (an :class:`evtools.formats.ReadOptions`, with the global ``--max-latency`` and ``--timeout`` in it): the object
+    every ``open_events`` of the command takes."""
+
+    @functools.wraps(function)
+    def with_reading(*args, **kwargs):
+        reading = reading_options(format=kwargs.pop("input_format"), sensor_size=kwargs.pop("sensor_size"),
+                                  aedat2_layout=kwargs.pop("aedat2_layout"))
+        return function(*args, reading=reading, **kwargs)
+
+    for option in (aedat2_layout_option, sensor_size_option, input_format_option):
+        with_reading = option(with_reading)
+    return with_reading
+
 
 def read_options(function):
-    """The options of every command that reads an event stream."""
-    for option in (aedat2_layout_option, sensor_size_option, input_format_option, input_argument):
-        function = option(function)
-    return function
+    """The options of every command that reads one event stream: ``IN`` and :func:`input_options`."""
+    return input_argument(input_options(function))
 
 
 def wants_json(as_json: bool) -> bool:

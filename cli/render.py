@@ -125,7 +125,7 @@ def _refuse(ctx: click.Context, names: dict[str, str], why: str) -> None:
               help="Draw the event rate over time (ON, OFF) and the per-pixel rate map of the whole stream "
                    "instead of frames (-o FIG.png, .svg or .pdf).")
 @click.pass_context
-def render(ctx, input, input_format, sensor_size, aedat2_layout, output, window_us, start, end, scale, fps,
+def render(ctx, input, reading, output, window_us, start, end, scale, fps,
            old_fps, background, map_path, value_range, mode, colormap, caption, aps, rate):
     """Draw IN (default stdin) as event frames, or a thresholds map with --map: users look before they read.
 
@@ -146,7 +146,7 @@ def render(ctx, input, input_format, sensor_size, aedat2_layout, output, window_
                       "background": "--background", "map_path": "--map", "value_range": "--range", "scale": "--scale",
                       "mode": "--mode", "colormap": "--colormap", "caption": "--caption", "aps": "--aps"},
                 "does not apply to --rate")
-        _render_rate(input, output, dict(format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout))
+        _render_rate(input, output, reading)
         return
     extension = _extension(output)
     if map_path is not None:
@@ -170,7 +170,7 @@ def render(ctx, input, input_format, sensor_size, aedat2_layout, output, window_
         _refuse(ctx, {"fps": "--frame-rate"}, "applies to video outputs (.mp4, .avi) only")
     if input != STDIO and same_file(output, input):
         raise RenderError(f"{output}: output would overwrite the input; choose another -o")
-    with open_events(input, format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout) as opened:
+    with open_events(input, reading) as opened:
         stream = sliced(opened, {"end": end})  # events from --end on are neither drawn nor read
         info = stream.info
         scale = scale or auto_scale(info.width, info.height)
@@ -197,14 +197,14 @@ def render(ctx, input, input_format, sensor_size, aedat2_layout, output, window_
                         stream.name)
 
 
-def _render_rate(input: str, output: str, options: dict) -> None:
+def _render_rate(input: str, output: str, reading) -> None:
     from evtools.formats.figures import save_figure
     from evtools.plots import RateCounter, rate_figure
 
     figure_path(output, "-o")
     if input != STDIO and same_file(output, input):
         raise RenderError(f"{output}: output would overwrite the input; choose another -o")
-    with open_events(input, **options) as stream:
+    with open_events(input, reading) as stream:
         counter = RateCounter(stream.info.width, stream.info.height)
         for chunk in with_progress(stream, stream, f"counting {stream.name}"):
             counter.add(chunk)

@@ -20,7 +20,7 @@ from evtools import interrupt
 from evtools.aps import APS_DEFAULTS, ApsSensor
 from evtools.cli.options import (FINITE, Duration, FiniteRange, IntRange, Microseconds, aedat2_layout_option,
                                  merged_alias, serve_early,
-                                 check_compression, compression_option, input_format_option)
+                                 check_compression, compression_option, input_format_option, reading_options)
 from evtools.cli.progress import with_progress
 from evtools.events import CHUNK_EVENTS, MAX_TIME_US, StreamInfo, join, parse_sensor_size
 from evtools.formats.errors import FormatError
@@ -304,9 +304,8 @@ def simulate(source, output, output_format, truth, truth_frame_rate, input_forma
         parameters = {key: value for key, value in model_parameters(preset, {}).items() if key in NOISE_DEFAULTS}
         parameters["leak_spread_decades"] = NOISE_DEFAULTS["leak_spread_decades"]
         parameters.update({key: value for key, value in given.items()})
-        stream_options = {"format": input_format, "sensor_size": sensor_size, "aedat2_layout": aedat2_layout}
-        _inject(source, output, (output_format, compression), truth, preset, seed, parameters, stream_options,
-                as_json)
+        reading = reading_options(format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout)
+        _inject(source, output, (output_format, compression), truth, preset, seed, parameters, reading, as_json)
         return
     for name, value in (("--input-format", input_format), ("--aedat2-layout", aedat2_layout)):
         if value is not None:
@@ -514,9 +513,9 @@ def _check_truth_path(truth: str | None, output: str | None, source: str) -> Non
         raise SimulationError(f"{truth}: --truth would overwrite the input; choose another file")
 
 
-def _inject(source, output, written_as, truth, preset, seed, parameters, stream_options, as_json) -> None:
+def _inject(source, output, written_as, truth, preset, seed, parameters, reading, as_json) -> None:
     counts = np.zeros(len(LABELS), np.int64)
-    _inject_into(source, output, written_as, truth, preset, seed, parameters, stream_options, counts)
+    _inject_into(source, output, written_as, truth, preset, seed, parameters, reading, counts)
     _report(source, output, counts, as_json)
 
 
@@ -533,12 +532,12 @@ def _report(source: str, output: str | None, counts: np.ndarray, as_json: bool) 
              + ", ".join(f"{count:,} {name}" for name, count in per_label.items()) + ")")
 
 
-def _inject_into(source, output, written_as, truth, preset, seed, parameters, stream_options, counts) -> None:
+def _inject_into(source, output, written_as, truth, preset, seed, parameters, reading, counts) -> None:
     """``evtools simulate EVENTS``: the stream's events unchanged plus labelled noise, chunk by chunk; the output
     ``written_as`` (format, compression)."""
     output_format, compression = written_as
     _check_truth_path(truth, output, source)
-    with open_events(source, **stream_options) as stream:
+    with open_events(source, reading) as stream:
         width, height = stream.info.width, stream.info.height
         injector = _build(NoiseInjector, width, height, seed=seed, **parameters)
         info = StreamInfo(width, height, metadata={"source": f"evtools simulate {stream.name} seed={injector.seed}"})

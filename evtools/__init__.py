@@ -22,18 +22,20 @@ __version__ = "0.1.0"
 __all__ = [
     "CHUNK_EVENTS", "EVENT_DTYPE", "EvtoolsError", "Frame", "InvalidEventsError", "StreamChecker", "StreamInfo",
     "bafilter", "correct", "estimate", "from_columns", "from_dv", "from_tonic", "inject_noise", "make_events",
-    "open", "read", "simulate", "to_columns", "to_dv", "to_tonic", "write", "writer",
+    "open", "read", "simulate", "to_columns", "to_dv", "to_tonic", "write", "writer", "ReadOptions",
 ]
 _EVENTS = {"CHUNK_EVENTS", "EVENT_DTYPE", "StreamChecker", "StreamInfo", "make_events"}
 _HOME = {name: "evtools.events" if name in _EVENTS else "evtools.api" for name in __all__
          if name not in ("EvtoolsError", "InvalidEventsError")}
 _HOME["Frame"] = "evtools.frames"
+_HOME["ReadOptions"] = "evtools.formats"
 """The module each lazily loaded name lives in."""
 
 if TYPE_CHECKING:  # what type checkers and editors see
     from evtools.api import (bafilter, correct, estimate, from_columns, from_dv, from_tonic, inject_noise, open,
                              read, simulate, to_columns, to_dv, to_tonic, write, writer)
     from evtools.events import CHUNK_EVENTS, EVENT_DTYPE, StreamChecker, StreamInfo, make_events
+    from evtools.formats import ReadOptions
     from evtools.frames import Frame
 
 

@@ -48,9 +48,11 @@ def read(path: str | os.PathLike, *, frames: bool = False, **options) -> tuple:
         An event file (AEDAT 2.0/3.1/4.0, HDF5, Prophesee RAW/DAT, CSV, text), recognised by its magic bytes then
         its extension; ``"-"`` reads standard input.
     **options
-        The command line's input options: ``format`` (``--input-format``), ``sensor_size`` ((width, height):
-        ``--sensor-size``), ``aedat2_layout``, ``chunk_events``, ``check`` (default True: raise at the first
-        event outside the sensor or earlier than the one before it).
+        ``options``: a :class:`evtools.ReadOptions` (how the command line reads: ``format`` as
+        ``--input-format``, ``sensor_size`` ((width, height) or "WxH": ``--sensor-size``), ``aedat2_layout``,
+        ``chunk_events``, ``max_latency_s`` (``--max-latency``), ``connect_timeout_s`` and ``read_timeout_s``
+        (``--timeout``)), and/or any of its fields as keywords; ``check`` (default True: raise at the first event
+        outside the sensor or earlier than the one before it).
 
     Returns
     -------

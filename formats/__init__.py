@@ -132,34 +132,33 @@ class EventStream:
             raise self.cut
 
 
-def open_events(
-    path: str | os.PathLike | None = None,
-    *,
-    format: str | None = None,
-    sensor_size: tuple[int, int] | None = None,
-    chunk_events: int = CHUNK_EVENTS,
-    aedat2_layout: str | None = None,
-    check: bool = True,
-) -> EventStream:
-    """Open an event file (or ``-``/None for stdin) for streaming.
+def open_events(path: str | os.PathLike | None = None, options: ReadOptions | None = None, *, check: bool = True,
+                **fields) -> EventStream:
+    """Open an event file (or ``-``/None for stdin) for streaming, read as ``options`` say (a :class:`ReadOptions`;
+    ``fields``: its fields as keywords, replacing those of ``options``).
 
     The format is recognised by its magic bytes, then by the file's extension; ``format`` overrides both.
     ``check`` (default) raises :class:`evtools.InvalidEventsError` at the first event outside the sensor or
     earlier than the one before it. A live input (pipe, socket, FIFO) of AEDAT 4.0 yields every packet as it
     arrives.
     """
-    sensor_size = None if sensor_size is None else parse_sensor_size(sensor_size)
+    unknown = sorted(set(fields) - {field.name for field in dataclasses.fields(ReadOptions)})
+    if unknown:
+        raise TypeError(f"open_events() got unknown reading option(s) {', '.join(unknown)}")
+    options = dataclasses.replace(options or ReadOptions(), **fields)
+    if options.sensor_size is not None:
+        options = dataclasses.replace(options, sensor_size=parse_sensor_size(options.sensor_size))
     folder = None
     if path is not None and os.fspath(path) != STDIO and os.path.isdir(path):  # the RPG dataset layout
         from evtools.formats.rpg import rpg_events_path
 
         folder, path = os.fspath(path), rpg_events_path(os.fspath(path))
-    source = Source(path)
+    source = Source(path, options.connect_timeout_s, options.read_timeout_s)
     try:
         if not source.head:
             raise FormatError(f"{source.name}: empty input, not an event stream")
-        if format:
-            fmt = by_name(format)
+        if options.format:
+            fmt = by_name(options.format)
         else:
             fmt = detect(source.head, source.path)
             unread = next((said for magic, said in NOT_READ.items() if source.head.startswith(magic)), None)
@@ -170,7 +169,6 @@ def open_events(
                                   "--input-format")
         if fmt.reader is None:
             raise FormatError(f"{source.name}: {fmt.description} cannot be read")
-        options = ReadOptions(sensor_size=sensor_size, chunk_events=chunk_events, aedat2_layout=aedat2_layout)
         reader = fmt.reader_class()(source, options)
         if folder is not None:
             from evtools.formats.rpg import RpgFrames

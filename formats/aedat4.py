@@ -325,9 +325,9 @@ class Aedat4Reader:
                     if self.position >= (self.data_position if self.data_position >= 0 else file_bytes):
                         break
                 # a live input: what has arrived is passed on, unless the next packet has arrived whole and the
-                # chunk is younger than LIVE_MAX_LATENCY_S (packets that arrived together go on together)
+                # chunk is younger than options.max_latency_s (packets that arrived together go on together)
                 if live and (self._filled or pending or group) and not (
-                        time.monotonic() - first_arrival_s < formats_io.LIVE_MAX_LATENCY_S and self._packet_waits()):
+                        time.monotonic() - first_arrival_s < self.options.max_latency_s and self._packet_waits()):
                     if group:
                         pending.append(pool.submit(self._decode_group, group, ratio))
                         group, group_bytes = [], 0

@@ -26,10 +26,6 @@ from evtools.formats.errors import FormatError
 
 HEAD_BYTES = 4096
 """How many leading bytes format detection looks at."""
-LIVE_MAX_LATENCY_S = 0.02
-"""A live input's events wait at most this long in a reader (``evtools --max-latency``): packets that arrived
-together are passed on as one chunk (a stage that fell behind catches up), but a chunk's first packet is never held
-longer than this for more."""
 LIVE_HEAD_BYTES = 256
 """What a live input must send before its format is sniffed (every format's signature fits, and AEDAT 4.0's header
 is longer: its XML alone exceeds it)."""
@@ -70,20 +66,13 @@ class _PrefixedRaw(io.RawIOBase):
         return n
 
 
-TCP_READ_TIMEOUT_S = 60.0
-"""A network input (``tcp://``) that sends nothing for this long is an error naming it (a server that accepts and
-never sends made evtools wait forever). The command line's ``--timeout`` sets it."""
-TCP_CONNECT_TIMEOUT_S = 10.0
-"""How long connecting to a network input may take (``--timeout`` sets it too)."""
-
-
 class _NetworkRaw(io.RawIOBase):
-    """A connected socket's reads, each waiting at most :data:`TCP_READ_TIMEOUT_S`; a silence that long and a
-    connection reset mid-stream are errors naming the input (a reset was 'cannot connect')."""
+    """A connected socket's reads, each waiting at most ``timeout_s``; a silence that long and a connection reset
+    mid-stream are errors naming the input (a reset was 'cannot connect')."""
 
-    def __init__(self, name: str, connection) -> None:
-        self._name, self._raw = name, connection.makefile("rb", buffering=0)
-        connection.settimeout(TCP_READ_TIMEOUT_S)
+    def __init__(self, name: str, connection, timeout_s: float) -> None:
+        self._name, self._raw, self._timeout_s = name, connection.makefile("rb", buffering=0), timeout_s
+        connection.settimeout(timeout_s)
 
     def readable(self) -> bool:
         return True
@@ -95,7 +84,7 @@ class _NetworkRaw(io.RawIOBase):
         try:
             return self._raw.readinto(buffer)
         except TimeoutError:
-            raise FormatError(f"{self._name}: no data for {TCP_READ_TIMEOUT_S:g} s; the server is connected but "
+            raise FormatError(f"{self._name}: no data for {self._timeout_s:g} s; the server is connected but "
                               "sends nothing (--timeout sets how long to wait)") from None
         except ConnectionResetError:
             raise FormatError(f"{self._name}: the server reset the connection mid-stream (the stream is cut)") from None
@@ -123,10 +112,12 @@ class Source:
     live : bool
         True for a pipe, a socket, a FIFO or a terminal: bytes arrive over time (readers pass on what arrived).
     network : bool
-        True for ``tcp://HOST:PORT`` (a live network stream).
+        True for ``tcp://HOST:PORT`` (a live network stream; connecting may take ``connect_timeout_s``, then a
+        silence of ``read_timeout_s`` is an error).
     """
 
-    def __init__(self, path: str | os.PathLike | None) -> None:
+    def __init__(self, path: str | os.PathLike | None, connect_timeout_s: float = 10.0,
+                 read_timeout_s: float = 60.0) -> None:
         path = STDIO if path is None else os.fspath(path)
         self.live = self.network = False
         self._fileno = None
@@ -137,8 +128,8 @@ class Source:
             return
         if path.startswith(TCP_PREFIX):  # a live network stream (AEDAT 4.0 from DV or dv-processing)
             self.name, self.path, self.network = path, None, True
-            self.connection = _connect(path)
-            self._open_stream(_NetworkRaw(path, self.connection))
+            self.connection = _connect(path, connect_timeout_s)
+            self._open_stream(_NetworkRaw(path, self.connection, read_timeout_s))
             return
         self.name, self.path = path, path
         if os.path.isdir(path):
@@ -214,17 +205,18 @@ def tcp_address(name: str) -> tuple[str, int]:
     return host.strip("[]"), int(port)
 
 
-def _connect(name: str):
-    """A socket connected to the server at ``tcp://HOST:PORT``; one-line errors name the address."""
+def _connect(name: str, timeout_s: float):
+    """A socket connected to the server at ``tcp://HOST:PORT`` within ``timeout_s``; one-line errors name the
+    address."""
     import socket
 
     host, port = tcp_address(name)
     try:
-        connection = socket.create_connection((host or "localhost", port), timeout=TCP_CONNECT_TIMEOUT_S)
+        connection = socket.create_connection((host or "localhost", port), timeout=timeout_s)
     except socket.gaierror as error:
         raise FormatError(f"{name}: unknown host ({error.strerror})") from None
     except TimeoutError:
-        raise FormatError(f"{name}: no answer within {TCP_CONNECT_TIMEOUT_S:g} s (--timeout)") from None
+        raise FormatError(f"{name}: no answer within {timeout_s:g} s (--timeout)") from None
     except OSError as error:
         raise FormatError(f"{name}: cannot connect ({error.strerror or error})") from None
     connection.settimeout(None)

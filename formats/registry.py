@@ -22,11 +22,28 @@ HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
 
 @dataclass(frozen=True)
 class ReadOptions:
+    """How to read an input: built once from the command line's input options (``--input-format``,
+    ``--sensor-size``, ``--aedat2-layout``, and the global ``--max-latency`` and ``--timeout``) and passed to
+    :func:`evtools.formats.open_events`; the same object from Python (``evtools.open(path, options=...)``, or its
+    fields as keywords). Format-specific choices are fields named by their format (``aedat2_layout``)."""
+
+    format: str | None = None
+    """The input's format name (``--input-format``); None: recognised by magic bytes, then extension."""
     sensor_size: tuple[int, int] | None = None
     """(width, height) when the file does not say it (``--sensor-size``)."""
     chunk_events: int = CHUNK_EVENTS
+    """About how many events a chunk holds."""
     aedat2_layout: str | None = None
     """AEDAT 2.0 address layout when the header has no ``# AEChip:`` line: dvs128, davis240 or davis346."""
+    max_latency_s: float = 0.02
+    """A live input's events wait at most this long in a reader (``--max-latency``): packets that arrived together
+    are passed on as one chunk (a stage that fell behind catches up), but a chunk's first packet is never held
+    longer than this for more."""
+    connect_timeout_s: float = 10.0
+    """How long connecting to a network input (``tcp://``) may take (``--timeout``)."""
+    read_timeout_s: float = 60.0
+    """A network input that sends nothing for this long is an error naming it (``--timeout``; a server that
+    accepts and never sends made evtools wait forever)."""
 
 
 @dataclass(frozen=True)

@@ -300,3 +300,43 @@ def test_simulate_takes_a_video_or_an_image_folder_from_python(tmp_path):
         evtools.simulate(tmp_path / "missing.mp4")
     with pytest.raises(evtools.EvtoolsError, match="no timestamps.txt; give --timestamps FILE or --frame-rate"):
         evtools.simulate(folder)  # no timestamps.txt and no frame rate
+
+
+def test_reading_options_are_one_object_from_python_and_the_command_line(tmp_path):
+    """Issue 40 item 2: how to read an input is one ReadOptions, built once by the command line's input options
+    (the global --max-latency and --timeout in it, no module global) and the same object from Python; its fields
+    may also be given as keywords, and a name that is none of them is refused."""
+    import dataclasses
+
+    import click
+    from click.testing import CliRunner
+
+    from evtools.cli.options import input_options
+
+    path = tmp_path / "e.csv"
+    evtools.write(path, evtools.from_columns([1, 2], [0, 1], [0, 0], [1, 0]), evtools.StreamInfo(2, 1))
+    options = evtools.ReadOptions(sensor_size=(5, 4), chunk_events=1)
+    events, info = evtools.read(path, options=options)
+    assert (info.width, info.height) == (5, 4) and len(events) == 2
+    assert evtools.read(path, options=options, sensor_size="3x2")[1].size == (3, 2)  # a keyword replaces a field
+    with pytest.raises(TypeError, match="aedat2layout"):
+        evtools.read(path, aedat2layout="dvs128")
+    seen = []
+
+    @click.command()
+    @input_options
+    def probe(reading):
+        seen.append(reading)
+
+    from evtools.cli.main import GLOBAL_OPTIONS
+
+    for make in GLOBAL_OPTIONS:
+        probe.params.append(make())
+    result = CliRunner().invoke(probe, ["--sensor-size", "7x3", "--max-latency", "5ms", "--timeout", "2s",
+                                        "--input-format", "csv"])
+    assert result.exit_code == 0, result.output
+    assert dataclasses.asdict(seen[0]) == dataclasses.asdict(evtools.ReadOptions(
+        format="csv", sensor_size=(7, 3), max_latency_s=0.005, connect_timeout_s=2.0, read_timeout_s=2.0))
+    import evtools.formats.io as io_module
+
+    assert not [name for name in vars(io_module) if name.isupper() and name.endswith(("_S", "_TIMEOUT"))]

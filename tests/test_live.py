@@ -103,14 +103,12 @@ def _packets_of(events: np.ndarray, sizes: list[int]) -> bytes:
 
 @pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this system")
 @pytest.mark.parametrize("max_latency_s", [0.0, 5.0])
-def test_packets_that_arrived_together_go_on_together(recording, tmp_path, monkeypatch, max_latency_s):
+def test_packets_that_arrived_together_go_on_together(recording, tmp_path, max_latency_s):
     """Ten packets written into a FIFO at once, the writer then waiting: with the default bound they come out as
     one chunk, before the input ends (a stage that fell behind catches up in one step); with a bound of 0 each
     packet is its own chunk."""
-    from evtools.formats import io as formats_io
-    from evtools.formats import open_events
+    from evtools.formats import ReadOptions, open_events
 
-    monkeypatch.setattr(formats_io, "LIVE_MAX_LATENCY_S", max_latency_s)
     events = evtools.read(recording)[0][:1000]
     data = _packets_of(events, [100] * 10)
     fifo = tmp_path / "in.fifo"
@@ -118,7 +116,7 @@ def test_packets_that_arrived_together_go_on_together(recording, tmp_path, monke
     writer_fd = os.open(fifo, os.O_RDWR)  # holds the FIFO open: the input does not end
     try:
         os.write(writer_fd, data)
-        with open_events(str(fifo)) as stream:
+        with open_events(str(fifo), ReadOptions(max_latency_s=max_latency_s)) as stream:
             chunks = iter(stream)
             first = next(chunks)
             if max_latency_s:

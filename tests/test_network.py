@@ -267,19 +267,17 @@ def test_bad_servers_give_one_line_errors_naming_the_address(tmp_path):
     assert busy.returncode == 2 and "carries AEDAT 4.0" in busy.stderr  # a usage error
 
 
-def test_a_server_that_sends_nothing_or_resets_is_an_error_naming_it(monkeypatch):
+def test_a_server_that_sends_nothing_or_resets_is_an_error_naming_it():
     """Issue 37 item 10: a server that accepts and never sends made evtools wait forever (the 10 s limit covered
-    the connect only); a reset mid-stream was reported as 'cannot connect'. Reads now wait at most
-    TCP_READ_TIMEOUT_S (lowered here) and a reset says so."""
+    the connect only); a reset mid-stream was reported as 'cannot connect'. Reads now wait at most the reading
+    options' read_timeout_s (lowered here) and a reset says so."""
     import socket
     import struct
     import threading
 
-    import evtools.formats.io as io_module
     from evtools.formats import open_events
     from evtools.formats.errors import FormatError
 
-    monkeypatch.setattr(io_module, "TCP_READ_TIMEOUT_S", 0.5)
     for behaviour in ("silent", "reset"):
         finished = threading.Event()
         listener = socket.socket()
@@ -301,7 +299,7 @@ def test_a_server_that_sends_nothing_or_resets_is_an_error_naming_it(monkeypatch
         thread = threading.Thread(target=serve, daemon=True)
         thread.start()
         with pytest.raises(FormatError, match="no data for 0.5 s" if behaviour == "silent" else "reset|cut|ends"):
-            with open_events(f"tcp://127.0.0.1:{port}") as stream:
+            with open_events(f"tcp://127.0.0.1:{port}", read_timeout_s=0.5) as stream:
                 for _ in stream:
                     pass
         finished.set()
