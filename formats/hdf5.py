@@ -160,7 +160,7 @@ def attribute(node, name: str, default=None, *, source: str = ""):
     """``node``'s attribute ``name`` (``default`` when it has none), its type and size checked before HDF5 reads
     the value (:data:`READABLE_ATTRIBUTE_CLASSES`, :data:`MAX_ATTRIBUTE_BYTES`); a damaged one raises
     :class:`FormatError` naming ``source``."""
-    h5py = _h5py()
+    import h5py  # (not _h5py: a thresholds map needs no plugin to be read)
     if name not in node.attrs:
         return default
     try:
