@@ -207,8 +207,8 @@ def cli(quiet: bool, verbose: bool, max_latency, timeout) -> None:
 
 BLAS_THREADS = {"OPENBLAS_NUM_THREADS": "1"}
 """numpy's BLAS thread pool, one thread unless the user's environment says otherwise: its idle threads spin for
-0.1 CPU-s a process (measured with ``time`` on a 1,000-event convert: user 0.32 -> 0.20 s), which the kernels'
-own threads need on a small machine; the only BLAS call, MLPF's two small products, is as fast on one."""
+0.1 CPU-s a process (docs/performance.md), which the kernels' own threads need on a small machine; the only BLAS
+call, MLPF's two small products, is as fast on one."""
 
 
 def main() -> None:

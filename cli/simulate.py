@@ -3,7 +3,6 @@ labelled noise added to an event stream."""
 
 from __future__ import annotations
 
-import contextlib
 import inspect
 import json
 import logging
@@ -23,7 +22,6 @@ from evtools.cli.options import (FINITE, Duration, FiniteRange, IntRange, Micros
                                  check_compression, compression_option, input_format_option, reading_options)
 from evtools.cli.progress import with_progress
 from evtools.events import CHUNK_EVENTS, MAX_TIME_US, StreamInfo, join, parse_sensor_size
-from evtools.formats.errors import FormatError
 from evtools.noise import NOISE_DEFAULTS, NoiseInjector
 from evtools.simulation import (
     DEFAULT_PARAMETERS,
@@ -38,8 +36,9 @@ from evtools.simulation import (
     scene_maker,
 )
 from evtools.formats import create_events, open_events
-from evtools.formats.io import STDIO, HEAD_BYTES, output_stream, same_file
+from evtools.formats.io import STDIO, HEAD_BYTES, same_file
 from evtools.formats.registry import FORMATS, detect
+from evtools.formats.truth import TruthWriter, create_truth
 from evtools.formats.video import TIMESTAMPS_FILE, FrameSource, open_frames, read_image
 
 log = logging.getLogger("evtools")
@@ -154,10 +153,6 @@ def _progress(source: FrameSource) -> Iterator[tuple[int, np.ndarray]]:
         for item in source.frames:
             yield item
             progress.advance(task)
-
-
-def _attribute(value):
-    return "" if value is None else value
 
 
 def _float_option(name: str, help: str, low: float | None = 0.0, high: float | None = None):
@@ -339,37 +334,20 @@ def simulate(source, output, output_format, truth, truth_frame_rate, input_forma
         if truth is None:
             _run(simulator, frames, writer, None, counts, aps=_Aps(sensor, None) if sensor else None)
         else:
-            import h5py
-
-            # a stop waits for the truth file's writes (inside them it would crash HDF5); the loop then stops
-            with _truth_errors(truth), output_stream(truth, binary_name="HDF5", needs_seek=True) as stream, \
-                    interrupt.deferred(), h5py.File(stream, "w") as h5:
-                _start_truth(h5, simulator, frames, preset)
+            with create_truth(truth) as truth_writer:
+                _start_truth(truth_writer, simulator, frames, preset)
                 rate_hz = TRUTH_FRAME_RATE_HZ if truth_frame_rate is None else truth_frame_rate
-                _run(simulator, frames, writer, h5["label"], counts,
-                     _LogFrames(h5, frames, rate_hz) if rate_hz else None, _Aps(sensor, h5) if sensor else None)
+                _run(simulator, frames, writer, truth_writer, counts,
+                     _LogFrames(truth_writer, frames, rate_hz) if rate_hz else None,
+                     _Aps(sensor, truth_writer) if sensor else None)
     _report(source, output, counts, as_json)
 
 
-@contextlib.contextmanager
-def _truth_errors(truth: str):
-    """A failed write of the truth file (a full disk) is an error naming it (HDF5's own said only 'No space left')."""
-    try:
-        yield
-    except (FormatError, BrokenPipeError):
-        raise
-    except OSError as error:
-        raise FormatError(f"{truth}: cannot write the truth ({error.strerror or error})") from None
-
-
-def _start_truth(h5, simulator: DvsSimulator, frames: FrameSource, preset: str | None) -> None:
-    h5.create_dataset("on", data=simulator.on_thres)
-    h5.create_dataset("off", data=simulator.off_thres)
-    h5.create_dataset("hot_pixels", data=simulator.hot_pixels)
-    h5.create_dataset("dead_pixels", data=simulator.dead_pixels)
-    h5.create_dataset("leak_rate_hz", data=simulator.leak_rate_map_hz.astype(np.float32))
-    h5.create_dataset("label", shape=(0,), maxshape=(None,), dtype=np.uint8, chunks=(1 << 16,), compression="gzip")
-    attributes = {
+def _start_truth(truth: TruthWriter, simulator: DvsSimulator, frames: FrameSource, preset: str | None) -> None:
+    truth.write_maps({"on": simulator.on_thres, "off": simulator.off_thres, "hot_pixels": simulator.hot_pixels,
+                      "dead_pixels": simulator.dead_pixels,
+                      "leak_rate_hz": simulator.leak_rate_map_hz.astype(np.float32)})
+    truth.write_attributes({
         **simulator.parameters,
         "width": frames.width,
         "height": frames.height,
@@ -377,11 +355,8 @@ def _start_truth(h5, simulator: DvsSimulator, frames: FrameSource, preset: str |
         "preset": preset or "",
         "labels": ", ".join(f"{code} {name}" for code, name in LABELS.items()),
         **{f"source_{key}": value for key, value in frames.attributes.items()},
-    }
-    for key, value in attributes.items():
-        h5.attrs[key] = _attribute(value)
-    h5["on"].attrs["units"] = h5["off"].attrs["units"] = "log intensity"
-    h5.attrs["source_kind"] = _frames_kind(frames)
+        "source_kind": _frames_kind(frames),
+    })
 
 
 def _frames_kind(frames: FrameSource) -> str:
@@ -392,10 +367,10 @@ def _frames_kind(frames: FrameSource) -> str:
 
 class _LabelledSink:
     """Buffers events and their labels to about a million, then writes the events and appends the labels to the
-    truth file's ``label`` dataset (None: no truth file), so both stay in output order."""
+    truth file (``truth``: a :class:`TruthWriter`, None: no truth file), so both stay in output order."""
 
-    def __init__(self, writer, labels_dataset, counts: np.ndarray) -> None:
-        self.writer, self.labels_dataset, self.counts = writer, labels_dataset, counts
+    def __init__(self, writer, truth: TruthWriter | None, counts: np.ndarray) -> None:
+        self.writer, self.truth, self.counts = writer, truth, counts
         self.pending, self.pending_labels, self.held = [], [], 0
 
     def add(self, events: np.ndarray, labels: np.ndarray) -> None:
@@ -411,10 +386,8 @@ class _LabelledSink:
         if not self.held:
             return
         self.writer.write(join(self.pending) if len(self.pending) > 1 else self.pending[0])
-        if self.labels_dataset is not None:
-            start = self.labels_dataset.shape[0]
-            self.labels_dataset.resize((start + self.held,))
-            self.labels_dataset[start:] = np.concatenate(self.pending_labels)
+        if self.truth is not None:
+            self.truth.append_labels(np.concatenate(self.pending_labels))
         self.pending, self.pending_labels, self.held = [], [], 0
 
 
@@ -424,70 +397,43 @@ TRUTH_FRAME_RATE_HZ = 100.0
 
 class _LogFrames:
     """Appends the scene's true log intensity (the pixel model's lin-log of the frame) to the truth file: the first
-    frame, then the first at or after every further ``1 / rate`` (datasets ``log_frames``, float32 (n, height,
-    width), and ``log_frame_t_us``, int64, on the events' clock), a frame at a time (memory does not grow)."""
+    frame, then the first at or after every further ``1 / rate``, on the events' clock, a frame at a time."""
 
-    def __init__(self, h5, frames: FrameSource, rate_hz: float) -> None:
+    def __init__(self, truth: TruthWriter, frames: FrameSource, rate_hz: float) -> None:
         self.period_us = 1e6 / rate_hz
         self.next_us = None
-        shape = (0, frames.height, frames.width)
-        self.frames = h5.create_dataset("log_frames", shape=shape, maxshape=(None, *shape[1:]), dtype=np.float32,
-                                        chunks=(1, *shape[1:]), compression="gzip")
-        self.times = h5.create_dataset("log_frame_t_us", shape=(0,), maxshape=(None,), dtype=np.int64,
-                                       chunks=(1024,))
-        self.frames.attrs["units"] = "log intensity (lin-log of the 0-255 frame)"
-        h5.attrs["truth_frame_rate_hz"] = rate_hz
+        self.truth = truth
+        truth.start_log_frames(frames.width, frames.height, rate_hz)
 
     def add(self, t_us: int, frame: np.ndarray) -> None:
         if self.next_us is not None and t_us < self.next_us:
             return
         self.next_us = (t_us if self.next_us is None else self.next_us) + self.period_us
-        n = self.frames.shape[0]
-        self.frames.resize(n + 1, axis=0)
-        self.frames[n] = lin_log(frame).astype(np.float32)
-        self.times.resize((n + 1,))
-        self.times[n] = t_us
+        self.truth.append_log_frame(t_us, lin_log(frame))
 
 
 class _Aps:
     """The APS of a simulation: its frames go to the output after the events before them (the events held are
-    written first), their truth to the truth file's ``aps/`` group: ``t_us``, ``exposure_begin_us``,
-    ``exposure_end_us``, ``log_intensity`` (the scene's lin-log at each exposure's middle), ``mean_intensity`` (over
-    the exposure), and the per-pixel ``gain`` and ``offset`` maps."""
+    written first), their truth to the truth file's ``aps/`` group (:meth:`TruthWriter.start_aps`)."""
 
-    def __init__(self, sensor: ApsSensor, h5) -> None:
-        self.sensor, self.datasets = sensor, None
-        if h5 is not None:
-            group = h5.create_group("aps")
-            shape = (sensor.height, sensor.width)
-            group.create_dataset("gain", data=sensor.gain_map).attrs["units"] = "DN per intensity level per ms"
-            group.create_dataset("offset", data=sensor.offset_map).attrs["units"] = "DN"
-            for key, value in sensor.parameters.items():
-                group.attrs[key] = value
-            self.datasets = {name: group.create_dataset(name, shape=(0,), maxshape=(None,), dtype=np.int64,
-                                                        chunks=(256,))
-                             for name in ("t_us", "exposure_begin_us", "exposure_end_us")}
-            for name in ("log_intensity", "mean_intensity"):
-                self.datasets[name] = group.create_dataset(name, shape=(0, *shape), maxshape=(None, *shape),
-                                                           dtype=np.float32, chunks=(1, *shape), compression="gzip")
+    def __init__(self, sensor: ApsSensor, truth: TruthWriter | None) -> None:
+        self.sensor, self.truth = sensor, truth
+        if truth is not None:
+            truth.start_aps(sensor.gain_map, sensor.offset_map, sensor.parameters)
 
     def add(self, t_us: int, frame: np.ndarray, sink: "_LabelledSink") -> None:
         for done in self.sensor.add(t_us, frame):
             sink.write()
             sink.writer.write_frame(done.frame)
-            if self.datasets is not None:
-                n = len(self.datasets["t_us"])
-                values = {"t_us": done.frame.t_us, "exposure_begin_us": done.frame.exposure_begin_us,
-                          "exposure_end_us": done.frame.exposure_end_us, "log_intensity": done.true_log,
-                          "mean_intensity": done.mean_intensity}
-                for name, dataset in self.datasets.items():
-                    dataset.resize((n + 1, *dataset.shape[1:]))
-                    dataset[n] = values[name]
+            if self.truth is not None:
+                self.truth.append_aps({"t_us": done.frame.t_us, "exposure_begin_us": done.frame.exposure_begin_us,
+                                       "exposure_end_us": done.frame.exposure_end_us, "log_intensity": done.true_log,
+                                       "mean_intensity": done.mean_intensity})
 
 
-def _run(simulator: DvsSimulator, frames: FrameSource, writer, labels_dataset, counts, log_frames=None,
-         aps: _Aps | None = None) -> None:
-    sink = _LabelledSink(writer, labels_dataset, counts)
+def _run(simulator: DvsSimulator, frames: FrameSource, writer, truth: TruthWriter | None, counts,
+         log_frames=None, aps: _Aps | None = None) -> None:
+    sink = _LabelledSink(writer, truth, counts)
     with interrupt.consuming():  # Ctrl-C / SIGTERM: stop after the frame at hand, outputs complete
         for t_us, frame in _progress(frames):
             if log_frames is not None:
@@ -545,16 +491,10 @@ def _inject_into(source, output, written_as, truth, preset, seed, parameters, re
             if truth is None:
                 _run_injector(injector, stream, writer, None, counts)
                 return
-            import h5py
-
-            with _truth_errors(truth), output_stream(truth, binary_name="HDF5", needs_seek=True) as file, \
-                    interrupt.deferred(), h5py.File(file, "w") as h5:
-                h5.create_dataset("hot_pixels", data=injector.hot_pixels)
-                h5.create_dataset("leak_rate_hz", data=injector.leak_rate_map_hz.astype(np.float32))
-                h5.create_dataset(
-                    "label", shape=(0,), maxshape=(None,), dtype=np.uint8, chunks=(1 << 16,), compression="gzip"
-                )
-                attributes = {
+            with create_truth(truth) as truth_writer:
+                truth_writer.write_maps({"hot_pixels": injector.hot_pixels,
+                                         "leak_rate_hz": injector.leak_rate_map_hz.astype(np.float32)})
+                truth_writer.write_attributes({
                     **injector.parameters,
                     "width": width,
                     "height": height,
@@ -563,18 +503,16 @@ def _inject_into(source, output, written_as, truth, preset, seed, parameters, re
                     "source_format": stream.info.format,
                     "preset": preset or "",
                     "labels": ", ".join(f"{code} {name}" for code, name in LABELS.items()),
-                }
-                for key, value in attributes.items():
-                    h5.attrs[key] = _attribute(value)
-                first, last = _run_injector(injector, stream, writer, h5["label"], counts)
+                })
+                first, last = _run_injector(injector, stream, writer, truth_writer, counts)
                 if first is not None:  # the noise spans the input's events, these two times included
-                    h5.attrs["t_first_us"], h5.attrs["t_last_us"] = first, last
+                    truth_writer.write_attributes({"t_first_us": first, "t_last_us": last})
 
 
-def _run_injector(injector: NoiseInjector, stream, writer, labels_dataset, counts) -> tuple[int, int]:
+def _run_injector(injector: NoiseInjector, stream, writer, truth: TruthWriter | None, counts) -> tuple[int, int]:
     """Feed the stream through the injector into the writer (and the labels into the truth file); returns the
     times of the first and last input events."""
-    sink = _LabelledSink(writer, labels_dataset, counts)
+    sink = _LabelledSink(writer, truth, counts)
     first = last = None
 
     for chunk in with_progress(stream, stream, f"adding noise to {stream.name}"):

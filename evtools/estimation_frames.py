@@ -315,23 +315,23 @@ class FrameThresholdEstimator:
         fit, black_level = self._black_level([self._fit(index) for index in range(len(self.candidates))])
         on, off = fit["on"], fit["off"]
         n_events = self.counts[:, FRAMES_ON] + self.counts[:, FRAMES_OFF]
-        reasons = {
-            "no_frames": self.frames_seen == 0,
-            "saturated": (self.saturated * 2 > self.frames_seen) & (self.frames_seen > 0),
-            "few_events": n_events < self.min_events,
-            "one_polarity": (self.counts[:, FRAMES_ON] < 2) | (self.counts[:, FRAMES_OFF] < 2),
-            "few_frames": fit["n"] < MIN_FRAMES,
-        }
-        valid = fit["solved"].copy()
-        for mask in reasons.values():
+        with np.errstate(invalid="ignore"):  # (NaN where not solved: that pixel has its reason first)
+            failing = {  # in this order: each invalid pixel is counted under its first reason
+                "no_frames": self.frames_seen == 0,
+                "few_frames": fit["n"] < MIN_FRAMES,
+                "saturated": (self.saturated * 2 > self.frames_seen) & (self.frames_seen > 0),
+                "few_events": n_events < self.min_events,
+                "one_polarity": (self.counts[:, FRAMES_ON] < 2) | (self.counts[:, FRAMES_OFF] < 2),
+                "singular": ~fit["solved"],
+                "out_of_range": ~((on > 0.01) & (off > 0.01) & (on < 5) & (off < 5)),
+                "does_not_fit": fit["rms"] > MAX_RESIDUAL_RATIO * fit["expected_rms"],
+                "poor_fit": ~(fit["fit"] <= self.max_fit),
+            }
+        valid = np.ones(len(on), bool)
+        reasons = {}
+        for name, mask in failing.items():
+            reasons[name] = valid & mask
             valid &= ~mask
-        in_range = (on > 0.01) & (off > 0.01) & (on < 5) & (off < 5)
-        reasons["out_of_range"] = valid & ~in_range
-        valid &= in_range
-        reasons["does_not_fit"] = valid & (fit["rms"] > MAX_RESIDUAL_RATIO * fit["expected_rms"])
-        valid &= ~reasons["does_not_fit"]
-        reasons["poor_fit"] = valid & ~(fit["fit"] <= self.max_fit)
-        valid &= ~reasons["poor_fit"]
         shape = (self.height, self.width)
         on_map, off_map = on.astype(np.float32), off.astype(np.float32)
         if valid.any():

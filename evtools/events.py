@@ -21,9 +21,8 @@ EVENT_DTYPE = np.dtype(
 
 CHUNK_EVENTS = 1 << 17
 """Events per chunk that readers aim for (131,072: 2 MiB). About seven chunks are in flight at once (the read-ahead
-queue, the one being filled, the processor's output, the write-behind queue), so the size sets the memory floor:
-a million (16 MiB) measured 185 MiB peak for `bafilter` on 50M events, 262,144 about 70 MiB, this size 61 MiB (10M
-events, DVXplorer recording, AEDAT 4.0 LZ4), at the same speed file to file; `correct` 159 -> 140 MiB."""
+queue, the one being filled, the processor's output, the write-behind queue), so the size sets the memory floor
+(the sizes measured: docs/performance.md)."""
 
 MAX_SENSOR_SIDE = 32767
 """x and y are int16."""

@@ -101,9 +101,9 @@ class EventStream:
     def read_all(self) -> np.ndarray:
         """Every event, in one array. An uncompressed AEDAT 4.0 file is read straight into it: one chunk sized by
         the file (16 bytes an event: an upper bound; pages not reached cost nothing), each page touched once and no
-        copy (10M events: 0.33 -> 0.25 s); a compressed one is copied into a result sized by
-        :data:`COMPRESSED_RATIO_BOUND` chunk by chunk as they are decoded, so the reader reuses each chunk's memory
-        (10M LZ4 events in DV's packets, in-process: 0.32 -> 0.20 s); so is a stream whose reader tells how many
+        copy; a compressed one is copied into a result sized by :data:`COMPRESSED_RATIO_BOUND` chunk by chunk as
+        they are decoded, so the reader reuses each chunk's memory (both measured in docs/performance.md); so is a
+        stream whose reader tells how many
         events to expect (``expected_events()``: Prophesee RAW and DAT, HDF5); other streams are joined chunk by
         chunk, each chunk released as it is copied."""
         if self.info.format == "aedat4" and self.source.seekable and self.source.path:

@@ -60,7 +60,7 @@ def _decompressor(code: int, name: str):
         import lz4.frame
 
         local = threading.local()  # a decompression context per thread, reused packet after packet: half the time
-        # of lz4.frame.decompress, which makes one a call (DV's 620-event packets: 0.42 -> 0.21 s of 20M events)
+        # of lz4.frame.decompress, which makes one a call (docs/performance.md)
 
         def decompress(data: bytes) -> bytes:
             context = getattr(local, "context", None)
@@ -493,8 +493,8 @@ class Aedat4Reader:
         """Decode consecutive compressed event packets (in a decoding thread) into one array, padding zeroed.
 
         DV records packets of a few thousand events (1,900 on average in the DVXplorer sample: 10 ms each), so
-        packets are handed to the pool in groups of about a chunk: one hand-over per group, not per packet (a
-        10M-event file read 1.27 -> 0.6 s). Each packet is copied into the group's array as soon as it is
+        packets are handed to the pool in groups of about a chunk: one hand-over per group, not per packet
+        (docs/performance.md). Each packet is copied into the group's array as soon as it is
         decompressed, so one packet's bytes are alive at a time: holding a whole group's (2 MB) and freeing them
         together made the thread's malloc arena give its pages back and fault them in again for every group
         (190,000 page faults reading 50M events; `convert` to /dev/null spent 0.9 s in the kernel). The array is

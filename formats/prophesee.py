@@ -14,7 +14,7 @@ Layout (FORMATS.md, after Prophesee's format pages): the header is ASCII lines `
 
 All are decoded by numba kernels (:mod:`evtools._kernels.prophesee`) straight into the chunks' records, chunks
 whose memory is reused once the consumer lets them go (:class:`evtools.formats.io.Recycled`); EVT 2.0 is written by
-one too (10M events of a Gen4 recording converted from EVT 3.0: 0.74 -> 0.25 s whole process, the same bytes).
+one too (docs/performance.md).
 
 Decoding is spec-literal: events before the first time-high word are dropped, and a time-high field that falls
 by more than half its range is a wrap of the time base (2^34 us for EVT 2.0 and 2.1, 2^24 us for EVT 3.0). A

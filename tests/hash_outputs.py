@@ -55,6 +55,10 @@ def _commands(scratch: Path) -> list[str]:
         f"estimate {texture} --method natural -o {{out}}.h5",
         f"estimate {step} --method offe --max-fit inf -o {{out}}.h5",
         "simulate scene:bars --size 32x24 --duration 500ms --seed 3 -o {out}.aedat4",
+        # the truth files (hashed: out.h5 sorts before out.x.aedat4)
+        "simulate scene:texture --size 32x24 --duration 1s --seed 3 --aps-rate 25 --aps-exposure 10ms "
+        "--truth {out}.h5 -o {out}.x.aedat4",
+        f"simulate {step} --shot-noise-rate-hz 5 --seed 2 --truth {{out}}.h5 -o {{out}}.x.aedat4",
     ]
     return commands
 

@@ -11,6 +11,7 @@ colour maps from matplotlib. The API layer (``evtools/api.py``, ``evtools/__init
 from __future__ import annotations
 
 import ast
+import re
 import sys
 from pathlib import Path
 
@@ -100,3 +101,14 @@ def test_the_check_finds_a_crossing(tmp_path):
     assert [(line, name) for line, name, _ in _imports(module)] == [(1, "numpy"), (4, "evtools.formats")]
     assert _covered("evtools.formats", set(FORBIDDEN["evtools"]))
     assert _covered("evtools.formats.io", {"evtools.formats"}) and not _covered("evtools.formatsx", {"evtools.formats"})
+
+
+def test_no_benchmark_diary_in_the_code():
+    """Measurements that explain a choice live in docs/performance.md, not in docstrings and comments where no test
+    keeps them true (issue 40): no 'before -> after' figure with a unit in the sources."""
+    diary = re.compile(r"\d[\d.,]* ?(?:ms|s|Mev/s|MiB|ns|GB|MB)? ?-> ?\d[\d.,]* ?(?:ms|s|Mev/s|MiB|ns|GB|MB)\b")
+    found = [f"{path.relative_to(ROOT)}:{number}: {line.strip()}"
+             for folder in ("evtools", "formats", "cli") for path in sorted((ROOT / folder).rglob("*.py"))
+             for number, line in enumerate(path.read_text().splitlines(), 1) if diary.search(line)]
+    assert not found, "\n".join(found)
+    assert (ROOT / "docs" / "performance.md").exists()

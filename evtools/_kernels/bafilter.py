@@ -21,7 +21,7 @@ from evtools._kernels.prefetch import prefetch
 
 AHEAD = 16
 """STCF prefetches the window rows of the event this many events ahead (its map rows are cache misses on large
-sensors: 1280 x 720 stcf 43 -> 54 Mev/s, measured on the bench's random events)."""
+sensors; measured in docs/performance.md)."""
 
 NEVER = -(1 << 62)
 """Time-map value of "no event yet" ("long ago"): far enough that ``t - NEVER`` never overflows int64."""

@@ -31,9 +31,7 @@ from evtools._kernels.prefetch import prefetch
 
 AHEAD = 16
 """offE prefetches the state rows of the pixel of the event this many events ahead: on a large sensor (Gen4's
-921,600 pixels: 88 MB of rows) nearly every event's rows are cache misses. 10M events in-process, chunks of 2^17:
-the Gen4 recording tiled 0.73 -> 0.21 s, the DVXplorer recording tiled (76,800 pixels) 0.18 -> 0.13 s (8 and 32
-ahead: no better)."""
+921,600 pixels: 88 MB of rows) nearly every event's rows are cache misses (measured in docs/performance.md)."""
 
 # offE scalar state (int64 array): the segment clock
 OFFE_ORIGIN = 0  # time of the first event (segments start there)

@@ -1,9 +1,7 @@
 """Prophesee EVT 2.0, EVT 2.1 and EVT 3.0 kernels: the decoders, sequential state machines over the words compiled
 with numba, write each event's record straight into a chunk (its two 64-bit words, see
-:func:`evtools.events.record_words`): no column arrays, no field-by-field copy. ``evtools.read`` of 10M events (the
-DVXplorer recording tiled, written by faery), in-process, fastest of 5: EVT 3.0 0.29 -> 0.098 s (faery 0.30 s),
-EVT 2.0, which was decoded in numpy with a dozen temporaries a block, 0.27 -> 0.056 s (faery 0.24 s). The EVT 2.0
-encoder writes the words straight from the records.
+:func:`evtools.events.record_words`): no column arrays, no field-by-field copy (measured in docs/performance.md).
+The EVT 2.0 encoder writes the words straight from the records.
 
 EVT 3.0 sends a coordinate, polarity or time field only when it changes, and EVT 2.0 and 2.1 a time's upper bits only
 when they change, so every word is read against the state left by the words before it; that state lives in one int64
