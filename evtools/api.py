@@ -225,9 +225,6 @@ def _document_bafilter() -> None:
                         "".join(f"    {line}\n" for line in api_doc().splitlines()) + "\n    Examples\n" + examples)
 
 
-_document_bafilter()
-
-
 def estimate(events: np.ndarray, info: StreamInfo, method: str = "offe", **params):
     """Every pixel's ON and OFF contrast thresholds (``evtools estimate``): a :class:`ThresholdEstimate` with
     ``on``, ``off`` (height x width, log units), ``valid``, ``fit`` and the attributes.
@@ -395,6 +392,36 @@ def inject_noise(events: np.ndarray, info: StreamInfo, **parameters) -> tuple[np
 
     info = _stream_info(info)
     return inject(events, info.width, info.height, **parameters)
+
+
+def _keywords_of(function, target, leave_out=()) -> None:
+    """Give ``function``, which passes its ``**params`` on to ``target`` (a processor's constructor), the
+    target's keyword-only parameters in its signature: ``help()`` and tab completion list them, with their
+    defaults, from the one place they are declared."""
+    import inspect
+
+    own = inspect.signature(function)
+    kept = [p for p in own.parameters.values() if p.kind is not inspect.Parameter.VAR_KEYWORD]
+    names = {p.name for p in kept}
+    kept += [p for p in inspect.signature(target).parameters.values()
+             if p.kind is inspect.Parameter.KEYWORD_ONLY and p.name not in names | set(leave_out)]
+    function.__signature__ = own.replace(parameters=kept)
+
+
+def _document() -> None:
+    from evtools.correction import ThresholdCorrector
+    from evtools.estimation import ThresholdEstimator
+    from evtools.noise import NoiseInjector
+    from evtools.simulation import DvsSimulator
+
+    _document_bafilter()
+    _keywords_of(estimate, ThresholdEstimator, leave_out=("check",))
+    _keywords_of(correct, ThresholdCorrector, leave_out=("check", "t_us", "stale", "start_us"))
+    _keywords_of(simulate, DvsSimulator)
+    _keywords_of(inject_noise, NoiseInjector)
+
+
+_document()
 
 
 # -- conversions ---------------------------------------------------------------------------------------------------

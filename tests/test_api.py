@@ -340,3 +340,30 @@ def test_reading_options_are_one_object_from_python_and_the_command_line(tmp_pat
     import evtools.formats.io as io_module
 
     assert not [name for name in vars(io_module) if name.isupper() and name.endswith(("_S", "_TIMEOUT"))]
+
+
+def test_the_api_signatures_say_what_they_take():
+    """Issue 40 item 5: help() and tab completion list each function's keywords, from the processor that declares
+    them (no second list to drift); a name that is none of them is refused."""
+    import inspect
+
+    from evtools.correction import ThresholdCorrector
+    from evtools.estimation import ThresholdEstimator
+    from evtools.noise import NoiseInjector
+    from evtools.simulation import DvsSimulator
+
+    for function, target, internal in ((evtools.estimate, ThresholdEstimator, {"check"}),
+                                       (evtools.correct, ThresholdCorrector, {"check", "t_us", "stale", "start_us"}),
+                                       (evtools.simulate, DvsSimulator, set()),
+                                       (evtools.inject_noise, NoiseInjector, set())):
+        declared = {name for name, p in inspect.signature(target).parameters.items()
+                    if p.kind is inspect.Parameter.KEYWORD_ONLY} - internal
+        shown = inspect.signature(function).parameters
+        assert declared <= set(shown), (function.__name__, declared - set(shown))
+        assert all(shown[name].default == inspect.signature(target).parameters[name].default for name in declared)
+        assert not any(p.kind is inspect.Parameter.VAR_KEYWORD for p in shown.values())
+    events = evtools.from_columns([0, 10], [0, 1], [0, 0], [1, 0])
+    with pytest.raises(TypeError, match="nominl"):
+        evtools.estimate(events, (2, 1), nominl=0.2)
+    with pytest.raises(TypeError, match="sigma_thre"):
+        evtools.simulate("flicker", size=(4, 3), duration_us=100_000, sigma_thre=0.1)
