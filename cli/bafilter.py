@@ -141,8 +141,9 @@ def filter_one(input, output, *, reading, methods, preset, params=None,
                hot_pixels_path=None, save_hot_pixels=None, compression=None, slicing=None) -> Outcome:
     """Filter one file (the command's whole work for one input): its :class:`Outcome` (events in, kept).
 
-    ``reading``: how to read the input (:class:`evtools.formats.ReadOptions`); ``params``: the filters' parameters given (:class:`evtools.filters.BAFilter`); ``slicing``: the shared slicing
-    options (:func:`evtools.transform.sliced`), applied as the events are read."""
+    ``reading``: how to read the input (:class:`evtools.formats.ReadOptions`); ``params``: the filters'
+    parameters given (:class:`evtools.filters.BAFilter`); ``slicing``: the shared slicing options
+    (:func:`evtools.transform.sliced`), applied as the events are read."""
     if save_hot_pixels:
         _check_hot_pixels_target(save_hot_pixels, input, output)
     with open_events(input, reading) as opened:

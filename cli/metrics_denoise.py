@@ -114,7 +114,8 @@ def denoise(filtered, truth, noisy, as_json):
 
 SWEEPABLE = {name.replace("_", "-"): uses[0][1].kind for name, uses in parameters().items()
              if uses[0][1].sweepable and uses[0][1].cli}
-"""The filter parameters ``--sweep`` and ``--set`` take (command-line spelling -> kind), from the filters' declarations."""
+"""The filter parameters ``--sweep`` and ``--set`` take (command-line spelling -> kind), from the filters'
+declarations."""
 
 
 def _sweep(ctx, param, value):

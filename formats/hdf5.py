@@ -107,10 +107,10 @@ attributes are written: at its start, or at its end when they are written on clo
 
 
 def check_global_heaps(file, name: str) -> None:
-    """Refuse a file (a path or a binary file, read from its start) whose HDF5 global heap collections (where variable-length strings live: the attributes of
-    Metavision's files, h5py's string attributes) are inconsistent: HDF5 loops forever reading one whose objects do
-    not fill it exactly (found by mutating a Metavision file: a damaged collection or object size hung the read,
-    deaf to signals). Layout (HDF5 file format spec, III.E): ``GCOL``, version 1, 3 reserved bytes, the collection
+    """Refuse a file (a path or a binary file, read from its start) whose HDF5 global heap collections (where
+    variable-length strings live: the attributes of Metavision's files, h5py's string attributes) are
+    inconsistent: HDF5 loops forever reading one whose objects do not fill it exactly (found by mutating a
+    Metavision file: a damaged collection or object size hung the read, deaf to signals). Layout (HDF5 file format spec, III.E): ``GCOL``, version 1, 3 reserved bytes, the collection
     size (8 bytes, at least 4096), then objects of a 16-byte header (index 2, reference count 2, reserved 4, size
     8) and their data padded to 8 bytes; object 0 is the free space, last, its size counting its header."""
     if isinstance(file, (str, os.PathLike)):

@@ -18,6 +18,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from evtools._kernels import jit
+from evtools._kernels import store as kernel_store
 from evtools.events import EVENT_DTYPE
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -62,7 +63,7 @@ _twice_kernel = jit.kernel(_twice, inline=True)
 @pytest.fixture
 def store(tmp_path, monkeypatch):
     """An empty store of machine code, used by the kernels made in the test."""
-    monkeypatch.setattr(jit, "cache_dir", lambda: tmp_path)
+    monkeypatch.setattr(kernel_store, "cache_dir", lambda: tmp_path)
     return tmp_path
 
 
@@ -144,16 +145,16 @@ def test_an_array_is_described_as_without_the_lookup(dtype, shape, step, writeab
     if field and array.dtype.names:
         array = array[array.dtype.names[0]]
     array.flags.writeable = writeable
-    assert jit._describe(array) == jit._describe_array(array)
-    assert jit._describe(array) == jit._describe_array(array)  # and again, from the table
+    assert kernel_store._describe(array) == kernel_store._describe_array(array)
+    assert kernel_store._describe(array) == kernel_store._describe_array(array)  # and again, from the table
 
 
 def test_arguments_the_wrapper_cannot_pass_go_to_numba(store):
     mean = jit.kernel(mean_of)
     matrix = np.arange(24.0).reshape(4, 6)
     assert mean(matrix[:, ::2]) == matrix[:, ::2].mean()  # 2-D, not contiguous
-    assert jit._describe(matrix[:, ::2]) is None and jit._describe([1, 2]) is None
-    assert jit._describe(1 << 64) is None and jit._describe(np.float16(1)) is None
+    assert kernel_store._describe(matrix[:, ::2]) is None and kernel_store._describe([1, 2]) is None
+    assert kernel_store._describe(1 << 64) is None and kernel_store._describe(np.float16(1)) is None
     assert mean._calls[tuple([None])] is False
     assert not list(store.glob("**/*.pkl"))
 
@@ -166,11 +167,11 @@ def test_a_damaged_or_stale_store_entry_is_rebuilt(store, monkeypatch):
     out = np.zeros(5)
     assert jit.kernel(scale_and_count)(values, 2.0, 3.0, out) == 3
     assert pickle.loads(entry.read_bytes())["object"]
-    monkeypatch.setattr(jit, "_SOURCES", b"edited kernels")
+    monkeypatch.setattr(kernel_store, "_SOURCES", b"edited kernels")
     assert jit.kernel(scale_and_count)(values, 2.0, 3.0, out) == 3
     [rebuilt] = store.glob("*/*.pkl")
     assert rebuilt.name != entry.name  # the stale entry is gone, the new one written
-    monkeypatch.setattr(jit, "_ENVIRONMENT", "another-machine")
+    monkeypatch.setattr(kernel_store, "_ENVIRONMENT", "another-machine")
     assert jit.kernel(scale_and_count)(values, 2.0, 3.0, out) == 3
     assert rebuilt.exists() and len(list(store.glob("*/*.pkl"))) == 2  # each environment keeps its own
     np.testing.assert_array_equal(out, 2 * values)
@@ -181,11 +182,11 @@ def test_an_unresolvable_symbol_falls_back_to_numba(store):
     jit.kernel(scale_and_count)(values, 2.0, 3.0, np.zeros(5))
     [entry] = store.glob("*/*.pkl")
     record = pickle.loads(entry.read_bytes())
-    assert jit._load(record)  # loads as stored, by llvmlite and as a shared library
+    assert kernel_store._load(record)  # loads as stored, by llvmlite and as a shared library
     library = entry.with_suffix(".so")
     assert library.exists() == ("slots" in record)
     if library.exists():
-        assert jit._load_library(record, library)
+        assert kernel_store._load_library(record, library)
     record["undefined"].append("evtools_no_such_symbol")
     entry.write_bytes(pickle.dumps(record))
     count = jit.kernel(scale_and_count)
@@ -209,7 +210,7 @@ def test_a_process_with_a_warm_store_does_not_import_numba(tmp_path):
         assert result.returncode == 0, result.stderr
         imported.append(result.stdout.strip())
         outputs.append(output.read_text().splitlines())
-    linked = bool(shutil.which(os.environ.get("CC") or "cc")) and platform.machine() in jit._TRAMPOLINES
+    linked = bool(shutil.which(os.environ.get("CC") or "cc")) and platform.machine() in kernel_store._TRAMPOLINES
     assert imported[1] == ("False False" if linked else "False True")  # a shared library needs no llvmlite
     assert outputs[0] == outputs[1] and 1 < len(outputs[1]) < 201
 
@@ -226,7 +227,7 @@ def test_kernel_modules_imported_after_numba_get_their_extensions_built():
 
 def allocate_or_raise(values):
     """numba's runtime (an array allocated and freed) and its exception helpers, reached from a shared library
-    through the trampolines of jit._link."""
+    through the trampolines of kernel_store._link."""
     if values[0] < 0:
         raise ValueError("a negative first value")
     scratch = np.empty(3)
@@ -234,13 +235,15 @@ def allocate_or_raise(values):
     return scratch.sum()
 
 
-@pytest.mark.skipif(not shutil.which(os.environ.get("CC") or "cc") or platform.machine() not in jit._TRAMPOLINES,
+@pytest.mark.skipif(not shutil.which(os.environ.get("CC") or "cc")
+                    or platform.machine() not in kernel_store._TRAMPOLINES,
                     reason="no C compiler (or trampolines) for shared libraries here: llvmlite loads the objects")
 def test_a_shared_library_reaches_numbas_runtime_and_exceptions(tmp_path):
     probe = ("import sys, numpy as np; from pathlib import Path; from evtools._kernels import jit; "
-             f"jit.cache_dir = lambda: Path({str(tmp_path)!r}); "
+             "from evtools._kernels import store as kernel_store; "
+             f"kernel_store.cache_dir = lambda: Path({str(tmp_path)!r}); "
              "from tests.test_jit import allocate_or_raise; k = jit.kernel(allocate_or_raise); "
-             "print(k(np.array([2.5])), k(np.array([-1.0])), type(jit._KEEP[-1]).__name__)")
+             "print(k(np.array([2.5])), k(np.array([-1.0])), type(kernel_store._KEEP[-1]).__name__)")
     runs = [subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, cwd=ROOT, timeout=300,
                            env={**os.environ, "PYTHONPATH": str(ROOT)}) for _ in range(2)]
     assert [run.returncode for run in runs] == [0, 0], runs[1].stderr
@@ -276,8 +279,8 @@ def test_numbas_cache_of_a_kernel_goes_stale_when_any_kernel_source_changes(monk
     jit.numba_module()
     locator = jit._kernels_cache(kernel_)._impl.locator
     before = locator.get_source_stamp()
-    assert before == jit._sources(kernel_)
-    monkeypatch.setattr(jit, "_SOURCES", b"another kernel module changed")
+    assert before == kernel_store._sources(kernel_)
+    monkeypatch.setattr(kernel_store, "_SOURCES", b"another kernel module changed")
     assert locator.get_source_stamp() != before
 
 
@@ -286,7 +289,7 @@ def test_numbas_cache_of_a_kernel_goes_where_numba_cache_dir_says(tmp_path, monk
     monkeypatch.setattr(numba.config, "CACHE_DIR", str(tmp_path))
     locator = jit._kernels_cache(jit.kernel(scale_and_count))._impl.locator
     assert locator.get_cache_path().startswith(str(tmp_path))
-    assert locator.get_source_stamp() == jit._sources(jit.kernel(scale_and_count))
+    assert locator.get_source_stamp() == kernel_store._sources(jit.kernel(scale_and_count))
 
 
 def test_a_terminal_is_told_once_that_kernels_are_being_compiled(monkeypatch):
@@ -300,16 +303,16 @@ def test_a_terminal_is_told_once_that_kernels_are_being_compiled(monkeypatch):
         def isatty(self):
             return True
 
-    monkeypatch.setattr(jit, "_SAID", [])
+    monkeypatch.setattr(kernel_store, "_SAID", [])
     terminal = Terminal()
     monkeypatch.setattr("sys.stderr", terminal)
-    jit._say_compiling("a.kernel")
-    jit._say_compiling("another.kernel")
+    kernel_store._say_compiling("a.kernel")
+    kernel_store._say_compiling("another.kernel")
     assert terminal.getvalue().count("compiling machine code") == 1
-    monkeypatch.setattr(jit, "_SAID", [])
+    monkeypatch.setattr(kernel_store, "_SAID", [])
     piped = io.StringIO()
     monkeypatch.setattr("sys.stderr", piped)
-    jit._say_compiling("a.kernel")
+    kernel_store._say_compiling("a.kernel")
     assert piped.getvalue() == ""
 
 
