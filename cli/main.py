@@ -214,9 +214,10 @@ call, MLPF's two small products, is as fast on one."""
 def main() -> None:
     for name, value in BLAS_THREADS.items():  # before numpy is imported (``evtools`` loads it on first use)
         os.environ.setdefault(name, value)
-    kernels = os.environ.get("EVTOOLS_KERNELS", "").strip().lower()
-    if kernels not in ("", "store", "numba"):  # (checked before a kernel module is imported, deep in a command)
-        sys.stderr.write(f"evtools: usage: EVTOOLS_KERNELS={kernels!r}: choose store (the default) or numba\n")
+    try:  # EVTOOLS_KERNELS checked before any command runs (jit.py owns its values; it imports no numpy)
+        from evtools._kernels import jit  # noqa: F401
+    except ValueError as error:
+        sys.stderr.write(f"evtools: usage: {error}\n")
         sys.exit(EXIT_USAGE)
     interrupt.install()  # Ctrl-C / SIGTERM end the input stream: outputs complete, exit 130 / 143
     try:

@@ -38,7 +38,7 @@ KERNEL_MODES = ("store", "numba")
 around the store, for a numba it does not know yet or a doubt about its results (CI runs the suite both ways)."""
 MODE = os.environ.get("EVTOOLS_KERNELS", "store").strip().lower() or "store"
 if MODE not in KERNEL_MODES:
-    raise ValueError(f"EVTOOLS_KERNELS={MODE!r}: choose {' or '.join(KERNEL_MODES)}")
+    raise ValueError(f"EVTOOLS_KERNELS={MODE!r}: choose {' (the default) or '.join(KERNEL_MODES)}")
 
 _LOCK = threading.RLock()
 _DEFERRED: list["Deferred"] = []
