@@ -367,3 +367,17 @@ def test_the_api_signatures_say_what_they_take():
         evtools.estimate(events, (2, 1), nominl=0.2)
     with pytest.raises(TypeError, match="sigma_thre"):
         evtools.simulate("flicker", size=(4, 3), duration_us=100_000, sigma_thre=0.1)
+
+
+def test_every_method_and_mode_the_api_documents_exists():
+    """Issue 40 item 6 (the docstring once offered ynoise and knoise, which did not exist): the choices listed in the
+    API's docstrings are the ones the processors take, no more and no fewer."""
+    import re
+
+    from evtools.correction import MODES
+    from evtools.estimation import METHODS as ESTIMATE_METHODS
+
+    listed = set(re.findall(r'"(\w+)"', evtools.estimate.__doc__.split("method : ")[1].splitlines()[0]))
+    assert listed == set(ESTIMATE_METHODS)
+    modes = evtools.correct.__doc__.split("``mode`` (")[1].split(")")[0]
+    assert set(re.findall(r"\w+", modes)) == set(MODES)
