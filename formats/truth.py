@@ -33,16 +33,16 @@ class TruthWriter:
 
     def __init__(self, h5) -> None:
         self._h5 = h5
-        self._labels = h5.create_dataset("label", shape=(0,), maxshape=(None,), dtype=np.uint8, chunks=(1 << 16,),
-                                         compression="gzip")
-        self._log_frames = self._aps = None
+        self._labels = self._log_frames = self._aps = None
 
     def write_maps(self, maps: dict[str, np.ndarray]) -> None:
-        """Per-pixel maps (height x width) as datasets; ``on`` and ``off`` get their units."""
+        """Per-pixel maps (height x width) as datasets (``on`` and ``off`` with their units), then the labels'."""
         for name, values in maps.items():
             self._h5.create_dataset(name, data=values)
             if name in ("on", "off"):
                 self._h5[name].attrs["units"] = LOG_UNITS
+        self._labels = self._h5.create_dataset("label", shape=(0,), maxshape=(None,), dtype=np.uint8,
+                                               chunks=(1 << 16,), compression="gzip")
 
     def write_attributes(self, attributes: dict[str, Any]) -> None:
         for key, value in attributes.items():
