@@ -149,10 +149,12 @@ def open_events(path: str | os.PathLike | None = None, options: ReadOptions | No
     if options.sensor_size is not None:
         options = dataclasses.replace(options, sensor_size=parse_sensor_size(options.sensor_size))
     folder = None
-    if path is not None and os.fspath(path) != STDIO and os.path.isdir(path):  # the RPG dataset layout
-        from evtools.formats.rpg import rpg_events_path
+    if path is not None and os.fspath(path) != STDIO and os.path.isdir(path):  # a dataset folder: RPG, DSEC
+        from evtools.formats.rpg import folder_events, folder_images
 
-        folder, path = os.fspath(path), rpg_events_path(os.fspath(path))
+        folder = os.fspath(path)
+        path, layout = folder_events(folder)
+        images = folder_images(folder, layout)  # (checked before the events are read)
     source = Source(path, options.connect_timeout_s, options.read_timeout_s)
     try:
         if not source.head:
@@ -171,9 +173,9 @@ def open_events(path: str | os.PathLike | None = None, options: ReadOptions | No
             raise FormatError(f"{source.name}: {fmt.description} cannot be read")
         reader = fmt.reader_class()(source, options)
         if folder is not None:
-            from evtools.formats.rpg import RpgFrames
+            from evtools.formats.rpg import FolderFrames
 
-            reader = RpgFrames(reader, folder)
+            reader = FolderFrames(reader, layout, images)
         return EventStream(source, reader, fmt.name, check)
     except BaseException:
         source.close()

@@ -335,3 +335,40 @@ def test_aedat3_frame_packets_are_read_as_16_bit_frames(tmp_path):
     assert len(kept) == 3 and all(a.same_as(b) for a, b in zip(kept, read))
     piped = run("convert", "-", "-o", tmp_path / "piped.aedat4", input=path.read_bytes())
     assert "3 APS frames left out" in piped.stderr.decode()
+
+
+def test_a_dsec_sequence_folder_is_read_with_its_images_as_frames(tmp_path):
+    """Issue 38: a DSEC sequence (events/left/events.h5 with t_offset, images/left/rectified/*.png,
+    images/timestamps.txt, and exposure_timestamps.txt where the release has it), written by a naive writer: the
+    events with t_offset added, the colour images as gray frames of their own size at their times and exposures,
+    through the command line too; a timestamps file that does not match the images is one line naming it."""
+    import cv2
+
+    from tests.naive.dsec import write_dsec_sequence
+
+    rng = np.random.default_rng(12)
+    offset = 1_000_000_000
+    events = sorted((offset + int(t), int(x), int(y), int(p)) for t, x, y, p in zip(
+        rng.integers(0, 400_000, 600), rng.integers(0, 20, 600), rng.integers(0, 10, 600), rng.integers(0, 2, 600)))
+    images = [rng.integers(0, 256, (8, 12, 3), dtype=np.uint8) for _ in range(3)]
+    times = [offset + 50_000, offset + 150_000, offset + 250_000]
+    exposures = [(t - 5_000, t + 5_000) for t in times]
+    for name, given in (("with_exposures", exposures), ("without", None)):
+        folder = tmp_path / name
+        write_dsec_sequence(folder, events, images, times, offset, given)
+        back, info, frames = evtools.read(folder, frames=True)
+        assert back["t"].tolist() == [e[0] for e in events] and back["x"].tolist() == [e[1] for e in events]
+        assert back["p"].tolist() == [bool(e[3]) for e in events]
+        assert info.metadata["frame_size"] == (12, 8) and info.metadata["layout"] == "dsec" and len(frames) == 3
+        for frame, image, t, (begin, end) in zip(frames, images, times, given or [(t, t) for t in times]):
+            assert (frame.t_us, frame.exposure_begin_us, frame.exposure_end_us) == (t, begin, end)
+            np.testing.assert_array_equal(frame.image, cv2.cvtColor(image, cv2.COLOR_BGR2GRAY))
+    assert '"count": 3' in run("info", tmp_path / "with_exposures", "--json").stdout.decode()
+    run("convert", tmp_path / "with_exposures", "-o", tmp_path / "x.aedat4")
+    kept = evtools.read(tmp_path / "x.aedat4", frames=True)[2]
+    assert [f.exposure_end_us for f in kept] == [end for _, end in exposures]
+    stamps = tmp_path / "without" / "images" / "timestamps.txt"
+    stamps.write_text(stamps.read_text() + f"{offset + 300_000}\n")
+    assert_clean_error(run("info", tmp_path / "without", check=False), "timestamps.txt", "4 times for 3 images")
+    stamps.write_text(f"{offset + 150_000}\n{offset + 50_000}\n{offset + 250_000}\n")
+    assert_clean_error(run("info", tmp_path / "without", check=False), "timestamps.txt", "backwards")
