@@ -17,11 +17,11 @@ import numpy as np
 
 from evtools import interrupt
 from evtools.aps import APS_DEFAULTS, ApsSensor
-from evtools.cli.options import (FINITE, Duration, FiniteRange, IntRange, Microseconds, aedat2_layout_option,
+from evtools.cli.options import (FINITE, Duration, FiniteRange, Microseconds, aedat2_layout_option,
                                  merged_alias, serve_early,
                                  check_compression, compression_option, input_format_option, reading_options)
 from evtools.cli.progress import with_progress
-from evtools.events import CHUNK_EVENTS, MAX_TIME_US, StreamInfo, join, parse_sensor_size
+from evtools.events import CHUNK_EVENTS, StreamInfo, join, parse_sensor_size
 from evtools.noise import NOISE_DEFAULTS, NoiseInjector
 from evtools.simulation import (
     DEFAULT_PARAMETERS,

@@ -11,7 +11,7 @@ from typing import Iterator
 import numpy as np
 
 from evtools import interrupt
-from evtools.events import CHUNK_EVENTS, StreamChecker, StreamInfo, concatenate, parse_sensor_size
+from evtools.events import StreamChecker, StreamInfo, concatenate, parse_sensor_size
 from evtools.formats.errors import FormatError, UnknownOutputFormat
 from evtools.formats.io import (
     STDIO,

@@ -353,14 +353,14 @@ def test_a_dsec_sequence_folder_is_read_with_its_images_as_frames(tmp_path):
     images = [rng.integers(0, 256, (8, 12, 3), dtype=np.uint8) for _ in range(3)]
     times = [offset + 50_000, offset + 150_000, offset + 250_000]
     exposures = [(t - 5_000, t + 5_000) for t in times]
-    for name, given in (("with_exposures", exposures), ("without", None)):
+    for name, written in (("with_exposures", exposures), ("without", None)):
         folder = tmp_path / name
-        write_dsec_sequence(folder, events, images, times, offset, given)
+        write_dsec_sequence(folder, events, images, times, offset, written)
         back, info, frames = evtools.read(folder, frames=True)
         assert back["t"].tolist() == [e[0] for e in events] and back["x"].tolist() == [e[1] for e in events]
         assert back["p"].tolist() == [bool(e[3]) for e in events]
         assert info.metadata["frame_size"] == (12, 8) and info.metadata["layout"] == "dsec" and len(frames) == 3
-        for frame, image, t, (begin, end) in zip(frames, images, times, given or [(t, t) for t in times]):
+        for frame, image, t, (begin, end) in zip(frames, images, times, written or [(t, t) for t in times]):
             assert (frame.t_us, frame.exposure_begin_us, frame.exposure_end_us) == (t, begin, end)
             np.testing.assert_array_equal(frame.image, cv2.cvtColor(image, cv2.COLOR_BGR2GRAY))
     assert '"count": 3' in run("info", tmp_path / "with_exposures", "--json").stdout.decode()

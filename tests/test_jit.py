@@ -297,8 +297,6 @@ def test_a_terminal_is_told_once_that_kernels_are_being_compiled(monkeypatch):
     says so, once a process, and nothing is written when stderr is not a terminal."""
     import io
 
-    from evtools._kernels import jit
-
     class Terminal(io.StringIO):
         def isatty(self):
             return True
