@@ -189,9 +189,7 @@ def bafilter(events: np.ndarray, info: StreamInfo, method: str = "baf", **params
     events : ndarray of EVENT_DTYPE
     info : StreamInfo, (width, height) or "WxH"
     method : str
-        One filter or a comma-separated chain (:data:`evtools.filters.METHODS`): ``baf`` (Delbruck 2008),
-        ``stcf`` (Guo & Delbruck 2022), ``dwf``, ``orderN`` (Khodamoradi & Kastner 2018), ``refractory``,
-        ``hotpixel``, ``mlpf``, ``ynoise`` (Feng et al. 2020) (README, section Bafilter).
+        METHODS_TEXT
     preset : {"evtools", "dv", "jaer"}
         Semantics and defaults (README, section Bafilter).
     **params
@@ -215,12 +213,17 @@ def _document_bafilter() -> None:
     """:func:`bafilter`'s signature and docstring list every filter parameter (``help()``, tab completion)."""
     import inspect
 
-    from evtools.filters.registry import api_doc, api_signature
+    from evtools.filters.registry import api_doc, api_signature, methods_text
 
     kind = inspect.Parameter.POSITIONAL_OR_KEYWORD
     bafilter.__signature__ = api_signature(inspect.Parameter("events", kind), inspect.Parameter("info", kind),
                                            inspect.Parameter("method", kind, default="baf"))
-    head, examples = bafilter.__doc__.split("    Examples\n")
+    import textwrap
+
+    methods = textwrap.fill(f"One filter or a comma-separated chain (:data:`evtools.filters.METHODS`): "
+                            f"{methods_text()} (README, section Bafilter).", 116, initial_indent=" " * 8,
+                            subsequent_indent=" " * 8)
+    head, examples = bafilter.__doc__.replace(" " * 8 + "METHODS_TEXT", methods).split("    Examples\n")
     bafilter.__doc__ = (head + "    Filter parameters\n    -----------------\n" +
                         "".join(f"    {line}\n" for line in api_doc().splitlines()) + "\n    Examples\n" + examples)
 

@@ -10,6 +10,7 @@ DT_US = "correlation window, us"
 
 class Baf(Filter):
     name = "baf"
+    reference = "Delbruck 2008"
     keeps = "one of its 8 neighbours (not itself) fired less than `--dt-us` ago (the report's filter)"
     params = (Param("dt_us", "time_us", DT_US),)
     defaults = {"evtools": {"dt_us": 10_000}, "dv": {"dt_us": 2_000}, "jaer": {"dt_us": 25_000}}

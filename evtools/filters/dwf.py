@@ -10,6 +10,7 @@ from evtools.filters.spec import Filter, Param
 
 class Dwf(Filter):
     name = "dwf"
+    reference = "Guo & Delbruck 2022"
     keeps = ("at least `--k` of the last `--window` kept and last `--window` rejected events lie at L1 distance "
              "`< --distance` (Guo & Delbruck 2022)")
     params = (

@@ -14,6 +14,7 @@ from evtools.mlpf import MlpfError, Weights, load_weights
 
 class Mlpf(Filter):
     name = "mlpf"
+    reference = "Guo & Delbruck 2022"
     keeps = ("a small perceptron says it is signal with probability above `--threshold` (Guo & Delbruck 2022's "
              "MLPF; see below)")
     params = (

@@ -11,6 +11,7 @@ from evtools.filters.spec import Filter, Param
 
 class OrderN(Filter):
     name = "orderN"
+    reference = "Khodamoradi & Kastner 2018"
     keeps = ("an adjacent row (column) last fired less than `--dt-us` ago within one pixel (Khodamoradi & Kastner; "
              "O(W+H) memory)")
     params = (Param("dt_us", "time_us", DT_US),)

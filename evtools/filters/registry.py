@@ -89,6 +89,11 @@ def markdown_table() -> str:
     return "\n".join(rows)
 
 
+def methods_text() -> str:
+    """Every method by name, with whose it is: ``"``baf`` (Delbruck 2008), ``stcf`` (...), ..."``."""
+    return ", ".join(f"``{f.name}``" + (f" ({f.reference})" if f.reference else "") for f in REGISTRY)
+
+
 def api_signature(*leading: inspect.Parameter) -> inspect.Signature:
     """A signature with ``leading`` then ``preset`` and every filter parameter as a keyword (None: the preset's
     default), for ``help()`` and tab completion of the functions that take ``**params``."""

@@ -104,6 +104,8 @@ class Filter:
     keeps: ClassVar[str]
     params: ClassVar[tuple[Param, ...]]
     defaults: ClassVar[dict[str, dict[str, Any]]]
+    reference: ClassVar[str] = ""
+    """Whose method it is, short (``"Delbruck 2008"``), for the API's docstring; the module's docstring cites it."""
     defaults_from: ClassVar[str] = ""
     """Whose defaults evtools' are, when they are someone's (the README's table)."""
     default_notes: ClassVar[dict[str, str]] = {}

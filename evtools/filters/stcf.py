@@ -12,6 +12,7 @@ from evtools.filters.spec import BAFilterError, Filter, Param
 
 class Stcf(Filter):
     name = "stcf"
+    reference = "Guo & Delbruck 2022"
     keeps = ("at least `--k` pixels of its (2r+1)^2 window (not itself) fired less than `--dt-us` ago, of its "
              "polarity with `--same-polarity` (the default; `--any-polarity`: of any)")
     params = (

@@ -15,6 +15,7 @@ from evtools.filters.spec import Filter, Param
 
 class YNoise(Filter):
     name = "ynoise"
+    reference = "Feng et al. 2020"
     keeps = ("at least `--k` pixels of its (2r+1)^2 window, itself included, last fired with its polarity less than "
              "`--dt-us` ago (Feng et al. 2020's event density; a pixel firing twice supports itself)")
     params = (
