@@ -105,11 +105,14 @@ def api_signature(*leading: inspect.Parameter) -> inspect.Signature:
 
 def api_doc() -> str:
     """The filters' parameters as a numpy-style docstring section (name, kind, what each filter does with it)."""
+    import textwrap
+
     lines = []
     for name, uses in parameters().items():
         lines.append(f"{name} : {uses[0][1].kind}, optional")
         for f, param in uses:
-            lines.append(f"    {f.name}: {param.help} [{default_text(f, name)}].")
+            lines += textwrap.wrap(f"{f.name}: {param.help} [{default_text(f, name)}].", 108, initial_indent=" " * 4,
+                                   subsequent_indent=" " * 6)
     return "\n".join(lines)
 
 
