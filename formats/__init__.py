@@ -150,11 +150,13 @@ def open_events(path: str | os.PathLike | None = None, options: ReadOptions | No
         options = dataclasses.replace(options, sensor_size=parse_sensor_size(options.sensor_size))
     folder = None
     if path is not None and os.fspath(path) != STDIO and os.path.isdir(path):  # a dataset folder: RPG, DSEC
-        from evtools.formats.rpg import folder_events, folder_images
+        from evtools.formats.rpg import DSEC_SENSOR_SIZE, folder_events, folder_images
 
         folder = os.fspath(path)
         path, layout = folder_events(folder)
         images = folder_images(folder, layout)  # (checked before the events are read)
+        if layout == "dsec" and options.sensor_size is None:
+            options = dataclasses.replace(options, sensor_size=DSEC_SENSOR_SIZE)
     source = Source(path, options.connect_timeout_s, options.read_timeout_s)
     try:
         if not source.head:

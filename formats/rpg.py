@@ -34,6 +34,10 @@ DSEC_IMAGES = os.path.join("images", "left", "rectified")
 DSEC_TIMESTAMPS = os.path.join("images", "timestamps.txt")
 DSEC_EXPOSURES = os.path.join("images", "left", "exposure_timestamps.txt")
 """A DSEC sequence's files, from the sequence's folder."""
+DSEC_SENSOR_SIZE = (640, 480)
+"""DSEC's event cameras (Prophesee Gen 3.1), whose events.h5 does not store its size: the sensor size of a DSEC
+folder unless ``--sensor-size`` says otherwise (inferred from the events, a sequence whose events never reach the
+last row or column would get a smaller sensor)."""
 
 
 class Entry(NamedTuple):
