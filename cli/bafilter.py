@@ -42,6 +42,10 @@ def _methods(ctx, param, value):
         raise click.BadParameter(str(error)) from None
 
 
+FILTER_PREFIX = "filter_"
+"""The Python names of the filter options start with this; the command takes it off."""
+
+
 def _click_type(declarations: list[Param]):
     """The option's type from the parameter's declarations (one name, several filters: the loosest bounds)."""
     kind = declarations[0].kind
@@ -79,10 +83,6 @@ def filter_options(command):
             command = click.option(*flags, type=_click_type(declarations), default=None,
                                    help=option_help(name))(command)
     return command
-
-
-FILTER_PREFIX = "filter_"
-"""The Python names of the filter options start with this; the command takes it off."""
 
 
 @click.command()
