@@ -75,9 +75,10 @@ def baf(words, time_map, dt_us, first_rejected, out):
 
 
 @kernel
-def stcf(words, time_map, dt_us, radius, k, use_polarity, first_rejected, jaer_window, out):
-    """STCF: keep an event when at least ``k`` pixels of its (2r+1)^2 window (itself excluded) fired less than
-    ``dt_us`` before it, with its polarity when ``use_polarity``.
+def stcf(words, time_map, dt_us, radius, k, use_polarity, first_rejected, jaer_window, count_self, out):
+    """STCF: keep an event when at least ``k`` pixels of its (2r+1)^2 window (itself excluded, unless
+    ``count_self``: YNoise's event density, Feng et al. 2020) fired less than ``dt_us`` before it, with its
+    polarity when ``use_polarity``.
 
     ``time_map`` is padded by ``radius`` and holds ``2 t + p`` of each pixel's last event (time and polarity in
     one word: one memory access per neighbour). ``jaer_window``: jAER's neighbourhood clipping, whose upper end
@@ -120,36 +121,10 @@ def stcf(words, time_map, dt_us, radius, k, use_polarity, first_rejected, jaer_w
             else:
                 for dx in range(-radius, dx1 + 1):
                     count += flat[row + dx] > bound
-        if dx1 >= 0 and dy1 >= 0:  # the window holds the pixel itself: take it out
+        if dx1 >= 0 and dy1 >= 0 and not count_self:  # the window holds the pixel itself: take it out
             v = flat[c]
             count -= (v > bound) & (not use_polarity or (v & 1) == pi)
         flat[c] = stamp
-        n = _keep(words, i, out, n, count >= k)
-    return n
-
-
-@kernel
-def ynoise(words, time_map, dt_us, radius, k, out):
-    """YNoise (Feng et al. 2020): keep an event when at least ``k`` pixels of its (2r+1)^2 window, itself
-    included, last fired with its polarity less than ``dt_us`` before it (the event density of the window).
-
-    ``time_map`` as :func:`stcf`'s: padded by ``radius``, ``2 t + p`` of each pixel's last event.
-    """
-    width = time_map.shape[1]
-    flat = time_map.ravel()
-    n = 0
-    for i in range(words.shape[0]):
-        ti = words[i, 0]
-        x, y, pi = unpack(words[i, 1])
-        c = (y + radius) * width + x + radius
-        bound = 2 * (ti - dt_us) + 1  # 2 T + p > bound  <=>  t - T < dt_us
-        count = 0
-        for dy in range(-radius, radius + 1):
-            row = c + dy * width
-            for dx in range(-radius, radius + 1):
-                v = flat[row + dx]
-                count += (v > bound) & ((v & 1) == pi)
-        flat[c] = 2 * ti + pi
         n = _keep(words, i, out, n, count >= k)
     return n
 

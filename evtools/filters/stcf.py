@@ -10,14 +10,18 @@ from evtools.filters.baf import DT_US
 from evtools.filters.spec import BAFilterError, Filter, Param
 
 
+RADIUS = Param("radius", "int", "neighbourhood radius r, window (2r+1)^2", 1, 10)
+"""The window's radius, as every window filter declares it."""
+
+
 class Stcf(Filter):
     name = "stcf"
     reference = "Guo & Delbruck 2022"
     keeps = ("at least `--k` pixels of its (2r+1)^2 window (not itself) fired less than `--dt-us` ago, of its "
              "polarity with `--same-polarity` (the default; `--any-polarity`: of any)")
     params = (
-        Param("dt_us", "time_us", DT_US),
-        Param("radius", "int", "neighbourhood radius r, window (2r+1)^2", 1, 10),
+        DT_US,
+        RADIUS,
         Param("k", "int", "correlated neighbours needed", 1, lambda q: (2 * q["radius"] + 1) ** 2 - 1),
         Param("polarity", "bool", "count neighbours of the event's polarity only, or of any",
               flag="--same-polarity/--any-polarity", sweepable=False),
@@ -44,4 +48,4 @@ class Stcf(Filter):
         if q.get("polarity_maps"):
             return kernels.stcf_polarity_maps(words, self.time_map, q["dt_us"], q["radius"], q["k"], out)
         return kernels.stcf(words, self.time_map, q["dt_us"], q["radius"], q["k"], q["polarity"], self.jaer,
-                            self.jaer, out)
+                            self.jaer, False, out)

@@ -11,6 +11,7 @@ from __future__ import annotations
 from evtools._kernels import bafilter as kernels
 from evtools.filters.baf import DT_US
 from evtools.filters.spec import Filter, Param
+from evtools.filters.stcf import RADIUS
 
 
 class YNoise(Filter):
@@ -19,8 +20,8 @@ class YNoise(Filter):
     keeps = ("at least `--k` pixels of its (2r+1)^2 window, itself included, last fired with its polarity less than "
              "`--dt-us` ago (Feng et al. 2020's event density; a pixel firing twice supports itself)")
     params = (
-        Param("dt_us", "time_us", DT_US),
-        Param("radius", "int", "neighbourhood radius r, window (2r+1)^2", 1, 10),
+        DT_US,
+        RADIUS,
         Param("k", "int", "density needed: pixels of the window, itself included", 1,
               lambda q: (2 * q["radius"] + 1) ** 2),
     )
@@ -33,4 +34,5 @@ class YNoise(Filter):
 
     def run(self, words, out) -> int:
         q = self.params_used
-        return kernels.ynoise(words, self.time_map, q["dt_us"], q["radius"], q["k"], out)
+        # STCF's kernel with the pixel itself counted, polarity matched, the whole window, no start-up rejection
+        return kernels.stcf(words, self.time_map, q["dt_us"], q["radius"], q["k"], True, False, False, True, out)
