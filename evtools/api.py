@@ -209,25 +209,6 @@ def bafilter(events: np.ndarray, info: StreamInfo, method: str = "baf", **params
     return ba_filter(events, info.width, info.height, method, **params)
 
 
-def _document_bafilter() -> None:
-    """:func:`bafilter`'s signature and docstring list every filter parameter (``help()``, tab completion)."""
-    import inspect
-
-    from evtools.filters.registry import api_doc, api_signature, methods_text
-
-    kind = inspect.Parameter.POSITIONAL_OR_KEYWORD
-    bafilter.__signature__ = api_signature(inspect.Parameter("events", kind), inspect.Parameter("info", kind),
-                                           inspect.Parameter("method", kind, default="baf"))
-    import textwrap
-
-    methods = textwrap.fill(f"One filter or a comma-separated chain (:data:`evtools.filters.METHODS`): "
-                            f"{methods_text()} (README, section Bafilter).", 116, initial_indent=" " * 8,
-                            subsequent_indent=" " * 8)
-    head, examples = bafilter.__doc__.replace(" " * 8 + "METHODS_TEXT", methods).split("    Examples\n")
-    bafilter.__doc__ = (head + "    Filter parameters\n    -----------------\n" +
-                        "".join(f"    {line}\n" for line in api_doc().splitlines()) + "\n    Examples\n" + examples)
-
-
 def estimate(events: np.ndarray, info: StreamInfo, method: str = "offe", **params):
     """Every pixel's ON and OFF contrast thresholds (``evtools estimate``): a :class:`ThresholdEstimate` with
     ``on``, ``off`` (height x width, log units), ``valid``, ``fit`` and the attributes.
@@ -417,7 +398,9 @@ def _document() -> None:
     from evtools.noise import NoiseInjector
     from evtools.simulation import DvsSimulator
 
-    _document_bafilter()
+    from evtools.filters.registry import document
+
+    document(bafilter, "events", "info", methods="method")
     _keywords_of(estimate, ThresholdEstimator, leave_out=("check",))
     _keywords_of(correct, ThresholdCorrector, leave_out=("check", "t_us", "stale", "start_us"))
     _keywords_of(simulate, DvsSimulator)

@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 
 from evtools.events import StreamChecker, StreamInfo, as_chunk, check_sensor_size, empty_events, join
-from evtools.filters.registry import BY_NAME, METHODS, api_doc, api_signature
+from evtools.filters.registry import BY_NAME, METHODS, document
 from evtools.filters.spec import PRESETS, BAFilterError, Filter
 
 
@@ -158,18 +158,5 @@ def ba_filter(events: np.ndarray, width: int, height: int, methods="baf", *, pre
     return join([ba.process(events), ba.flush()])
 
 
-def _document(target, *leading: str) -> None:
-    """Give ``target`` (which takes ``**params``) the filters' keywords in its docstring, and in its signature
-    when it is a function."""
-    import inspect
-
-    if inspect.isfunction(target):
-        positional = [inspect.Parameter(name, inspect.Parameter.POSITIONAL_OR_KEYWORD) for name in leading]
-        positional.append(inspect.Parameter("methods", inspect.Parameter.POSITIONAL_OR_KEYWORD, default="baf"))
-        target.__signature__ = api_signature(*positional)
-    target.__doc__ = (target.__doc__ or "").rstrip() + "\n\n    Filter parameters\n    -----------------\n" + \
-        "".join(f"    {line}\n" for line in api_doc().splitlines())
-
-
-_document(ba_filter, "events", "width", "height")
-_document(BAFilter)
+document(ba_filter, "events", "width", "height")
+document(BAFilter)

@@ -4,6 +4,7 @@ the README's table, the API's signature and docstring."""
 from __future__ import annotations
 
 import inspect
+import textwrap
 from typing import Any
 
 from evtools.filters.baf import Baf
@@ -89,31 +90,42 @@ def markdown_table() -> str:
     return "\n".join(rows)
 
 
-def methods_text() -> str:
+def _methods_text() -> str:
     """Every method by name, with whose it is: ``"``baf`` (Delbruck 2008), ``stcf`` (...), ..."``."""
     return ", ".join(f"``{f.name}``" + (f" ({f.reference})" if f.reference else "") for f in REGISTRY)
 
 
-def api_signature(*leading: inspect.Parameter) -> inspect.Signature:
-    """A signature with ``leading`` then ``preset`` and every filter parameter as a keyword (None: the preset's
-    default), for ``help()`` and tab completion of the functions that take ``**params``."""
-    keywords = [inspect.Parameter("preset", inspect.Parameter.KEYWORD_ONLY, default="evtools", annotation=str)]
-    keywords += [inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=None)
-                 for name in parameters()]
-    return inspect.Signature([*leading, *keywords])
-
-
-def api_doc() -> str:
+def _parameters_doc() -> str:
     """The filters' parameters as a numpy-style docstring section (name, kind, what each filter does with it)."""
-    import textwrap
-
-    lines = []
+    lines = ["    Filter parameters", "    -----------------"]
     for name, uses in parameters().items():
-        lines.append(f"{name} : {uses[0][1].kind}, optional")
+        lines.append(f"    {name} : {uses[0][1].kind}, optional")
         for f, param in uses:
-            lines += textwrap.wrap(f"{f.name}: {param.help} [{default_text(f, name)}].", 108, initial_indent=" " * 4,
-                                   subsequent_indent=" " * 6)
-    return "\n".join(lines)
+            lines += textwrap.wrap(f"{f.name}: {param.help} [{default_text(f, name)}].", 116, initial_indent=" " * 8,
+                                   subsequent_indent=" " * 10)
+    return "\n".join(lines) + "\n"
+
+
+def document(target, *leading: str, methods: str = "methods") -> None:
+    """Give ``target``, which takes the filters' parameters as ``**params``, their keywords: in its signature when
+    it is a function (``leading`` positional names, then ``methods`` defaulting to "baf", then ``preset`` and every
+    parameter, None: the preset's default), for ``help()`` and tab completion; in its docstring, a section of them
+    (before its Examples, if any) and the list of methods where it says ``METHODS_TEXT``."""
+    if inspect.isfunction(target):
+        kind = inspect.Parameter.POSITIONAL_OR_KEYWORD
+        keyword = inspect.Parameter.KEYWORD_ONLY
+        target.__signature__ = inspect.Signature(
+            [*(inspect.Parameter(name, kind) for name in leading), inspect.Parameter(methods, kind, default="baf"),
+             inspect.Parameter("preset", keyword, default="evtools", annotation=str),
+             *(inspect.Parameter(name, keyword, default=None) for name in parameters())])
+    doc = (target.__doc__ or "").rstrip() + "\n"
+    listed = textwrap.fill(f"One filter or a comma-separated chain (:data:`evtools.filters.METHODS`): "
+                           f"{_methods_text()} (README, section Bafilter).", 116, initial_indent=" " * 8,
+                           subsequent_indent=" " * 8)
+    doc = doc.replace(" " * 8 + "METHODS_TEXT", listed)
+    head, examples = doc.split("    Examples\n") if "    Examples\n" in doc else (doc, None)
+    doc = head.rstrip() + "\n\n" + _parameters_doc()
+    target.__doc__ = doc if examples is None else doc + "\n    Examples\n" + examples
 
 
 if __name__ == "__main__":  # the README's table: python -m evtools.filters.registry
