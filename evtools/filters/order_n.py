@@ -6,7 +6,7 @@ import numpy as np
 
 from evtools._kernels import bafilter as kernels
 from evtools.filters.baf import DT_US
-from evtools.filters.spec import Filter, Param
+from evtools.filters.spec import Filter
 
 
 class OrderN(Filter):
@@ -14,7 +14,7 @@ class OrderN(Filter):
     reference = "Khodamoradi & Kastner 2018"
     keeps = ("an adjacent row (column) last fired less than `--dt-us` ago within one pixel (Khodamoradi & Kastner; "
              "O(W+H) memory)")
-    params = (Param("dt_us", "time_us", DT_US),)
+    params = (DT_US,)
     defaults = {"evtools": {"dt_us": 10_000}, "jaer": {"dt_us": 25_000}}
 
     def __init__(self, width, height, preset, q) -> None:
