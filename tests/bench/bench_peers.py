@@ -1,35 +1,41 @@
-"""Peers benchmark (issue 15): evtools beside dv-processing, aedat and faery, measured in one run.
+"""Peers benchmark (issues 15, 42): evtools beside dv-processing, aedat, faery and evlib, measured in one run.
 
 The files: the real DVXplorer recording (111,954 events) repeated in time to ``--events`` events (10 M and 50 M),
-written by dv-processing's ``MonoCameraWriter`` as DV stores recordings (issue 42: files evtools wrote flattered
-it): AEDAT 4.0, LZ4 (DV's linked blocks) and uncompressed, in packets of the recording's own size (1,898 events,
-about 10 ms: a reader's cost per packet counts), in ``/dev/shm`` when it has room. Every row is a
-whole process (interpreter start-up and imports included), the fastest of ``--repeat`` runs (the tools compared
-in a row measured in turns), with its peak RSS from ``wait4``:
+written by dv-processing's ``MonoCameraWriter`` as DV stores recordings (files evtools wrote flattered it: its LZ4
+frames have independent blocks and a stored size, DV's are linked blocks without): AEDAT 4.0, LZ4 and
+uncompressed, in packets of the recording's own size (1,898 events, about 10 ms) and of 620 events (what DV writes
+for a DAVIS346 at moderate rates: a reader's cost per packet counts), in ``/dev/shm`` when it has room.
+
+Every row runs its tools in paired rounds (``--repeat``, 5): each round runs every tool once, in turns, the order
+reversed every other round, and the ratio peer time / evtools time is taken within each round; a row reports the
+median time, the peak RSS (from ``wait4``), and the min and median of the per-round ratios (> 1: evtools faster),
+with the machine's load over its rounds. evtools runs as users run it: the installed ``evtools`` command (the
+header says whether the install is editable or a wheel), or ``python -c`` with only the tool imported for the
+reads (:data:`READ_SCRIPTS`: the same for every tool), which also report the read's own time (in-process).
 
 - read into numpy: ``evtools.read``; ``aedat.Decoder`` (packets concatenated); dv-processing's
   ``MonoCameraRecording`` (batches' ``numpy()`` concatenated); faery's ``events_stream_from_file(...).to_array()``;
-- ``bafilter --preset dv`` file to file against dv-processing's read + ``BackgroundActivityNoiseFilter`` + write,
-  both writing the input's compression (``--compression lz4``: the LZ4 file filtered is stored as DV stores it);
-- ``estimate --method offe`` and ``correct`` (with offe's map) file to file, against issue 15's targets (30 Mev/s
-  whole process, peak RSS under 100 MiB); ``correct`` also on the recording made 50 times denser (9.5 Mev/s: its
-  reorder buffer holds 0.9 s of output);
-- start-up: 1,000 events read;
-- Prophesee RAW read into numpy: the real Gen4.1 recording (EVT 3.0, 219,596 events in 8.8 ms) repeated in time to
-  the same sizes, written by faery as EVT 3.0 (vectorised, as Metavision writes Gen4 recordings) and by evtools as
-  EVT 2.0 (Gen3's format), against faery and evlib (``load_events(...).collect()``, its columns as numpy).
+  evlib's ``load_events(...).collect()``;
+- ``bafilter --preset dv`` file to file against dv-processing's read + ``BackgroundActivityNoiseFilter`` + write
+  (:data:`DV_FILTER`), both writing the input's compression;
+- ``estimate --method offe`` and ``correct`` (with offe's map) against issue 42's targets (``correct`` >= 20 Mev/s
+  whole process at 320 x 240, < 150 MiB at 1280 x 720: the Gen4.1 recording tiled, 25 Mev/s);
+- start-up: ``evtools info`` and ``evtools bafilter`` on 1,000 events against the peers' read and filter scripts;
+- Prophesee RAW and Metavision HDF5 read into numpy: the real Gen4.1 recording (EVT 3.0, 219,596 events in 8.8 ms)
+  repeated to the same sizes, written by faery as EVT 3.0 (as Metavision writes Gen4 recordings), by evtools as
+  EVT 2.0, by this module's encoders as EVT 2.1 and Metavision HDF5, against faery and evlib.
 
-Ratios are peer time / evtools time (> 1: evtools is faster). Peers missing from the environment are installed
-into it with pip first (``aedat``, ``evlib``; dv-processing and faery come with the test extra).
+Peers missing from the environment are installed into it with pip first (``aedat``, ``evlib``; dv-processing and
+faery come with the test extra).
 
-Run: ``python -m tests.bench.bench_peers [--events 10000000,50000000] [--repeat 3]``.
+Run: ``python -m tests.bench.bench_peers [--events 10000000,50000000] [--repeat 5] [--rows read,bafilter,...]
+[--packets recorded,620]``; at load 2: start two busy loops first (``sh -c 'while :; do :; done' &``, twice).
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib.util
-import json
 import shutil
 import subprocess
 import sys
@@ -38,7 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tests.bench.common import fastest, fastest_each, measure_child, measure_command, scratch_dir
+from tests.bench.common import install_kind, measure_command, median, paired, ratios, scratch_dir
 
 EVTOOLS = str(Path(sys.executable).with_name("evtools"))
 RECORDING = Path(__file__).resolve().parents[3] / "shared" / "data" / "dvxplorer_sample.aedat4"
@@ -117,39 +123,32 @@ def _write_tiled(path: Path, recording, info, span_us: int, events: int) -> None
             k += 1
 
 
-def child_read(tool: str, path: str) -> dict:
-    """Read the whole file into one numpy array with ``tool``."""
-    if tool == "evtools":
-        import evtools
+READ_SCRIPTS = {
+    "evtools": "import evtools\nn = len(evtools.read(path)[0])",
+    "aedat": "import aedat, numpy as np\n"
+             "n = len(np.concatenate([p['events'] for p in aedat.Decoder(path) if 'events' in p]))",
+    "dv_processing": "import dv_processing as dv, numpy as np\nrecording = dv.io.MonoCameraRecording(path)\n"
+                     "parts = []\nwhile recording.isRunning():\n    batch = recording.getNextEventBatch()\n"
+                     "    if batch is not None:\n        parts.append(batch.numpy())\nn = len(np.concatenate(parts))",
+    "faery": "import faery\nn = len(faery.events_stream_from_file(path).to_array())",
+    "evlib": "import evlib\nframe = evlib.load_events(path).collect()\n"
+             "n = len([frame[column].to_numpy() for column in frame.columns][0])",
+}
+"""Each tool's whole read of ``path`` into numpy, as its documentation shows it, run as ``python -c`` with nothing
+else imported (a start-up row measures the tool, not the benchmark): prints the events read and the seconds from
+the tool's import to the end (``in_process_seconds``: the read alone, imports excluded)."""
 
-        n = len(evtools.read(path)[0])
-    elif tool == "aedat":
-        import aedat
 
-        parts = [packet["events"] for packet in aedat.Decoder(path) if "events" in packet]
-        n = len(np.concatenate(parts))
-    elif tool == "dv_processing":
-        import dv_processing as dv
-
-        recording = dv.io.MonoCameraRecording(path)
-        parts = []
-        while recording.isRunning():
-            batch = recording.getNextEventBatch()
-            if batch is not None:
-                parts.append(batch.numpy())
-        n = len(np.concatenate(parts))
-    elif tool == "faery":
-        import faery
-
-        n = len(faery.events_stream_from_file(path).to_array())
-    elif tool == "evlib":
-        import evlib
-
-        frame = evlib.load_events(path).collect()
-        n = len([frame[column].to_numpy() for column in frame.columns][0])
-    else:
-        raise SystemExit(f"unknown tool {tool}")
-    return {"events": n}
+def read_child(tool: str, path) -> dict:
+    """Read ``path`` with ``tool`` in a fresh interpreter: its wall time (start-up included), peak RSS, and the
+    in-process time of the read alone."""
+    imports, read = READ_SCRIPTS[tool].split("\n", 1)
+    script = (f"import sys, time\npath = sys.argv[1]\n{imports}\nt = time.perf_counter()\n{read}\n"
+              "print(n, time.perf_counter() - t)")
+    run = measure_command([sys.executable, "-c", script, path], stdout=subprocess.PIPE)
+    events, seconds = run["output"].split()
+    return {"events": int(events), "in_process_seconds": float(seconds), "peak_mb": run["peak_mb"],
+            "wall_seconds": run["seconds"]}
 
 
 def make_prophesee(path: Path, events: int, version: str) -> None:
@@ -165,6 +164,9 @@ def make_prophesee(path: Path, events: int, version: str) -> None:
     tiled["t"] += (np.arange(len(tiled)) // len(recording)) * span_us
     if version == "evt2":
         evtools.write(path, tiled, info)
+        return
+    if version == "aedat4":  # as DV would record a 1280 x 720 camera: LZ4 (evtools' writer: DV's packets)
+        evtools.write(path, tiled, info, compression="lz4")
         return
     if version == "evt21":
         write_evt21(path, tiled, info.width, info.height)
@@ -252,125 +254,151 @@ def write_metavision_hdf5(path: Path, events: np.ndarray, width: int, height: in
             dataset.write_direct_chunk((start,), _ecf_block(t[part], x[part], y[part], p[part]), 0)
 
 
-def child_dv_filter(path: str, out: str, compression: str) -> dict:
-    """dv-processing: read, BackgroundActivityNoiseFilter (its defaults), write with ``compression``."""
-    import dv_processing as dv
+DV_FILTER = """import sys
+import dv_processing as dv
+path, out, compression = sys.argv[1:]
+recording = dv.io.MonoCameraRecording(path)
+config = dv.io.MonoCameraWriter.Config("bench")
+config.addEventStream(recording.getEventResolution())
+config.compression = dv.CompressionType.LZ4 if compression == "lz4" else dv.CompressionType.NONE
+writer = dv.io.MonoCameraWriter(out, config)
+noise_filter = dv.noise.BackgroundActivityNoiseFilter(recording.getEventResolution())
+while recording.isRunning():
+    batch = recording.getNextEventBatch()
+    if batch is not None:
+        noise_filter.accept(batch)
+        writer.writeEvents(noise_filter.generateEvents())
+del writer
+"""
+"""dv-processing's read, ``BackgroundActivityNoiseFilter`` (its defaults) and write with the input's compression."""
 
-    recording = dv.io.MonoCameraRecording(path)
-    config = dv.io.MonoCameraWriter.Config("bench")
-    config.addEventStream(recording.getEventResolution())
-    config.compression = dv.CompressionType.LZ4 if compression == "lz4" else dv.CompressionType.NONE
-    writer = dv.io.MonoCameraWriter(out, config)
-    noise_filter = dv.noise.BackgroundActivityNoiseFilter(recording.getEventResolution())
-    n = 0
-    while recording.isRunning():
-        batch = recording.getNextEventBatch()
-        if batch is not None:
-            n += batch.size()
-            noise_filter.accept(batch)
-            writer.writeEvents(noise_filter.generateEvents())
-    del writer
-    return {"events": n}
+
+def command(argv) -> dict:
+    """A whole process: wall time (``wall_seconds``) and peak RSS."""
+    result = measure_command(argv, stdout=subprocess.DEVNULL)
+    return {**result, "wall_seconds": result["seconds"]}
+
+
+def compare(task: str, rounds: int, contenders: dict[str, tuple], events: int) -> None:
+    """Run ``contenders`` (name: ``(measure, *args)``, evtools first) in paired rounds and print a row each: median
+    wall time, Mev/s, peak RSS, in-process median where measured, and the peer/evtools ratios taken round by round
+    (min and median; > 1: evtools faster), with the load range over the rounds."""
+    results, loads = paired(rounds, list(contenders.values()))
+    ours = results[0]
+    load = f"{min(loads):.1f}-{max(loads):.1f}"
+    for name, runs in zip(contenders, results):
+        seconds = median(runs, "wall_seconds")
+        inner = median(runs, "in_process_seconds") if "in_process_seconds" in runs[0] else None
+        whole = ratios(runs, ours, "wall_seconds") if runs is not ours else None
+        within = (ratios(runs, ours, "in_process_seconds")
+                  if runs is not ours and inner is not None and "in_process_seconds" in ours[0] else None)
+        print(f"{task:44} {name:14} {seconds:8.3f} {events / seconds / 1e6:7.1f} "
+              f"{max(r['peak_mb'] for r in runs):7.0f} {'' if inner is None else f'{inner:8.3f}':>8} "
+              f"{'' if whole is None else f'{whole[0]:5.2f}/{whole[1]:5.2f}':>11} "
+              f"{'' if within is None else f'{within[0]:5.2f}/{within[1]:5.2f}':>11} {load:>9}", flush=True)
+
+
+def target(task: str, rounds: int, argv: list, events: int, mev_s: float, peak_mib: float) -> None:
+    """An evtools command alone against a target speed and peak RSS (no peer does it)."""
+    results, loads = paired(rounds, [(command, argv)])
+    seconds = median(results[0], "wall_seconds")
+    peak = max(r["peak_mb"] for r in results[0])
+    print(f"{task:44} {'evtools':14} {seconds:8.3f} {events / seconds / 1e6:7.1f} {peak:7.0f} {'':8} "
+          f"target >= {mev_s:g} Mev/s, < {peak_mib:g} MiB: {'met' if events / seconds / 1e6 >= mev_s else 'not met'}"
+          f" / {'met' if peak < peak_mib else 'not met'}  {min(loads):.1f}-{max(loads):.1f}", flush=True)
+
+
+ROWS = ("read", "bafilter", "estimate", "correct", "prophesee", "startup")
 
 
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--events", default="10000000,50000000")
-    parser.add_argument("--repeat", type=int, default=3)
-    parser.add_argument("--child", nargs="+")
+    parser.add_argument("--repeat", type=int, default=5, help="paired rounds per row")
+    parser.add_argument("--rows", default=",".join(ROWS), help=f"which rows: {', '.join(ROWS)}")
+    parser.add_argument("--packets", default="recorded,620",
+                        help="events per packet of the DV-written files: 'recorded' (the recording's own, 1,898) "
+                             "and/or numbers (620: DV's packets for a DAVIS346 at moderate rates)")
     args = parser.parse_args()
-    if args.child:
-        kind, *rest = args.child
-        result = child_read(*rest) if kind == "read" else child_dv_filter(*rest)
-        print(json.dumps(result))
-        return
+    rows = set(args.rows.split(","))
     if not RECORDING.exists():
         raise SystemExit(f"{RECORDING} is missing (the tests' real recordings)")
     peers = ensure_peers()
     sizes = [int(n) for n in args.events.split(",")]
     folder = Path(tempfile.mkdtemp(prefix="bench_peers_", dir=scratch_dir(max(sizes) * 40)))
-    print(f"DVXplorer recording repeated; AEDAT 4.0 as DV writes it; whole processes, fastest of {args.repeat}; "
-          f"peers available: {', '.join(peers)}; ratio = peer time / evtools time")
-    print(f"{'task':42} {'tool':14} {'seconds':>8} {'Mev/s':>7} {'peak MiB':>9} {'ratio':>6}")
+    print(f"evtools {install_kind()} install, `{EVTOOLS}`; inputs written by dv-processing's MonoCameraWriter as DV "
+          f"records (AEDAT 4.0, LZ4 linked blocks or none); {args.repeat} paired rounds a row, tools in turns; "
+          f"peers: {', '.join(peers)}")
+    print(f"{'task':44} {'tool':14} {'median s':>8} {'Mev/s':>7} {'peak MiB':>7} {'in-proc':>8} "
+          f"{'ratio min/med':>11} {'in-proc':>11} {'load':>9}")
     try:
-        tiny = folder / "tiny.aedat4"
-        make_file(tiny, 1000, "lz4")
+        if "startup" in rows:
+            tiny = folder / "tiny.aedat4"
+            make_file(tiny, 1000, "lz4")
+            compare("start-up: info, 1,000 events", args.repeat,
+                    {"evtools": (command, [EVTOOLS, "info", tiny]),
+                     **{tool: (read_child, tool, tiny) for tool in ("dv_processing", "aedat") if tool in peers}},
+                    1000)
+            contenders = {"evtools": (command, [EVTOOLS, "-q", "bafilter", tiny, "--preset", "dv", "-o",
+                                                folder / "tiny_out.aedat4"])}
+            if "dv_processing" in peers:
+                contenders["dv_processing"] = (command, [sys.executable, "-c", DV_FILTER, tiny,
+                                                         folder / "tiny_dv.aedat4", "lz4"])
+            compare("start-up: bafilter, 1,000 events", args.repeat, contenders, 1000)
         for events in sizes:
-            for compression in ("lz4", "none"):
-                path = folder / f"in_{events}_{compression}.aedat4"
-                make_file(path, events, compression)
-                task = f"read into numpy, {events // 1_000_000}M {compression}"
-                tools = ["evtools", *(p for p in ("dv_processing", "aedat", "faery", "evlib") if p in peers)]
-                results = fastest_each(args.repeat, [(measure_child, "bench_peers", "read", tool, path)
-                                                     for tool in tools], key="wall_seconds")
-                for tool, result in zip(tools, results):
-                    _row(task, tool, result, events, results[0] if tool != "evtools" else None)
-                task = f"bafilter --preset dv file to file, {events // 1_000_000}M {compression}"
-                out = folder / "out.aedat4"
-                contenders = [(_timed_command, [EVTOOLS, "-q", "bafilter", path, "--method", "baf", "--preset", "dv",
-                                                 "-o", out, "--compression", compression])]
-                if "dv_processing" in peers:  # both write the input's compression (DV records LZ4)
-                    contenders.append((measure_child, "bench_peers", "filter", path, folder / "dv.aedat4",
-                                       compression))
-                results = fastest_each(args.repeat, contenders, key="wall_seconds")
-                _row(task, "evtools", results[0], events, None)
-                if len(results) > 1:
-                    _row(task, "dv_processing", results[1], events, results[0])
-                for name, argv in (("estimate --method offe", ["estimate", path, "--method", "offe", "-o",
-                                                              folder / "th.h5"]),
-                                   ("correct (offe's thresholds)", ["correct", path, "--thresholds", folder / "th.h5",
-                                                                    "-o", out])):
-                    task = f"{name}, {events // 1_000_000}M {compression}"
-                    ours = fastest(args.repeat, measure_command, [EVTOOLS, "-q", *argv])
-                    ours["wall_seconds"] = ours["seconds"]
-                    _row(task, "evtools", ours, events, None)
-                    print(f"{'':42} {'target':14} {events / 30e6:8.2f} {30.0:7.1f} {100:9.0f}   (issue 15: "
-                          f"{'met' if events / ours['seconds'] >= 30e6 else 'not met'} / "
-                          f"{'met' if ours['peak_mb'] < 100 else 'not met'})", flush=True)
-                path.unlink()
-                if events == sizes[0] and compression == "lz4":  # correct on a dense stream: it holds 0.9 s of it
-                    make_file(path, events, compression, denser=50)
-                    task = f"correct, {events // 1_000_000}M lz4 at 9.5 Mev/s"
-                    ours = fastest(args.repeat, measure_command, [EVTOOLS, "-q", "correct", path, "--thresholds",
-                                                                  folder / "th.h5", "-o", out])
-                    ours["wall_seconds"] = ours["seconds"]
-                    _row(task, "evtools", ours, events, None)
+            for packets in args.packets.split(","):
+                for compression in ("lz4", "none"):
+                    path = folder / f"in_{events}_{compression}.aedat4"
+                    make_file(path, events, compression, packet_events=None if packets == "recorded" else int(packets))
+                    label = f"{events // 1_000_000}M {compression}, {packets} packets"
+                    if "read" in rows:
+                        compare(f"read into numpy, {label}", args.repeat,
+                                {tool: (read_child, tool, path) for tool in
+                                 ("evtools", "dv_processing", "aedat", "faery", "evlib") if tool in peers + ["evtools"]},
+                                events)
+                    if "bafilter" in rows:
+                        contenders = {"evtools": (command, [EVTOOLS, "-q", "bafilter", path, "--preset", "dv", "-o",
+                                                            folder / "out.aedat4", "--compression", compression])}
+                        if "dv_processing" in peers:  # both write the input's compression (DV records LZ4)
+                            contenders["dv_processing"] = (command, [sys.executable, "-c", DV_FILTER, path,
+                                                                     folder / "dv.aedat4", compression])
+                        compare(f"bafilter --preset dv, {label}", args.repeat, contenders, events)
+                    if packets == "recorded" and ({"estimate", "correct"} & rows):
+                        thresholds = folder / "th.h5"
+                        estimate = [EVTOOLS, "-q", "estimate", path, "--method", "offe", "-o", thresholds]
+                        if "estimate" in rows:
+                            target(f"estimate --method offe, {label}", args.repeat, estimate, events, 30, 100)
+                        else:
+                            command(estimate)
+                        if "correct" in rows:
+                            target(f"correct (offe's map), {label}", args.repeat,
+                                   [EVTOOLS, "-q", "correct", path, "--thresholds", thresholds, "-o",
+                                    folder / "out.aedat4"], events, 20, 150)
                     path.unlink()
-        for events in sizes:
-            for version in ("evt3", "evt2", "evt21", "hdf5-ecf") if "faery" in peers else ("evt2", "evt21", "hdf5-ecf"):
-                path = folder / f"in_{events}_{version}.{'hdf5' if version == 'hdf5-ecf' else 'raw'}"
-                make_prophesee(path, events, version)
-                task = f"read into numpy, {events // 1_000_000}M {version.upper()} (Gen4)"
-                # (faery reads neither EVT 2.1 nor Metavision's HDF5; evlib reads HDF5 ECF only with Prophesee's
-                # plugin installed, which the bench does not)
-                readers = {"evt21": ("evlib",), "hdf5-ecf": ()}.get(version, ("faery", "evlib"))
-                tools = ["evtools", *(p for p in readers if p in peers)]
-                results = fastest_each(args.repeat, [(measure_child, "bench_peers", "read", tool, path)
-                                                     for tool in tools], key="wall_seconds")
-                for tool, result in zip(tools, results):
-                    _row(task, tool, result, events, results[0] if tool != "evtools" else None)
+            if "correct" in rows and events == sizes[0]:  # 1280 x 720: the Gen4.1 recording (25 Mev/s) tiled
+                path = folder / "gen4.aedat4"
+                make_prophesee(path, events, "aedat4")
+                command([EVTOOLS, "-q", "estimate", path, "--method", "offe", "-o", folder / "th4.h5"])
+                target(f"correct, {events // 1_000_000}M 1280x720 (Gen4.1 tiled, LZ4)", args.repeat,
+                       [EVTOOLS, "-q", "correct", path, "--thresholds", folder / "th4.h5", "-o", folder / "out.aedat4"],
+                       events, 20, 150)
                 path.unlink()
-        task = "start-up: read 1,000 events"
-        tools = ["evtools", *(p for p in ("dv_processing", "aedat", "faery") if p in peers)]
-        results = fastest_each(args.repeat, [(measure_child, "bench_peers", "read", tool, tiny) for tool in tools],
-                               key="wall_seconds")
-        for tool, result in zip(tools, results):
-            _row(task, tool, result, 1000, results[0] if tool != "evtools" else None)
+        if "prophesee" in rows:
+            for events in sizes:
+                for version in ("evt3", "evt2", "evt21", "hdf5-ecf"):
+                    if version == "evt3" and "faery" not in peers:
+                        continue
+                    path = folder / f"in_{events}_{version}.{'hdf5' if version == 'hdf5-ecf' else 'raw'}"
+                    make_prophesee(path, events, version)
+                    # (faery reads neither EVT 2.1 nor Metavision's HDF5; evlib reads HDF5 ECF only with
+                    # Prophesee's plugin installed, which the bench does not)
+                    readers = {"evt21": ("evlib",), "hdf5-ecf": ()}.get(version, ("faery", "evlib"))
+                    compare(f"read into numpy, {events // 1_000_000}M {version.upper()} (Gen4)", args.repeat,
+                            {tool: (read_child, tool, path) for tool in ("evtools", *readers)
+                             if tool == "evtools" or tool in peers}, events)
+                    path.unlink()
     finally:
         shutil.rmtree(folder, ignore_errors=True)
-
-
-def _timed_command(argv) -> dict:
-    """:func:`measure_command` with its wall time under the key the children's rows use."""
-    result = measure_command(argv)
-    return {**result, "wall_seconds": result["seconds"]}
-
-
-def _row(task: str, tool: str, result: dict, events: int, ours: dict | None) -> None:
-    seconds = result["wall_seconds"]
-    ratio = f"{seconds / ours['wall_seconds']:6.2f}" if ours else "     -"
-    print(f"{task:42} {tool:14} {seconds:8.2f} {events / seconds / 1e6:7.1f} {result['peak_mb']:9.0f} "
-          f"{ratio}", flush=True)
 
 
 if __name__ == "__main__":

@@ -70,12 +70,55 @@ def fastest(runs: int, measure, *args, key: str = "seconds") -> dict:
 
 
 def fastest_each(runs: int, contenders: list[tuple], key: str = "seconds") -> list[dict]:
-    """:func:`fastest` for several ``(measure, *args)`` at once, measured in turns (A B C, A B C, ...) rather than
-    one after the other: a slow minute of the shared machine then falls on every contender, not on one, so
-    their ratios hold better."""
-    rounds = [[measure(*args) for measure, *args in contenders] for _ in range(max(runs, 1))]
+    """:func:`fastest` for several ``(measure, *args)`` at once, measured in turns (see :func:`paired`)."""
+    rounds, _ = paired(runs, contenders)
     return [{**min(results, key=lambda result: result[key]), "peak_mb": max(result["peak_mb"] for result in results)}
-            for results in zip(*rounds)]
+            for results in rounds]
+
+
+def paired(runs: int, contenders: list[tuple]) -> tuple[list[list[dict]], list[float]]:
+    """Every ``(measure, *args)`` of ``contenders`` run once a round, in turns (A B C, then C B A, ...), ``runs``
+    rounds: ``results[contender][round]`` and the machine's load (1-minute average) at each round's start.
+
+    A slow minute of a shared machine then falls on every contender of a round, so ratios taken within a round
+    (:func:`ratios`) hold where times alone vary by up to 2x; alternating the order cancels a drift within a round.
+    """
+    results: list[list[dict]] = [[] for _ in contenders]
+    loads = []
+    for round_index in range(max(runs, 1)):
+        loads.append(os.getloadavg()[0])
+        order = range(len(contenders)) if round_index % 2 == 0 else reversed(range(len(contenders)))
+        for index in order:
+            measure, *args = contenders[index]
+            results[index].append(measure(*args))
+    return results, loads
+
+
+def ratios(peer: list[dict], ours: list[dict], key: str) -> tuple[float, float]:
+    """Min and median over rounds of ``peer[key] / ours[key]`` taken round by round (> 1: ours is faster)."""
+    import statistics
+
+    values = [p[key] / o[key] for p, o in zip(peer, ours)]
+    return min(values), statistics.median(values)
+
+
+def median(results: list[dict], key: str) -> float:
+    import statistics
+
+    return statistics.median(result[key] for result in results)
+
+
+def install_kind() -> str:
+    """How evtools is installed in this environment: "editable" (``pip install -e``: an import hook in ``site``) or
+    "wheel" (a plain install), from the distribution's ``direct_url.json`` (PEP 610)."""
+    import importlib.metadata
+    import sysconfig
+
+    installed = list(importlib.metadata.distributions(name="evtools", path=[sysconfig.get_paths()["purelib"]]))
+    if not installed:  # (a checkout's own evtools.egg-info is not an install)
+        return "not installed"
+    url = json.loads(installed[0].read_text("direct_url.json") or "{}")
+    return "editable" if url.get("dir_info", {}).get("editable") else "wheel"
 
 
 def scratch_dir(needed_bytes: int) -> str | None:
