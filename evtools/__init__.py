@@ -43,7 +43,10 @@ def __getattr__(name: str):
     """``evtools.read`` and the other names of ``__all__``, imported from their module on first use; a submodule
     (``evtools.metrics``, ``evtools.events``, ...) likewise."""
     if name in _HOME:
-        value = getattr(importlib.import_module(_HOME[name]), name)
+        module = importlib.import_module(_HOME[name])
+        if name in getattr(module, "PROCESSORS", ()):
+            module.document_processors()
+        value = getattr(module, name)
         globals()[name] = value
         return value
     if not name.startswith("_") and importlib.util.find_spec(f"{__name__}.{name}") is not None:

@@ -392,7 +392,20 @@ def _keywords_of(function, target, leave_out=()) -> None:
     function.__signature__ = own.replace(parameters=kept)
 
 
-def _document() -> None:
+PROCESSORS = ("bafilter", "estimate", "correct", "simulate", "inject_noise")
+"""The functions whose keywords are their processor's (:func:`document_processors`)."""
+_DOCUMENTED = False
+
+
+def document_processors() -> None:
+    """Give :data:`PROCESSORS` their processors' keywords in their signatures and docstrings (once). The package
+    calls it when one of them is first taken from it (``evtools.correct``), not at this module's import: the
+    processors' modules (correction, estimation, filters, noise, simulation: ~30 ms) are not loaded by a script
+    that only reads or writes files."""
+    global _DOCUMENTED
+    if _DOCUMENTED:
+        return
+    _DOCUMENTED = True
     from evtools.correction import ThresholdCorrector
     from evtools.estimation import ThresholdEstimator
     from evtools.noise import NoiseInjector
@@ -405,9 +418,6 @@ def _document() -> None:
     _keywords_of(correct, ThresholdCorrector, leave_out=("check", "t_us", "stale", "start_us"))
     _keywords_of(simulate, DvsSimulator)
     _keywords_of(inject_noise, NoiseInjector)
-
-
-_document()
 
 
 # -- conversions ---------------------------------------------------------------------------------------------------

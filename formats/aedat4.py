@@ -23,7 +23,6 @@ import time
 import xml.etree.ElementTree as ET
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
-from html import escape  # xml.sax.saxutils.escape's &, <, > (with quote=False), without its 34 ms of imports
 from typing import BinaryIO, Iterator
 
 import numpy as np
@@ -588,6 +587,8 @@ aedat, faery) would parse the stream description."""
 def _description(info: StreamInfo, compression: int) -> str:
     """The streams' XML: events (id 0) and, when ``info.metadata["frame_size"]`` says the stream has APS frames,
     frames (id :data:`FRAME_STREAM_ID`)."""
+    from html import escape  # (xml.sax.saxutils.escape's &, <, > with quote=False, without its 34 ms of imports)
+
     source = escape(_NOT_XML.sub("\ufffd", str(info.metadata.get("source") or "evtools")), quote=False)
     frame_size = info.metadata.get("frame_size")
     frames = "" if not frame_size else (

@@ -8,10 +8,8 @@ import fcntl
 import io
 import logging
 import os
-import shutil
 import stat
 import sys
-import tempfile
 import termios
 import threading
 import time
@@ -173,6 +171,9 @@ class Source:
         """A seekable stream of the whole input: the file itself, or stdin copied into a temporary file."""
         if self.seekable:
             return self.stream
+        import shutil
+        import tempfile
+
         spool = tempfile.TemporaryFile()
         shutil.copyfileobj(self.stream, spool, 1 << 20)
         spool.seek(0)
@@ -497,6 +498,8 @@ def atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[str]:
     if replaced_mode is not None and not replaced_mode & 0o222:
         raise FormatError(f"{named}: exists and is read-only (mode {replaced_mode:o}): remove it or make it writable "
                           "first, or choose another -o")
+    import tempfile  # (on first use: a command that writes nothing does not import it)
+
     fd, temporary = tempfile.mkstemp(dir=directory, prefix="." + os.path.basename(path) + ".", suffix=".part" + suffix)
     os.close(fd)
     try:

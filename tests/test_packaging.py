@@ -76,3 +76,15 @@ def test_the_package_names_load_on_first_use():
     out = _child("import evtools; print(evtools.events.EVENT_DTYPE.itemsize, evtools.metrics.__name__, "
                  "hasattr(evtools, 'no_such_thing'))")
     assert out == "16 evtools.metrics False"
+
+
+def test_reading_a_file_loads_no_processor(tmp_path):
+    """Issue 42 item 4: ``evtools.read`` imports the readers, not correction, estimation, the filters or the
+    simulator (each a processor's module); taking a processor from the package documents its keywords then."""
+    path = tmp_path / "a.csv"
+    path.write_text("t,x,y,p\n0,1,1,1\n5,2,1,0\n")
+    heavy = ("evtools.correction", "evtools.estimation", "evtools.filters", "evtools.simulation", "evtools.noise")
+    out = _child(f"import sys, inspect, evtools; evtools.read({str(path)!r}); "
+                 f"print([m for m in {heavy!r} if m in sys.modules], "
+                 "'target' in inspect.signature(evtools.correct).parameters)")
+    assert out == "[] True"

@@ -9,7 +9,6 @@ import numpy as np
 
 from evtools._kernels import mlpf as mlpf_kernels
 from evtools.filters.spec import BAFilterError, Filter, Param
-from evtools.mlpf import MlpfError, Weights, load_weights
 
 
 class Mlpf(Filter):
@@ -26,6 +25,8 @@ class Mlpf(Filter):
 
     @classmethod
     def prepare(cls, q, width, height):
+        from evtools.mlpf import MlpfError, Weights, load_weights  # (the model's module only where it is used)
+
         try:
             q["weights"] = (q["weights"].check("weights") if isinstance(q["weights"], Weights)
                             else load_weights(q["weights"]))
