@@ -413,7 +413,7 @@ class Aedat4Reader:
             start = status = 0
             while True:
                 end, self._filled, status, last = copy_event_packets(block, start, got, self.stream_id,
-                                                                     self._chunk.view(np.uint8), self._filled,
+                                                                     self._chunk.view(np.uint64), self._filled,
                                                                      MAX_PACKET_BYTES)
                 self.position += end - start
                 start = end
