@@ -254,23 +254,27 @@ def write_metavision_hdf5(path: Path, events: np.ndarray, width: int, height: in
             dataset.write_direct_chunk((start,), _ecf_block(t[part], x[part], y[part], p[part]), 0)
 
 
-DV_FILTER = """import sys
+DV_FILTER_FUNCTION = """import sys
 import dv_processing as dv
-path, out, compression = sys.argv[1:]
-recording = dv.io.MonoCameraRecording(path)
-config = dv.io.MonoCameraWriter.Config("bench")
-config.addEventStream(recording.getEventResolution())
-config.compression = dv.CompressionType.LZ4 if compression == "lz4" else dv.CompressionType.NONE
-writer = dv.io.MonoCameraWriter(out, config)
-noise_filter = dv.noise.BackgroundActivityNoiseFilter(recording.getEventResolution())
-while recording.isRunning():
-    batch = recording.getNextEventBatch()
-    if batch is not None:
-        noise_filter.accept(batch)
-        writer.writeEvents(noise_filter.generateEvents())
-del writer
+
+
+def filter_file(path, out, compression):
+    recording = dv.io.MonoCameraRecording(path)
+    config = dv.io.MonoCameraWriter.Config("bench")
+    config.addEventStream(recording.getEventResolution())
+    config.compression = dv.CompressionType.LZ4 if compression == "lz4" else dv.CompressionType.NONE
+    writer = dv.io.MonoCameraWriter(out, config)
+    noise_filter = dv.noise.BackgroundActivityNoiseFilter(recording.getEventResolution())
+    while recording.isRunning():
+        batch = recording.getNextEventBatch()
+        if batch is not None:
+            noise_filter.accept(batch)
+            writer.writeEvents(noise_filter.generateEvents())
+    del writer  # (dv-processing writes the file's index when the writer is destroyed)
 """
-"""dv-processing's read, ``BackgroundActivityNoiseFilter`` (its defaults) and write with the input's compression."""
+"""dv-processing's read, ``BackgroundActivityNoiseFilter`` (its defaults) and write with the given compression."""
+DV_FILTER = DV_FILTER_FUNCTION + "\nfilter_file(*sys.argv[1:])\n"
+"""``python -c DV_FILTER IN OUT COMPRESSION``: one file filtered."""
 
 
 def command(argv) -> dict:
