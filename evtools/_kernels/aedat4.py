@@ -41,9 +41,8 @@ def copy_event_packets(block, start, end, stream_id, out, filled, max_packet_byt
     COPIED / FULL / OTHER, events of the last packet copied or -1).
 
     An event is copied as its two 8-byte words, the second masked to x, y and the polarity (the file's padding
-    zeroed): 0.65 ns an event, where numba's byte-slice copy and three byte stores took 6-10. The words are read
-    where the packet puts them, at any byte offset of the block (a file's packets are not 8-byte aligned):
-    unaligned 8-byte loads, which x86-64 and AArch64 do in hardware."""
+    zeroed; docs/performance.md). The words are read where the packet puts them, at any byte offset of the block
+    (a file's packets are not 8-byte aligned): unaligned 8-byte loads, which x86-64 and AArch64 do in hardware."""
     pos = start
     last = -1
     capacity = out.size // 2
