@@ -308,6 +308,7 @@ class Aedat4Reader:
         about a chunk (:meth:`_decode_group`), up to :data:`DECODE_AHEAD` groups ahead, and placed in file order."""
         stream, self._skipped_packets = self.source.stream, 0
         self._recycled = formats_io.Recycled()
+        self._staging = threading.local()  # each decoding thread's buffer of decompressed packets
         self._chunk, self._filled = self._recycled.take(self.options.chunk_events), 0
         pending: deque = deque()  # futures of decoded groups, in file order
         group: list[tuple[bytes, int]] = []  # compressed packets (body, file offset) not yet handed to the pool
@@ -328,7 +329,7 @@ class Aedat4Reader:
                 if live and (self._filled or pending or group) and not (
                         time.monotonic() - first_arrival_s < self.options.max_latency_s and self._packet_waits()):
                     if group:
-                        pending.append(pool.submit(self._decode_group, group, ratio))
+                        pending.append(pool.submit(self._decode_group, group))
                         group, group_bytes = [], 0
                     while pending:
                         yield from self._place_group(*pending.popleft().result())
@@ -359,7 +360,7 @@ class Aedat4Reader:
                     group_bytes += size
                     # a live input's group takes the packets that have arrived (a pipe from a file: many)
                     if group_bytes * ratio >= 16 * self.options.chunk_events or (live and not self._packet_waits()):
-                        pending.append(pool.submit(self._decode_group, group, ratio))
+                        pending.append(pool.submit(self._decode_group, group))
                         group, group_bytes = [], 0
                         if len(pending) > DECODE_AHEAD:
                             ratio = yield from self._place_group(*pending.popleft().result())
@@ -382,7 +383,7 @@ class Aedat4Reader:
                 target.view(np.uint64).reshape(-1, 2)[:, 1] &= PAYLOAD_MASK  # the file's padding: zeroed
                 self._filled += count
             if group:
-                pending.append(pool.submit(self._decode_group, group, ratio))
+                pending.append(pool.submit(self._decode_group, group))
             while pending:
                 yield from self._place_group(*pending.popleft().result())
         finally:
@@ -480,42 +481,49 @@ class Aedat4Reader:
             return False
         return self.source.arrived(self.position) >= 8 + struct.unpack_from("<iI", head)[1]
 
-    def _decode(self, body: bytes, offset: int) -> np.ndarray:
-        """One compressed event packet's events (in a decoding thread)."""
-        try:
-            body = self.decompress(body)
-        except Exception as error:  # lz4 and zstandard raise their own types
-            raise FormatError(f"{self.name}: cannot decompress packet at byte {offset} ({error})") from None
-        return _packet_events(body, self.name, offset)
-
-    def _decode_group(self, group: list[tuple[bytes, int]], ratio: float) -> tuple[np.ndarray, int, float]:
+    def _decode_group(self, group: list[tuple[bytes, int]]) -> tuple[np.ndarray, int, float]:
         """Decode consecutive compressed event packets (in a decoding thread) into one array, padding zeroed.
 
-        DV records packets of a few thousand events (1,900 on average in the DVXplorer sample: 10 ms each), so
-        packets are handed to the pool in groups of about a chunk: one hand-over per group, not per packet
-        (docs/performance.md). Each packet is copied into the group's array as soon as it is
-        decompressed, so one packet's bytes are alive at a time: holding a whole group's (2 MB) and freeing them
-        together made the thread's malloc arena give its pages back and fault them in again for every group
-        (190,000 page faults reading 50M events; `convert` to /dev/null spent 0.9 s in the kernel). The array is
-        sized by ``ratio`` (the decoded bytes per compressed byte seen so far) and grown when the guess is short.
-        Returns (events, events in the group's last packet, the group's own ratio)."""
-        compressed = sum(len(body) for body, _ in group)
-        events = self._recycled.take(max(1, int(compressed * ratio * 1.125) // 16))
-        at = last = 0  # bytes filled, events in the last packet
-        for body, offset in group:
-            packet = self._decode(body, offset)
-            end = at + packet.nbytes
-            if end > events.nbytes:
-                grown = self._recycled.take(max(2 * len(events), end // 16))
-                grown.view(np.uint8)[:at] = events.view(np.uint8)[:at]
-                events = grown
-            # raw bytes, one buffer copy a packet (numpy's calls cost more than DV's packets)
-            memoryview(events.view(np.uint8))[at:end] = memoryview(packet.view(np.uint8))
-            at, last = end, len(packet)
+        DV records packets of a few thousand events (1,900 on average in the DVXplorer sample: 10 ms each; 620 for
+        a DAVIS346), so packets are handed to the pool in groups of about a chunk: one hand-over per group, not per
+        packet (docs/performance.md). Each packet is decompressed and put at the end of the thread's staging
+        buffer, reused group after group, so one packet's bytes object is alive at a time (holding a whole
+        group's and freeing them together made the thread's malloc arena give its pages back and fault them in
+        again for every group: 190,000 page faults reading 50M events); then one kernel copies the events of every
+        packet into the group's array (:func:`evtools._kernels.aedat4.copy_decoded_packets`: parsing and copying
+        each packet in Python held the GIL ~11 us a packet), and a packet it does not read goes through
+        :func:`_packet_events` (its errors, empty packets). Returns (events, events in the group's last packet,
+        the group's own ratio of decoded to compressed bytes, for the size of the next groups)."""
+        from evtools._kernels.aedat4 import copy_decoded_packets
+
+        staging = getattr(self._staging, "buffer", None)
+        bounds = np.empty(len(group) + 1, np.int64)  # packet k: staging[bounds[k]:bounds[k + 1]]
+        at = 0
+        for k, (body, offset) in enumerate(group):
+            try:
+                packet = self.decompress(body)
+            except Exception as error:  # lz4 and zstandard raise their own types
+                raise FormatError(f"{self.name}: cannot decompress packet at byte {offset} ({error})") from None
+            end = at + len(packet)
+            if staging is None or end > len(staging):
+                grown = np.empty(max(2 * (0 if staging is None else len(staging)), end, 1 << 20), np.uint8)
+                grown[:at] = staging[:at] if at else grown[:0]
+                staging = self._staging.buffer = grown
+            memoryview(staging)[at:end] = packet
+            bounds[k], at = at, end
             del packet  # before the next is decompressed (see above)
-        events = events[:at // 16]
-        events.view(np.uint64).reshape(-1, 2)[:, 1] &= PAYLOAD_MASK  # the file's padding: zeroed
-        return events, last, min(max(at / max(1, compressed), 1.0), MAX_RATIO)
+        bounds[-1] = at
+        events = self._recycled.take(max(1, at // 16))  # (a packet's events take 16 of its bytes each)
+        words = events.view(np.uint64)
+        done, filled, last = copy_decoded_packets(staging, bounds, 0, words, 0)
+        while done < len(group):
+            packet = _packet_events(staging[bounds[done]:bounds[done + 1]].tobytes(), self.name, group[done][1])
+            _copy_records(events[filled:filled + len(packet)], packet)
+            filled, last = filled + len(packet), len(packet)
+            done, filled, copied_last = copy_decoded_packets(staging, bounds, done + 1, words, filled)
+            last = copied_last if copied_last >= 0 else last
+        compressed = sum(len(body) for body, _ in group)
+        return events[:filled], last, min(max(at / max(1, compressed), 1.0), MAX_RATIO)
 
     def _place_group(self, events: np.ndarray, last_count: int, ratio: float) -> Iterator[np.ndarray]:
         """Pass on a decoded group: as chunks of its own when no chunk is being filled (no copy), else appended to

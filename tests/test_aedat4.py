@@ -224,8 +224,8 @@ def test_groups_stay_about_a_chunk_after_empty_packets(tmp_path):
     decode_group = aedat4.Aedat4Reader._decode_group
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(aedat4.Aedat4Reader, "_decode_group",
-                      lambda self, group, ratio: sizes.append(sum(len(body) for body, _ in group))
-                      or decode_group(self, group, ratio))
+                      lambda self, group: sizes.append(sum(len(body) for body, _ in group))
+                      or decode_group(self, group))
         _, back = read_all(path, chunk_events=4096)
     assert_same_events(back, events)
     assert len(sizes) > 5 and max(sizes) <= 16 * 4096 + max(len(empty), 16 * 500)
@@ -253,7 +253,7 @@ def test_a_pipe_groups_the_packets_that_have_arrived(tmp_path):
     decode_group = aedat4.Aedat4Reader._decode_group
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(aedat4.Aedat4Reader, "_decode_group",
-                      lambda self, group, ratio: groups.append(len(group)) or decode_group(self, group, ratio))
+                      lambda self, group: groups.append(len(group)) or decode_group(self, group))
         with open_events(str(fifo)) as stream:
             back = join(list(stream))
     feeder.join()
@@ -570,3 +570,50 @@ def test_the_block_scan_reads_dvs_own_small_packets_as_the_per_packet_path(tmp_p
         scanned, per_packet = _read_both_ways(path, monkeypatch, block)
         assert_same_events(scanned[0], per_packet[0])
         assert_same_events(scanned[0], make_events(t, x, y, p))
+
+
+@given(st.data())
+@settings(max_examples=60, deadline=None)
+def test_a_group_of_compressed_packets_decodes_as_each_packet_alone(data):
+    """Issue 42: a decoding thread lays a group's decompressed packets end to end and one kernel copies their events
+    (``copy_decoded_packets``). On random groups - packet sizes, garbage in every event's padding, packets without
+    events, a damaged or foreign flatbuffer among them - the events (padding zeroed) and the events of the group's
+    last packet are those of each packet decompressed and parsed alone by the Python parser, and a packet that parser
+    refuses is refused with its message."""
+    import lz4.frame
+
+    import evtools.formats.aedat4 as aedat4
+    from evtools.formats.io import Recycled
+
+    rng = np.random.default_rng(data.draw(st.integers(0, 2**31 - 1)))
+    bodies = []
+    for _ in range(data.draw(st.integers(1, 12))):
+        kind = data.draw(st.sampled_from(["events"] * 6 + ["empty", "trailing", "foreign"]))
+        count = int(rng.integers(0, 700))
+        records = rng.integers(0, 256, 16 * count, dtype=np.uint8).tobytes()  # times, x, y, p, padding: any bytes
+        if kind == "events":
+            bodies.append(aedat4._packet_prefix(count) + records)
+        elif kind == "empty":
+            bodies.append(aedat4._packet_prefix(0))
+        elif kind == "trailing":  # bytes after the events: the Python parser reads it, the kernel leaves it
+            bodies.append(aedat4._packet_prefix(count) + records + bytes(8))
+        else:
+            bodies.append(b"\x20\x00\x00\x00\x10\x00\x00\x00FRME" + bytes(24))
+    group = [(lz4.frame.compress(body), 100 * k) for k, body in enumerate(bodies)]
+    reader = aedat4.Aedat4Reader.__new__(aedat4.Aedat4Reader)
+    reader.name, reader.decompress = "g.aedat4", aedat4._decompressor(1, "g.aedat4")
+    reader._recycled, reader._staging = Recycled(), __import__("threading").local()
+    try:
+        expected = [aedat4._packet_events(body, "g.aedat4", 100 * k) for k, body in enumerate(bodies)]
+    except FormatError as error:
+        with pytest.raises(FormatError) as raised:
+            reader._decode_group(group)
+        assert str(raised.value) == str(error)
+        return
+    want = np.zeros(sum(len(e) for e in expected), evtools.EVENT_DTYPE)  # (concatenate would drop the padding)
+    want.view(np.uint8)[:] = np.frombuffer(b"".join(e.tobytes() for e in expected), np.uint8)
+    want.view(np.uint8).reshape(-1, 16)[:, 13:] = 0
+    for _ in range(2):  # the thread's staging buffer is reused from group to group
+        events, last, ratio = reader._decode_group(group)
+        assert events.tobytes() == want.tobytes()
+        assert last == len(expected[-1]) and ratio >= 1.0
