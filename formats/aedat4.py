@@ -507,7 +507,8 @@ class Aedat4Reader:
             end = at + len(packet)
             if staging is None or end > len(staging):
                 grown = np.empty(max(2 * (0 if staging is None else len(staging)), end, 1 << 20), np.uint8)
-                grown[:at] = staging[:at] if at else grown[:0]
+                if at:
+                    grown[:at] = staging[:at]
                 staging = self._staging.buffer = grown
             memoryview(staging)[at:end] = packet
             bounds[k], at = at, end
