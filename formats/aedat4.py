@@ -27,6 +27,7 @@ from typing import BinaryIO, Iterator
 
 import numpy as np
 
+from evtools._kernels.aedat4 import PAYLOAD_MASK  # (a kernel module imports no numba until a kernel compiles)
 from evtools.events import EVENT_DTYPE, StreamInfo
 from evtools.frames import FORMAT_BGR, FORMAT_BGRA, FORMAT_GRAY, FORMAT_GRAY16, Frame, gray
 from evtools.formats import io as formats_io
@@ -45,9 +46,6 @@ SCAN_BLOCK_BYTES = 1 << 20
 """Bytes read at a time by the scan: whole packets of it are copied, the rest is read again with the next block."""
 PACKET_HEAD_BYTES = 256
 """How much of an uncompressed packet is read to find its event vector before reading the events in place."""
-PAYLOAD_MASK = np.uint64((1 << 40) - 1)
-"""Keeps x, y and on of an event's second 8-byte word and zeroes its padding: the writer's output bytes are
-reproducible, and the reader's chunks hold zero padding whatever the file had."""
 PACKET_EVENTS = 1 << 15
 """Events per packet the writer emits (512 KiB): large enough for speed, small enough for pipe latency."""
 

@@ -24,8 +24,10 @@ OTHER = 2
 """The next packet is not an event packet the kernel reads (another stream, another layout, a size too large)."""
 
 
-_PAYLOAD = np.uint64((1 << 40) - 1)
-"""The bits of an event's second word that hold x, y and the polarity (``formats.aedat4.PAYLOAD_MASK``)."""
+PAYLOAD_MASK = np.uint64((1 << 40) - 1)
+"""Keeps x, y and on of an event's second 8-byte word and zeroes its padding: the writer's output bytes are
+reproducible, and the reader's chunks hold zero padding whatever the file had (the kernels here and the AEDAT 4.0
+reader and writer, which import it)."""
 
 
 @kernel(inline=True)
@@ -80,7 +82,7 @@ def _copy_words(block, source, count, out, filled):  # pragma: no cover - compil
     target = 2 * filled
     for i in range(count):
         out[target + 2 * i] = words[2 * i]
-        out[target + 2 * i + 1] = words[2 * i + 1] & _PAYLOAD
+        out[target + 2 * i + 1] = words[2 * i + 1] & PAYLOAD_MASK
 
 
 @kernel
