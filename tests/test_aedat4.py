@@ -580,6 +580,8 @@ def test_a_group_of_compressed_packets_decodes_as_each_packet_alone(data):
     events, a damaged or foreign flatbuffer among them - the events (padding zeroed) and the events of the group's
     last packet are those of each packet decompressed and parsed alone by the Python parser, and a packet that parser
     refuses is refused with its message."""
+    import threading
+
     import lz4.frame
 
     import evtools.formats.aedat4 as aedat4
@@ -602,7 +604,7 @@ def test_a_group_of_compressed_packets_decodes_as_each_packet_alone(data):
     group = [(lz4.frame.compress(body), 100 * k) for k, body in enumerate(bodies)]
     reader = aedat4.Aedat4Reader.__new__(aedat4.Aedat4Reader)
     reader.name, reader.decompress = "g.aedat4", aedat4._decompressor(1, "g.aedat4")
-    reader._recycled, reader._staging = Recycled(), __import__("threading").local()
+    reader._recycled, reader._staging = Recycled(), threading.local()
     try:
         expected = [aedat4._packet_events(body, "g.aedat4", 100 * k) for k, body in enumerate(bodies)]
     except FormatError as error:

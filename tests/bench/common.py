@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import statistics
 import subprocess
 import sys
 import time
@@ -96,15 +97,11 @@ def paired(runs: int, contenders: list[tuple]) -> tuple[list[list[dict]], list[f
 
 def ratios(peer: list[dict], ours: list[dict], key: str) -> tuple[float, float]:
     """Min and median over rounds of ``peer[key] / ours[key]`` taken round by round (> 1: ours is faster)."""
-    import statistics
-
     values = [p[key] / o[key] for p, o in zip(peer, ours)]
     return min(values), statistics.median(values)
 
 
 def median(results: list[dict], key: str) -> float:
-    import statistics
-
     return statistics.median(result[key] for result in results)
 
 
