@@ -556,7 +556,7 @@ def from_dv(store) -> np.ndarray:
     array = store.numpy()
     if not len(array):
         return empty_events()
-    events = np.empty(len(array), dtype=EVENT_DTYPE)
+    events = np.zeros(len(array), dtype=EVENT_DTYPE)  # (padding zero)
     events["t"] = array["timestamp"]
     events["x"] = array["x"]
     events["y"] = array["y"]

@@ -102,9 +102,10 @@ def empty_events(n: int = 0) -> np.ndarray:
 
 
 def make_events(t, x, y, p) -> np.ndarray:
-    """Build a chunk from four equally long columns (p: bool, or 0/1)."""
+    """Build a chunk from four equally long columns (p: bool, or 0/1); the records' padding is zero, as in the
+    readers' chunks (``np.empty`` left whatever the memory held there)."""
     t = np.asarray(t)
-    out = np.empty(len(t), dtype=EVENT_DTYPE)
+    out = np.zeros(len(t), dtype=EVENT_DTYPE)
     out["t"] = t
     out["x"] = x
     out["y"] = y
@@ -175,7 +176,7 @@ def as_chunk(chunk, name: str = "chunk") -> np.ndarray:
             raise InvalidEventsError(
                 f"{name} has dtype {chunk.dtype}, expected EVENT_DTYPE (fields t, x, y, p: evtools.from_columns, "
                 "from_tonic and from_dv convert other layouts)")
-        converted = np.empty(chunk.shape, EVENT_DTYPE)
+        converted = np.zeros(chunk.shape, EVENT_DTYPE)  # (padding zero)
         for column in ("t", "x", "y"):  # by name: numpy's astype between structured types goes by position
             values = chunk[keys[column]]
             converted[column] = values
