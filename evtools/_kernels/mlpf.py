@@ -8,8 +8,12 @@ then the event's own polarity (1 ON, 0 OFF): ``2 P^2 + 1`` inputs. The pixel its
 hot pixel's own rate is telling). The maps (padded by ``radius``, :data:`NEVER` there and before a first event)
 get the event's time after its features are taken.
 
-The filter adds only the columns of ``w1`` whose feature is not 0 (few neighbours fire within ``tau_us`` on
-noise), so its cost is the active neighbours times the hidden units, not the whole matrix.
+The filter adds only the rows of ``w1`` whose feature is not 0 (few neighbours fire within ``tau_us`` on
+noise), so its cost is the active neighbours times the hidden units, not the whole matrix. It does so in two
+passes per event, each free of unpredictable branches (a data-dependent ``if`` per neighbour cost more than
+the arithmetic): a scan that lists the active patch cells and their ages, then the hidden units summed over the
+list four cells at a time (a loop numba vectorises), the list padded with a zero row of ``w1``. Measured on the
+DVS128 walk with 5 Hz noise (``docs/performance.md``): 1.7 -> 3.6 Mev/s.
 """
 
 from __future__ import annotations
@@ -26,17 +30,31 @@ def padded_maps(width: int, height: int, radius: int) -> np.ndarray:
     return np.full((2, height + 2 * radius, width + 2 * radius), NEVER, dtype=np.int64)
 
 
+def with_zero_row(w1: np.ndarray) -> np.ndarray:
+    """``w1`` (inputs, hidden) with a row of zeros appended: the row :func:`mlpf` pads its list of cells with."""
+    return np.concatenate([np.asarray(w1, np.float64), np.zeros((1, w1.shape[1]))])
+
+
+def scratch(patch: int) -> tuple[np.ndarray, np.ndarray]:
+    """The two int64 lists :func:`mlpf` fills per event (active cells, their ages): all inputs, plus padding."""
+    size = 2 * patch * patch + 1 + 4
+    return np.zeros(size, np.int64), np.zeros(size, np.int64)
+
+
 @kernel
-def mlpf(words, maps, radius, tau_us, w1, b1, w2, b2, logit_threshold, hidden, out):
+def mlpf(words, maps, radius, tau_us, w1, b1, w2, b2, logit_threshold, cells, ages, hidden, out):
     """Keep an event when the perceptron's logit ``w2 . relu(w1^T f + b1) + b2`` exceeds ``logit_threshold``
-    (the probability threshold's logit); ``w1`` is (inputs, hidden), ``hidden`` scratch of the hidden size."""
+    (the probability threshold's logit); ``w1`` is :func:`with_zero_row` of the (inputs, hidden) weights,
+    ``cells`` and ``ages`` the lists of :func:`scratch`, ``hidden`` scratch of the hidden size."""
     size = 2 * radius + 1
     plane = size * size
+    zero_row = 2 * plane + 1
     width = maps.shape[2]
     flat = maps.ravel()
     map_cells = maps.shape[1] * width
     units = b1.shape[0]
     inverse_tau = 1.0 / tau_us
+    one = np.uint64(1)
     n = 0
     end = words.shape[0]
     for i in range(end):
@@ -49,21 +67,33 @@ def mlpf(words, maps, radius, tau_us, w1, b1, w2, b2, logit_threshold, hidden, o
                     prefetch(flat, c * map_cells + corner + dy * width + size - 1)
         t = words[i, 0]
         x, y, p = unpack(words[i, 1])
-        for j in range(units):
-            hidden[j] = b1[j]
-        if p:
-            for j in range(units):
-                hidden[j] += w1[2 * plane, j]
+        # the scan: every cell written, the count advanced by 1 where active (an unsigned count: numba then
+        # indexes without its negative-index fix-up)
+        active = np.uint64(0)
         for c in range(2):
             for dy in range(size):
-                row = c * map_cells + (y + dy) * width + x
+                row = flat[c * map_cells + (y + dy) * width + x:]
+                first = c * plane + dy * size
                 for dx in range(size):
-                    age = t - flat[row + dx]
-                    if age < tau_us:
-                        f = 1.0 - age * inverse_tau
-                        k = c * plane + dy * size + dx
-                        for j in range(units):
-                            hidden[j] += f * w1[k, j]
+                    age = t - row[dx]
+                    cells[active] = first + dx
+                    ages[active] = age
+                    active += np.uint64((age - tau_us) >> 63) & one  # age < tau_us
+        if p:
+            cells[active] = 2 * plane  # the polarity input: 1, as a cell of age 0
+            ages[active] = 0
+            active += one
+        for q in range(4):
+            cells[active + np.uint64(q)] = zero_row
+            ages[active + np.uint64(q)] = 0
+        for j in range(units):
+            hidden[j] = b1[j]
+        for m in range(0, active, 4):
+            wa, wb, wc, wd = w1[cells[m]], w1[cells[m + 1]], w1[cells[m + 2]], w1[cells[m + 3]]
+            fa, fb = 1.0 - ages[m] * inverse_tau, 1.0 - ages[m + 1] * inverse_tau
+            fc, fd = 1.0 - ages[m + 2] * inverse_tau, 1.0 - ages[m + 3] * inverse_tau
+            for j in range(units):
+                hidden[j] += (fa * wa[j] + fb * wb[j]) + (fc * wc[j] + fd * wd[j])
         z = b2
         for j in range(units):
             z += max(hidden[j], 0.0) * w2[j]
