@@ -36,7 +36,9 @@ class MlpfError(EvtoolsError, ValueError):
 @dataclass
 class Weights:
     """A trained MLPF: ``w1`` (inputs, hidden), ``b1`` (hidden), ``w2`` (hidden), ``b2``; the patch side (odd) and
-    the time constant ``tau_us`` its features were made with; ``info``: how it was trained (free-form strings)."""
+    the time constant its features were made with: ``tau_scale`` times the stream's activity time (the time the
+    sensor takes to fire once per pixel, followed as the stream goes: ``evtools/_kernels/mlpf.py``) when
+    ``tau_scale`` > 0, else the fixed ``tau_us``; ``info``: how it was trained (free-form strings)."""
 
     w1: np.ndarray
     b1: np.ndarray
@@ -44,6 +46,7 @@ class Weights:
     b2: float
     patch: int
     tau_us: int
+    tau_scale: float = 0.0
     info: dict = field(default_factory=dict)
 
     @property
@@ -54,8 +57,10 @@ class Weights:
         inputs = 2 * self.patch * self.patch + 1
         if self.patch < 1 or self.patch % 2 == 0:
             raise MlpfError(f"{name}: patch {self.patch} is not an odd number of pixels")
-        if self.tau_us < 1:
-            raise MlpfError(f"{name}: tau_us {self.tau_us} is not positive")
+        if not (math.isfinite(self.tau_scale) and self.tau_scale >= 0):
+            raise MlpfError(f"{name}: tau_scale {self.tau_scale} is not a finite number >= 0")
+        if self.tau_scale == 0 and self.tau_us < 1:
+            raise MlpfError(f"{name}: tau_us {self.tau_us} is not positive (and no tau_scale)")
         hidden = len(self.b1)
         if self.w1.shape != (inputs, hidden) or self.w2.shape != (hidden,):
             raise MlpfError(f"{name}: weights of shapes w1 {self.w1.shape}, b1 {self.b1.shape}, w2 {self.w2.shape} "
@@ -67,7 +72,8 @@ class Weights:
     def save(self, path: str | os.PathLike) -> None:
         with open(path, "wb") as sink:
             np.savez(sink, w1=self.w1, b1=self.b1, w2=self.w2, b2=np.float64(self.b2), patch=np.int64(self.patch),
-                     tau_us=np.int64(self.tau_us), info=np.array(repr(sorted(self.info.items()))))
+                     tau_us=np.int64(self.tau_us), tau_scale=np.float64(self.tau_scale),
+                     info=np.array(repr(sorted(self.info.items()))))
 
 
 def load_weights(path: str | os.PathLike | None = None) -> Weights:
@@ -77,7 +83,8 @@ def load_weights(path: str | os.PathLike | None = None) -> Weights:
         with np.load(path, allow_pickle=False) as data:
             weights = Weights(np.asarray(data["w1"], np.float64), np.asarray(data["b1"], np.float64).reshape(-1),
                               np.asarray(data["w2"], np.float64).reshape(-1), float(data["b2"]), int(data["patch"]),
-                              int(data["tau_us"]), {"file": str(path)})
+                              int(data["tau_us"]), float(data["tau_scale"]) if "tau_scale" in data else 0.0,
+                              {"file": str(path)})
             if "info" in data:
                 weights.info["trained"] = str(data["info"])
     except FileNotFoundError:
@@ -92,16 +99,18 @@ def load_weights(path: str | os.PathLike | None = None) -> Weights:
 class FeatureMaker:
     """The features of a stream's events, chunk by chunk (the ON and OFF maps carried over)."""
 
-    def __init__(self, width: int, height: int, patch: int, tau_us: int) -> None:
+    def __init__(self, width: int, height: int, patch: int, tau_us: int, tau_scale: float = 0.0) -> None:
         self.radius, self.tau_us = patch // 2, int(tau_us)
         self.inputs = 2 * patch * patch + 1
         self.maps = kernels.padded_maps(width, height, self.radius)
+        self.clock, self.scale = kernels.new_clock(width * height), float(tau_scale) * (width * height)
 
     def features(self, chunk: np.ndarray, take: np.ndarray) -> np.ndarray:
         """(number taken, inputs) float32: the features of the events of ``chunk`` where ``take``."""
         words = record_words(np.ascontiguousarray(chunk))
         rows = np.empty((int(take.sum()), self.inputs), np.float32)
-        kernels.mlpf_features(words, self.maps, self.radius, self.tau_us, np.ascontiguousarray(take, np.bool_), rows)
+        kernels.mlpf_features(words, self.maps, self.radius, self.clock, self.scale, self.tau_us,
+                              np.ascontiguousarray(take, np.bool_), rows)
         return rows
 
 
@@ -123,7 +132,7 @@ class TrainingReport:
 
 
 def train(features: np.ndarray, labels: np.ndarray, validation: np.ndarray, *, patch: int, tau_us: int,
-          hidden: int = 20, seed: int = 0, epochs: int = 60, batch: int = 512, learning_rate: float = 2e-3,
+          tau_scale: float = 0.0, hidden: int = 20, seed: int = 0, epochs: int = 60, batch: int = 512, learning_rate: float = 2e-3,
           patience: int = 5) -> tuple[Weights, TrainingReport]:
     """Fit the perceptron to ``features`` (n, inputs; any float type, kept as given: float16 halves the memory)
     and ``labels`` (1 signal, 0 noise): mini-batch Adam on the mean cross-entropy, stopping when the loss on the
@@ -179,7 +188,7 @@ def train(features: np.ndarray, labels: np.ndarray, validation: np.ndarray, *, p
             waited += 1
             if waited >= patience:
                 break
-    weights = Weights(best[0], best[1], best[2], float(best[3]), patch, tau_us)
+    weights = Weights(best[0], best[1], best[2], float(best[3]), patch, tau_us, tau_scale)
     report = TrainingReport(epoch, loss_of(best, train_rows), best_loss, auc(logits(best, check_rows),
                                                                              labels[check_rows]),
                             len(train_rows), len(check_rows), float(labels.mean()))

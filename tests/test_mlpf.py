@@ -25,11 +25,11 @@ def _stream(seed: int, n: int, width: int, height: int, mean_gap_us: int) -> np.
     return events[np.sort(first)]
 
 
-def _weights(seed: int, patch: int, hidden: int, tau_us: int) -> Weights:
+def _weights(seed: int, patch: int, hidden: int, tau_us: int, tau_scale: float = 0.0) -> Weights:
     rng = np.random.default_rng(seed)
     inputs = 2 * patch * patch + 1
     return Weights(rng.normal(0, 1, (inputs, hidden)), rng.normal(0, 0.5, hidden), rng.normal(0, 1, hidden),
-                   float(rng.normal()), patch, tau_us)
+                   float(rng.normal()), patch, tau_us, tau_scale)
 
 
 def _tuples(events):
@@ -39,12 +39,14 @@ def _tuples(events):
 @settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(seed=st.integers(0, 2**16), patch=st.sampled_from([1, 3, 5, 7]), hidden=st.integers(1, 24),
        tau_us=st.integers(100, 50_000), width=st.integers(1, 12), height=st.integers(1, 12),
-       threshold=st.floats(0.05, 0.95), gap_us=st.integers(0, 3000))
-def test_kernel_equals_the_slow_reference(seed, patch, hidden, tau_us, width, height, threshold, gap_us):
+       threshold=st.floats(0.05, 0.95), gap_us=st.integers(0, 3000),
+       tau_scale=st.sampled_from([0.0, 0.01, 0.1, 0.25, 1.0, 3.0]))
+def test_kernel_equals_the_slow_reference(seed, patch, hidden, tau_us, width, height, threshold, gap_us, tau_scale):
+    """Fixed time constants and ones that follow the stream's activity (tau_scale > 0)."""
     events = _stream(seed, 300, width, height, gap_us)
-    weights = _weights(seed + 1, patch, hidden, tau_us)
+    weights = _weights(seed + 1, patch, hidden, tau_us, tau_scale)
     kept, probabilities = naive_mlpf(_tuples(events), weights.w1.tolist(), weights.b1.tolist(), weights.w2.tolist(),
-                                     weights.b2, patch, tau_us, threshold)
+                                     weights.b2, patch, tau_us, threshold, tau_scale, width * height)
     clear = np.abs(np.array(probabilities) - threshold) > 1e-9  # sums in another order may differ in the last bit
     out = BAFilter(width, height, "mlpf", threshold=threshold, weights=weights).process(events)
     chosen = np.isin(np.arange(len(events)), _indices(events, out))
@@ -65,12 +67,15 @@ def _indices(events, out):
 
 @settings(max_examples=20, deadline=None)
 @given(seed=st.integers(0, 2**16), patch=st.sampled_from([1, 3, 7]), tau_us=st.integers(100, 20_000),
-       gap_us=st.integers(0, 1000))
-def test_features_equal_the_slow_reference(seed, patch, tau_us, gap_us):
+       gap_us=st.integers(0, 1000), tau_scale=st.sampled_from([0.0, 0.05, 0.5, 2.0]), cuts=st.lists(st.integers(0, 200)))
+def test_features_equal_the_slow_reference(seed, patch, tau_us, gap_us, tau_scale, cuts):
+    """Whatever the chunks (the activity clock and the maps carry over)."""
     events = _stream(seed, 200, 9, 7, gap_us)
     take = np.random.default_rng(seed).random(len(events)) < 0.5
-    rows = FeatureMaker(9, 7, patch, tau_us).features(events, take)
-    expected = np.array(naive_mlpf_features(_tuples(events), patch, tau_us), np.float32)[take]
+    maker = FeatureMaker(9, 7, patch, tau_us, tau_scale)
+    bounds = [0, *sorted(cuts), len(events)]
+    rows = np.concatenate([maker.features(events[a:b], take[a:b]) for a, b in zip(bounds, bounds[1:]) if b >= a])
+    expected = np.array(naive_mlpf_features(_tuples(events), patch, tau_us, tau_scale, 63), np.float32)[take]
     np.testing.assert_allclose(rows, expected, rtol=1e-6, atol=1e-6)
 
 
@@ -78,7 +83,7 @@ def test_features_equal_the_slow_reference(seed, patch, tau_us, gap_us):
 @given(seed=st.integers(0, 2**16), cuts=st.lists(st.integers(0, 400), max_size=6))
 def test_chunking_does_not_change_the_output(seed, cuts):
     events = _stream(seed, 400, 16, 12, 200)
-    weights = _weights(seed, 5, 8, 5_000)
+    weights = _weights(seed, 5, 8, 5_000, tau_scale=0.3)
     whole = BAFilter(16, 12, "mlpf", weights=weights, threshold=0.4).process(events)
     mlpf = BAFilter(16, 12, "mlpf", weights=weights, threshold=0.4)
     parts = join([mlpf.process(part) for part in cut(events, cuts)] + [mlpf.flush()])

@@ -39,6 +39,7 @@ class Mlpf(Filter):
         weights = self.weights = q["weights"]
         self.time_map = mlpf_kernels.padded_maps(width, height, weights.radius)
         self.logit = math.log(q["threshold"] / (1.0 - q["threshold"]))
+        self.clock, self.scale = mlpf_kernels.new_clock(width * height), weights.tau_scale * (width * height)
         self.w1 = mlpf_kernels.with_zero_row(weights.w1)
         self.cells, self.ages = mlpf_kernels.scratch(weights.patch)
         self.hidden = np.empty(len(weights.b1))
@@ -48,5 +49,5 @@ class Mlpf(Filter):
 
     def run(self, words, out) -> int:
         w = self.weights
-        return mlpf_kernels.mlpf(words, self.time_map, w.radius, w.tau_us, self.w1, w.b1, w.w2, w.b2, self.logit,
-                                 self.cells, self.ages, self.hidden, out)
+        return mlpf_kernels.mlpf(words, self.time_map, w.radius, self.clock, self.scale, w.tau_us, self.w1, w.b1,
+                                 w.w2, w.b2, self.logit, self.cells, self.ages, self.hidden, out)

@@ -126,31 +126,40 @@ def naive_hot_pixels(events, width, height, learn_us, hot_ratio, hot_min_events,
     return [(x, y) not in hot for t, x, y, p in events]
 
 
-def naive_mlpf_features(events, patch, tau_us):
+def naive_mlpf_features(events, patch, tau_us, tau_scale=0.0, pixels=1):
     """Per event: the ON then OFF time-surface patch (1 - age / tau, 0 when never or tau or more ago) row by row,
-    then the polarity (1 ON, 0 OFF); the patch includes the pixel itself."""
+    then the polarity (1 ON, 0 OFF); the patch includes the pixel itself. tau is ``tau_us``, or with
+    ``tau_scale`` > 0 that times ``pixels`` times the mean interval between events so far (a plain mean over the
+    first ``pixels`` intervals, then m += (interval - m) / pixels), in whole microseconds, at least 1."""
     r = patch // 2
     last = ({}, {})  # ON, OFF: (x, y) -> time of the pixel's last event of that polarity
     rows = []
-    for t, x, y, p in events:
+    mean_interval, previous = 0.0, None
+    for index, (t, x, y, p) in enumerate(events):
+        tau = tau_us
+        if tau_scale > 0:
+            if previous is not None:
+                mean_interval += ((t - previous) - mean_interval) / min(index, pixels)
+            previous = t
+            tau = max(1, int(tau_scale * pixels * mean_interval))
         row = []
         for polarity_map in last:
             for ny in range(y - r, y + r + 1):
                 for nx in range(x - r, x + r + 1):
                     seen = polarity_map.get((nx, ny))
-                    row.append(0.0 if seen is None or t - seen >= tau_us else 1.0 - (t - seen) / tau_us)
+                    row.append(0.0 if seen is None or t - seen >= tau else 1.0 - (t - seen) / tau)
         row.append(1.0 if p else 0.0)
         rows.append(row)
         last[0 if p else 1][(x, y)] = t
     return rows
 
 
-def naive_mlpf(events, w1, b1, w2, b2, patch, tau_us, threshold):
+def naive_mlpf(events, w1, b1, w2, b2, patch, tau_us, threshold, tau_scale=0.0, pixels=1):
     """Kept or not per event: sigmoid(w2 . relu(w1^T f + b1) + b2) > threshold, one dot product at a time."""
     import math
 
     kept, probabilities = [], []
-    for row in naive_mlpf_features(events, patch, tau_us):
+    for row in naive_mlpf_features(events, patch, tau_us, tau_scale, pixels):
         hidden = [max(0.0, b1[j] + sum(row[i] * w1[i][j] for i in range(len(row)))) for j in range(len(b1))]
         z = b2 + sum(h * w for h, w in zip(hidden, w2))
         probability = 1.0 / (1.0 + math.exp(-z))
