@@ -1,99 +1,205 @@
-"""``evtools metrics train-denoiser``: train the MLPF filter on streams whose events are labelled."""
+"""``evtools metrics train-denoiser``: train the MLPF filter on labelled streams, or on a camera's own recordings
+with no labels at all (the DND21 recipe, automated: :class:`evtools.mlpf.SelfLabeller`)."""
 
 from __future__ import annotations
 
 import json
 import os
+import sys
+from contextlib import contextmanager
 
 import click
 import numpy as np
 
 from evtools.cli.options import Duration, FiniteRange, json_option, wants_json
+from evtools.cli.progress import with_progress
 from evtools.formats import open_events
 from evtools.formats.io import atomic_path, same_file
 from evtools.formats.thresholds import read_labels
-from evtools.mlpf import FeatureMaker, MlpfError, train
+from evtools.mlpf import FeatureMaker, MlpfError, NoiseMeter, NoiseRates, SelfLabeller, train
 
 
-def _features(noisy: str, truth: str, patch: int, tau_us: int, fraction: float, held_out: float, rng):
-    """The sampled events' features (float16: they lie in [0, 1]), whether each is signal, and whether it is in
-    the held-out end of the stream."""
+class Sample:
+    """Rows of features drawn from one labelled stream (each event with probability ``fraction``): the features
+    (float16: they lie in [0, 1]), whether each is signal, and its time (the held-out part is the end of the
+    stream by time)."""
+
+    def __init__(self, maker: FeatureMaker, fraction: float, rng: np.random.Generator) -> None:
+        self.maker, self.fraction, self.rng = maker, fraction, rng
+        self.rows, self.signal, self.times = [], [], []
+
+    def add(self, events: np.ndarray, labels: np.ndarray) -> None:
+        take = self.rng.random(len(events)) < self.fraction
+        self.rows.append(self.maker.features(events, take).astype(np.float16))
+        self.signal.append(labels[take] == 0)
+        self.times.append(events["t"][take])
+
+    def result(self, held_out: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        times = np.concatenate(self.times)
+        first, last = (int(times[0]), int(times[-1])) if len(times) else (0, 0)
+        return (np.concatenate(self.rows), np.concatenate(self.signal),
+                times >= first + (1.0 - held_out) * (last - first))
+
+
+def _from_truth(noisy: str, truth: str, maker: FeatureMaker, budget: int, rng, held_out: float):
     labels = read_labels(truth)
-    take = rng.random(len(labels)) < fraction  # drawn up front: the rows are known before the stream is read
-    rows = np.empty((int(take.sum()), 2 * patch * patch + 1), np.float16)
-    seen = filled = 0
+    sample = Sample(maker, min(1.0, budget / max(len(labels), 1)), rng)
+    seen = 0
     with open_events(noisy) as stream:
-        maker = FeatureMaker(stream.info.width, stream.info.height, patch, tau_us)
-        for chunk in stream:
+        for chunk in with_progress(stream, stream, f"features of {os.path.basename(noisy)}"):
             if seen + len(chunk) > len(labels):
                 raise MlpfError(f"{truth}: {len(labels):,} labels but {noisy} has more events (give the truth file "
                                 "written with that stream)")
-            part = maker.features(chunk, take[seen:seen + len(chunk)])
-            rows[filled:filled + len(part)] = part
-            filled += len(part)
+            sample.add(chunk, labels[seen:seen + len(chunk)])
             seen += len(chunk)
     if seen != len(labels):
         raise MlpfError(f"{truth}: {len(labels):,} labels but {noisy} has {seen:,} events (give the truth file "
                         "written with that stream)")
-    index = np.flatnonzero(take)
-    return rows, labels[index] == 0, index >= (1.0 - held_out) * len(labels)
+    return sample.result(held_out)
+
+
+def _measure(recording: str) -> NoiseRates:
+    with open_events(recording) as stream:
+        meter = NoiseMeter(stream.info.width, stream.info.height)
+        for chunk in with_progress(stream, stream, f"noise of {os.path.basename(recording)}"):
+            meter.process(chunk)
+    try:
+        return meter.rates()
+    except MlpfError as error:
+        raise MlpfError(f"{recording}: {error}") from None
+
+
+def _self_labelled(recording: str, noise: NoiseRates, maker: FeatureMaker, budget: int, rng, held_out: float,
+                   seed: int):
+    """Rows of a recording labelled by :class:`SelfLabeller`, at most about ``budget`` (drawn as if every event
+    of the recording were kept, with the noise to inject)."""
+    with open_events(recording) as stream:
+        width, height = stream.info.width, stream.info.height
+        expected = noise.events + (noise.shot_hz + noise.leak_hz) * width * height * noise.duration_us * 1e-6
+        sample = Sample(maker, min(1.0, budget / max(expected, 1.0)), rng)
+        labeller = SelfLabeller(width, height, noise, seed)
+        for chunk in with_progress(stream, stream, f"features of {os.path.basename(recording)}"):
+            sample.add(*labeller.process(chunk))
+        sample.add(*labeller.flush())
+    return sample.result(held_out)
+
+
+@contextmanager
+def _epochs_shown(epochs: int):
+    """A callback showing the training's epochs on stderr when it is a terminal."""
+    if not sys.stderr.isatty():
+        yield None
+        return
+    from rich.console import Console
+    from rich.progress import BarColumn, Progress, TextColumn
+
+    with Progress(TextColumn("training"), BarColumn(), TextColumn("epoch {task.completed}/{task.total}"),
+                  TextColumn("held-out loss {task.fields[loss]:.4f}"), transient=True,
+                  console=Console(stderr=True)) as progress:
+        task = progress.add_task("training", total=epochs, loss=float("nan"))
+        yield lambda epoch, loss: progress.update(task, completed=epoch, loss=loss)
 
 
 @click.command("train-denoiser")
-@click.argument("noisy", nargs=-1, required=True, type=click.Path(exists=True, dir_okay=False))
-@click.option("--truth", "truths", multiple=True, required=True, type=click.Path(exists=True, dir_okay=False),
-              help="Truth file of each NOISY, in the same order (`evtools simulate ... --truth`: labels per event).")
+@click.argument("recordings", nargs=-1, required=True, type=click.Path(exists=True, dir_okay=False))
+@click.option("--truth", "truths", multiple=True, type=click.Path(exists=True, dir_okay=False),
+              help="Truth file of each RECORDING, in the same order (`evtools simulate ... --truth`: labels per "
+                   "event). Without: each recording labels itself (see below).")
+@click.option("--noise-rate-hz", type=FiniteRange(0, 1e4, min_open=True), default=None,
+              help="Without --truth: the shot-noise rate per pixel to inject (ON and OFF together) instead of the "
+                   "one measured on each recording's quiet pixels.")
+@click.option("--leak-rate-hz", type=FiniteRange(0, 1e4), default=None,
+              help="Without --truth: the leak rate per pixel to inject (ON) instead of the measured one; 0 with "
+                   "--noise-rate-hz unless given.")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Weights file to write (.npz).")
-@click.option("--patch", type=click.IntRange(1, 15), default=7, show_default=True,
+@click.option("--patch", type=click.IntRange(1, 15), default=5, show_default=True,
               help="Side of the time-surface patch, pixels (odd).")
-@click.option("--hidden", type=click.IntRange(1, 256), default=20, show_default=True, help="Hidden units.")
-@click.option("--tau", "tau_us", type=Duration(), default="100ms", show_default=True,
-              help="Time constant of the time surface: a neighbour's event counts 1 - age / tau, 0 from tau on.")
-@click.option("--seed", type=int, default=0, show_default=True, help="Sampling, initial weights, batch order.")
+@click.option("--hidden", type=click.IntRange(1, 256), default=10, show_default=True, help="Hidden units.")
+@click.option("--tau-scale", type=FiniteRange(0, 100, min_open=True), default=0.25, show_default=True,
+              help="Time constant of the time surface as a multiple of the stream's activity time (the time the "
+                   "sensor takes to fire once per pixel), followed as the stream goes.")
+@click.option("--tau", "tau_us", type=Duration(), default=None,
+              help="A fixed time constant instead of --tau-scale (a neighbour's event counts 1 - age / tau, 0 from "
+                   "tau on).")
+@click.option("--seed", type=int, default=0, show_default=True, help="Sampling, noise, initial weights, batch order.")
 @click.option("--max-events", type=click.IntRange(min=100), default=400_000, show_default=True,
-              help="Labelled events sampled from all inputs together (each event alike likely).")
+              help="Labelled events sampled, shared equally by the recordings (each event of a recording alike "
+                   "likely).")
 @click.option("--held-out", type=FiniteRange(0.05, 0.5), default=0.2, show_default=True,
-              help="The last part of each stream kept for early stopping and the reported AUC.")
+              help="The last part (by time) of each stream kept for early stopping and the reported AUC.")
 @click.option("--epochs", type=click.IntRange(1, 1000), default=60, show_default=True, help="At most this many.")
 @json_option
-def train_denoiser(noisy, truths, output, patch, hidden, tau_us, seed, max_events, held_out, epochs, as_json):
-    """Train the MLPF filter (`bafilter --method mlpf --weights FILE`) on NOISY streams labelled by their --truth.
+def train_denoiser(recordings, truths, noise_rate_hz, leak_rate_hz, output, patch, hidden, tau_scale, tau_us, seed,
+                   max_events, held_out, epochs, as_json):
+    """Train the MLPF filter (`bafilter --method mlpf --weights FILE`) on RECORDINGS.
 
-    Labels come from `evtools simulate RECORDING --truth T.h5` (noise injected into a recording, every event
-    labelled signal or noise). Numpy only: mini-batch Adam on the cross-entropy, early stopping on the held-out
-    end of each stream; the same inputs and --seed give the same weights, byte for byte.
+    With --truth (one per recording): on their labelled events (`evtools simulate RECORDING --truth T.h5` injects
+    labelled noise into a recording). Without: on the recordings alone, so a new camera needs no labels. Each
+    recording's noise is measured on its quiet pixels (or given with --noise-rate-hz), its events that a
+    conservative STCF keeps are taken as signal, and noise at that rate is injected with labels (the DND21
+    recipe). Numpy only: mini-batch Adam on the cross-entropy, early stopping on the held-out end of each
+    stream; the same inputs and --seed give the same weights, byte for byte.
 
     \b
-    evtools simulate walk.aedat --shot-noise-rate-hz 5 --leak-rate-hz 0.2 --seed 1 --truth t.h5 -o noisy.aedat4
-    evtools metrics train-denoiser noisy.aedat4 --truth t.h5 -o weights.npz
+    evtools metrics train-denoiser my_camera_1.aedat4 my_camera_2.aedat4 -o weights.npz
     evtools bafilter other.aedat4 --method mlpf --weights weights.npz --threshold 0.5 -o clean.aedat4
+    evtools metrics train-denoiser noisy.aedat4 --truth t.h5 -o weights.npz
     """
-    if len(truths) != len(noisy):
-        raise click.UsageError(f"give one --truth per NOISY stream ({len(noisy)} streams, {len(truths)} --truth)")
+    if truths and len(truths) != len(recordings):
+        raise click.UsageError(f"give one --truth per RECORDING ({len(recordings)} recordings, {len(truths)} "
+                               "--truth)")
+    if truths and (noise_rate_hz is not None or leak_rate_hz is not None):
+        raise click.UsageError("--noise-rate-hz and --leak-rate-hz are for recordings without --truth (their noise "
+                               "is injected); with --truth the labels say what is noise")
     if patch % 2 == 0:
         raise click.BadParameter(f"{patch} is even; the patch is centred on the event", param_hint="--patch")
-    for name in (*noisy, *truths):
+    for name in (*recordings, *truths):
         if os.path.exists(output) and same_file(output, name):
             raise click.UsageError(f"{output}: is an input; choose another -o")
-    total = sum(len(read_labels(truth)) for truth in truths)  # events over all inputs: the sampling fraction
-    fraction = min(1.0, max_events / max(total, 1))
+    if tau_us is not None:
+        tau_scale = 0.0
+    budget = max_events // len(recordings)
     rng = np.random.default_rng(seed)
-    parts = [_features(n, t, patch, tau_us, fraction, held_out, rng) for n, t in zip(noisy, truths)]
+    parts, measured = [], []
+    for index, recording in enumerate(recordings):
+        with open_events(recording) as stream:
+            width, height = stream.info.width, stream.info.height
+        maker = FeatureMaker(width, height, patch, tau_us or 0, tau_scale)
+        if truths:
+            parts.append(_from_truth(recording, truths[index], maker, budget, rng, held_out))
+            continue
+        noise = _measure(recording)
+        if noise_rate_hz is not None or leak_rate_hz is not None:
+            noise = NoiseRates(noise_rate_hz or 0.0, leak_rate_hz or 0.0, noise.pixels, "given", noise.events,
+                               noise.duration_us)
+        if noise.shot_hz + noise.leak_hz <= 0:
+            raise MlpfError(f"{recording}: no noise measured on its {noise.pixels:,} {noise.source} (give "
+                            "--noise-rate-hz)")
+        measured.append({"recording": recording, "shot_rate_hz": noise.shot_hz, "leak_rate_hz": noise.leak_hz,
+                         "measured_on": noise.source, "pixels": noise.pixels})
+        parts.append(_self_labelled(recording, noise, maker, budget, rng, held_out, seed + index))
     features, signal, check = (np.concatenate([part[i] for part in parts]) for i in range(3))
-    weights, report = train(features, signal.astype(np.float64), check, patch=patch, tau_us=tau_us, hidden=hidden,
-                            seed=seed, epochs=epochs)
-    weights.info = {"inputs": " ".join(os.path.basename(n) for n in noisy), "seed": str(seed),
-                    "validation_auc": f"{report.validation_auc:.4f}", "epochs": str(report.epochs)}
+    with _epochs_shown(epochs) as shown:
+        weights, report = train(features, signal.astype(np.float64), check, patch=patch, tau_us=tau_us or 0,
+                                tau_scale=tau_scale, hidden=hidden, seed=seed, epochs=epochs, on_epoch=shown)
+    weights.info = {"inputs": " ".join(os.path.basename(n) for n in recordings), "seed": str(seed),
+                    "labels": "truth" if truths else "self", "validation_auc": f"{report.validation_auc:.4f}",
+                    "epochs": str(report.epochs)}
     with atomic_path(output) as temporary:
         weights.save(temporary)
-    result = {"output": output, "patch": patch, "hidden": hidden, "tau_us": tau_us, "seed": seed,
-              "events_total": total, "train_events": report.train_events,
-              "held_out_events": report.validation_events, "signal_fraction": report.signal_fraction,
-              "epochs": report.epochs, "train_loss": report.train_loss, "held_out_loss": report.validation_loss,
-              "held_out_auc": report.validation_auc}
+    result = {"output": output, "labels": "truth" if truths else "self", "patch": patch, "hidden": hidden,
+              "tau_scale": tau_scale or None, "tau_us": tau_us, "seed": seed, "noise": measured,
+              "train_events": report.train_events, "held_out_events": report.validation_events,
+              "signal_fraction": report.signal_fraction, "epochs": report.epochs, "train_loss": report.train_loss,
+              "held_out_loss": report.validation_loss, "held_out_auc": report.validation_auc}
     if wants_json(as_json):
         click.echo(json.dumps(result, indent=2))
-    else:
-        click.echo(f"{output}: trained on {report.train_events:,} events ({report.signal_fraction:.1%} signal), "
-                   f"{report.epochs} epochs; held out {report.validation_events:,}: cross-entropy "
-                   f"{report.validation_loss:.4f}, AUC {report.validation_auc:.4f}")
+        return
+    for row in measured:
+        click.echo(f"{row['recording']}: noise injected: shot {row['shot_rate_hz']:.3g} Hz, leak "
+                   f"{row['leak_rate_hz']:.3g} Hz per pixel ({row['measured_on']}"
+                   + (f", {row['pixels']:,} pixels)" if row["measured_on"] != "given" else ")"))
+    click.echo(f"{output}: trained on {report.train_events:,} events ({report.signal_fraction:.1%} signal), "
+               f"{report.epochs} epochs; held out {report.validation_events:,}: cross-entropy "
+               f"{report.validation_loss:.4f}, AUC {report.validation_auc:.4f}"
+               + ("" if truths else " (against the self-made labels)"))

@@ -27,7 +27,8 @@ from typing import Any, Iterator
 import numpy as np
 
 from evtools._kernels.pixel import LABEL_HOT, LABEL_LEAK, LABEL_SHOT, LABEL_SIGNAL
-from evtools.events import CHUNK_EVENTS, EVENT_DTYPE, StreamChecker, StreamInfo, check_sensor_size, empty_events, join
+from evtools.events import (CHUNK_EVENTS, EVENT_DTYPE, StreamChecker, StreamInfo, check_sensor_size, empty_events,
+                            join, make_events)
 from evtools.simulation import SimulationError, _check_fraction, _check_nonnegative, check_noise_rates
 
 __all__ = ["BLOCK_US", "NOISE_DEFAULTS", "NoiseInjector", "inject_noise"]
@@ -241,7 +242,7 @@ class NoiseInjector:
         labels = np.full(total, LABEL_SIGNAL, dtype=np.uint8)
         if not n_noise:
             return events.copy(), labels
-        out = np.empty(total, dtype=EVENT_DTYPE)
+        out = np.zeros(total, dtype=EVENT_DTYPE)  # zero padding: numpy copies structured records field by field
         noise_at = np.searchsorted(events["t"], noise["t"], side="right") + np.arange(n_noise)
         is_noise = np.zeros(total, dtype=bool)
         is_noise[noise_at] = True
@@ -318,18 +319,12 @@ class NoiseInjector:
         # ties: leak, shot, hot, each in its draw order; offsets in a block fit 16 bits, which numpy radix-sorts
         offset = t - start
         order = np.argsort(offset.astype(np.uint16) if self.block_us <= 1 << 16 else offset, kind="stable")
-        t = t[order]
-        pixel = np.concatenate(pixels)[order]
-        events = np.empty(len(t), dtype=EVENT_DTYPE)
-        events["t"] = t
-        events["x"] = pixel % self.width
-        events["y"] = pixel // self.width
-        events["p"] = np.concatenate(polarities)[order]
-        labels = np.concatenate(labels)[order]
+        t, pixel = t[order], np.concatenate(pixels)[order]
+        polarity, labels = np.concatenate(polarities)[order], np.concatenate(labels)[order]
         if start < self._t_first:  # the first block: the noise starts with the input
             keep = t >= self._t_first
-            events, labels = events[keep], labels[keep]
-        return events, labels
+            t, pixel, polarity, labels = t[keep], pixel[keep], polarity[keep], labels[keep]
+        return make_events(t, pixel % self.width, pixel // self.width, polarity), labels
 
     def _leak_time_us(self, index: np.ndarray, k: np.ndarray) -> np.ndarray:
         """Time of leak event ``k`` of leak pixel ``index``: ``floor((k + phase) * period)``, from t = 0."""
