@@ -225,7 +225,7 @@ class NoiseInjector:
         if self._t_last is None:
             return empty_events(), _EMPTY_LABELS.copy()
         cut = int(np.searchsorted(self._held["t"], self._t_last, side="right"))
-        events, labels = self._held[:cut].copy(), self._held_labels[:cut].copy()
+        events, labels = join([self._held[:cut]]), self._held_labels[:cut].copy()
         self._held, self._held_labels = empty_events(), _EMPTY_LABELS
         return events, labels
 
@@ -241,7 +241,7 @@ class NoiseInjector:
         total = len(events) + n_noise
         labels = np.full(total, LABEL_SIGNAL, dtype=np.uint8)
         if not n_noise:
-            return events.copy(), labels
+            return join([events]), labels  # copied as raw records: numpy copies a record's fields, not its padding
         out = np.zeros(total, dtype=EVENT_DTYPE)  # zero padding: numpy copies structured records field by field
         noise_at = np.searchsorted(events["t"], noise["t"], side="right") + np.arange(n_noise)
         is_noise = np.zeros(total, dtype=bool)

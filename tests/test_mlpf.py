@@ -67,7 +67,8 @@ def _indices(events, out):
 
 @settings(max_examples=20, deadline=None)
 @given(seed=st.integers(0, 2**16), patch=st.sampled_from([1, 3, 7]), tau_us=st.integers(100, 20_000),
-       gap_us=st.integers(0, 1000), tau_scale=st.sampled_from([0.0, 0.05, 0.5, 2.0]), cuts=st.lists(st.integers(0, 200)))
+       gap_us=st.integers(0, 1000), tau_scale=st.sampled_from([0.0, 0.05, 0.5, 2.0]),
+       cuts=st.lists(st.integers(0, 200)))
 def test_features_equal_the_slow_reference(seed, patch, tau_us, gap_us, tau_scale, cuts):
     """Whatever the chunks (the activity clock and the maps carry over)."""
     events = _stream(seed, 200, 9, 7, gap_us)
@@ -222,16 +223,21 @@ def test_cli_trains_filters_and_refuses_bad_input(tmp_path):
     assert refused.returncode == 2 and noisy.read_bytes()[:4] == b"#!AE"
 
 
-def _natural(width, height, duration_us, *, seed, pan, wobble, shot_hz, leak_hz, noise_seed):
-    """A natural moving texture seen by ideal pixels (tests/naive/texture.py) with background activity drawn by
-    plain numpy (tests/naive/noise.py): events as evtools records and a label per event (0 signal, 1 noise)."""
-    from tests.naive.noise import background_activity, merge
+def _texture(width, height, duration_us, *, seed, pan, wobble):
+    """A natural moving texture seen by ideal pixels (tests/naive/texture.py): the signal events."""
     from tests.naive.texture import crossings, texture_signal
 
     times, levels = texture_signal(width, height, duration_us, seed=seed, pan_px_s=pan, wobble_px=wobble)
-    events, labels = merge(crossings(times, levels, 0.2, 0.2),
-                           background_activity(width, height, 0, duration_us, shot_hz=shot_hz, leak_hz=leak_hz,
-                                               seed=noise_seed))
+    return crossings(times, levels, 0.2, 0.2)
+
+
+def _with_noise(signal, width, height, duration_us, *, shot_hz, leak_hz, noise_seed):
+    """``signal`` with background activity drawn by plain numpy (tests/naive/noise.py): evtools records and a label
+    per event (0 signal, 1 noise)."""
+    from tests.naive.noise import background_activity, merge
+
+    events, labels = merge(signal, background_activity(width, height, 0, duration_us, shot_hz=shot_hz,
+                                                       leak_hz=leak_hz, seed=noise_seed))
     return make_events(events["t"], events["x"], events["y"], events["p"]), labels
 
 
@@ -243,14 +249,11 @@ def test_the_noise_meter_measures_background_activity(shot_hz, leak_hz, seed, cu
     the rates measured on the quiet pixels, whatever the chunks. Bounds from 30 draws at 0.5-8 Hz (seeds 1, 2):
     shot -10.5 % to +2.2 %, leak within 0.13 Hz up to 5 Hz (0.43 Hz at 8 Hz, with 25-55 quiet pixels left)."""
     from evtools.mlpf import NoiseMeter
-    from tests.naive.noise import background_activity, merge
-    from tests.naive.texture import crossings, texture_signal
 
-    times, levels = texture_signal(16, 32, 2_000_000, seed=seed, wobble_px=4.0, pan_px_s=(10.0, 0.0))
-    events, _ = merge(crossings(times, levels, 0.2, 0.2),
-                      background_activity(48, 32, 0, 2_000_000, shot_hz=shot_hz, leak_hz=leak_hz, seed=seed + 1))
+    events, _ = _with_noise(_texture(16, 32, 2_000_000, seed=seed, pan=(10.0, 0.0), wobble=4.0), 48, 32, 2_000_000,
+                            shot_hz=shot_hz, leak_hz=leak_hz, noise_seed=seed + 1)
     meter = NoiseMeter(48, 32)
-    for part in cut(make_events(events["t"], events["x"], events["y"], events["p"]), cuts):
+    for part in cut(events, cuts):
         meter.process(part)
     rates = meter.rates()
     assert rates.source == "quiet pixels" and rates.pixels >= 100
@@ -297,9 +300,9 @@ def test_a_model_trained_without_labels_is_as_good_as_one_trained_on_the_truth(t
     from tests.helpers import run
 
     pan, wobble = {"wobble": ((0.0, 0.0), 6.0), "pan and wobble": ((20.0, 5.0), 3.0)}[scene]
+    signal = _texture(96, 72, 2_000_000, seed=7, pan=pan, wobble=wobble)
     for name, noise_seed in (("train", 101), ("eval", 202)):
-        events, labels = _natural(96, 72, 2_000_000, seed=7, pan=pan, wobble=wobble, shot_hz=5.0, leak_hz=0.2,
-                                  noise_seed=noise_seed)
+        events, labels = _with_noise(signal, 96, 72, 2_000_000, shot_hz=5.0, leak_hz=0.2, noise_seed=noise_seed)
         _write_labelled(tmp_path / f"{name}.aedat4", tmp_path / f"{name}.h5", events, labels, 96, 72)
     report = json.loads(run("metrics", "train-denoiser", tmp_path / "train.aedat4", "-o", tmp_path / "self.npz",
                             "--json").stdout)
@@ -326,8 +329,8 @@ def test_training_without_labels_from_the_command_line(tmp_path):
     import evtools
     from tests.helpers import assert_clean_error, run
 
-    events, _ = _natural(48, 36, 1_000_000, seed=3, pan=(10.0, 0.0), wobble=3.0, shot_hz=2.0, leak_hz=0.1,
-                         noise_seed=4)
+    events, _ = _with_noise(_texture(48, 36, 1_000_000, seed=3, pan=(10.0, 0.0), wobble=3.0), 48, 36, 1_000_000,
+                            shot_hz=2.0, leak_hz=0.1, noise_seed=4)
     recording = tmp_path / "rec.aedat4"
     evtools.write(recording, events, evtools.StreamInfo(48, 36))
     report = json.loads(run("metrics", "train-denoiser", recording, recording, "-o", tmp_path / "w.npz", "--epochs",
