@@ -116,9 +116,10 @@ def stcf_grid() -> None:
 def draw(curves, path, title) -> None:
     """All methods' ROC curves of one stream in one figure (evtools.plots, matplotlib), every point labelled."""
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-    from evtools.plots import roc_figure, save
+    from evtools.formats.figures import save_figure
+    from evtools.plots import roc_figure
 
-    save(roc_figure([{"label": label, "parameter": entry["parameter"], "points": entry["points"],
+    save_figure(roc_figure([{"label": label, "parameter": entry["parameter"], "points": entry["points"],
                       "auc": entry["auc"]} for label, entry in curves], title), path)
 
 

@@ -211,6 +211,15 @@ def _train(folder, run):
     assert 0 < _count(folder / "denoised.aedat4") < _count(folder / "other.aedat4")
 
 
+def _train_self(folder, run):  # no labels: the noise it measured, a model that learned, a filter that removes
+    import json
+
+    report = json.loads(run.stdout[:run.stdout.rindex("}") + 1])
+    assert report["labels"] == "self" and 1.0 < report["noise"][0]["shot_rate_hz"] < 15.0, report["noise"]
+    assert report["held_out_auc"] > 0.8
+    assert 0 < _count(folder / "denoised.aedat4") < 0.9 * _count(folder / "mine.aedat4")
+
+
 def _denoise_metrics(folder, run):
     assert (folder / "roc.svg").read_bytes().lstrip()[:5] in (b"<?xml", b"<svg ")
     roc = _evtools_json(folder, "metrics", "roc", "noisy.aedat4", "--truth", "t.h5", "--method", "stcf", "--sweep",
@@ -267,6 +276,7 @@ EFFECTS = {
     "evtools render --map truth.h5": _render,
     "--save-hot-pixels hot.csv": _bafilter,
     "evtools metrics train-denoiser noisy.aedat4": _train,
+    "evtools metrics train-denoiser mine.aedat4": _train_self,
     "evtools metrics esr rec.aedat4": _denoise_metrics,
     "evtools bafilter street.aedat4 | evtools estimate - -o natural.h5": _estimate,
     "--before step.aedat4 --plot edge.png": _correct,
