@@ -24,8 +24,7 @@ from evtools.cli.main import LazyGroup
                        "TRUTH.h5; without --truth, how well EVENTS predict their own APS frames (a DAVIS "
                        "recording)."),
     "train-denoiser": ("evtools.cli.metrics_train:train_denoiser",
-                       "Train the MLPF filter (`bafilter --method mlpf --weights FILE`) on NOISY streams labelled by "
-                       "their --truth."),
+                       "Train the MLPF filter (`bafilter --method mlpf --weights FILE`) on RECORDINGS."),
     "uniformity": ("evtools.cli.metrics_uniformity:uniformity",
                    "Per stimulus edge of IN: std across pixels of the first and last event times, count CV, errors "
                    "vs IDEAL."),

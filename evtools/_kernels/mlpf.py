@@ -18,8 +18,8 @@ The filter adds only the rows of ``w1`` whose feature is not 0 (few neighbours f
 noise), so its cost is the active neighbours times the hidden units, not the whole matrix. It does so in two
 passes per event, each free of unpredictable branches (a data-dependent ``if`` per neighbour cost more than
 the arithmetic): a scan that lists the active patch cells and their ages, then the hidden units summed over the
-list four cells at a time (a loop numba vectorises), the list padded with a zero row of ``w1``. Measured on the
-DVS128 walk with 5 Hz noise (``docs/performance.md``): 1.7 -> 3.6 Mev/s.
+list four cells at a time (a loop numba vectorises), the list padded with a zero row of ``w1``
+(``docs/performance.md``).
 """
 
 from __future__ import annotations
