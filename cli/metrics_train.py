@@ -104,7 +104,7 @@ def _epochs_shown(epochs: int):
 @click.argument("recordings", nargs=-1, required=True, type=click.Path(exists=True, dir_okay=False))
 @click.option("--truth", "truths", multiple=True, type=click.Path(exists=True, dir_okay=False),
               help="Truth file of each RECORDING, in the same order (`evtools simulate ... --truth`: labels per "
-                   "event). Without: each recording labels itself (see below).")
+                   "event). Without: each recording labels itself (see above).")
 @click.option("--noise-rate-hz", type=FiniteRange(0, 1e4, min_open=True), default=None,
               help="Without --truth: the shot-noise rate per pixel to inject (ON and OFF together) instead of the "
                    "one measured on each recording's quiet pixels.")
@@ -135,9 +135,9 @@ def train_denoiser(recordings, truths, noise_rate_hz, leak_rate_hz, output, patc
 
     With --truth (one per recording): on their labelled events (`evtools simulate RECORDING --truth T.h5` injects
     labelled noise into a recording). Without: on the recordings alone, so a new camera needs no labels. Each
-    recording's noise is measured on its quiet pixels (or given with --noise-rate-hz), its events that a
-    conservative STCF keeps are taken as signal, and noise at that rate is injected with labels (the DND21
-    recipe). Numpy only: mini-batch Adam on the cross-entropy, early stopping on the held-out end of each
+    recording's noise is measured on its quiet pixels (or given with --noise-rate-hz), its events that an STCF
+    keeps (4 of the 24 pixels around active within 30 ms) are taken as signal, and noise at that rate is injected
+    with labels (the DND21 recipe). Numpy only: mini-batch Adam on the cross-entropy, early stopping on the held-out end of each
     stream; the same inputs and --seed give the same weights, byte for byte.
 
     \b
