@@ -54,6 +54,22 @@ def test_kernel_equals_the_slow_reference(seed, patch, hidden, tau_us, width, he
     assert len(out) == chosen.sum()
 
 
+def test_a_time_constant_beyond_int64_is_capped_as_the_reference_caps_it():
+    """Events hours apart on a large sensor with a large tau_scale ask for a time constant beyond int64: capped at
+    2^62 us in the kernel as in the reference (it was an undefined float-to-int conversion)."""
+    t = np.array([0, 10, 2**61, 2**61 + 7, 2**61 + 9, 2**62 - 5], np.int64)
+    events = make_events(t, [5, 6, 5, 6, 5, 6], [5, 5, 6, 6, 5, 5], [1, 0, 1, 1, 0, 1])
+    weights = _weights(4, 3, 5, 1000, tau_scale=100.0)
+    rows = FeatureMaker(1280, 720, 3, 1000, 100.0).features(events, np.ones(len(events), bool))
+    expected = np.array(naive_mlpf_features(_tuples(events), 3, 1000, 100.0, 1280 * 720), np.float32)
+    np.testing.assert_allclose(rows, expected, rtol=1e-6, atol=1e-6)
+    assert (rows[3:, :18] > 0).any()  # the earlier events still count: the capped tau spans the gap
+    kept, _ = naive_mlpf(_tuples(events), weights.w1.tolist(), weights.b1.tolist(), weights.w2.tolist(), weights.b2,
+                         3, 1000, 0.5, 100.0, 1280 * 720)
+    out = BAFilter(1280, 720, "mlpf", threshold=0.5, weights=weights).process(events)
+    assert len(out) == sum(kept)
+
+
 def _indices(events, out):
     """Positions in ``events`` of the events of ``out`` (a subsequence)."""
     positions, j = [], 0

@@ -36,6 +36,11 @@ def padded_maps(width: int, height: int, radius: int) -> np.ndarray:
     return np.full((2, height + 2 * radius, width + 2 * radius), NEVER, dtype=np.int64)
 
 
+TAU_LIMIT_US = 2.0 ** 62
+"""The largest time constant (evtools' time range): a stream of a few events hours apart on a large sensor would
+otherwise ask for more than int64 holds."""
+
+
 def new_clock(pixels: int) -> np.ndarray:
     """The state of :func:`time_constant`: events seen, mean interval (us), last time (us), averaging window
     (the sensor's pixel count, in events)."""
@@ -44,9 +49,9 @@ def new_clock(pixels: int) -> np.ndarray:
 
 @kernel(inline=True)
 def time_constant(clock, t, scale, tau_us):
-    """The time constant (us, >= 1) for an event at ``t``: ``tau_us`` when ``scale`` is 0, else ``scale`` times
-    the mean interval between events, a running mean over the first events and an exponential one (weight
-    1 / ``clock[3]``) from then on; ``clock`` (:func:`new_clock`) gets the event."""
+    """The time constant (us, 1 to :data:`TAU_LIMIT_US`) for an event at ``t``: ``tau_us`` when ``scale`` is 0,
+    else ``scale`` times the mean interval between events, a running mean over the first events and an exponential
+    one (weight 1 / ``clock[3]``) from then on; ``clock`` (:func:`new_clock`) gets the event."""
     if scale <= 0.0:
         return tau_us
     seen = clock[0]
@@ -54,7 +59,7 @@ def time_constant(clock, t, scale, tau_us):
         clock[1] += ((t - clock[2]) - clock[1]) / min(seen, clock[3])
     clock[0] = seen + 1.0
     clock[2] = t
-    return max(1, int(scale * clock[1]))
+    return max(1, int(min(scale * clock[1], TAU_LIMIT_US)))
 
 
 def with_zero_row(w1: np.ndarray) -> np.ndarray:

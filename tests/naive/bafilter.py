@@ -130,7 +130,7 @@ def naive_mlpf_features(events, patch, tau_us, tau_scale=0.0, pixels=1):
     """Per event: the ON then OFF time-surface patch (1 - age / tau, 0 when never or tau or more ago) row by row,
     then the polarity (1 ON, 0 OFF); the patch includes the pixel itself. tau is ``tau_us``, or with
     ``tau_scale`` > 0 that times ``pixels`` times the mean interval between events so far (a plain mean over the
-    first ``pixels`` intervals, then m += (interval - m) / pixels), in whole microseconds, at least 1."""
+    first ``pixels`` intervals, then m += (interval - m) / pixels), in whole microseconds, 1 to 2^62."""
     r = patch // 2
     last = ({}, {})  # ON, OFF: (x, y) -> time of the pixel's last event of that polarity
     rows = []
@@ -141,7 +141,7 @@ def naive_mlpf_features(events, patch, tau_us, tau_scale=0.0, pixels=1):
             if previous is not None:
                 mean_interval += ((t - previous) - mean_interval) / min(index, pixels)
             previous = t
-            tau = max(1, int(tau_scale * pixels * mean_interval))
+            tau = max(1, int(min(tau_scale * pixels * mean_interval, 2.0 ** 62)))
         row = []
         for polarity_map in last:
             for ny in range(y - r, y + r + 1):
