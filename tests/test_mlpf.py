@@ -150,6 +150,25 @@ def test_auc_is_the_pairwise_probability(scores, labels):
     assert auc(scores, labels) == pytest.approx(expected)
 
 
+def test_weights_files_from_before_tau_scale_keep_their_fixed_time_constant(tmp_path):
+    """A weights file written before ``tau_scale`` existed (round 2's) loads with a fixed ``tau_us`` and filters
+    as those weights did; a file with ``tau_scale`` keeps it; a negative or infinite one is refused."""
+    old = _weights(3, 5, 6, 7000)
+    np.savez(tmp_path / "old.npz", w1=old.w1, b1=old.b1, w2=old.w2, b2=np.float64(old.b2), patch=np.int64(5),
+             tau_us=np.int64(7000))
+    loaded = load_weights(tmp_path / "old.npz")
+    assert loaded.tau_scale == 0.0 and loaded.tau_us == 7000
+    events = _stream(5, 400, 16, 12, 300)
+    assert (BAFilter(16, 12, "mlpf", weights=loaded).process(events).tobytes()
+            == BAFilter(16, 12, "mlpf", weights=old).process(events).tobytes())
+    scaled = _weights(3, 5, 6, 0, tau_scale=0.4)
+    scaled.save(tmp_path / "new.npz")
+    assert load_weights(tmp_path / "new.npz").tau_scale == 0.4
+    for bad in (-0.1, float("inf")):
+        with pytest.raises(MlpfError, match="tau_scale"):
+            _weights(3, 5, 6, 0, tau_scale=bad).check("w")
+
+
 def test_bad_weights_and_thresholds(tmp_path):
     weights = _weights(0, 5, 6, 1000)
     for threshold in (0.0, 1.0, -0.1, 1.5):
