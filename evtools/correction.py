@@ -356,7 +356,7 @@ class ThresholdCorrector:
 
     def _process(self, chunk: np.ndarray) -> np.ndarray:
         if not self._any_use:  # every pixel at the target: the input, bit for bit and in its order
-            return chunk.copy()
+            return join([chunk])  # copied as raw records (chunk.copy() leaves the padding undefined)
         words = record_words(np.ascontiguousarray(chunk))
         pieces = []
         for begin in range(0, len(words), PART):

@@ -218,6 +218,12 @@ def second_words(x: np.ndarray, y: np.ndarray, on: np.ndarray) -> np.ndarray:
     return x.astype(np.int64) | (y.astype(np.int64) << 16) | (on.astype(np.int64) << 32)
 
 
+def select(chunk: np.ndarray, index) -> np.ndarray:
+    """``chunk[index]`` (a boolean mask or positions) copied as raw records: numpy's indexing and ``copy()`` of a
+    structured array copy its fields and leave the records' padding bytes undefined."""
+    return np.ascontiguousarray(chunk).view(_RECORD)[index].view(EVENT_DTYPE)
+
+
 def join(chunks: list[np.ndarray]) -> np.ndarray:
     """The chunks one after the other, as one :data:`EVENT_DTYPE` array (other layouts of the same fields are
     converted); the records are copied as raw bytes."""

@@ -14,7 +14,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from evtools.errors import EvtoolsError
-from evtools.events import StreamInfo, empty_events
+from evtools.events import StreamInfo, empty_events, join, select
 
 
 class TransformError(EvtoolsError, ValueError):
@@ -87,15 +87,15 @@ class Transform:
             self.done = True
         chunk = chunk[int(np.searchsorted(t, start, "left")):int(np.searchsorted(t, end, "left"))]
         if self.polarity is not None:
-            chunk = chunk[chunk["p"] == (self.polarity == "on")]
+            chunk = select(chunk, chunk["p"] == (self.polarity == "on"))
         if self.crop is not None:
             x0, y0, w, h = self.crop
             x, y = chunk["x"], chunk["y"]
-            chunk = chunk[(x >= x0) & (x < x0 + w) & (y >= y0) & (y < y0 + h)]
+            chunk = select(chunk, (x >= x0) & (x < x0 + w) & (y >= y0) & (y < y0 + h))
             chunk["x"] -= x0
             chunk["y"] -= y0
         elif self.flip_x or self.flip_y or self.transpose:
-            chunk = chunk.copy()  # never change the caller's events
+            chunk = join([chunk])  # never change the caller's events (copied as raw records, padding included)
         width, height = self.flipped_size
         if self.flip_x:
             chunk["x"] = width - 1 - chunk["x"]

@@ -189,3 +189,28 @@ def test_records_built_from_columns_have_zero_padding():
                  as_chunk(np.array([(1, 2, 3, True)], [("t", "<i8"), ("x", "<i2"), ("y", "<i2"), ("p", "?")]))]
         for events in built:
             assert not events.view(np.uint8).reshape(-1, 16)[:, 13:].any()
+
+
+def test_selected_copied_and_transformed_records_keep_zero_padding():
+    """Record-wise copies keep the zero padding that numpy's structured indexing and copy() leave undefined:
+    events.select, convert's polarity, crop and flip (evtools.transform), correct with every pixel at the target."""
+    from evtools.correction import ThresholdCorrector
+    from evtools.events import StreamInfo, select
+    from evtools.transform import Transform
+
+    rng = np.random.default_rng(0)
+    events = make_events(np.arange(2000), rng.integers(0, 32, 2000), rng.integers(0, 24, 2000),
+                         rng.integers(0, 2, 2000))
+    for _ in range(20):
+        garbage = np.full(1 << 16, 255, np.uint8)  # freed memory full of ones, likely handed back next
+        del garbage
+        outputs = [select(events, events["x"] > 10), select(events, np.arange(0, 2000, 3))]
+        for options in ({"polarity": "on"}, {"crop": (2, 3, 20, 15)}, {"flip_x": True}, {"transpose": True}):
+            outputs.append(Transform(StreamInfo(32, 24), **options).process(events))
+        at_target = np.full((24, 32), 0.2)
+        outputs.append(ThresholdCorrector(32, 24, at_target, at_target, target=0.2).process(events))
+        for output in outputs:
+            assert len(output) and not output.view(np.uint8).reshape(-1, 16)[:, 13:].any()
+    mask = events["x"] > 10
+    for field in ("t", "x", "y", "p"):  # the same events as numpy's indexing gives
+        assert (select(events, mask)[field] == events[mask][field]).all()
