@@ -41,11 +41,13 @@ class Sample:
                 times >= first + (1.0 - held_out) * (last - first))
 
 
-def _from_truth(noisy: str, truth: str, maker: FeatureMaker, budget: int, rng, held_out: float):
+def _from_truth(noisy: str, truth: str, features_of, budget: int, rng, held_out: float):
+    """Rows of a stream labelled by its truth file; ``features_of(width, height)``: its :class:`FeatureMaker`."""
     labels = read_labels(truth)
-    sample = Sample(maker, min(1.0, budget / max(len(labels), 1)), rng)
     seen = 0
     with open_events(noisy) as stream:
+        sample = Sample(features_of(stream.info.width, stream.info.height), min(1.0, budget / max(len(labels), 1)),
+                        rng)
         for chunk in with_progress(stream, stream, f"features of {os.path.basename(noisy)}"):
             if seen + len(chunk) > len(labels):
                 raise MlpfError(f"{truth}: {len(labels):,} labels but {noisy} has more events (give the truth file "
@@ -69,14 +71,13 @@ def _measure(recording: str) -> NoiseRates:
         raise MlpfError(f"{recording}: {error}") from None
 
 
-def _self_labelled(recording: str, noise: NoiseRates, maker: FeatureMaker, budget: int, rng, held_out: float,
-                   seed: int):
+def _self_labelled(recording: str, noise: NoiseRates, features_of, budget: int, rng, held_out: float, seed: int):
     """Rows of a recording labelled by :class:`SelfLabeller`, at most about ``budget`` (drawn as if every event
     of the recording were kept, with the noise to inject)."""
     with open_events(recording) as stream:
         width, height = stream.info.width, stream.info.height
         expected = noise.events + (noise.shot_hz + noise.leak_hz) * width * height * noise.duration_us * 1e-6
-        sample = Sample(maker, min(1.0, budget / max(expected, 1.0)), rng)
+        sample = Sample(features_of(width, height), min(1.0, budget / max(expected, 1.0)), rng)
         labeller = SelfLabeller(width, height, noise, seed)
         for chunk in with_progress(stream, stream, f"features of {os.path.basename(recording)}"):
             sample.add(*labeller.process(chunk))
@@ -137,8 +138,8 @@ def train_denoiser(recordings, truths, noise_rate_hz, leak_rate_hz, output, patc
     labelled noise into a recording). Without: on the recordings alone, so a new camera needs no labels. Each
     recording's noise is measured on its quiet pixels (or given with --noise-rate-hz), its events that an STCF
     keeps (4 of the 24 pixels around active within 30 ms) are taken as signal, and noise at that rate is injected
-    with labels (the DND21 recipe). Numpy only: mini-batch Adam on the cross-entropy, early stopping on the held-out end of each
-    stream; the same inputs and --seed give the same weights, byte for byte.
+    with labels (the DND21 recipe). Numpy only: mini-batch Adam on the cross-entropy, early stopping on the
+    held-out end of each stream; the same inputs and --seed give the same weights, byte for byte.
 
     \b
     evtools metrics train-denoiser my_camera_1.aedat4 my_camera_2.aedat4 -o weights.npz
@@ -161,12 +162,12 @@ def train_denoiser(recordings, truths, noise_rate_hz, leak_rate_hz, output, patc
     budget = max_events // len(recordings)
     rng = np.random.default_rng(seed)
     parts, measured = [], []
+    def features_of(width: int, height: int) -> FeatureMaker:
+        return FeatureMaker(width, height, patch, tau_us or 0, tau_scale)
+
     for index, recording in enumerate(recordings):
-        with open_events(recording) as stream:
-            width, height = stream.info.width, stream.info.height
-        maker = FeatureMaker(width, height, patch, tau_us or 0, tau_scale)
         if truths:
-            parts.append(_from_truth(recording, truths[index], maker, budget, rng, held_out))
+            parts.append(_from_truth(recording, truths[index], features_of, budget, rng, held_out))
             continue
         noise = _measure(recording)
         if noise_rate_hz is not None or leak_rate_hz is not None:
@@ -177,7 +178,7 @@ def train_denoiser(recordings, truths, noise_rate_hz, leak_rate_hz, output, patc
                             "--noise-rate-hz)")
         measured.append({"recording": recording, "shot_rate_hz": noise.shot_hz, "leak_rate_hz": noise.leak_hz,
                          "measured_on": noise.source, "pixels": noise.pixels})
-        parts.append(_self_labelled(recording, noise, maker, budget, rng, held_out, seed + index))
+        parts.append(_self_labelled(recording, noise, features_of, budget, rng, held_out, seed + index))
     features, signal, check = (np.concatenate([part[i] for part in parts]) for i in range(3))
     with _epochs_shown(epochs) as shown:
         weights, report = train(features, signal.astype(np.float64), check, patch=patch, tau_us=tau_us or 0,
