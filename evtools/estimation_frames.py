@@ -37,7 +37,8 @@ from typing import Any
 
 import numpy as np
 
-from evtools._kernels.estimate import FRAMES_LAST, FRAMES_OFF, FRAMES_ON, FRAMES_ROW, frame_sums, polarity_counts
+from evtools._kernels.estimate import (FRAMES_OFF, FRAMES_ON, FRAMES_ROW, exposure_counts, fold_runs, frame_sums,
+                                       log_levels, polarity_counts)
 from evtools.estimation import DEFAULT_MIN_EVENTS, EstimationError, ThresholdEstimate, _series_of
 from evtools.events import StreamChecker, StreamInfo, as_chunk, empty_events
 
@@ -126,12 +127,19 @@ class FrameThresholdEstimator:
         self.sums = np.zeros((len(self.candidates), N_SUMS, pixels), np.float64)
         self.new_counts = np.zeros((len(self.candidates), pixels), np.float64)  # frames with a count not seen before
         self.signal_sums = np.zeros((len(self.candidates), pixels), np.float64)  # DN above black, frames used
-        self.sample = np.arange(0, pixels, BLACK_LEVEL_SAMPLE)
+        # each pixel's open run: frames since its counts last changed (number, sum y, sum y^2) and those counts
+        self.runs = np.zeros((len(self.candidates), 3, pixels), np.float64)
+        self.run_counts = np.full((len(self.candidates), 2, pixels), -1, np.int64)
+        self.sample_step = BLACK_LEVEL_SAMPLE if fitted else 0  # the black level's test, only when it is fitted
+        self.sample = np.arange(0, pixels, BLACK_LEVEL_SAMPLE) if fitted else np.zeros(0, np.int64)
         self.half_sums = np.zeros((len(self.candidates), 2, N_SUMS, len(self.sample)), np.float64)
-        self.last_state = np.full((len(self.candidates), pixels), -1, np.int64)
-        self.frames_seen = np.zeros(pixels, np.int64)
-        self.saturated = np.zeros(pixels, np.int64)
-        self.blurred = np.zeros(pixels, np.int64)  # frames during whose exposure the pixel fired
+        # per pixel: frames seen, saturated, blurred (the pixel fired more than MAX_EXPOSURE_EVENTS times in them)
+        self.tallies = np.zeros((3, pixels), np.int64)
+        self.frames_seen, self.saturated, self.blurred = self.tallies
+        self.fired = np.zeros(pixels, np.int64)  # events in the exposure at hand (where stamp is its number)
+        self.stamp = np.full(pixels, -1, np.int64)
+        self.exposures = 0  # exposures opened so far (the stamp of the latest)
+        self.log_tables: dict = {}  # (candidate, DN levels): log(DN - black) per DN, NaN where dark or saturated
         self._checker = StreamChecker(StreamInfo(width, height)) if check else None
         self.pending: deque = deque()  # frames whose exposure the counts have not passed yet
         self.held: deque = deque()  # event chunks not counted yet
@@ -140,7 +148,6 @@ class FrameThresholdEstimator:
         self.last_t_us: int | None = None
         self.events = 0
         self.frames_used = self.frames_late = self.frames_outside = 0
-        self.opening: tuple | None = None  # the frame at hand, its total counts at exposure start, counts at middle
         self.t_frame_us: int | None = None  # the last frame used (online forgetting)
         self.next_map_us: int | None = None
         self.maps: list = []
@@ -170,8 +177,9 @@ class FrameThresholdEstimator:
             self.events += len(chunk)
             self.last_t_us = int(chunk["t"][-1])
         self._advance(final=False)
-        if self.held_events > HOLD_EVENTS:  # no frame for a long stretch: count what waits
-            self._count_before(self.last_t_us)
+        if self.held_events > HOLD_EVENTS:  # no frame for a long stretch: count what waits (not a pending exposure)
+            self._count_before(min(self.last_t_us, self.pending[0].exposure_begin_us) if self.pending
+                               else self.last_t_us)
         return chunk[:0]
 
     def flush(self) -> np.ndarray:
@@ -181,14 +189,18 @@ class FrameThresholdEstimator:
 
     # -- events and frames in time order --------------------------------------------------------------------
 
-    def _count_before(self, t_us: float) -> None:
-        """Count every held event earlier than ``t_us``."""
+    def _count_before(self, t_us: float, exposure: int | None = None) -> None:
+        """Count every held event earlier than ``t_us`` (with ``exposure``: also into that exposure's events)."""
         while self.held:
             chunk = self.held[0]
             split = len(chunk) if chunk["t"][-1] < t_us else int(np.searchsorted(chunk["t"], t_us, "left"))
             if split:
                 part = chunk[:split]
-                polarity_counts(part["x"], part["y"], part["p"], self.width, self.counts)
+                if exposure is None:
+                    polarity_counts(part["x"], part["y"], part["p"], self.width, self.counts)
+                else:
+                    exposure_counts(part["x"], part["y"], part["p"], self.width, self.counts, self.fired, self.stamp,
+                                    exposure, True)
                 self.held_events -= split
             if split < len(chunk):
                 self.held[0] = chunk[split:]
@@ -196,37 +208,47 @@ class FrameThresholdEstimator:
             self.held.popleft()
         self.counted_before_us = max(self.counted_before_us, t_us)
 
+    def _mark_before(self, t_us: float, exposure: int) -> None:
+        """Count every held event earlier than ``t_us`` into ``exposure``'s events only (they stay held)."""
+        for chunk in self.held:
+            split = len(chunk) if chunk["t"][-1] < t_us else int(np.searchsorted(chunk["t"], t_us, "left"))
+            exposure_counts(chunk["x"][:split], chunk["y"][:split], chunk["p"][:split], self.width, self.counts,
+                            self.fired, self.stamp, exposure, False)
+            if split < len(chunk):
+                break
+
     def _advance(self, final: bool) -> None:
-        """Use every pending frame whose exposure the events have passed (all of them at the stream's end)."""
+        """Use every pending frame whose exposure the events have passed (all of them at the stream's end): its
+        pixels' counts at the exposure's middle, and their events during it."""
         known_us = math.inf if final else (self.last_t_us if self.last_t_us is not None else -math.inf)
         while self.pending:
             frame = self.pending[0]
-            middle_us = (frame.exposure_begin_us + frame.exposure_end_us) / 2
-            if self.opening is None:  # the events before the exposure, then those of its first half
-                if known_us <= middle_us:  # a later event may still belong before its middle
-                    return
-                self._count_before(frame.exposure_begin_us)
-                before = self.counts[:, FRAMES_ON] + self.counts[:, FRAMES_OFF]
-                self._count_before(middle_us)
-                self.opening = (frame, before, self.counts[:, :FRAMES_LAST + 1].copy())
-            if known_us <= frame.exposure_end_us:
+            if known_us <= frame.exposure_end_us:  # a later event may still belong to its exposure
                 return
-            self._count_before(frame.exposure_end_us + 1)
-            self._use(*self.opening)
-            self.opening = None
+            self._count_before(frame.exposure_begin_us)
+            self.exposures += 1
+            self._count_before((frame.exposure_begin_us + frame.exposure_end_us) / 2, self.exposures)
+            self._mark_before(frame.exposure_end_us + 1, self.exposures)
+            self._use(frame)
             self.pending.popleft()
         if final:
             self._count_before(math.inf)
 
     # -- the fit ------------------------------------------------------------------------------------------------
 
-    def _full(self, frame) -> tuple[np.ndarray, np.ndarray] | None:
-        """The frame's DN on the whole sensor (flattened, float64) and where it has pixels."""
+    def _fits(self, frame) -> bool:
+        """Whether the frame lies on the sensor (else it is counted in ``frames_outside``)."""
         height, width = frame.image.shape
         x0, y0 = frame.offset_x, frame.offset_y
         if x0 < 0 or y0 < 0 or x0 + width > self.width or y0 + height > self.height:
             self.frames_outside += 1
-            return None
+            return False
+        return True
+
+    def _full(self, frame) -> tuple[np.ndarray, np.ndarray]:
+        """The frame's DN on the whole sensor (flattened, float64) and where it has pixels (it fits)."""
+        height, width = frame.image.shape
+        x0, y0 = frame.offset_x, frame.offset_y
         if (x0, y0, width, height) == (0, 0, self.width, self.height):
             return frame.image.astype(np.float64).reshape(-1), np.ones(self.width * self.height, bool)
         dn = np.zeros((self.height, self.width))
@@ -235,25 +257,29 @@ class FrameThresholdEstimator:
         inside[y0:y0 + height, x0:x0 + width] = True
         return dn.reshape(-1), inside.reshape(-1)
 
-    def _use(self, frame, before: np.ndarray, at_middle: np.ndarray) -> None:
+    def _log_table(self, index: int, levels: int) -> np.ndarray:
+        """log(DN - black) for black-level candidate ``index`` and every DN of ``levels`` (NaN: dark or saturated)."""
+        table = self.log_tables.get((index, levels))
+        if table is None:
+            table = self.log_tables[index, levels] = np.empty(levels)
+            log_levels(table, float(self.candidates[index]), MIN_SIGNAL_DN, float(SATURATED_DN))
+        return table
+
+    def _use(self, frame) -> None:
         """One frame into the sums: each pixel's counts at the exposure's middle against its log DN, where the
         pixel fired at most :data:`MAX_EXPOSURE_EVENTS` times during the exposure."""
-        full = self._full(frame)
-        if full is None:
+        if not self._fits(frame):
             return
-        dn, inside = full
         self._forget(frame.exposure_end_us)
-        quiet = inside & (self.counts[:, FRAMES_ON] + self.counts[:, FRAMES_OFF] - before <= MAX_EXPOSURE_EVENTS)
-        saturated = inside & (dn >= SATURATED_DN)
-        self.frames_seen += inside
-        self.saturated += saturated
-        self.blurred += inside & ~quiet
+        image = np.ascontiguousarray(frame.image)
+        levels = np.iinfo(image.dtype).max + 1
         log_exposure = math.log(max(frame.exposure_us, 1) * 1e-6)
-        middle = np.ascontiguousarray(at_middle)
         for index, black in enumerate(self.candidates):
-            frame_sums(dn, inside, self.counts, before, middle, float(black), log_exposure, MAX_EXPOSURE_EVENTS,
-                       MIN_SIGNAL_DN, float(SATURATED_DN), self.sums[index], self.half_sums[index],
-                       BLACK_LEVEL_SAMPLE, self.signal_sums[index], self.new_counts[index], self.last_state[index])
+            frame_sums(image, frame.offset_x, frame.offset_y, self.width, self.counts, self.fired, self.stamp,
+                       self.exposures, self._log_table(index, levels), float(black), log_exposure,
+                       MAX_EXPOSURE_EVENTS, float(SATURATED_DN), self.sums[index], self.runs[index],
+                       self.run_counts[index], self.half_sums[index], self.sample_step, self.signal_sums[index],
+                       self.new_counts[index], self.tallies if index == 0 else self.tallies[:0])
         self.frames_used += 1
         if self.interval_us is not None:
             self._snapshot_maps(frame.exposure_end_us)
@@ -265,6 +291,7 @@ class FrameThresholdEstimator:
         if self.t_frame_us is not None and t_us > self.t_frame_us:
             factor = math.exp(-(t_us - self.t_frame_us) / self.forget_us)
             self.sums *= factor
+            self.runs *= factor
             self.new_counts *= factor
             self.signal_sums *= factor
         self.t_frame_us = t_us
@@ -377,6 +404,7 @@ class FrameThresholdEstimator:
     def _fit(self, index: int) -> dict:
         """Each pixel's least squares for black-level candidate ``index``: thresholds, residual RMS, the RMS the
         model allows, and the fit (the larger relative standard error)."""
+        fold_runs(self.sums[index], self.runs[index], self.run_counts[index])
         return _least_squares(self.sums[index], self.new_counts[index], self.signal_sums[index])
 
 

@@ -641,70 +641,150 @@ def count_accumulate(t, x, y, p, width, block_us, counts):  # pragma: no cover -
         _count(t[k], np.int64(y[k]) * width + x[k], p[k], block_us, counts)
 
 
-# frames method (APS frames with events, Wang et al. 2019's offEI): per pixel its cumulative ON and OFF counts and
-# the polarity of its latest event (+1 ON, -1 OFF, 0 none yet)
-FRAMES_ON, FRAMES_OFF, FRAMES_LAST = 0, 1, 2
-FRAMES_ROW = 4
+# frames method (APS frames with events, Wang et al. 2019's offEI): per pixel its cumulative ON and OFF counts (16 bytes:
+# the counts of a DAVIS346 fit in a core's L2 cache)
+FRAMES_ON, FRAMES_OFF = 0, 1
+FRAMES_ROW = 2
 
 
 @kernel
 def polarity_counts(x, y, p, width, counts):  # pragma: no cover - compiled
-    """Events in stream order into ``counts`` (int64, (pixels, FRAMES_ROW)): each pixel's ON and OFF counts and the
-    polarity of its latest event."""
+    """Events into ``counts`` (int64, (pixels, FRAMES_ROW)): each pixel's ON and OFF counts."""
     for k in range(len(x)):
         i = y[k] * width + x[k]
         if p[k]:
             counts[i, FRAMES_ON] += 1
-            counts[i, FRAMES_LAST] = 1
         else:
             counts[i, FRAMES_OFF] += 1
-            counts[i, FRAMES_LAST] = -1
 
 
 @kernel
-def frame_sums(dn, inside, counts, before, at_middle, black, log_exposure, max_events, min_signal, saturated_dn,
-               sums, half, sample_step, signal_sums, new_counts, last_state):  # pragma: no cover - compiled
-    """One APS frame into the frames method's per-pixel least-squares sums (see
-    :class:`evtools.estimation_frames.FrameThresholdEstimator`), for one black level: a pixel inside the frame that
-    fired at most ``max_events`` times during the exposure (``counts`` now minus ``before`` at its start), neither
-    saturated nor dark, adds ``y = log(dn - black) - log_exposure`` against ``x1 = A``, ``x2 = -B`` (its counts
-    at the exposure's middle) to ``sums`` (rows n, x1, x2, y, x1x1, x2x2, x1x2, x1y, x2y, yy); every
-    ``sample_step``-th pixel also to ``half[0 or 1]``, by whether its count level is above its mean so far."""
-    for i in range(len(dn)):
-        if not inside[i] or counts[i, 0] + counts[i, 1] - before[i] > max_events:
-            continue
-        value = dn[i]
+def exposure_counts(x, y, p, width, counts, fired, stamp, exposure, count):  # pragma: no cover - compiled
+    """Events of exposure number ``exposure`` (in stream order): each pixel's events in it into ``fired`` (reset
+    at its first event of a new exposure, marked in ``stamp``); with ``count``, into ``counts`` too, as
+    :func:`polarity_counts` does (the exposure's first half; its second half is marked, then counted later)."""
+    for k in range(len(x)):
+        i = y[k] * width + x[k]
+        if stamp[i] != exposure:
+            stamp[i] = exposure
+            fired[i] = 0
+        fired[i] += 1
+        if count:
+            if p[k]:
+                counts[i, FRAMES_ON] += 1
+            else:
+                counts[i, FRAMES_OFF] += 1
+
+
+@kernel
+def log_levels(table, black, min_signal, saturated_dn):  # pragma: no cover - compiled
+    """``table[dn] = log(dn - black)`` for every DN a frame can hold that is neither dark (less than ``min_signal``
+    above ``black``) nor saturated (``saturated_dn`` and up); NaN for those (one logarithm per DN, not per pixel)."""
+    for value in range(len(table)):
         if value >= saturated_dn or value - black < min_signal:
-            continue
-        y = math.log(value - black) - log_exposure
-        x1 = float(at_middle[i, 0])
-        x2 = -float(at_middle[i, 1])
-        if i % sample_step == 0:
-            k = i // sample_step
-            level = (sums[1, i] + sums[2, i]) / max(sums[0, i], 1.0)
-            side = 1 if x1 + x2 > level else 0
-            half[side, 0, k] += 1.0
-            half[side, 1, k] += x1
-            half[side, 2, k] += x2
-            half[side, 3, k] += y
-            half[side, 4, k] += x1 * x1
-            half[side, 5, k] += x2 * x2
-            half[side, 6, k] += x1 * x2
-            half[side, 7, k] += x1 * y
-            half[side, 8, k] += x2 * y
-            half[side, 9, k] += y * y
-        sums[0, i] += 1.0
-        sums[1, i] += x1
-        sums[2, i] += x2
-        sums[3, i] += y
-        sums[4, i] += x1 * x1
-        sums[5, i] += x2 * x2
-        sums[6, i] += x1 * x2
-        sums[7, i] += x1 * y
-        sums[8, i] += x2 * y
-        sums[9, i] += y * y
-        signal_sums[i] += value - black
-        state = at_middle[i, 0] + at_middle[i, 1]
-        if state != last_state[i]:
-            new_counts[i] += 1.0
-            last_state[i] = state
+            table[value] = np.nan
+        else:
+            table[value] = math.log(value - black)
+
+
+@kernel(inline=True)
+def _fold_run(sums, runs, run_counts, i):  # pragma: no cover - compiled
+    """Pixel i's open run (its frames since its counts last changed: their number, sum of y and of y^2, all at the
+    same x1 = A, x2 = -B) into its least-squares sums; the run is emptied, its counts kept."""
+    n = runs[0, i]
+    if n == 0.0:
+        return
+    x1 = float(run_counts[0, i])
+    x2 = -float(run_counts[1, i])
+    sum_y = runs[1, i]
+    sums[0, i] += n
+    sums[1, i] += n * x1
+    sums[2, i] += n * x2
+    sums[3, i] += sum_y
+    sums[4, i] += n * x1 * x1
+    sums[5, i] += n * x2 * x2
+    sums[6, i] += n * x1 * x2
+    sums[7, i] += x1 * sum_y
+    sums[8, i] += x2 * sum_y
+    sums[9, i] += runs[2, i]
+    runs[0, i] = 0.0
+    runs[1, i] = 0.0
+    runs[2, i] = 0.0
+
+
+@kernel
+def fold_runs(sums, runs, run_counts):  # pragma: no cover - compiled
+    """Every pixel's open run into its sums (before a fit): see :func:`frame_sums`."""
+    for i in range(sums.shape[1]):
+        _fold_run(sums, runs, run_counts, i)
+
+
+@kernel
+def frame_sums(image, x0, y0, width, counts, fired, stamp, exposure, log_dn, black, log_exposure, max_events,
+               saturated_dn, sums, runs, run_counts, half, sample_step, signal_sums, new_counts,
+               tallies):  # pragma: no cover - compiled
+    """One APS frame (``image``, its corner at ``x0, y0`` on a sensor ``width`` wide) into the frames method's
+    per-pixel least-squares sums (see :class:`evtools.estimation_frames.FrameThresholdEstimator`), for one black
+    level: a pixel that fired at most ``max_events`` times during the exposure (``fired``, where ``stamp`` is
+    ``exposure``) and whose DN has a log in ``log_dn`` (:func:`log_levels`: neither dark nor saturated) adds
+    ``y = log(dn - black) - log_exposure`` against ``x1 = A``, ``x2 = -B`` (its ``counts`` at the exposure's
+    middle) to its sums (rows n, x1, x2, y, x1x1, x2x2, x1x2, x1y, x2y, yy).
+
+    A pixel's frames between two changes of its counts share x1 and x2: they are summed in its open run (``runs``:
+    number, sum y, sum y^2; ``run_counts``: its A and B, -1 before any) and folded into ``sums`` when the counts
+    change (``new_counts`` counts those frames) or by :func:`fold_runs`: three sums a frame instead of ten. With
+    ``sample_step`` (0: none), every ``sample_step``-th pixel also adds the frame to ``half[0 or 1]``, by whether its
+    count level is above its mean so far. With ``tallies`` (3 rows; none: 0 rows) every pixel of the frame also
+    counts the frame, whether it is saturated, and whether it fired more than ``max_events`` times."""
+    tally = tallies.shape[0] > 0
+    for row in range(image.shape[0]):
+        first = (y0 + row) * width + x0
+        k = first // sample_step if sample_step > 0 else 0  # i's sample, when i % sample_step == 0 (kept
+        offset = first - k * sample_step if sample_step > 0 else 1  # without a division per pixel)
+        for column in range(image.shape[1]):
+            i = np.uint64(first + column)  # unsigned: no negative-index fix-ups
+            if offset == sample_step:
+                offset = 0
+                k += 1
+            sampled = offset == 0
+            offset += 1
+            value = image[row, column]
+            blurred = stamp[i] == exposure and fired[i] > max_events
+            if tally:
+                tallies[0, i] += 1
+                if value >= saturated_dn:
+                    tallies[1, i] += 1
+                if blurred:
+                    tallies[2, i] += 1
+            log_value = log_dn[value]
+            if blurred or log_value != log_value:
+                continue
+            y = log_value - log_exposure
+            on = counts[i, FRAMES_ON]
+            off = counts[i, FRAMES_OFF]
+            if sampled:
+                x1 = float(on)
+                x2 = -float(off)
+                n = sums[0, i] + runs[0, i]
+                level = (sums[1, i] + sums[2, i] + runs[0, i] * float(run_counts[0, i] - run_counts[1, i])) / max(
+                    n, 1.0)
+                side = 1 if x1 + x2 > level else 0
+                half[side, 0, k] += 1.0
+                half[side, 1, k] += x1
+                half[side, 2, k] += x2
+                half[side, 3, k] += y
+                half[side, 4, k] += x1 * x1
+                half[side, 5, k] += x2 * x2
+                half[side, 6, k] += x1 * x2
+                half[side, 7, k] += x1 * y
+                half[side, 8, k] += x2 * y
+                half[side, 9, k] += y * y
+            if on != run_counts[0, i] or off != run_counts[1, i]:
+                _fold_run(sums, runs, run_counts, i)
+                run_counts[0, i] = on
+                run_counts[1, i] = off
+                new_counts[i] += 1.0
+            runs[0, i] += 1.0
+            runs[1, i] += y
+            runs[2, i] += y * y
+            signal_sums[i] += value - black

@@ -37,15 +37,14 @@ class FramePrediction(FrameThresholdEstimator):
         self.previous: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # log frame, usable, counts
         self.pairs: list[dict] = []
 
-    def _use(self, frame, before: np.ndarray, at_middle: np.ndarray) -> None:
-        full = self._full(frame)
-        if full is None:
+    def _use(self, frame) -> None:
+        if not self._fits(frame):
             return
-        dn, inside = full
+        dn, inside = self._full(frame)
         signal = dn - self.black
         usable = inside & (signal >= MIN_SIGNAL_DN) & (dn < SATURATED_DN)
         log_frame = np.log(np.maximum(signal, 1.0)) - math.log(max(frame.exposure_us, 1) * 1e-6)
-        counts = at_middle[:, :2].astype(np.float64)
+        counts = self.counts[:, :2].astype(np.float64)  # at the exposure's middle
         if self.previous is not None:
             previous_log, previous_usable, previous_counts = self.previous
             both = usable & previous_usable

@@ -254,36 +254,42 @@ def naive_natural(events, width, height, nominal=0.2, radius_px=3, min_events=10
 
 
 def naive_polarity_counts(events, width: int, height: int) -> dict:
-    """{(x, y): [on count, off count, latest polarity (+1, -1)]} of ``events``, in plain Python."""
+    """{(x, y): [on count, off count]} of ``events``, in plain Python."""
     counts: dict = {}
     for x, y, p in zip(events["x"].tolist(), events["y"].tolist(), events["p"].tolist()):
-        row = counts.setdefault((x, y), [0, 0, 0])
-        row[0 if p else 1] += 1
-        row[2] = 1 if p else -1
+        counts.setdefault((x, y), [0, 0])[0 if p else 1] += 1
     return counts
 
 
-def naive_frame_sums(dn, inside, counts, before, at_middle, black, log_exposure, max_events, min_signal,
-                     saturated_dn, sums, half, sample_step, signal_sums, new_counts, last_state) -> None:
+def naive_frame_sums(image, x0, y0, width, counts, fired, black, log_exposure, max_events, min_signal,
+                     saturated_dn, sums, half, sample_step, signal_sums, new_counts, last_state, tallies) -> None:
     """The frames method's sums for one frame, pixel by pixel in plain Python (see
-    ``evtools._kernels.estimate.frame_sums``): a usable pixel (inside, at most ``max_events`` events in the exposure,
-    not saturated, at least ``min_signal`` above black) adds (1, A, -B, y, A^2, B^2, -AB, Ay, -By, y^2)."""
-    for i in range(len(dn)):
-        fired = int(counts[i][0]) + int(counts[i][1]) - int(before[i])
-        if not inside[i] or fired > max_events or dn[i] >= saturated_dn or dn[i] - black < min_signal:
-            continue
-        y = math.log(dn[i] - black) - log_exposure
-        a, b = float(at_middle[i][0]), -float(at_middle[i][1])
-        row = [1.0, a, b, y, a * a, b * b, a * b, a * y, b * y, y * y]
-        if i % sample_step == 0:
-            mean_level = (sums[1][i] + sums[2][i]) / max(sums[0][i], 1.0)
-            side = 1 if a + b > mean_level else 0
+    ``evtools._kernels.estimate.frame_sums``), every sum added at every frame: a pixel of the frame (``image``, its
+    corner at ``x0, y0``) counts in ``tallies`` (frames, saturated, fired more than ``max_events`` times:
+    ``fired[i]`` in its exposure); a usable one (at most ``max_events``, not saturated, at least ``min_signal``
+    above black) adds (1, A, -B, y, A^2, B^2, -AB, Ay, -By, y^2) with A, B its ``counts`` at the exposure's middle;
+    with ``sample_step``, every such pixel also to ``half[side]`` by its level against its mean so far."""
+    for row in range(image.shape[0]):
+        for column in range(image.shape[1]):
+            i = (y0 + row) * width + x0 + column
+            dn = float(image[row][column])
+            tallies[0][i] += 1
+            tallies[1][i] += dn >= saturated_dn
+            tallies[2][i] += fired[i] > max_events
+            if fired[i] > max_events or dn >= saturated_dn or dn - black < min_signal:
+                continue
+            y = math.log(dn - black) - log_exposure
+            a, b = float(counts[i][0]), -float(counts[i][1])
+            row_of_sums = [1.0, a, b, y, a * a, b * b, a * b, a * y, b * y, y * y]
+            if sample_step and i % sample_step == 0:
+                mean_level = (sums[1][i] + sums[2][i]) / max(sums[0][i], 1.0)
+                side = 1 if a + b > mean_level else 0
+                for r in range(10):
+                    half[side][r][i // sample_step] += row_of_sums[r]
             for r in range(10):
-                half[side][r][i // sample_step] += row[r]
-        for r in range(10):
-            sums[r][i] += row[r]
-        signal_sums[i] += dn[i] - black
-        state = int(at_middle[i][0]) + int(at_middle[i][1])
-        if state != last_state[i]:
-            new_counts[i] += 1
-            last_state[i] = state
+                sums[r][i] += row_of_sums[r]
+            signal_sums[i] += dn - black
+            state = int(counts[i][0]) + int(counts[i][1])
+            if state != last_state[i]:
+                new_counts[i] += 1
+                last_state[i] = state
