@@ -133,11 +133,11 @@ class FrameThresholdEstimator:
         self.sample_step = BLACK_LEVEL_SAMPLE if fitted else 0  # the black level's test, only when it is fitted
         self.sample = np.arange(0, pixels, BLACK_LEVEL_SAMPLE) if fitted else np.zeros(0, np.int64)
         self.half_sums = np.zeros((len(self.candidates), 2, N_SUMS, len(self.sample)), np.float64)
-        # per pixel: frames seen, saturated, blurred (the pixel fired more than MAX_EXPOSURE_EVENTS times in them)
-        self.tallies = np.zeros((3, pixels), np.int64)
-        self.frames_seen, self.saturated, self.blurred = self.tallies
-        self.fired = np.zeros(pixels, np.int64)  # events in the exposure at hand (where stamp is its number)
-        self.stamp = np.full(pixels, -1, np.int64)
+        self.frames_seen = np.zeros(pixels, np.int64)  # frames covering the pixel (those covering all: full_frames)
+        self.full_frames = 0
+        self.saturated = np.zeros(pixels, np.int64)  # frames in which the pixel is saturated
+        self.marks = np.zeros((pixels, 2), np.int32)  # the latest exposure with events, and how many in it
+        self.marks[:, 0] = -1
         self.exposures = 0  # exposures opened so far (the stamp of the latest)
         self.log_tables: dict = {}  # (candidate, DN levels): log(DN - black) per DN, NaN where dark or saturated
         self._checker = StreamChecker(StreamInfo(width, height)) if check else None
@@ -199,7 +199,7 @@ class FrameThresholdEstimator:
                 if exposure is None:
                     polarity_counts(part["x"], part["y"], part["p"], self.width, self.counts)
                 else:
-                    exposure_counts(part["x"], part["y"], part["p"], self.width, self.counts, self.fired, self.stamp,
+                    exposure_counts(part["x"], part["y"], part["p"], self.width, self.counts, self.marks,
                                     exposure, True)
                 self.held_events -= split
             if split < len(chunk):
@@ -213,7 +213,7 @@ class FrameThresholdEstimator:
         for chunk in self.held:
             split = len(chunk) if chunk["t"][-1] < t_us else int(np.searchsorted(chunk["t"], t_us, "left"))
             exposure_counts(chunk["x"][:split], chunk["y"][:split], chunk["p"][:split], self.width, self.counts,
-                            self.fired, self.stamp, exposure, False)
+                            self.marks, exposure, False)
             if split < len(chunk):
                 break
 
@@ -226,8 +226,12 @@ class FrameThresholdEstimator:
             if known_us <= frame.exposure_end_us:  # a later event may still belong to its exposure
                 return
             self._count_before(frame.exposure_begin_us)
+            if self.exposures == np.iinfo(np.int32).max:  # the marks start again (after 2^31 frames)
+                self.marks[:, 0] = -1
+                self.exposures = 0
             self.exposures += 1
-            self._count_before((frame.exposure_begin_us + frame.exposure_end_us) / 2, self.exposures)
+            middle_us = -(-(frame.exposure_begin_us + frame.exposure_end_us) // 2)  # events before it (an integer:
+            self._count_before(middle_us, self.exposures)                          # numpy searches ints fast)
             self._mark_before(frame.exposure_end_us + 1, self.exposures)
             self._use(frame)
             self.pending.popleft()
@@ -272,14 +276,20 @@ class FrameThresholdEstimator:
             return
         self._forget(frame.exposure_end_us)
         image = np.ascontiguousarray(frame.image)
+        height, width = image.shape
+        x0, y0 = frame.offset_x, frame.offset_y
+        if (x0, y0, width, height) == (0, 0, self.width, self.height):
+            self.full_frames += 1
+        else:
+            self.frames_seen.reshape(self.height, self.width)[y0:y0 + height, x0:x0 + width] += 1
         levels = np.iinfo(image.dtype).max + 1
         log_exposure = math.log(max(frame.exposure_us, 1) * 1e-6)
         for index, black in enumerate(self.candidates):
-            frame_sums(image, frame.offset_x, frame.offset_y, self.width, self.counts, self.fired, self.stamp,
-                       self.exposures, self._log_table(index, levels), float(black), log_exposure,
-                       MAX_EXPOSURE_EVENTS, float(SATURATED_DN), self.sums[index], self.runs[index],
-                       self.run_counts[index], self.half_sums[index], self.sample_step, self.signal_sums[index],
-                       self.new_counts[index], self.tallies if index == 0 else self.tallies[:0])
+            frame_sums(image, x0, y0, self.width, self.counts, self.marks, self.exposures,
+                       self._log_table(index, levels), float(black), log_exposure, MAX_EXPOSURE_EVENTS,
+                       float(SATURATED_DN), self.sums[index], self.runs[index], self.run_counts[index],
+                       self.half_sums[index], self.sample_step, self.signal_sums[index], self.new_counts[index],
+                       self.saturated if index == 0 else self.saturated[:0])
         self.frames_used += 1
         if self.interval_us is not None:
             self._snapshot_maps(frame.exposure_end_us)
@@ -342,11 +352,12 @@ class FrameThresholdEstimator:
         fit, black_level = self._black_level([self._fit(index) for index in range(len(self.candidates))])
         on, off = fit["on"], fit["off"]
         n_events = self.counts[:, FRAMES_ON] + self.counts[:, FRAMES_OFF]
+        frames_seen = self.frames_seen + self.full_frames
         with np.errstate(invalid="ignore"):  # (NaN where not solved: that pixel has its reason first)
             failing = {  # in this order: each invalid pixel is counted under its first reason
-                "no_frames": self.frames_seen == 0,
+                "no_frames": frames_seen == 0,
                 "few_frames": fit["n"] < MIN_FRAMES,
-                "saturated": (self.saturated * 2 > self.frames_seen) & (self.frames_seen > 0),
+                "saturated": (self.saturated * 2 > frames_seen) & (frames_seen > 0),
                 "few_events": n_events < self.min_events,
                 "one_polarity": (self.counts[:, FRAMES_ON] < 2) | (self.counts[:, FRAMES_OFF] < 2),
                 "singular": ~fit["solved"],

@@ -41,21 +41,23 @@ def test_polarity_counts_against_plain_python(n, seed, cuts):
 @given(n=st.integers(0, 2000), seed=st.integers(0, 2**32 - 1), cuts=st.lists(st.integers(0, 2000), max_size=6),
        plan=st.lists(st.tuples(st.integers(0, 3), st.booleans()), min_size=7, max_size=7))
 def test_exposure_counts_against_plain_python(n, seed, cuts, plan):
-    """Each chunk's events go to exposure ``plan[k][0]`` (counted too when ``plan[k][1]``): a pixel's ``fired`` is
-    its events since its first one in the latest exposure it took part in, and its counts are those of the counted
-    chunks, as plain Python has them."""
+    """Each chunk's events go to exposure ``plan[k][0]`` (counted too when ``plan[k][1]``): a pixel's marks are the
+    latest exposure it took part in and its events since its first one in it, and its counts are those of the
+    counted chunks, as plain Python has them."""
     events = random_events(n, 7, 5, seed=seed)
-    counts, fired, stamp = np.zeros((35, FRAMES_ROW), np.int64), np.zeros(35, np.int64), np.full(35, -1, np.int64)
+    counts, marks = np.zeros((35, FRAMES_ROW), np.int64), np.full((35, 2), -1, np.int32)
     expected_counts, expected_fired, expected_stamp = [0] * 35, [0] * 35, [-1] * 35
     for (exposure, count), chunk in zip(plan, cut(events, cuts)):
-        exposure_counts(chunk["x"], chunk["y"], chunk["p"], 7, counts, fired, stamp, exposure, count)
+        exposure_counts(chunk["x"], chunk["y"], chunk["p"], 7, counts, marks, exposure, count)
         for x, y, p in zip(chunk["x"].tolist(), chunk["y"].tolist(), chunk["p"].tolist()):
             i = y * 7 + x
             if expected_stamp[i] != exposure:
                 expected_stamp[i], expected_fired[i] = exposure, 0
             expected_fired[i] += 1
             expected_counts[i] += count
-    assert fired.tolist() == expected_fired and stamp.tolist() == expected_stamp
+    assert marks[:, 0].tolist() == expected_stamp
+    assert [fired for fired, stamp in zip(marks[:, 1].tolist(), expected_stamp) if stamp >= 0] == [
+        fired for fired, stamp in zip(expected_fired, expected_stamp) if stamp >= 0]
     assert (counts[:, FRAMES_ON] + counts[:, FRAMES_OFF]).tolist() == expected_counts
 
 
@@ -65,30 +67,30 @@ def test_exposure_counts_against_plain_python(n, seed, cuts, plan):
 def test_frame_sums_against_plain_python(seed, width, height, frames, black, step, bits):
     """The frames method's per-frame kernel (its frames summed in runs, folded when a pixel's counts change) against
     a pixel-by-pixel loop adding every sum at every frame, over several frames of random regions (the sums, the
-    halves of the black level's test, the signal, the new-count tally and the per-pixel tallies all carried)."""
+    halves of the black level's test, the signal, the new-count tally and the saturated frames all carried)."""
     rng = np.random.default_rng(seed)
     pixels = width * height
     dtype = np.uint8 if bits == 8 else np.uint16
     samples = -(-pixels // step) if step else 0
     kernel_sums, naive_sums = np.zeros((10, pixels)), np.zeros((10, pixels))
     kernel_half, naive_half = np.zeros((2, 10, samples)), np.zeros((2, 10, samples))
-    kernel_extra = [np.zeros(pixels), np.zeros(pixels), np.zeros((3, pixels), np.int64)]  # signal, new, tallies
-    naive_extra = [np.zeros(pixels), np.zeros(pixels), np.zeros((3, pixels), np.int64)]
+    kernel_extra = [np.zeros(pixels), np.zeros(pixels), np.zeros(pixels, np.int64)]  # signal, new, saturated
+    naive_extra = [np.zeros(pixels), np.zeros(pixels), np.zeros(pixels, np.int64)]
     runs, run_counts, last_state = np.zeros((3, pixels)), np.full((2, pixels), -1, np.int64), np.full(pixels, -1)
     counts = np.zeros((pixels, FRAMES_ROW), np.int64)
-    stamp, fired = np.full(pixels, -1, np.int64), np.zeros(pixels, np.int64)
+    marks = np.full((pixels, 2), -1, np.int32)
     log_dn = np.empty(2**bits)
     log_levels(log_dn, black, 8.0, 250.0)
     for exposure in range(frames):
         counts[:, :2] += rng.integers(0, 3, (pixels, 2)) * (rng.random((pixels, 1)) < 0.5)
         in_exposure = rng.random(pixels) < 0.7  # pixels with events in this exposure; the others keep old marks
-        stamp[in_exposure] = exposure
-        fired[:] = rng.integers(0, 4, pixels)
-        effective = np.where(stamp == exposure, fired, 0)
+        marks[in_exposure, 0] = exposure
+        marks[:, 1] = rng.integers(0, 4, pixels)
+        effective = np.where(marks[:, 0] == exposure, marks[:, 1], 0)
         x0, y0 = int(rng.integers(0, width)), int(rng.integers(0, height))
         image = rng.integers(0, 256 if bits == 8 else 400, (int(rng.integers(1, height - y0 + 1)),
                                                            int(rng.integers(1, width - x0 + 1)))).astype(dtype)
-        frame_sums(image, x0, y0, width, counts, fired, stamp, exposure, log_dn, black, -4.6, 1, 250.0, kernel_sums,
+        frame_sums(image, x0, y0, width, counts, marks, exposure, log_dn, black, -4.6, 1, 250.0, kernel_sums,
                    runs, run_counts, kernel_half, step, kernel_extra[0], kernel_extra[1], kernel_extra[2])
         naive_frame_sums(image, x0, y0, width, counts, effective, black, -4.6, 1, 8.0, 250.0, naive_sums,
                          naive_half, step, naive_extra[0], naive_extra[1], last_state, naive_extra[2])

@@ -659,16 +659,16 @@ def polarity_counts(x, y, p, width, counts):  # pragma: no cover - compiled
 
 
 @kernel
-def exposure_counts(x, y, p, width, counts, fired, stamp, exposure, count):  # pragma: no cover - compiled
-    """Events of exposure number ``exposure`` (in stream order): each pixel's events in it into ``fired`` (reset
-    at its first event of a new exposure, marked in ``stamp``); with ``count``, into ``counts`` too, as
+def exposure_counts(x, y, p, width, counts, marks, exposure, count):  # pragma: no cover - compiled
+    """Events of exposure number ``exposure``: each pixel's latest exposure with events (``marks[i, 0]``) and its
+    events in it (``marks[i, 1]``, int32 side by side: one cache line); with ``count``, into ``counts`` too, as
     :func:`polarity_counts` does (the exposure's first half; its second half is marked, then counted later)."""
     for k in range(len(x)):
         i = y[k] * width + x[k]
-        if stamp[i] != exposure:
-            stamp[i] = exposure
-            fired[i] = 0
-        fired[i] += 1
+        if marks[i, 0] != exposure:
+            marks[i, 0] = exposure
+            marks[i, 1] = 0
+        marks[i, 1] += 1
         if count:
             if p[k]:
                 counts[i, FRAMES_ON] += 1
@@ -720,13 +720,13 @@ def fold_runs(sums, runs, run_counts):  # pragma: no cover - compiled
 
 
 @kernel
-def frame_sums(image, x0, y0, width, counts, fired, stamp, exposure, log_dn, black, log_exposure, max_events,
+def frame_sums(image, x0, y0, width, counts, marks, exposure, log_dn, black, log_exposure, max_events,
                saturated_dn, sums, runs, run_counts, half, sample_step, signal_sums, new_counts,
-               tallies):  # pragma: no cover - compiled
+               saturated):  # pragma: no cover - compiled
     """One APS frame (``image``, its corner at ``x0, y0`` on a sensor ``width`` wide) into the frames method's
     per-pixel least-squares sums (see :class:`evtools.estimation_frames.FrameThresholdEstimator`), for one black
-    level: a pixel that fired at most ``max_events`` times during the exposure (``fired``, where ``stamp`` is
-    ``exposure``) and whose DN has a log in ``log_dn`` (:func:`log_levels`: neither dark nor saturated) adds
+    level: a pixel that fired at most ``max_events`` times during the exposure (``marks``: see
+    :func:`exposure_counts`) and whose DN has a log in ``log_dn`` (:func:`log_levels`: neither dark nor saturated) adds
     ``y = log(dn - black) - log_exposure`` against ``x1 = A``, ``x2 = -B`` (its ``counts`` at the exposure's
     middle) to its sums (rows n, x1, x2, y, x1x1, x2x2, x1x2, x1y, x2y, yy).
 
@@ -734,9 +734,8 @@ def frame_sums(image, x0, y0, width, counts, fired, stamp, exposure, log_dn, bla
     number, sum y, sum y^2; ``run_counts``: its A and B, -1 before any) and folded into ``sums`` when the counts
     change (``new_counts`` counts those frames) or by :func:`fold_runs`: three sums a frame instead of ten. With
     ``sample_step`` (0: none), every ``sample_step``-th pixel also adds the frame to ``half[0 or 1]``, by whether its
-    count level is above its mean so far. With ``tallies`` (3 rows; none: 0 rows) every pixel of the frame also
-    counts the frame, whether it is saturated, and whether it fired more than ``max_events`` times."""
-    tally = tallies.shape[0] > 0
+    count level is above its mean so far. ``saturated`` (unless empty) counts the frames in which a pixel is."""
+    tally = saturated.shape[0] > 0
     for row in range(image.shape[0]):
         first = (y0 + row) * width + x0
         k = first // sample_step if sample_step > 0 else 0  # i's sample, when i % sample_step == 0 (kept
@@ -749,15 +748,10 @@ def frame_sums(image, x0, y0, width, counts, fired, stamp, exposure, log_dn, bla
             sampled = offset == 0
             offset += 1
             value = image[row, column]
-            blurred = stamp[i] == exposure and fired[i] > max_events
-            if tally:
-                tallies[0, i] += 1
-                if value >= saturated_dn:
-                    tallies[1, i] += 1
-                if blurred:
-                    tallies[2, i] += 1
+            if tally and value >= saturated_dn:
+                saturated[i] += 1
             log_value = log_dn[value]
-            if blurred or log_value != log_value:
+            if log_value != log_value or (marks[i, 0] == exposure and marks[i, 1] > max_events):
                 continue
             y = log_value - log_exposure
             on = counts[i, FRAMES_ON]

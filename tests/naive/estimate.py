@@ -262,20 +262,17 @@ def naive_polarity_counts(events, width: int, height: int) -> dict:
 
 
 def naive_frame_sums(image, x0, y0, width, counts, fired, black, log_exposure, max_events, min_signal,
-                     saturated_dn, sums, half, sample_step, signal_sums, new_counts, last_state, tallies) -> None:
+                     saturated_dn, sums, half, sample_step, signal_sums, new_counts, last_state, saturated) -> None:
     """The frames method's sums for one frame, pixel by pixel in plain Python (see
     ``evtools._kernels.estimate.frame_sums``), every sum added at every frame: a pixel of the frame (``image``, its
-    corner at ``x0, y0``) counts in ``tallies`` (frames, saturated, fired more than ``max_events`` times:
-    ``fired[i]`` in its exposure); a usable one (at most ``max_events``, not saturated, at least ``min_signal``
-    above black) adds (1, A, -B, y, A^2, B^2, -AB, Ay, -By, y^2) with A, B its ``counts`` at the exposure's middle;
+    corner at ``x0, y0``) counts in ``saturated`` when it is; a usable one (at most ``max_events`` events in its
+    exposure: ``fired[i]``, not saturated, at least ``min_signal`` above black) adds (1, A, -B, y, A^2, B^2, -AB, Ay, -By, y^2) with A, B its ``counts`` at the exposure's middle;
     with ``sample_step``, every such pixel also to ``half[side]`` by its level against its mean so far."""
     for row in range(image.shape[0]):
         for column in range(image.shape[1]):
             i = (y0 + row) * width + x0 + column
             dn = float(image[row][column])
-            tallies[0][i] += 1
-            tallies[1][i] += dn >= saturated_dn
-            tallies[2][i] += fired[i] > max_events
+            saturated[i] += dn >= saturated_dn
             if fired[i] > max_events or dn >= saturated_dn or dn - black < min_signal:
                 continue
             y = math.log(dn - black) - log_exposure
