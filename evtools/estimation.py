@@ -97,7 +97,9 @@ alone, set by ``nominal`` (the median pixel's threshold is the nominal value, wh
 
 NOT_OBSERVABLE = ("events alone give thresholds relative to one another: not their absolute scale (set by "
                   "--nominal), not a smooth spatial component of the mismatch (taken for the scene's), not a drift "
-                  "shared by all pixels (taken for the scene's); a known stimulus or APS frames can")
+                  "shared by all pixels (taken for the scene's), not the balance of ON against OFF where the "
+                  "whole scene ends brighter or darker than it began (a net rise reads as smaller ON thresholds); "
+                  "a known stimulus or APS frames can")
 """What an events-only estimate cannot observe (a map's ``not_observable`` attribute, shown by ``metrics
 thresholds``)."""
 """The estimation methods, by name."""

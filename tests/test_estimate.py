@@ -600,12 +600,17 @@ def _spread_events(seed, n, width, height, duration_us):
 
 def _excursions(rng, turns):
     """Corners of a log-intensity signal that turns ``turns`` times, each excursion 0.1-1.2 log units at 0.5-5
-    log units per second: what a pixel sees as edges of random contrast pass over it."""
+    log units per second: what a pixel sees as edges of random contrast pass over it. Its falls are scaled to sum
+    to its rises (a random walk drifts: one draw ended 14 log units down after 89 up), so that it ends where it
+    began: a net rise or fall shared by every pixel is not observable from events (it reads as ON thresholds
+    smaller or larger than OFF; README, ``evtools.estimation.NOT_OBSERVABLE``)."""
+    sizes = rng.uniform(0.1, 1.2, turns)
+    speeds = rng.uniform(0.5, 5.0, turns)
+    sizes[1::2] *= sizes[0::2].sum() / max(sizes[1::2].sum(), 1e-9)
     t_us, level, corners = 0.0, 0.0, [(0.0, 0.0)]
     for k in range(turns):
-        size = rng.uniform(0.1, 1.2)
-        level += size if k % 2 == 0 else -size
-        t_us += size / rng.uniform(0.5, 5.0) * 1e6
+        level += sizes[k] if k % 2 == 0 else -sizes[k]
+        t_us += sizes[k] / speeds[k] * 1e6
         corners.append((t_us, level))
     return corners
 
