@@ -51,15 +51,17 @@ MAX_EXPOSURE_EVENTS = 1
 about a threshold while the frame integrated it)."""
 MIN_FRAMES = 12
 """Fewer usable frames than this leave a pixel invalid."""
-DEFAULT_MAX_FRAME_FIT = 0.04
-"""Pixels whose predicted relative error (a standard deviation: on textures the median of |error| / fit is
-0.67-0.69, a normal error's 0.674) is larger are invalid (``--max-fit``): a 10 % error is then 2.5 of them."""
+DEFAULT_MAX_FRAME_FIT = 0.035
+"""Pixels whose predicted relative error (a standard deviation: on textures the RMS of error / fit is 0.80-0.98,
+slightly pessimistic) is larger are invalid (``--max-fit``): a 10 % error is then 2.86 of them, so a valid pixel at
+the limit is more than 10 % off, in the worse of ON and OFF, with a probability under 1 %."""
 MAX_RESIDUAL_RATIO = 2.0
 """A pixel whose residual RMS exceeds this many times the model's (the remainder's spread, a band of one threshold:
 ``theta / sqrt(12)``, and the frames' noise) does not fit the model: invalid."""
 OFFSET_FPN_DN = 1.0
 """A pixel's offset from the black level assumed in its fit (DN, typical): with frames of signal s it biases the
-thresholds by about ``OFFSET_FPN_DN / s`` (measured on textures with 1 DN offsets: most of the error at 40 DN)."""
+thresholds by about ``OFFSET_FPN_DN`` times the mean of ``1 / s`` over its frames (measured on textures with 1 DN
+offsets: most of the error at 40 DN)."""
 READ_NOISE_DN = 2.0
 """The frames' noise assumed when judging residuals (DN, standard deviation)."""
 DEFAULT_BLACK_LEVEL = 0.0
@@ -126,7 +128,7 @@ class FrameThresholdEstimator:
         self.counts = np.zeros((pixels, FRAMES_ROW), np.int64)
         self.sums = np.zeros((len(self.candidates), N_SUMS, pixels), np.float64)
         self.new_counts = np.zeros((len(self.candidates), pixels), np.float64)  # frames with a count not seen before
-        self.signal_sums = np.zeros((len(self.candidates), pixels), np.float64)  # DN above black, frames used
+        self.inverse_sums = np.zeros((len(self.candidates), pixels), np.float64)  # 1 / (DN - black), frames used
         # each pixel's open run: frames since its counts last changed (number, sum y, sum y^2) and those counts
         self.runs = np.zeros((len(self.candidates), 3, pixels), np.float64)
         self.run_counts = np.full((len(self.candidates), 2, pixels), -1, np.int64)
@@ -288,7 +290,7 @@ class FrameThresholdEstimator:
             frame_sums(image, x0, y0, self.width, self.counts, self.marks, self.exposures,
                        self._log_table(index, levels), float(black), log_exposure, MAX_EXPOSURE_EVENTS,
                        float(SATURATED_DN), self.sums[index], self.runs[index], self.run_counts[index],
-                       self.half_sums[index], self.sample_step, self.signal_sums[index], self.new_counts[index],
+                       self.half_sums[index], self.sample_step, self.inverse_sums[index], self.new_counts[index],
                        self.saturated if index == 0 else self.saturated[:0])
         self.frames_used += 1
         if self.interval_us is not None:
@@ -303,7 +305,7 @@ class FrameThresholdEstimator:
             self.sums *= factor
             self.runs *= factor
             self.new_counts *= factor
-            self.signal_sums *= factor
+            self.inverse_sums *= factor
         self.t_frame_us = t_us
 
     def _snapshot_maps(self, t_us: int) -> None:
@@ -416,10 +418,10 @@ class FrameThresholdEstimator:
         """Each pixel's least squares for black-level candidate ``index``: thresholds, residual RMS, the RMS the
         model allows, and the fit (the larger relative standard error)."""
         fold_runs(self.sums[index], self.runs[index], self.run_counts[index])
-        return _least_squares(self.sums[index], self.new_counts[index], self.signal_sums[index])
+        return _least_squares(self.sums[index], self.new_counts[index], self.inverse_sums[index])
 
 
-def _least_squares(s: np.ndarray, new_counts: np.ndarray, signal_sums: np.ndarray) -> dict:
+def _least_squares(s: np.ndarray, new_counts: np.ndarray, inverse_sums: np.ndarray) -> dict:
     """Per pixel, ``y = c + theta_on x1 + theta_off x2`` from the sums ``s`` (:data:`N_SUMS` rows)."""
     n = s[S_N]
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -440,12 +442,13 @@ def _least_squares(s: np.ndarray, new_counts: np.ndarray, signal_sums: np.ndarra
         se_on = np.sqrt(variance * inverse[:, 1, 1] * inflation)
         se_off = np.sqrt(variance * inverse[:, 2, 2] * inflation)
         band = (np.abs(on) + np.abs(off)) / 2
-        mean_dn = signal_sums / np.maximum(n, 1)  # its frames' noise is relative to this
-        # the statistical error, and the bias a pixel's own offset (unknown, OFFSET_FPN_DN typical) gives the
-        # slope of its logs: about that offset over its signal
-        offset_share = OFFSET_FPN_DN / np.maximum(mean_dn, 1.0)
+        # a DN error e moves a frame's log by about e / signal: its frames' mean of 1 / signal scales both the read
+        # noise and the bias a pixel's own offset (unknown, OFFSET_FPN_DN typical) gives the slope of its logs
+        # (d log(s + e) / d log s = 1 - e / s: the darker frames weigh most, so not e over the mean signal)
+        mean_inverse = np.minimum(inverse_sums / np.maximum(n, 1), 1.0)
+        offset_share = OFFSET_FPN_DN * mean_inverse
         fit = np.sqrt(np.maximum(se_on / np.abs(on), se_off / np.abs(off)) ** 2 + offset_share**2)
-        expected_rms = np.sqrt(band**2 / 12 + (READ_NOISE_DN / np.maximum(mean_dn, 1.0)) ** 2)
+        expected_rms = np.sqrt(band**2 / 12 + (READ_NOISE_DN * mean_inverse) ** 2)
     fit = np.where(solved, fit, np.nan)
     return {"on": np.where(solved, on, np.nan), "off": np.where(solved, off, np.nan), "n": n, "solved": solved,
             "rms": np.sqrt(variance), "expected_rms": expected_rms, "fit": fit}

@@ -67,14 +67,14 @@ def test_exposure_counts_against_plain_python(n, seed, cuts, plan):
 def test_frame_sums_against_plain_python(seed, width, height, frames, black, step, bits):
     """The frames method's per-frame kernel (its frames summed in runs, folded when a pixel's counts change) against
     a pixel-by-pixel loop adding every sum at every frame, over several frames of random regions (the sums, the
-    halves of the black level's test, the signal, the new-count tally and the saturated frames all carried)."""
+    halves of the black level's test, the inverse signal, the new-count tally and the saturated frames all carried)."""
     rng = np.random.default_rng(seed)
     pixels = width * height
     dtype = np.uint8 if bits == 8 else np.uint16
     samples = -(-pixels // step) if step else 0
     kernel_sums, naive_sums = np.zeros((10, pixels)), np.zeros((10, pixels))
     kernel_half, naive_half = np.zeros((2, 10, samples)), np.zeros((2, 10, samples))
-    kernel_extra = [np.zeros(pixels), np.zeros(pixels), np.zeros(pixels, np.int64)]  # signal, new, saturated
+    kernel_extra = [np.zeros(pixels), np.zeros(pixels), np.zeros(pixels, np.int64)]  # 1 / signal, new, saturated
     naive_extra = [np.zeros(pixels), np.zeros(pixels), np.zeros(pixels, np.int64)]
     runs, run_counts, last_state = np.zeros((3, pixels)), np.full((2, pixels), -1, np.int64), np.full(pixels, -1)
     counts = np.zeros((pixels, FRAMES_ROW), np.int64)
@@ -108,10 +108,11 @@ def _thresholds(seed):
 
 @pytest.fixture(scope="module")
 def davis(tmp_path_factory):
-    """A 6 s DAVIS recording of a moving texture (25 fps, 10 ms exposures), written by dv-processing."""
+    """A 12 s DAVIS recording of a moving texture (25 fps, 10 ms exposures: issue 38's clean setup), written by
+    dv-processing."""
     pytest.importorskip("dv_processing", reason="dv-processing (the test extra) writes the recording")
     on, off = _thresholds(11)
-    events, frames = davis_recording(W, H, 6_000_000, seed=11, theta_on=on, theta_off=off, exposure_us=10_000,
+    events, frames = davis_recording(W, H, 12_000_000, seed=11, theta_on=on, theta_off=off, exposure_us=10_000,
                                      pan_px_s=(30.0, -8.0), wobble_px=6.0, black_level=0.0)
     path = tmp_path_factory.mktemp("davis") / "davis.aedat4"
     write_with_dv(path, events, frames, W, H)
@@ -145,8 +146,9 @@ def test_the_estimate_does_not_depend_on_chunks_or_when_frames_arrive(davis, chu
 
 def test_the_frames_give_absolute_thresholds_better_than_events_alone(davis, tmp_path):
     """On the independent generator (ideal pixels, 1 DN offset non-uniformity, 1.5 DN read noise), through the
-    command line: most pixels valid, RMS error within 4 %, hardly any valid pixel 10 % off, below the natural
-    method's error (which is even given the true mean threshold as its scale), and the scale says absolute."""
+    command line, issue 38's goals for a clean setup: at least 90 % of the pixels valid, RMS error within 3 %, at
+    most 1 % of the valid pixels 10 % off, at least 2x below the natural method's error (which is even given the
+    true mean threshold as its scale), and the scale says absolute."""
     path, on, off = davis
     run("estimate", path, "--method", "frames", "-o", tmp_path / "frames.h5")
     with h5py.File(tmp_path / "frames.h5") as f:
@@ -155,14 +157,14 @@ def test_the_frames_give_absolute_thresholds_better_than_events_alone(davis, tmp
     assert valid.mean() >= 0.9
     errors = np.concatenate([est_on[valid] / on[valid] - 1, est_off[valid] / off[valid] - 1])
     frames_rmse = float(np.sqrt(np.mean(errors**2)))
-    assert frames_rmse <= 0.04, frames_rmse
+    assert frames_rmse <= 0.03, frames_rmse
     worst = np.maximum(np.abs(est_on / on - 1), np.abs(est_off / off - 1))[valid]
     assert np.mean(worst > 0.10) <= 0.01
     events = evtools.read(path)[0]
     natural = estimate_thresholds(events, W, H, "natural", nominal=float((on.mean() + off.mean()) / 2))
     usable = natural.valid
     natural_errors = np.concatenate([natural.on[usable] / on[usable] - 1, natural.off[usable] / off[usable] - 1])
-    assert frames_rmse < np.sqrt(np.mean(natural_errors**2))
+    assert 2 * frames_rmse <= np.sqrt(np.mean(natural_errors**2)), (frames_rmse, natural_errors)
 
 
 FIT_SCALE = 1.5
@@ -226,10 +228,10 @@ def test_simulated_aps_frames_follow_the_documented_model(tmp_path):
     against the truth's own maps and mean intensities; the estimate of the simulated recording is absolute and
     close to the truth."""
     out, truth = tmp_path / "davis.aedat4", tmp_path / "truth.h5"
-    run("simulate", "scene:texture", "--size", "32x24", "--duration", "6s", "--seed", "4", "--speed", "200",
+    run("simulate", "scene:texture", "--size", "32x24", "--duration", "12s", "--seed", "4", "--speed", "200",
         "--aps-rate", "25", "--aps-exposure", "10ms", "--aps-read-noise", "1", "--truth", truth, "-o", out)
     _, info, frames = evtools.read(out, frames=True)
-    assert info.metadata["frame_size"] == (32, 24) and len(frames) == 150
+    assert info.metadata["frame_size"] == (32, 24) and len(frames) == 300
     with h5py.File(truth) as f:
         aps = f["aps"]
         predicted = aps["offset"][()] + aps["gain"][()] * 10 * aps["mean_intensity"][()]
@@ -242,7 +244,8 @@ def test_simulated_aps_frames_follow_the_documented_model(tmp_path):
     run("estimate", out, "--method", "frames", "-o", tmp_path / "t.h5")
     with h5py.File(tmp_path / "t.h5") as f:
         valid, est_on = f["valid"][()], f["on"][()]
-    assert valid.mean() > 0.15  # 6 s: pixels whose frames span too little of their range have too wide a fit
+    assert valid.mean() > 0.15  # 12 s (53 % valid): pixels whose frames span too little of their range have too
+    # wide a fit (6 s: 7 % valid at RMS 4.1 %, since the fit counts a pixel's offset over its darkest frames)
     assert np.sqrt(np.mean((est_on[valid] / true_on[valid] - 1) ** 2)) < 0.08
 
 

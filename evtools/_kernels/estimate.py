@@ -721,7 +721,7 @@ def fold_runs(sums, runs, run_counts):  # pragma: no cover - compiled
 
 @kernel
 def frame_sums(image, x0, y0, width, counts, marks, exposure, log_dn, black, log_exposure, max_events,
-               saturated_dn, sums, runs, run_counts, half, sample_step, signal_sums, new_counts,
+               saturated_dn, sums, runs, run_counts, half, sample_step, inverse_sums, new_counts,
                saturated):  # pragma: no cover - compiled
     """One APS frame (``image``, its corner at ``x0, y0`` on a sensor ``width`` wide) into the frames method's
     per-pixel least-squares sums (see :class:`evtools.estimation_frames.FrameThresholdEstimator`), for one black
@@ -781,4 +781,4 @@ def frame_sums(image, x0, y0, width, counts, marks, exposure, log_dn, black, log
             runs[0, i] += 1.0
             runs[1, i] += y
             runs[2, i] += y * y
-            signal_sums[i] += value - black
+            inverse_sums[i] += 1.0 / (value - black)

@@ -262,7 +262,7 @@ def naive_polarity_counts(events, width: int, height: int) -> dict:
 
 
 def naive_frame_sums(image, x0, y0, width, counts, fired, black, log_exposure, max_events, min_signal,
-                     saturated_dn, sums, half, sample_step, signal_sums, new_counts, last_state, saturated) -> None:
+                     saturated_dn, sums, half, sample_step, inverse_sums, new_counts, last_state, saturated) -> None:
     """The frames method's sums for one frame, pixel by pixel in plain Python (see
     ``evtools._kernels.estimate.frame_sums``), every sum added at every frame: a pixel of the frame (``image``, its
     corner at ``x0, y0``) counts in ``saturated`` when it is; a usable one (at most ``max_events`` events in its
@@ -285,7 +285,7 @@ def naive_frame_sums(image, x0, y0, width, counts, fired, black, log_exposure, m
                     half[side][r][i // sample_step] += row_of_sums[r]
             for r in range(10):
                 sums[r][i] += row_of_sums[r]
-            signal_sums[i] += dn - black
+            inverse_sums[i] += 1.0 / (dn - black)
             state = int(counts[i][0]) + int(counts[i][1])
             if state != last_state[i]:
                 new_counts[i] += 1
