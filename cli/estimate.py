@@ -25,7 +25,7 @@ from evtools.estimation import (
     Stimulus,
     ThresholdEstimator,
 )
-from evtools.estimation_frames import FrameThresholdEstimator
+from evtools.estimation_frames import FrameScaledEstimator, FrameThresholdEstimator
 from evtools.events import MAX_SENSOR_SIDE
 from evtools.formats import open_events
 from evtools.formats.io import STDIO, same_file
@@ -72,6 +72,18 @@ def _stimulus(levels, period_us, profile, amplitude, speed, wavelength, rise) ->
     return Stimulus(*levels, period_us, 0.0, profile, rise)
 
 
+def _nominal(ctx, param, value):
+    if value == "frames":
+        return value
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise click.BadParameter(f"{value!r} is not a threshold (a positive number of log units) or 'frames'") from None
+    if not math.isfinite(number) or number <= 0:
+        raise click.BadParameter(f"{value!r} is not a positive number of log units")
+    return number
+
+
 def _black_level(ctx, param, value):
     if value is None or value == "fit":
         return value
@@ -95,9 +107,10 @@ def _black_level(ctx, param, value):
                    "--online).")
 @click.option("--segment-us", type=MICROSECONDS, default=DEFAULT_SEGMENT_US, show_default=True,
               help="offe: segment length, microseconds.")
-@click.option("--nominal", type=FiniteRange(min=0, min_open=True), default=DEFAULT_NOMINAL, show_default=True,
+@click.option("--nominal", type=str, default=str(DEFAULT_NOMINAL), show_default=True, metavar="THETA|frames", callback=_nominal,
               help="offe: the median pixel's threshold; natural: the mean of on and off (log units); events alone "
-                   "do not give the scale.")
+                   "do not give the scale. `frames`: the scale (per polarity) from a DAVIS recording's APS frames "
+                   "(offline; --black-level as for --method frames).")
 @click.option("--radius", type=click.IntRange(1, MAX_SENSOR_SIDE), default=DEFAULT_RADIUS_PX, show_default=True,
               metavar="PX",
               help="natural: each pixel is compared with the pixels within PX of it.")
@@ -157,6 +170,7 @@ def estimate(inputs, reading, output, jobs, scheduler, as_json,
     evtools estimate gradient.aedat4 -o t.h5 --method stimulus --stimulus-speed 50 --stimulus-wavelength 64
     evtools bafilter noisy.aedat4 --method stcf --k 1 --dt-us 100000 | evtools estimate - -o t.h5 --method stimulus
     evtools bafilter street.aedat4 | evtools estimate - -o t.h5 --method natural      # any long moving scene
+    evtools estimate davis.aedat4 -o t.h5 --method natural --nominal frames  # scale from a DAVIS's APS frames
     evtools estimate drifting.aedat4 -o series.h5 --method stimulus --online --interval 1s   # maps over time
     """
     if output is None or output == "-":
@@ -164,8 +178,13 @@ def estimate(inputs, reading, output, jobs, scheduler, as_json,
                               "FOLDER for several inputs)")
     if not online and (interval is not None or forget is not None):
         raise click.UsageError("--interval and --forget apply to --online estimation")
-    if method != "frames" and black_level is not None:
-        raise click.UsageError("--black-level applies to --method frames")
+    scaled_by_frames = nominal == "frames"
+    if scaled_by_frames and method not in ("natural", "offe"):
+        raise click.UsageError("--nominal frames scales --method natural or offe (--method frames is absolute already)")
+    if scaled_by_frames and online:
+        raise click.UsageError("--nominal frames works offline (an online map needs --nominal as a number)")
+    if method != "frames" and not scaled_by_frames and black_level is not None:
+        raise click.UsageError("--black-level applies to --method frames and --nominal frames")
     if online and method == "offe":
         raise click.UsageError("--online works with --method stimulus, natural or frames (offE fits each pixel's "
                                "whole history)")
@@ -179,7 +198,8 @@ def estimate(inputs, reading, output, jobs, scheduler, as_json,
                    parameters=dict(method=method, nominal=nominal, segment_us=segment_us, stimulus=stimulus,
                                    phase=stimulus_phase, min_events=min_events, max_fit=max_fit, radius_px=radius,
                                    interval_us=interval_us, forget_us=forget,
-                                   **({"black_level": black_level} if method == "frames" else {})), slicing=slicing)
+                                   **({"black_level": black_level} if method == "frames" or scaled_by_frames
+                                      else {})), slicing=slicing)
     run(estimate_one, pairs, options, jobs, scheduler, as_json)
 
 
@@ -206,7 +226,8 @@ def estimate_one(input, output, *, reading, parameters, slicing=None
     with open_events(input, reading) as opened:
         stream = sliced(opened, slicing)
         try:
-            kind = FrameThresholdEstimator if parameters["method"] == "frames" else ThresholdEstimator
+            kind = (FrameThresholdEstimator if parameters["method"] == "frames" else FrameScaledEstimator
+                    if parameters["nominal"] == "frames" else ThresholdEstimator)
             estimator = kind(stream.info.width, stream.info.height, check=False, **parameters)
             consume(stream, estimator, f"estimating from {stream.name}")
             result = estimator.result()

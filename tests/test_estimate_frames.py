@@ -167,6 +167,39 @@ def test_the_frames_give_absolute_thresholds_better_than_events_alone(davis, tmp
     assert 2 * frames_rmse <= np.sqrt(np.mean(natural_errors**2)), (frames_rmse, natural_errors)
 
 
+def test_natural_takes_its_scale_from_the_frames(davis, tmp_path):
+    """estimate --method natural --nominal frames: one scale per polarity from the frames, so the map is absolute
+    (within 2 % of the true mean ON and OFF thresholds here, measured 0.2-0.9 % on samples/frames.py's setups)
+    and as accurate as natural given the true mean as --nominal (within 0.5 points of RMS error); the scale's
+    error in the attributes and in every pixel's fit."""
+    path, on, off = davis
+    run("estimate", path, "--method", "natural", "--nominal", "frames", "-o", tmp_path / "scaled.h5")
+    with h5py.File(tmp_path / "scaled.h5") as f:
+        est_on, est_off, valid, fit = f["on"][()], f["off"][()], f["valid"][()], f["fit"][()]
+        attributes = dict(f.attrs)
+    assert attributes["scale"] == "absolute" and attributes["nominal"] == "frames"
+    assert abs(np.median(est_on[valid] / on[valid]) - 1) <= 0.02
+    assert abs(np.median(est_off[valid] / off[valid]) - 1) <= 0.02
+    assert 0 < attributes["scale_error"] < 0.02 and np.all(fit[valid] >= attributes["scale_error"] * 0.999)
+    errors = np.concatenate([est_on[valid] / on[valid] - 1, est_off[valid] / off[valid] - 1])
+    events = evtools.read(path)[0]
+    natural = estimate_thresholds(events, W, H, "natural", nominal=float((on.mean() + off.mean()) / 2))
+    usable = natural.valid
+    natural_errors = np.concatenate([natural.on[usable] / on[usable] - 1, natural.off[usable] / off[usable] - 1])
+    assert np.sqrt(np.mean(errors**2)) <= np.sqrt(np.mean(natural_errors**2)) + 0.005
+    no_frames = tmp_path / "events.aedat4"
+    evtools.write(no_frames, events, evtools.StreamInfo(W, H))
+    done = run("estimate", no_frames, "--method", "natural", "--nominal", "frames", "-o", tmp_path / "t.h5",
+               check=False)
+    assert_clean_error(done, "events.aedat4", "no APS frames")
+    assert not (tmp_path / "t.h5").exists()
+    for options in (["--method", "stimulus", "--nominal", "frames"], ["--online", "--nominal", "frames"],
+                    ["--nominal", "framez"], ["--nominal", "-0.2"]):
+        done = run("estimate", path, "--method", "natural", *options, "-o", tmp_path / "t.h5", check=False)
+        assert done.returncode == 2 and "--nominal" in done.stderr.decode(), (options, done.stderr)
+    assert not (tmp_path / "t.h5").exists()
+
+
 FIT_SCALE = 1.5
 """How far the fit may be from the RMS error it predicts (a factor): its model leaves out the pan's speed."""
 
