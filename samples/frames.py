@@ -29,7 +29,8 @@ estimate (it needs 12 usable frames a pixel), so they show the constant threshol
 Thresholds: ``valid`` the share of pixels the estimate calls valid (of those not mostly saturated), RMSE the
 relative error over valid pixels (ON and OFF), ``> 10 %`` the share of valid pixels whose worse threshold is more
 than 10 % off. ``natural`` gets the true mean threshold as its ``--nominal`` (events alone give no scale), so its
-errors are the spread it gets wrong, not the scale. Reconstruction: each frame predicted from the previous one and
+errors are the spread it gets wrong, not the scale; ``natural --nominal frames`` takes its scale (per polarity)
+from the frames instead. Reconstruction: each frame predicted from the previous one and
 the events between (RMSE in log units over pixels neither dark nor saturated in both), against holding the
 previous frame; ``explained`` is the share of the hold's squared error the events remove.
 
@@ -50,7 +51,7 @@ sys.path.insert(0, str(ROOT))
 
 import evtools  # noqa: E402
 from evtools.estimation import EstimationError, estimate_thresholds  # noqa: E402
-from evtools.estimation_frames import FrameThresholdEstimator  # noqa: E402
+from evtools.estimation_frames import FrameScaledEstimator, FrameThresholdEstimator  # noqa: E402
 from evtools.metrics.frames import FramePrediction  # noqa: E402
 from tests.naive.davis import davis_recording  # noqa: E402
 
@@ -115,8 +116,12 @@ def simulated_rows(name, setup, seed):
     estimator.add_frames(frames)
     by_frames = estimator.result()
     natural = estimate_thresholds(events, W, H, "natural", nominal=float((on.mean() + off.mean()) / 2))
+    scaled = FrameScaledEstimator(W, H, "natural")
+    scaled.process(events)
+    scaled.add_frames(frames)
     accuracy_rows = [(name, "frames", accuracy(by_frames, on, off, unsaturated)),
-                     (name, "natural (the true mean as --nominal)", accuracy(natural, on, off, unsaturated))]
+                     (name, "natural (the true mean as --nominal)", accuracy(natural, on, off, unsaturated)),
+                     (name, "natural --nominal frames", accuracy(scaled.result(), on, off, unsaturated))]
     maps = {"constant 0.2": (TARGET, TARGET), "the true maps": (on, off), "natural's map": usable_map(natural)}
     if by_frames.valid.any():  # (none valid: no map to use, and nothing to correct with)
         maps["frames' map"] = usable_map(by_frames)

@@ -50,17 +50,21 @@ def texture_signal(width, height, duration_us, *, seed, contrast=0.8, waves=24, 
     return times, levels
 
 
-def crossings(times_us, levels, theta_on, theta_off):
+def crossings(times_us, levels, theta_on, theta_off, drift_per_s=0.0):
     """Events of ideal pixels (thresholds (height, width) each) watching the polylines ``levels`` (n, h, w) through
     ``times_us``: an array of EVENT_FIELDS sorted by time (ties by pixel), each at its exact crossing time
-    rounded to the microsecond. Every pixel's reference starts at its first level."""
+    rounded to the microsecond. Every pixel's reference starts at its first level. ``drift_per_s``: every
+    threshold is ``1 + drift_per_s * t`` times its value (t in seconds, taken at each step's end)."""
     n, height, width = levels.shape
     flat = levels.reshape(n, -1)
     on = np.broadcast_to(np.asarray(theta_on, np.float64), (height, width)).reshape(-1)
     off = np.broadcast_to(np.asarray(theta_off, np.float64), (height, width)).reshape(-1)
     reference = flat[0].copy()
     out_t, out_pixel, out_p = [], [], []
+    base_on, base_off = on, off
     for i in range(1, n):
+        if drift_per_s:
+            on, off = (base * (1 + drift_per_s * times_us[i] * 1e-6) for base in (base_on, base_off))
         l0, l1 = flat[i - 1], flat[i]
         slope_den = np.where(l1 != l0, l1 - l0, 1.0)
         while True:  # one level at a time: a step may cross several
