@@ -38,14 +38,16 @@ def _integral(times_us, levels, begin_us, end_us):
 
 def davis_recording(width, height, duration_us, *, seed, theta_on, theta_off, rate_hz=25.0, exposure_us=5000,
                     base_log=4.2, contrast=0.6, black_level=16.0, gain=0.08, read_noise=1.5, gain_fpn=0.01,
-                    offset_fpn=1.0, pan_px_s=(20.0, 5.0), wobble_px=4.0, step_us=1000, drift_per_s=0.0):
+                    offset_fpn=1.0, pan_px_s=(20.0, 5.0), wobble_px=4.0, step_us=1000, drift_per_s=0.0,
+                    threshold_step=(None, 1.0)):
     """(events (EVENT_FIELDS), frames [(exposure_begin_us, exposure_end_us, image uint8)]) of a DAVIS: intensity
     ``exp(base_log + texture)`` (0-255-like levels), ``gain`` DN per level per ms; the thresholds drift by
-    ``drift_per_s`` of their value a second (:func:`tests.naive.texture.crossings`)."""
+    ``drift_per_s`` of their value a second, and step by ``threshold_step`` (time us, factor)
+    (:func:`tests.naive.texture.crossings`)."""
     times, levels = texture_signal(width, height, duration_us, seed=seed, contrast=contrast, pan_px_s=pan_px_s,
                                    wobble_px=wobble_px, step_us=step_us)
     levels = levels + base_log
-    events = crossings(times, levels, theta_on, theta_off, drift_per_s)
+    events = crossings(times, levels, theta_on, theta_off, drift_per_s, threshold_step)
     rng = np.random.default_rng([seed, 7])
     gain_px = gain * (1 + gain_fpn * rng.standard_normal((height, width)))
     offset_px = black_level + offset_fpn * rng.standard_normal((height, width))

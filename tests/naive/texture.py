@@ -50,11 +50,12 @@ def texture_signal(width, height, duration_us, *, seed, contrast=0.8, waves=24, 
     return times, levels
 
 
-def crossings(times_us, levels, theta_on, theta_off, drift_per_s=0.0):
+def crossings(times_us, levels, theta_on, theta_off, drift_per_s=0.0, step=(None, 1.0)):
     """Events of ideal pixels (thresholds (height, width) each) watching the polylines ``levels`` (n, h, w) through
     ``times_us``: an array of EVENT_FIELDS sorted by time (ties by pixel), each at its exact crossing time
     rounded to the microsecond. Every pixel's reference starts at its first level. ``drift_per_s``: every
-    threshold is ``1 + drift_per_s * t`` times its value (t in seconds, taken at each step's end)."""
+    threshold is ``1 + drift_per_s * t`` times its value (t in seconds, taken at each step's end); ``step``
+    (time us, factor): from that time on, times ``factor`` too."""
     n, height, width = levels.shape
     flat = levels.reshape(n, -1)
     on = np.broadcast_to(np.asarray(theta_on, np.float64), (height, width)).reshape(-1)
@@ -63,8 +64,10 @@ def crossings(times_us, levels, theta_on, theta_off, drift_per_s=0.0):
     out_t, out_pixel, out_p = [], [], []
     base_on, base_off = on, off
     for i in range(1, n):
-        if drift_per_s:
-            on, off = (base * (1 + drift_per_s * times_us[i] * 1e-6) for base in (base_on, base_off))
+        if drift_per_s or step[0] is not None:
+            factor = (1 + drift_per_s * times_us[i] * 1e-6) * (step[1] if step[0] is not None and times_us[i] >= step[0]
+                                                                else 1.0)
+            on, off = base_on * factor, base_off * factor
         l0, l1 = flat[i - 1], flat[i]
         slope_den = np.where(l1 != l0, l1 - l0, 1.0)
         while True:  # one level at a time: a step may cross several
