@@ -236,6 +236,8 @@ def estimate_one(input, output, *, reading, parameters, slicing=None
             _write_maps_so_far(estimator, output, stream.name, message)
             raise type(error)(message) from None
         attributes = {**result.attributes, "input": stream.name}
+        if "disagreement" in attributes:
+            log.warning(f"{stream.name}: {attributes['disagreement']}")
     if result.series is not None:
         series = result.series
         thresholds = ThresholdMap(series.on, series.off, series.valid, attributes, series.fit, result.phase_us,

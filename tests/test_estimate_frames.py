@@ -200,6 +200,26 @@ def test_natural_takes_its_scale_from_the_frames(davis, tmp_path):
     assert not (tmp_path / "t.h5").exists()
 
 
+def test_frames_on_another_clock_are_said_to_disagree(davis, tmp_path):
+    """Frames whose times are 0.3 s off the events' (another clock): the estimate says the events and the frames
+    disagree (attribute and a warning), and calls no pixel valid; on the events' clock it says nothing."""
+    path, on, off = davis
+    events, info, frames = evtools.read(path, frames=True)
+    shifted = tmp_path / "shifted.aedat4"
+    evtools.write(shifted, events, info, frames=[
+        evtools.Frame(frame.image, frame.t_us + 300_000, frame.exposure_begin_us + 300_000,
+                      frame.exposure_end_us + 300_000) for frame in frames])
+    done = run("estimate", shifted, "--method", "frames", "-o", tmp_path / "shifted.h5")
+    assert "disagree" in done.stderr.decode() and "clock" in done.stderr.decode()
+    with h5py.File(tmp_path / "shifted.h5") as f:
+        assert f.attrs["residual_ratio_median"] > 2 and "disagreement" in f.attrs
+        assert not f["valid"][()].any()
+    done = run("estimate", path, "--method", "frames", "-o", tmp_path / "aligned.h5")
+    assert "disagree" not in done.stderr.decode()
+    with h5py.File(tmp_path / "aligned.h5") as f:
+        assert f.attrs["residual_ratio_median"] < 2 and "disagreement" not in f.attrs
+
+
 FIT_SCALE = 1.5
 """How far the fit may be from the RMS error it predicts (a factor): its model leaves out the pan's speed."""
 
