@@ -26,7 +26,11 @@ its bias. The ``fit`` map is the larger relative error of ON and OFF, a standard
 estimate's error. A pixel is invalid when it has fewer than :data:`MIN_FRAMES` usable frames, fewer than
 ``min_events`` events or events of one polarity only, mostly saturated frames, a fit above ``max_fit``, or residuals
 more than :data:`MAX_RESIDUAL_RATIO` times what the model allows (its events and frames disagree: a hot pixel, a
-frame stream of another time base); the reasons are counted in the attributes.
+frame stream of another time base); the reasons are counted in the attributes, and when the median pixel's residuals
+are that large the estimate says the events and frames disagree as a whole.
+
+Also here: :class:`SharedTrend` (onEI's maps freed of their lag behind a drift shared by all pixels) and
+:class:`FrameScaledEstimator` (``--nominal frames``: the events-only methods on the frames' absolute scale).
 """
 
 from __future__ import annotations
