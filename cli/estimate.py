@@ -107,7 +107,8 @@ def _black_level(ctx, param, value):
                    "--online).")
 @click.option("--segment-us", type=MICROSECONDS, default=DEFAULT_SEGMENT_US, show_default=True,
               help="offe: segment length, microseconds.")
-@click.option("--nominal", type=str, default=str(DEFAULT_NOMINAL), show_default=True, metavar="THETA|frames", callback=_nominal,
+@click.option("--nominal", type=str, default=str(DEFAULT_NOMINAL), show_default=True, metavar="THETA|frames",
+              callback=_nominal,
               help="offe: the median pixel's threshold; natural: the mean of on and off (log units); events alone "
                    "do not give the scale. `frames`: the scale (per polarity) from a DAVIS recording's APS frames "
                    "(offline; --black-level as for --method frames).")

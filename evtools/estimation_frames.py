@@ -539,9 +539,10 @@ class FrameScaledEstimator:
     factor for the sensor and polarity: the median over the pixels both estimate (the frames' valid ones before
     their ``--max-fit``) of the frames' threshold over the events'. The factors' relative error (the medians'
     standard error, ``1.2533 sd / sqrt(n)``) is added to every pixel's fit. A scale per polarity also gives the
-    balance of ON against OFF that events alone cannot (a scene ending brighter than it began). Measured on the independent DAVIS generator (``samples/frames.py``'s setups): the factor within
-    0.2-0.9 % of the true mean threshold, even where no pixel's frames estimate is valid (5 ms exposures), and
-    ``natural`` as accurate as when given the true mean as ``--nominal`` (RMS 6.2-13.4 %, within 0.1 points)."""
+    balance of ON against OFF that events alone cannot (a scene ending brighter than it began). Measured on the
+    independent DAVIS generator (``samples/frames.py``'s setups): the factors within 0.2-0.9 % of the true mean
+    thresholds, even where no pixel's frames estimate is valid (5 ms exposures), and ``natural`` as accurate as
+    when given the true mean as ``--nominal`` (RMS 6.2-13.4 %, within 0.1 points)."""
 
     def __init__(self, width: int, height: int, method: str = "natural", *, black_level=DEFAULT_BLACK_LEVEL,
                  interval_us: int | None = None, check: bool = True, **parameters) -> None:

@@ -93,15 +93,6 @@ def prediction(events, frames, width, height, on, off):
     return scorer.scores()
 
 
-def usable_map(estimate):
-    """The estimate's maps with its invalid pixels at the median of its valid ones (as ``correct`` and
-    ``metrics reconstruction`` use a map file)."""
-    on, off = estimate.on.copy(), estimate.off.copy()
-    if estimate.valid.any():
-        on[~estimate.valid], off[~estimate.valid] = np.median(on[estimate.valid]), np.median(off[estimate.valid])
-    return on, off
-
-
 def simulated_rows(name, setup, seed):
     on, off = true_maps(seed)
     raw, frame_list = davis_recording(W, H, DURATION_US, seed=seed, theta_on=on, theta_off=off, black_level=0.0,
@@ -122,9 +113,9 @@ def simulated_rows(name, setup, seed):
     accuracy_rows = [(name, "frames", accuracy(by_frames, on, off, unsaturated)),
                      (name, "natural (the true mean as --nominal)", accuracy(natural, on, off, unsaturated)),
                      (name, "natural --nominal frames", accuracy(scaled.result(), on, off, unsaturated))]
-    maps = {"constant 0.2": (TARGET, TARGET), "the true maps": (on, off), "natural's map": usable_map(natural)}
+    maps = {"constant 0.2": (TARGET, TARGET), "the true maps": (on, off), "natural's map": (natural.on, natural.off)}
     if by_frames.valid.any():  # (none valid: no map to use, and nothing to correct with)
-        maps["frames' map"] = usable_map(by_frames)
+        maps["frames' map"] = (by_frames.on, by_frames.off)  # (invalid pixels hold the valid ones' median)
     recon_rows = [(name, label, prediction(events, frames, W, H, *pair)) for label, pair in maps.items()]
     if by_frames.valid.any():
         corrected = evtools.correct(events, info, by_frames, target=TARGET)
@@ -145,7 +136,7 @@ def real_rows(name, file):
         return rows + [(name, f"natural's map: none ({len(events) / (info.width * info.height):.1f} events a pixel; "
                               f"{str(error).split(':')[0]})", None)]
     rows.append((name, "natural's map (nominal 0.2)", prediction(events, frames, info.width, info.height,
-                                                                 *usable_map(natural))))
+                                                                 natural.on, natural.off)))
     corrected = evtools.correct(events, info, natural, target=TARGET)
     rows.append((name, "corrected with natural's map, then 0.2",
                  prediction(corrected, frames, info.width, info.height, TARGET, TARGET)))
@@ -197,7 +188,8 @@ def main() -> None:
         lines.append(f"| {name} | {label} | {cell(valid, valid_worst, 100, 1, ' %')} | "
                      f"{cell(rmse, rmse_worst, 100, 2, ' %')} | {cell(off, off_worst, 100, 2, ' %')} |")
     lines += ["", "## Predicting the recording's own frames (`metrics reconstruction`, no truth)", "",
-              "| recording | thresholds | prediction RMSE (log) | holding the frame | explained |", "|---|---|---|---|---|"]
+              "| recording | thresholds | prediction RMSE (log) | holding the frame | explained |",
+              "|---|---|---|---|---|"]
     for name, label, ((rmse, rmse_worst), (hold, _), (explained, _)) in merged(recon_rows, [np.max, None, None]):
         lines.append(f"| {name} | {label} | {cell(rmse, rmse_worst, 1, 4)} | {hold:.4f} | {100 * explained:.0f} % |")
     for name, label, scores in real:

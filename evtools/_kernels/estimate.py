@@ -641,8 +641,8 @@ def count_accumulate(t, x, y, p, width, block_us, counts):  # pragma: no cover -
         _count(t[k], np.int64(y[k]) * width + x[k], p[k], block_us, counts)
 
 
-# frames method (APS frames with events, Wang et al. 2019's offEI): per pixel its cumulative ON and OFF counts (16 bytes:
-# the counts of a DAVIS346 fit in a core's L2 cache)
+# frames method (APS frames with events, Wang et al. 2019's offEI): per pixel its cumulative ON and OFF counts
+# (16 bytes: the counts of a DAVIS346 fit in a core's L2 cache)
 FRAMES_ON, FRAMES_OFF = 0, 1
 FRAMES_ROW = 2
 

@@ -266,8 +266,10 @@ def naive_frame_sums(image, x0, y0, width, counts, fired, black, log_exposure, m
     """The frames method's sums for one frame, pixel by pixel in plain Python (see
     ``evtools._kernels.estimate.frame_sums``), every sum added at every frame: a pixel of the frame (``image``, its
     corner at ``x0, y0``) counts in ``saturated`` when it is; a usable one (at most ``max_events`` events in its
-    exposure: ``fired[i]``, not saturated, at least ``min_signal`` above black) adds (1, A, -B, y, A^2, B^2, -AB, Ay, -By, y^2) with A, B its ``counts`` at the exposure's middle;
-    with ``sample_step``, every such pixel also to ``half[side]`` by its level against its mean so far."""
+    exposure: ``fired[i]``, not saturated, at least ``min_signal`` above black) adds (1, A, -B, y, A^2, B^2, -AB,
+    Ay, -By, y^2) to ``sums``, with A, B its ``counts`` at the exposure's middle, and 1 / (DN - black) to
+    ``inverse_sums``; with ``sample_step``, every such pixel also to ``half[side]`` by its level against its mean
+    so far."""
     for row in range(image.shape[0]):
         for column in range(image.shape[1]):
             i = (y0 + row) * width + x0 + column
