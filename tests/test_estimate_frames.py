@@ -405,7 +405,9 @@ def test_online_maps_follow_a_drift_shared_by_all_pixels(seed, drift):
         estimator = FrameThresholdEstimator(W, H, max_fit=0.1, interval_us=1_000_000)
         estimator.process(evtools.make_events(events["t"], events["x"], events["y"], events["p"]))
         estimator.add_frames([evtools.Frame(image, (b + e) // 2, b, e) for b, e, image in frames])
-        results[rate] = estimator.result().series
+        result = estimator.result()
+        assert result.attributes["steps_seen"] == 0  # a drift is not a step
+        results[rate] = result.series
     series = results[drift]
     checked = 0
     for k, t_us in enumerate(series.t_us):
@@ -426,11 +428,10 @@ def test_online_maps_follow_a_drift_shared_by_all_pixels(seed, drift):
 @given(seed=st.integers(0, 2**32 - 1), factor=st.sampled_from([1.3, 1 / 1.3]))
 def test_online_maps_recover_from_a_threshold_step(seed, factor):
     """onEI (0.5 s maps, 1.5 s memory) on the independent generator, every threshold stepping x1.3 or /1.3 at 7 s:
-    from two seconds after the step each map's median ratio to the new thresholds is within 8 %, from five seconds
-    (3.3 forgetting times) within 3.5 %. Measured over 3 seeds x both steps: at 2 s 0.5-5.7 % with the shared
-    trend's correction (6.2-10.9 % without), then an overshoot of up to 6.9 % (the rate fitted over two forgetting
-    times takes the step for a drift), from 5 s at most 2.6 % (without: 2.2 %). Issue 38's 'within 2 s' is not
-    met."""
+    the step is seen within a second (the short memory against the long one), and from two seconds after it each
+    map's median ratio to the new thresholds is within 5 %, from 2.5 s within 3.5 %. Measured over 3 seeds x both
+    steps: seen at 7.53 s each time; at 2 s 0.7-4.4 % off, from 2.5 s at most 2.9 % (before the step detection, with
+    the drift correction alone: 0.5-5.7 % at 2 s then an overshoot to 6.9 %; with neither, 6.2-10.9 % at 2 s)."""
     on, off = _thresholds(seed % 1000)
     events, frames = davis_recording(W, H, 14_000_000, seed=seed, theta_on=on, theta_off=off, exposure_us=10_000,
                                      pan_px_s=(30.0, -8.0), wobble_px=6.0, black_level=0.0,
@@ -438,14 +439,16 @@ def test_online_maps_recover_from_a_threshold_step(seed, factor):
     estimator = FrameThresholdEstimator(W, H, max_fit=0.1, interval_us=500_000)
     estimator.process(evtools.make_events(events["t"], events["x"], events["y"], events["p"]))
     estimator.add_frames([evtools.Frame(image, (b + e) // 2, b, e) for b, e, image in frames])
-    series = estimator.result().series
+    result = estimator.result()
+    assert result.attributes["steps_seen"] == 1 and 7_000_000 < result.attributes["steps_us"][0] <= 8_000_000
+    series = result.series
     checked = 0
     for k, t_us in enumerate(series.t_us):
         valid = series.valid[k]
         if t_us < 9_000_000 or valid.sum() < 100:
             continue
-        bound = 0.08 if t_us < 12_000_000 else 0.035
+        bound = 0.05 if t_us < 9_500_000 else 0.035
         for estimated, true in ((series.on[k], on), (series.off[k], off)):
             assert abs(np.median(estimated[valid] / (true[valid] * factor)) - 1) <= bound, (t_us, factor)
-        checked += t_us >= 12_000_000
-    assert checked >= 3
+        checked += 1
+    assert checked >= 8
