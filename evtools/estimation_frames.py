@@ -320,18 +320,6 @@ class FrameThresholdEstimator:
             return False
         return True
 
-    def _full(self, frame) -> tuple[np.ndarray, np.ndarray]:
-        """The frame's DN on the whole sensor (flattened, float64) and where it has pixels (it fits)."""
-        height, width = frame.image.shape
-        x0, y0 = frame.offset_x, frame.offset_y
-        if (x0, y0, width, height) == (0, 0, self.width, self.height):
-            return frame.image.astype(np.float64).reshape(-1), np.ones(self.width * self.height, bool)
-        dn = np.zeros((self.height, self.width))
-        inside = np.zeros((self.height, self.width), bool)
-        dn[y0:y0 + height, x0:x0 + width] = frame.image
-        inside[y0:y0 + height, x0:x0 + width] = True
-        return dn.reshape(-1), inside.reshape(-1)
-
     def _log_table(self, index: int, levels: int) -> np.ndarray:
         """log(DN - black) for black-level candidate ``index`` and every DN of ``levels`` (NaN: dark or saturated)."""
         table = self.log_tables.get((index, levels))
@@ -391,32 +379,34 @@ class FrameThresholdEstimator:
         if self.next_map_us is None:
             self.next_map_us = t_us + self.interval_us
         while t_us >= self.next_map_us:
-            self._step(self.next_map_us)
-            self.maps.append(self._map_of(self.next_map_us, self._without_lag(self.next_map_us, self._solve())))
+            fits = [self._fit(index) for index in range(len(self.candidates))]
+            if self._step(self.next_map_us, fits[0]):
+                fits[0] = self._fit(0)  # (the long memory restarted)
+            self.maps.append(self._map_of(self.next_map_us, self._without_lag(self.next_map_us, self._solve(fits))))
             self.next_map_us += self.interval_us
 
-    def _step(self, t_us: int) -> None:
+    def _step(self, t_us: int, whole: dict) -> bool:
         """onEI: a threshold step shared by the pixels, seen and followed. The short memory (one interval) against the
         long one (``forget_us``): under a drift at rate r their shared ratio is about ``exp(r (forget - interval))``;
         when the median over the pixels both fit differs from that by more than :data:`STEP_SHARE` for ON or OFF,
         the thresholds stepped, and the long memory restarts from the short one (its older frames belong to the
         thresholds before; the shared trend restarts too). Measured on the independent generator (0.25 s maps):
-        the ratio stays within 1.4 % without a step and passes 5 % 0.3-0.5 s after a x1.3 or /1.3 step."""
+        the ratio stays within 1.4 % without a step and passes 5 % 0.3-0.5 s after a x1.3 or /1.3 step. ``whole``:
+        the long memory's fit; returns whether it restarted."""
         if self.short is None:
-            return
+            return False
         short = self.short
         fold_runs(short["sums"], short["runs"], short["run_counts"])
         recent = _least_squares(short["sums"], short["new_counts"], short["inverse_sums"])
-        whole = self._fit(0)
         both = recent["solved"] & whole["solved"] & (recent["n"] >= MIN_FRAMES / 2) & (whole["n"] >= MIN_FRAMES)
         with np.errstate(divide="ignore", invalid="ignore"):
             both &= (recent["on"] > 0) & (recent["off"] > 0) & (whole["on"] > 0) & (whole["off"] > 0)
         if both.sum() < MIN_SCALE_PIXELS:
-            return
+            return False
         expected = self.trend.rates * (self.forget_us - self.interval_us) * 1e-6 if self.trend else np.zeros(2)
         shift = [math.log(np.median(recent[key][both] / whole[key][both])) for key in ("on", "off")]
         if max(abs(shift[0] - expected[0]), abs(shift[1] - expected[1])) <= math.log1p(STEP_SHARE):
-            return
+            return False
         self.sums[0] = short["sums"]
         self.runs[0] = short["runs"]
         self.run_counts[0] = short["run_counts"]
@@ -424,6 +414,7 @@ class FrameThresholdEstimator:
         self.inverse_sums[0] = short["inverse_sums"]
         self.trend = None
         self.steps_us.append(int(t_us))
+        return True
 
     def _black_level(self, fits: list[dict]) -> tuple[dict, float]:
         """The fit at the black level where a pixel's thresholds do not depend on its brightness. A black level
@@ -460,8 +451,11 @@ class FrameThresholdEstimator:
         self.black_level_unsure = True
         return fits[best], float(self.candidates[best])
 
-    def _solve(self) -> ThresholdEstimate:
-        fit, black_level = self._black_level([self._fit(index) for index in range(len(self.candidates))])
+    def _solve(self, fits: list[dict] | None = None) -> ThresholdEstimate:
+        """The maps from the sums so far (``fits``: each black level's :meth:`_fit`, when made already)."""
+        if fits is None:
+            fits = [self._fit(index) for index in range(len(self.candidates))]
+        fit, black_level = self._black_level(fits)
         on, off = fit["on"], fit["off"]
         n_events = self.counts[:, FRAMES_ON] + self.counts[:, FRAMES_OFF]
         frames_seen = self.frames_seen + self.full_frames

@@ -60,6 +60,18 @@ class FramePrediction(FrameThresholdEstimator):
         self.previous = (log_frame, usable, counts)
         self.frames_used += 1
 
+    def _full(self, frame) -> tuple[np.ndarray, np.ndarray]:
+        """The frame's DN on the whole sensor (flattened, float64) and where it has pixels (it fits the sensor)."""
+        height, width = frame.image.shape
+        x0, y0 = frame.offset_x, frame.offset_y
+        if (x0, y0, width, height) == (0, 0, self.width, self.height):
+            return frame.image.astype(np.float64).reshape(-1), np.ones(self.width * self.height, bool)
+        dn = np.zeros((self.height, self.width))
+        inside = np.zeros((self.height, self.width), bool)
+        dn[y0:y0 + height, x0:x0 + width] = frame.image
+        inside[y0:y0 + height, x0:x0 + width] = True
+        return dn.reshape(-1), inside.reshape(-1)
+
     def scores(self) -> dict:
         """RMS prediction error (log units) over every compared pixel and pair, the same for holding the previous
         frame, the share of the hold's squared error the events explain, and per pair."""
