@@ -59,16 +59,20 @@ def process_stream(stream, processor, writer, label: str) -> tuple[int, int]:
     events_in = events_out = 0
     frames = FrameRelay(stream, writer)
     released = getattr(processor, "released_us", lambda last_us: last_us)
+    # the output in parts where the processor gives it so (a corrector may release millions of events at once)
+    process_parts = getattr(processor, "process_parts", lambda chunk: [processor.process(chunk)])
+    flush_parts = getattr(processor, "flush_parts", lambda: [processor.flush()])
     for chunk in with_progress(stream, stream, label):
         events_in += len(chunk)
-        out = processor.process(chunk)
-        events_out += len(out)
-        if len(out):
-            writer.write(out)
+        for out in process_parts(chunk):
+            events_out += len(out)
+            if len(out):
+                writer.write(out)
         frames.release(released(int(chunk["t"][-1])))
-    rest = processor.flush()
-    if len(rest):
-        writer.write(rest)
+    for rest in flush_parts():
+        events_out += len(rest)
+        if len(rest):
+            writer.write(rest)
     frames.release(None)
     writer.cut = getattr(stream, "was_cut", False)  # a cut input's output ends without the end mark too
-    return events_in, events_out + len(rest)
+    return events_in, events_out

@@ -324,24 +324,32 @@ class ThresholdCorrector:
             self._state["last_us"][self._use] = origin
 
     def process(self, chunk: np.ndarray) -> np.ndarray:
-        """The corrected events that are final once ``chunk`` (time-sorted, after the previous ones) is seen.
+        """The corrected events that are final once ``chunk`` (time-sorted, after the previous ones) is seen:
+        :meth:`process_parts` joined."""
+        parts = list(self.process_parts(chunk))
+        return parts[0] if len(parts) == 1 else join([empty_events(), *parts])
+
+    def process_parts(self, chunk: np.ndarray):
+        """:meth:`process` as a generator of parts in time order, each of about :data:`PART` events or fewer (a
+        stream whose pixels have not all fired is held for up to a hold from its start, then released at once: 7.5
+        million events at 25 Mev/s). Consume it whole before the next chunk.
 
         A chunk is taken in parts of at most :data:`PART` events; each part is split into the lanes (:data:`LANES`),
         which are re-sampled and released side by side. The output is the same whatever the chunks and threads."""
         chunk = self._checker.check(chunk) if self._checker else as_chunk(chunk)
         if len(chunk) == 0:
-            return empty_events()
+            return
         if not self._started:
             self._start(int(chunk["t"][0]))
         self._last_us = int(chunk["t"][-1])
         if self._series is not None:
-            return self._process_series(chunk)
-        return self._process(chunk)
+            yield from self._process_series(chunk)
+        else:
+            yield from self._process(chunk)
 
-    def _process_series(self, chunk: np.ndarray) -> np.ndarray:
+    def _process_series(self, chunk: np.ndarray):
         """:meth:`_process` in parts cut at the maps' times, each map taking over before its first event."""
         times, maps_on, maps_off = self._series
-        pieces = []
         while len(chunk):
             if self._map + 1 < len(times) and chunk["t"][0] >= times[self._map + 1]:
                 self._map = int(np.searchsorted(times, chunk["t"][0], side="right")) - 1
@@ -350,15 +358,14 @@ class ThresholdCorrector:
             end = len(chunk)
             if self._map + 1 < len(times):
                 end = int(np.searchsorted(chunk["t"], times[self._map + 1], side="left"))
-            pieces.append(self._process(chunk[:end]))
+            yield from self._process(chunk[:end])
             chunk = chunk[end:]
-        return join(pieces)
 
-    def _process(self, chunk: np.ndarray) -> np.ndarray:
+    def _process(self, chunk: np.ndarray):
         if not self._any_use:  # every pixel at the target: the input, bit for bit and in its order
-            return join([chunk])  # copied as raw records (chunk.copy() leaves the padding undefined)
+            yield join([chunk])  # copied as raw records (chunk.copy() leaves the padding undefined)
+            return
         words = record_words(np.ascontiguousarray(chunk))
-        pieces = []
         for begin in range(0, len(words), PART):
             part = words[begin:begin + PART]
             even, odd = self._lanes[0].input_room(len(part)), self._lanes[1].input_room(len(part))
@@ -372,10 +379,22 @@ class ThresholdCorrector:
             self._each_lane(lambda lane, lane_words: lane.hold(lane.resample(self, lane_words, checks_us)),
                             [even[:n_even], odd[:n_odd]], parallel)
             bound = self._released_us = self._bound(int(part[-1, 0]))
-            released = self._each_lane(lambda lane, _: lane.release(bound), [None] * LANES, parallel)
-            pieces.append(np.empty(sum(len(times) for times, _ in released), EVENT_DTYPE))
-            self._merged(released, pieces[-1], 0)
-        return pieces[0] if len(pieces) == 1 else join(pieces)
+            yield from self._release(bound, parallel)
+
+    def _release(self, bound: int, parallel: bool):
+        """The held events before ``bound`` in time order, in parts of about :data:`PART` events: the bound
+        stepped evenly in time through what is held when more than that lies before it, so that the merge buffers
+        stay near a part's size."""
+        total = sum(lane.count_before(bound) for lane in self._lanes)
+        steps = max(1, -(-total // PART))
+        first_us = min((lane.held_span_us()[0] for lane in self._lanes if lane.runs), default=bound)
+        last_us = min(max((lane.held_span_us()[1] + 1 for lane in self._lanes if lane.runs), default=bound), bound)
+        for step in range(1, steps + 1):
+            step_us = first_us + (last_us - first_us) * step // steps if step < steps else bound
+            released = self._each_lane(lambda lane, _: lane.release(step_us), [None] * LANES, parallel)
+            part = np.empty(sum(len(times) for times, _ in released), EVENT_DTYPE)
+            self._merged(released, part, 0)
+            yield part
 
     def _each_lane(self, work, arguments: list, parallel: bool) -> list:
         """``work(lane, argument)`` for every lane, the second lane on the pool's thread when ``parallel``."""
@@ -417,28 +436,25 @@ class ThresholdCorrector:
         ``latency_us`` before ``t_now``."""
         if not self._any_use:
             return t_now
-        self._earliest = earliest_start(self._state, self._status, *self._earliest)
+        rest_us = NO_EVENT_US if self.mode == "foh" else self.hold_us
+        self._earliest = earliest_start(self._state, self._status, *self._earliest, t_now, rest_us)
         return min(max(self._earliest[0], t_now - self.latency_us), t_now)
 
     def flush(self) -> np.ndarray:
         """The segments still waiting for a next event, re-sampled with what is known, and everything held (the
-        stream ended), released in steps of about :data:`PART` events (a dense stream holds millions: one release
-        of them all would need its merge buffers at that size)."""
+        stream ended), in time order: :meth:`flush_parts` joined."""
+        return join([empty_events(), *self.flush_parts()])
+
+    def flush_parts(self):
+        """:meth:`flush` as a generator of parts in time order, of about :data:`PART` events each (a dense
+        stream holds millions; one release of them all would need its output and merge buffers at that size)."""
         for lane in self._lanes:
             lane.hold(lane.settle_all(self))
-        out = np.empty(self.held, EVENT_DTYPE)
-        spans = [lane.held_span_us() for lane in self._lanes if lane.runs]
-        if not spans:
-            return out
-        # bounds evenly spaced in time across what is held, one per PART events: as many releases as parts
-        first_us = min(first for first, _ in spans)
-        span_us = max(last for _, last in spans) - first_us
-        steps = -(-len(out) // PART)
-        filled = 0
-        for step in range(1, steps + 1):
-            bound = first_us + span_us * step // steps if step < steps else NO_EVENT_US
-            filled = self._merged([lane.release(bound) for lane in self._lanes], out, filled)
-        return out
+        yield from (part for part in self._release(NO_EVENT_US, False) if len(part))
+
+
+NO_ROOM = (np.empty(0, np.int64), np.empty(0, np.int64))
+"""Output buffers of no room: :func:`release_runs` then only counts."""
 
 
 def _buffers(capacity: int) -> tuple[np.ndarray, np.ndarray]:
@@ -491,6 +507,11 @@ class _Lane:
         """The earliest and the latest time held (the runs are sorted); only when something is held."""
         times = self.held[0]
         return int(times[self.begins[:self.runs]].min()), int(times[self.ends[:self.runs] - 1].max())
+
+    def count_before(self, bound: int) -> int:
+        """How many held events lie before ``bound``."""
+        count, _ = release_runs(*self.held, self.begins, self.ends, self.runs, bound, *NO_ROOM, *NO_ROOM)
+        return count
 
     def input_room(self, count: int) -> np.ndarray:
         """Room for ``count`` input events ((count, 2) int64) of a part, reused from part to part."""

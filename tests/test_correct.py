@@ -399,12 +399,60 @@ def test_earliest_start_against_numpy(mode, turns, seed, cuts, part):
             state, status = corrector._state, corrector._status
             waiting = np.isin(np.abs(status), [TURN, FIRST, LINES])
             starts = state["last_us"] - np.where(waiting, state["pending_us"], 0)
-            answers = [earliest_start(state, status, NO_EVENT_US, -1)] + [corrector._earliest] * (len(chunk) > 0)
+            # a pixel yet to fire (anchored at the stream's start with turns) creates events there only if it
+            # fires within a hold of it (then after a rest: at its own time); foh has no rests
+            now_us, rest_us = int(corrector._last_us), NO_EVENT_US if mode == "foh" else 300
+            starts[(status == 0) & (starts != NO_EVENT_US) & (now_us - starts > rest_us)] = NO_EVENT_US
+            answers = ([earliest_start(state, status, NO_EVENT_US, -1, now_us, rest_us)]
+                       + [corrector._earliest] * (len(chunk) > 0))
             for earliest_us, pixel in answers:
                 assert earliest_us == starts.min()
                 assert starts[pixel] == earliest_us if earliest_us != NO_EVENT_US else pixel == -1
             if len(chunk):  # a start is never after the newest event
                 assert starts.min() <= int(chunk["t"][-1])
+
+
+@pytest.mark.parametrize("mode", ["exponential", "turns", "highpass"])
+def test_pixels_that_never_fire_hold_nothing_back_after_a_hold(mode):
+    """With turns a pixel's reconstruction is anchored at the stream's start, so until one hold has passed a pixel
+    yet to fire may still create events back to it; after that its first event comes after a rest (all at its own
+    time) and the output is released up to the pixels that fired (here: a few firing every 100 us, the rest of
+    the sensor silent): what is held stays within a window of the newest input, not the three of the latency."""
+    rng = np.random.default_rng(5)
+    times = np.arange(0, 200_000, 100)
+    x, y = rng.integers(0, 3, len(times)), rng.integers(0, 2, len(times))
+    events = make_events(times, x, y, rng.integers(0, 2, len(times)))
+    on, off = thresholds(5)
+    options = dict(target=0.2, mode=mode, hold_us=10_000, max_gap_us=10_000)
+    corrector = ThresholdCorrector(W, H, on, off, **options)
+    assert corrector.latency_us == 30_000
+    released = []
+    for chunk in cut(events, range(0, len(events), 50)):
+        released.append(corrector.process(chunk))
+        if len(chunk) and chunk["t"][-1] > 20_000:
+            oldest_us = min((lane.held_span_us()[0] for lane in corrector._lanes if lane.runs), default=None)
+            assert corrector.held == 0 or oldest_us >= chunk["t"][-1] - 10_000
+    assert_same_events(join(released + [corrector.flush()]), correct_thresholds(events, W, H, on, off, **options))
+
+
+def test_a_large_release_comes_in_parts():
+    """What a chunk releases at once (here the first hold's worth: everything waits while some pixel has not
+    fired) comes from :meth:`process_parts` in parts of about PART events, and the parts joined are
+    :meth:`process`'s output, as is :meth:`flush_parts`' for the flush."""
+    events = random_events(6000, W, H, seed=12)
+    events["t"] = np.arange(6000) * 10
+    on, off = thresholds(12)
+    options = dict(target=0.2, mode="exponential", hold_us=20_000, max_gap_us=20_000)
+    whole = correct_thresholds(events, W, H, on, off, **options)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr("evtools.correction.PART", 500)
+        corrector = ThresholdCorrector(W, H, on, off, **options)
+        parts = [list(corrector.process_parts(chunk)) for chunk in cut(events, [3000])]
+        assert max(len(part) for chunk_parts in parts for part in chunk_parts) <= 1000
+        assert sum(len(chunk_parts) for chunk_parts in parts) >= 5
+        rest = list(corrector.flush_parts())
+        assert rest and max(len(part) for part in rest) <= 1000
+    assert_same_events(join([part for chunk_parts in parts for part in chunk_parts] + rest), whole)
 
 
 @pytest.mark.parametrize("mode, latency_us", [("foh", 500), ("highpass", 1500), ("exponential", 1500)])

@@ -776,33 +776,41 @@ def compact_waiting(state, queue_pixel, queue_us, head, tail):  # pragma: no cov
 
 
 @kernel(inline=True)
-def _start_of(state, status, pixel):
-    """The earliest time ``pixel``'s next created event can lie at: its latest event, or the start of the segment
-    that waits for its next event (a turn's or a first ramp's, ``pending_us`` before it; a tail starts at the
-    event)."""
+def _start_of(state, status, pixel, now_us, rest_us):
+    """The earliest time ``pixel``'s next created event can lie at, once the stream has reached ``now_us``: its
+    latest event, or the start of the segment that waits for its next event (a turn's or a first ramp's,
+    ``pending_us`` before it; a tail starts at the event). A pixel that has not fired yet (its reconstruction
+    anchored at the stream's start, ``turns``) creates its first events at the stream's start only if it fires
+    within ``rest_us`` of it (``hold_us``: later, its first event comes after a rest and all it creates is at its
+    own time, at or after ``now_us``): NO_EVENT_US once ``now_us`` is past that (NO_EVENT_US for ``rest_us``:
+    ``foh``, which has no rests)."""
     start = state[pixel].last_us
     kind = abs(status[pixel])
     if kind == TURN or kind == FIRST or kind == LINES:
         start -= state[pixel].pending_us
+    elif kind == 0 and start != NO_EVENT_US and now_us - start > rest_us:
+        start = NO_EVENT_US
     return start
 
 
 @kernel
-def earliest_start(state, status, hint_us, hint_pixel):  # pragma: no cover - compiled
-    """The earliest time any pixel's next created event can lie at (:func:`_start_of`), and a pixel where it is;
-    NO_EVENT_US (and -1) when no pixel has fired.
+def earliest_start(state, status, hint_us, hint_pixel, now_us, rest_us):  # pragma: no cover - compiled
+    """The earliest time any pixel's next created event can lie at once the stream has reached ``now_us``
+    (:func:`_start_of`), and a pixel where it is; NO_EVENT_US (and -1) when no pixel can create an event before
+    ``now_us``.
 
     ``hint_us`` and ``hint_pixel`` are the previous call's answer (pixel -1: none). A pixel's start never decreases (its
     latest event only moves on, a waiting segment starts at the event before, which is at or after where the pixel's
-    start was), and a pixel firing for the first time starts at its event, after every start that exists; so while
-    the hinted pixel's start is still ``hint_us`` that is still the earliest, and the scan of every pixel (2.4 MB
-    of state on a 640 x 480 sensor, 48 ns an event with 2,048-event chunks) is skipped."""
-    if hint_pixel >= 0 and _start_of(state, status, hint_pixel) == hint_us:
+    start was, a pixel that has not fired only loses its start at the stream's start), and a pixel firing starts
+    at its event, after every start that exists; so while the hinted pixel's start is still ``hint_us`` that is
+    still the earliest, and the scan of every pixel (2.4 MB of state on a 640 x 480 sensor, 48 ns an event with
+    2,048-event chunks) is skipped."""
+    if hint_pixel >= 0 and _start_of(state, status, hint_pixel, now_us, rest_us) == hint_us:
         return hint_us, hint_pixel
     earliest = NO_EVENT_US
     where = -1
     for pixel in range(status.shape[0]):
-        start = _start_of(state, status, pixel)
+        start = _start_of(state, status, pixel, now_us, rest_us)
         if start < earliest:
             earliest = start
             where = pixel
