@@ -490,7 +490,7 @@ class _Lane:
         self.head = self.tail = 0
         self.new = _buffers(1 << 16)
         self.counts = np.empty(0, dtype=np.int64)
-        self.held = _buffers(0)  # the runs' times and second words
+        self.held = _buffers(0)  # the runs' times and second words (resized in place: never viewed between calls)
         self.filled = 0  # where the last run ends in ``held``
         self.begins = np.empty(16, np.int64)  # run r: held[begins[r]:ends[r]] not yet released, oldest run first
         self.ends = np.empty(16, np.int64)
@@ -579,7 +579,8 @@ class _Lane:
             self.filled = compact_runs(*self.held, self.begins, self.ends, self.runs)
             need = self.filled + n
             if need > len(self.held[0]) or 4 * need < len(self.held[0]):
-                self.held = _grown(self.held, need + need // 4, self.filled)
+                for buffer in self.held:  # in place: a large buffer is remapped, not copied beside itself
+                    buffer.resize(need + need // 4, refcheck=False)  # (no view of it outlives a call)
         if self.runs == len(self.begins):
             self.begins, self.ends = _grown((self.begins, self.ends), 2 * self.runs, self.runs)
         end = self.filled + n
