@@ -95,6 +95,13 @@ ages drawn with weights ``exp(-age / F)``, weighted by their distance, is 1.5 F 
 generator (8 seeds, +/-2 %/s, 12 s, 1 s maps, 3 s memory) at 32 x 24 and at 64 x 48: mean error of the maps from 6 s
 on -0.8 / +1.7 % (rising / falling drift) with F, -0.1 / +0.8 % with 1.2 F, +0.3 / +0.3 % with 1.3 F (the +0.3 %
 is the estimate's own at no drift), +0.7 / -0.3 % with 1.4 F."""
+RESTART_WEIGHT = math.exp(-1.0)
+"""onEI: after a step the long memory restarts from the short one aged by one interval (its sums times ``exp(-1)``):
+the step is seen about half an interval after it happened, when a third of the short memory's weight is still
+the old thresholds' frames. Copied at full weight they held the maps 10-17 % off for the first map after the step
+(with 36-203 pixels valid) and 2-4 % off two seconds later; aged, the first map has almost no pixel valid (its
+pixels have too few frames' worth) and the later ones come back nearer (0.2-3.3 % two seconds after a x1.3 or
+/1.3 step against 0.6-4.4 %, 8 seeds, the independent generator; the README gives the setup)."""
 BLACK_LEVEL_SAMPLE = 4
 """Every this many pixels take part in the black level's test (its sums, twice per candidate, for a quarter of the
 sensor)."""
@@ -396,10 +403,10 @@ class FrameThresholdEstimator:
 
     def _step(self, t_us: int, whole: dict) -> bool:
         """onEI: a threshold step shared by the pixels, seen and followed. The short memory (one interval) against the
-        long one (``forget_us``): under a drift at rate r their shared ratio is about ``exp(r (forget - interval))``;
-        when the median over the pixels both fit differs from that by more than :data:`STEP_SHARE` for ON or OFF,
-        the thresholds stepped, and the long memory restarts from the short one (its older frames belong to the
-        thresholds before; the shared trend restarts too). Measured on the independent generator (0.25 s maps):
+        long one (``forget_us``): under a drift at rate r their shared ratio is about ``exp(r LAG_FORGETS (forget -
+        interval))``; when the median over the pixels both fit differs from that by more than :data:`STEP_SHARE` for
+        ON or OFF, the thresholds stepped, and the long memory restarts from the short one aged by one interval
+        (:data:`RESTART_WEIGHT`; its older frames belong to the thresholds before; the shared trend restarts too). Measured on the independent generator (0.25 s maps):
         the ratio stays within 1.4 % without a step and passes 5 % 0.3-0.5 s after a x1.3 or /1.3 step. ``whole``:
         the long memory's fit; returns whether it restarted."""
         if self.short is None:
@@ -412,15 +419,14 @@ class FrameThresholdEstimator:
             both &= (recent["on"] > 0) & (recent["off"] > 0) & (whole["on"] > 0) & (whole["off"] > 0)
         if both.sum() < MIN_SCALE_PIXELS:
             return False
-        expected = self.trend.rates * (self.forget_us - self.interval_us) * 1e-6 if self.trend else np.zeros(2)
+        expected = (self.trend.rates * LAG_FORGETS * (self.forget_us - self.interval_us) * 1e-6 if self.trend
+                    else np.zeros(2))
         shift = [math.log(np.median(recent[key][both] / whole[key][both])) for key in ("on", "off")]
         if max(abs(shift[0] - expected[0]), abs(shift[1] - expected[1])) <= math.log1p(STEP_SHARE):
             return False
-        self.sums[0] = short["sums"]
-        self.runs[0] = short["runs"]
-        self.run_counts[0] = short["run_counts"]
-        self.new_counts[0] = short["new_counts"]
-        self.inverse_sums[0] = short["inverse_sums"]
+        for name, memory in (("sums", self.sums), ("runs", self.runs), ("run_counts", self.run_counts),
+                             ("new_counts", self.new_counts), ("inverse_sums", self.inverse_sums)):
+            memory[0] = short[name] * RESTART_WEIGHT
         self.trend = None
         self.steps_us.append(int(t_us))
         return True
