@@ -72,28 +72,25 @@ def _stimulus(levels, period_us, profile, amplitude, speed, wavelength, rise) ->
     return Stimulus(*levels, period_us, 0.0, profile, rise)
 
 
-def _nominal(ctx, param, value):
-    if value == "frames":
-        return value
-    try:
-        number = float(value)
-    except (TypeError, ValueError):
-        raise click.BadParameter(f"{value!r} is not a threshold (a positive number of log units) or 'frames'") from None
-    if not math.isfinite(number) or number <= 0:
-        raise click.BadParameter(f"{value!r} is not a positive number of log units")
-    return number
+def _number_or(word: str, noun: str, positive: bool):
+    """A click callback: the value as a float (positive, or from 0), or the ``word`` itself (or None)."""
+
+    def callback(ctx, param, value):
+        if value is None or value == word:
+            return value
+        try:
+            number = float(value)
+        except (TypeError, ValueError):
+            raise click.BadParameter(f"{value!r} is not {noun} or '{word}'") from None
+        if not math.isfinite(number) or (number <= 0 if positive else number < 0):
+            raise click.BadParameter(f"{value!r} is not {noun}")
+        return number
+
+    return callback
 
 
-def _black_level(ctx, param, value):
-    if value is None or value == "fit":
-        return value
-    try:
-        number = float(value)
-    except ValueError:
-        raise click.BadParameter(f"{value!r} is not a DN (a number from 0) or 'fit'") from None
-    if not math.isfinite(number) or number < 0:
-        raise click.BadParameter(f"{value!r} is not a DN from 0")
-    return number
+_nominal = _number_or("frames", "a threshold (a positive number of log units)", positive=True)
+_black_level = _number_or("fit", "a DN (a number from 0)", positive=False)
 
 
 @click.command()

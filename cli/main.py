@@ -143,6 +143,9 @@ class EvtoolsGroup(LazyGroup):
                 raise
             click.echo(f"evtools: usage: {error.format_message()} (see evtools --help)", err=True)
             sys.exit(EXIT_USAGE)
+        except KeyboardInterrupt:  # (a stop while the global options load their modules: click would say
+            click.echo("evtools: interrupted", err=True)  # "Aborted!" and exit 1)
+            sys.exit(interrupt.exit_code())
 
     def invoke(self, ctx: click.Context):
         try:
