@@ -95,6 +95,9 @@ ages drawn with weights ``exp(-age / F)``, weighted by their distance, is 1.5 F 
 generator (8 seeds, +/-2 %/s, 12 s, 1 s maps, 3 s memory) at 32 x 24 and at 64 x 48: mean error of the maps from 6 s
 on -0.8 / +1.7 % (rising / falling drift) with F, -0.1 / +0.8 % with 1.2 F, +0.3 / +0.3 % with 1.3 F (the +0.3 %
 is the estimate's own at no drift), +0.7 / -0.3 % with 1.4 F."""
+BLACK_LEVEL_STEADY_DN = 1.0
+"""onEI with the black level fitted: consecutive maps whose black levels differ by more than this are not compared
+for the shared drift (the thresholds of a map move with its black level: a false drift, then a false step)."""
 RESTART_WEIGHT = math.exp(-1.0)
 """onEI: after a step the long memory restarts from the short one aged by one interval (its sums times ``exp(-1)``):
 the step is seen about half an interval after it happened, when a third of the short memory's weight is still
@@ -132,18 +135,21 @@ class SharedTrend:
         self.levels: list[tuple[int, float, float]] = []  # (t_us, log L on, log L off) of the maps so far
         self.rates = np.zeros(2)  # the drift's latest rate (log units a second, ON and OFF)
 
-    def factors(self, t_us: int, on: np.ndarray, off: np.ndarray, valid: np.ndarray) -> tuple[float, float]:
-        """The factors for the map at ``t_us`` (ON, OFF); maps come in time order."""
+    def factors(self, t_us: int, on: np.ndarray, off: np.ndarray, valid: np.ndarray,
+                black_level: float = 0.0) -> tuple[float, float]:
+        """The factors for the map at ``t_us`` (ON, OFF); maps come in time order. A map whose black level (fitted)
+        moved by more than :data:`BLACK_LEVEL_STEADY_DN` from the map before carries the level: its change is the
+        black level's, not the thresholds'."""
         if self.previous is None:
             self.first_t_us, log_on, log_off = t_us, 0.0, 0.0
         else:
-            previous_on, previous_off, previous_valid = self.previous
+            previous_on, previous_off, previous_valid, previous_black = self.previous
             _, log_on, log_off = self.levels[-1]
             both = valid & previous_valid
-            if both.sum() >= self.MIN_PIXELS:
+            if both.sum() >= self.MIN_PIXELS and abs(black_level - previous_black) <= BLACK_LEVEL_STEADY_DN:
                 log_on += math.log(np.median(on[both] / previous_on[both]))
                 log_off += math.log(np.median(off[both] / previous_off[both]))
-        self.previous = (on.copy(), off.copy(), valid.copy())
+        self.previous = (on.copy(), off.copy(), valid.copy(), black_level)
         self.levels.append((t_us, log_on, log_off))
         recent = np.array([level for level in self.levels if level[0] >= max(
             self.first_t_us + self.forget_us, t_us - 2 * self.forget_us)])
@@ -231,12 +237,15 @@ class FrameThresholdEstimator:
         self.next_map_us: int | None = None
         self.maps: list = []
         self.trend: SharedTrend | None = None  # onEI: the shared drift's level, for the maps' lag
-        # onEI with a given black level: a second memory of one interval, to see a threshold step (see _step)
+        # onEI: a second memory of one interval for every black level, to see a threshold step (see _step)
         self.short = None
-        if interval_us is not None and len(self.candidates) == 1:
-            self.short = {"sums": np.zeros((N_SUMS, pixels)), "runs": np.zeros((3, pixels)),
-                          "run_counts": np.full((2, pixels), -1, np.int64), "new_counts": np.zeros(pixels),
-                          "inverse_sums": np.zeros(pixels), "half": np.zeros((2, N_SUMS, 0))}
+        if interval_us is not None:
+            candidates = len(self.candidates)
+            self.short = {"sums": np.zeros((candidates, N_SUMS, pixels)), "runs": np.zeros((candidates, 3, pixels)),
+                          "run_counts": np.full((candidates, 2, pixels), -1, np.int64),
+                          "new_counts": np.zeros((candidates, pixels)), "inverse_sums": np.zeros((candidates, pixels)),
+                          "half": np.zeros((2, N_SUMS, 0))}
+        self.black_level_index = len(self.candidates) // 2  # the candidate nearest the black level last used
         self.steps_us: list[int] = []  # onEI: when a step was seen (and the memory restarted)
 
     @property
@@ -365,12 +374,13 @@ class FrameThresholdEstimator:
                        float(SATURATED_DN), self.sums[index], self.runs[index], self.run_counts[index],
                        self.half_sums[index], self.sample_step, self.inverse_sums[index], self.new_counts[index],
                        self.saturated if index == 0 else self.saturated[:0])
-        if self.short is not None:
-            short = self.short
-            frame_sums(image, x0, y0, self.width, self.counts, self.marks, self.exposures, self._log_table(0, levels),
-                       float(self.candidates[0]), log_exposure, MAX_EXPOSURE_EVENTS, float(SATURATED_DN),
-                       short["sums"], short["runs"], short["run_counts"], short["half"], 0, short["inverse_sums"],
-                       short["new_counts"], self.saturated[:0])
+            if self.short is not None:
+                short = self.short
+                frame_sums(image, x0, y0, self.width, self.counts, self.marks, self.exposures,
+                           self._log_table(index, levels), float(black), log_exposure, MAX_EXPOSURE_EVENTS,
+                           float(SATURATED_DN), short["sums"][index], short["runs"][index], short["run_counts"][index],
+                           short["half"], 0, short["inverse_sums"][index], short["new_counts"][index],
+                           self.saturated[:0])
         self.frames_used += 1
         if self.interval_us is not None:
             self._snapshot_maps(frame.exposure_end_us)
@@ -396,24 +406,29 @@ class FrameThresholdEstimator:
             self.next_map_us = t_us + self.interval_us
         while t_us >= self.next_map_us:
             fits = [self._fit(index) for index in range(len(self.candidates))]
-            if self._step(self.next_map_us, fits[0]):
-                fits[0] = self._fit(0)  # (the long memory restarted)
+            if self._step(self.next_map_us, fits):
+                fits = [self._fit(index) for index in range(len(self.candidates))]  # (the long memory restarted)
             self.maps.append(self._map_of(self.next_map_us, self._without_lag(self.next_map_us, self._solve(fits))))
             self.next_map_us += self.interval_us
 
-    def _step(self, t_us: int, whole: dict) -> bool:
+    def _step(self, t_us: int, fits: list[dict]) -> bool:
         """onEI: a threshold step shared by the pixels, seen and followed. The short memory (one interval) against the
         long one (``forget_us``): under a drift at rate r their shared ratio is about ``exp(r LAG_FORGETS (forget -
         interval))``; when the median over the pixels both fit differs from that by more than :data:`STEP_SHARE` for
         ON or OFF, the thresholds stepped, and the long memory restarts from the short one aged by one interval
-        (:data:`RESTART_WEIGHT`; its older frames belong to the thresholds before; the shared trend restarts too). Measured on the independent generator (0.25 s maps):
-        the ratio stays within 1.4 % without a step and passes 5 % 0.3-0.5 s after a x1.3 or /1.3 step. ``whole``:
-        the long memory's fit; returns whether it restarted."""
+        (:data:`RESTART_WEIGHT`; its older frames belong to the thresholds before; the shared trend restarts too).
+        Measured on the independent generator (0.25 s maps): the ratio stays within 1.4 % without a step and passes
+        5 % 0.3-0.5 s after a x1.3 or /1.3 step. With the
+        black level fitted, both memories are compared at the candidate nearest the black level last used (a wrong
+        black level biases both alike) and every candidate's long memory restarts. ``fits``: the long memory's, one
+        per candidate; returns whether it restarted."""
         if self.short is None:
             return False
         short = self.short
-        fold_runs(short["sums"], short["runs"], short["run_counts"])
-        recent = _least_squares(short["sums"], short["new_counts"], short["inverse_sums"])
+        index = self.black_level_index
+        whole = fits[index]
+        fold_runs(short["sums"][index], short["runs"][index], short["run_counts"][index])
+        recent = _least_squares(short["sums"][index], short["new_counts"][index], short["inverse_sums"][index])
         both = recent["solved"] & whole["solved"] & (recent["n"] >= MIN_FRAMES / 2) & (whole["n"] >= MIN_FRAMES)
         with np.errstate(divide="ignore", invalid="ignore"):
             both &= (recent["on"] > 0) & (recent["off"] > 0) & (whole["on"] > 0) & (whole["off"] > 0)
@@ -424,9 +439,12 @@ class FrameThresholdEstimator:
         shift = [math.log(np.median(recent[key][both] / whole[key][both])) for key in ("on", "off")]
         if max(abs(shift[0] - expected[0]), abs(shift[1] - expected[1])) <= math.log1p(STEP_SHARE):
             return False
-        for name, memory in (("sums", self.sums), ("runs", self.runs), ("run_counts", self.run_counts),
-                             ("new_counts", self.new_counts), ("inverse_sums", self.inverse_sums)):
-            memory[0] = short[name] * RESTART_WEIGHT
+        for index in range(len(self.candidates)):
+            fold_runs(short["sums"][index], short["runs"][index], short["run_counts"][index])
+        for name, memory in (("sums", self.sums), ("runs", self.runs), ("new_counts", self.new_counts),
+                             ("inverse_sums", self.inverse_sums)):
+            memory[...] = short[name] * RESTART_WEIGHT
+        self.run_counts[...] = short["run_counts"]  # (the open runs' counts: which run, not a weight)
         self.trend = None
         self.steps_us.append(int(t_us))
         return True
@@ -471,6 +489,7 @@ class FrameThresholdEstimator:
         if fits is None:
             fits = [self._fit(index) for index in range(len(self.candidates))]
         fit, black_level = self._black_level(fits)
+        self.black_level_index = int(np.argmin(np.abs(self.candidates - black_level)))
         on, off = fit["on"], fit["off"]
         n_events = self.counts[:, FRAMES_ON] + self.counts[:, FRAMES_OFF]
         frames_seen = self.frames_seen + self.full_frames
@@ -543,7 +562,8 @@ class FrameThresholdEstimator:
         """onEI: the map scaled by :class:`SharedTrend`'s factors (the lag behind a drift shared by all pixels)."""
         if self.trend is None:
             self.trend = SharedTrend(self.forget_us)
-        on_factor, off_factor = self.trend.factors(t_us, estimate.on, estimate.off, estimate.valid)
+        on_factor, off_factor = self.trend.factors(t_us, estimate.on, estimate.off, estimate.valid,
+                                                   estimate.attributes["black_level_used"])
         estimate.on = (estimate.on * on_factor).astype(np.float32)
         estimate.off = (estimate.off * off_factor).astype(np.float32)
         estimate.attributes.update(lag_factor_on=on_factor, lag_factor_off=off_factor)
