@@ -418,10 +418,9 @@ class FrameThresholdEstimator:
         ON or OFF, the thresholds stepped, and the long memory restarts from the short one aged by one interval
         (:data:`RESTART_WEIGHT`; its older frames belong to the thresholds before; the shared trend restarts too).
         Measured on the independent generator (0.25 s maps): the ratio stays within 1.4 % without a step and passes
-        5 % 0.3-0.5 s after a x1.3 or /1.3 step. With the
-        black level fitted, both memories are compared at the candidate nearest the black level last used (a wrong
-        black level biases both alike) and every candidate's long memory restarts. ``fits``: the long memory's, one
-        per candidate; returns whether it restarted."""
+        5 % 0.3-0.5 s after a x1.3 or /1.3 step. With the black level fitted, both memories are compared at the
+        candidate nearest the black level last used (a wrong black level biases both alike) and every candidate's
+        long memory restarts. ``fits``: the long memory's, one per candidate; returns whether it restarted."""
         if self.short is None:
             return False
         short = self.short
@@ -439,8 +438,8 @@ class FrameThresholdEstimator:
         shift = [math.log(np.median(recent[key][both] / whole[key][both])) for key in ("on", "off")]
         if max(abs(shift[0] - expected[0]), abs(shift[1] - expected[1])) <= math.log1p(STEP_SHARE):
             return False
-        for index in range(len(self.candidates)):
-            fold_runs(short["sums"][index], short["runs"][index], short["run_counts"][index])
+        for candidate in range(len(self.candidates)):  # (the open runs into the sums: the runs restart empty)
+            fold_runs(short["sums"][candidate], short["runs"][candidate], short["run_counts"][candidate])
         for name, memory in (("sums", self.sums), ("runs", self.runs), ("new_counts", self.new_counts),
                              ("inverse_sums", self.inverse_sums)):
             memory[...] = short[name] * RESTART_WEIGHT
