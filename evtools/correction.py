@@ -387,8 +387,10 @@ class ThresholdCorrector:
         stay near a part's size."""
         total = sum(lane.count_before(bound) for lane in self._lanes)
         steps = max(1, -(-total // PART))
-        first_us = min((lane.held_span_us()[0] for lane in self._lanes if lane.runs), default=bound)
-        last_us = min(max((lane.held_span_us()[1] + 1 for lane in self._lanes if lane.runs), default=bound), bound)
+        if steps > 1:  # the held span, read only to step the bound
+            spans = [lane.held_span_us() for lane in self._lanes if lane.runs]
+            first_us = min(first for first, _ in spans)
+            last_us = min(max(last for _, last in spans) + 1, bound)
         for step in range(1, steps + 1):
             step_us = first_us + (last_us - first_us) * step // steps if step < steps else bound
             released = self._each_lane(lambda lane, _: lane.release(step_us), [None] * LANES, parallel)

@@ -130,7 +130,7 @@ class SharedTrend:
 
     def __init__(self, forget_us: float) -> None:
         self.forget_us = float(forget_us)
-        self.previous: tuple | None = None  # the last map (on, off, valid) before scaling
+        self.previous: tuple | None = None  # the last map (on, off, valid, black level) before scaling
         self.first_t_us: int | None = None
         self.levels: list[tuple[int, float, float]] = []  # (t_us, log L on, log L off) of the maps so far
         self.rates = np.zeros(2)  # the drift's latest rate (log units a second, ON and OFF)
@@ -616,7 +616,6 @@ def _least_squares(s: np.ndarray, new_counts: np.ndarray, inverse_sums: np.ndarr
     fit = np.where(solved, fit, np.nan)
     return {"on": np.where(solved, on, np.nan), "off": np.where(solved, off, np.nan), "n": n, "solved": solved,
             "rms": np.sqrt(variance), "expected_rms": expected_rms, "fit": fit}
-
 
 
 class FrameScaledEstimator:
