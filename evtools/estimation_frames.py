@@ -100,8 +100,8 @@ BLACK_LEVEL_STEADY_DN = 1.0
 for the shared drift (the thresholds of a map move with its black level: a false drift, then a false step)."""
 RESTART_WEIGHT = math.exp(-1.0)
 """onEI: after a step the long memory restarts from the short one aged by one interval (its sums times ``exp(-1)``):
-the step is seen about half an interval after it happened, when a third of the short memory's weight is still
-the old thresholds' frames. Copied at full weight they held the maps 10-17 % off for the first map after the step
+the step is seen at the end of the first interval after it (rarely the second), when a third of the short
+memory's weight is still the old thresholds' frames. Copied at full weight they held the maps 10-17 % off for the first map after the step
 (with 36-203 pixels valid) and 2-4 % off two seconds later; aged, the first map has almost no pixel valid (its
 pixels have too few frames' worth) and the later ones come back nearer (0.2-3.3 % two seconds after a x1.3 or
 /1.3 step against 0.6-4.4 %, 8 seeds, the independent generator; the README gives the setup)."""
