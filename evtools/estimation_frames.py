@@ -95,9 +95,6 @@ ages drawn with weights ``exp(-age / F)``, weighted by their distance, is 1.5 F 
 generator (8 seeds, +/-2 %/s, 12 s, 1 s maps, 3 s memory) at 32 x 24 and at 64 x 48: mean error of the maps from 6 s
 on -0.8 / +1.7 % (rising / falling drift) with F, -0.1 / +0.8 % with 1.2 F, +0.3 / +0.3 % with 1.3 F (the +0.3 %
 is the estimate's own at no drift), +0.7 / -0.3 % with 1.4 F."""
-BLACK_LEVEL_STEADY_DN = 1.0
-"""onEI with the black level fitted: consecutive maps whose black levels differ by more than this are not compared
-for the shared drift (the thresholds of a map move with its black level: a false drift, then a false step)."""
 RESTART_WEIGHT = math.exp(-1.0)
 """onEI: after a step the long memory restarts from the short one aged by one interval (its sums times ``exp(-1)``):
 the step is seen at the end of the first interval after it (rarely the second), when a third of the short
@@ -136,20 +133,21 @@ class SharedTrend:
         self.rates = np.zeros(2)  # the drift's latest rate (log units a second, ON and OFF)
 
     def factors(self, t_us: int, on: np.ndarray, off: np.ndarray, valid: np.ndarray,
-                black_level: float = 0.0) -> tuple[float, float]:
-        """The factors for the map at ``t_us`` (ON, OFF); maps come in time order. A map whose black level (fitted)
-        moved by more than :data:`BLACK_LEVEL_STEADY_DN` from the map before carries the level: its change is the
-        black level's, not the thresholds'."""
+                candidate: int = 0) -> tuple[float, float]:
+        """The factors for the map at ``t_us`` (ON, OFF); maps come in time order. ``on``, ``off``: the thresholds
+        at one black-level ``candidate`` (with the black level fitted, a map's own thresholds move with its
+        interpolated black level: 1 DN moves them by several per cent, a false drift that then hid a step); a map
+        whose candidate differs from the map before's carries the level."""
         if self.previous is None:
             self.first_t_us, log_on, log_off = t_us, 0.0, 0.0
         else:
-            previous_on, previous_off, previous_valid, previous_black = self.previous
+            previous_on, previous_off, previous_valid, previous_candidate = self.previous
             _, log_on, log_off = self.levels[-1]
             both = valid & previous_valid
-            if both.sum() >= self.MIN_PIXELS and abs(black_level - previous_black) <= BLACK_LEVEL_STEADY_DN:
+            if both.sum() >= self.MIN_PIXELS and candidate == previous_candidate:
                 log_on += math.log(np.median(on[both] / previous_on[both]))
                 log_off += math.log(np.median(off[both] / previous_off[both]))
-        self.previous = (on.copy(), off.copy(), valid.copy(), black_level)
+        self.previous = (on.copy(), off.copy(), valid.copy(), candidate)
         self.levels.append((t_us, log_on, log_off))
         recent = np.array([level for level in self.levels if level[0] >= max(
             self.first_t_us + self.forget_us, t_us - 2 * self.forget_us)])
@@ -410,7 +408,8 @@ class FrameThresholdEstimator:
             fits = [self._fit(index) for index in range(len(self.candidates))]
             if self._step(self.next_map_us, fits):
                 fits = [self._fit(index) for index in range(len(self.candidates))]  # (the long memory restarted)
-            self.maps.append(self._map_of(self.next_map_us, self._without_lag(self.next_map_us, self._solve(fits))))
+            self.maps.append(self._map_of(self.next_map_us,
+                                          self._without_lag(self.next_map_us, self._solve(fits), fits)))
             self.next_map_us += self.interval_us
 
     def _step(self, t_us: int, fits: list[dict]) -> bool:
@@ -569,9 +568,10 @@ class FrameThresholdEstimator:
         if self.frames_used == 0:
             raise EstimationError("no APS frames: --method frames needs a recording with frames (a DAVIS camera's, "
                                   "or simulate --aps-rate); --method natural estimates from events alone")
-        estimate = self._solve()
+        fits = [self._fit(index) for index in range(len(self.candidates))]
+        estimate = self._solve(fits)
         if self.interval_us is not None:
-            estimate = self._without_lag((self.last_t_us or 0) + 1, estimate)
+            estimate = self._without_lag((self.last_t_us or 0) + 1, estimate, fits)
             self.maps.append(self._map_of((self.last_t_us or 0) + 1, estimate))
             estimate.series = _series_of(self.maps)
         return estimate
@@ -585,12 +585,15 @@ class FrameThresholdEstimator:
         """The latest event's time (0 before any)."""
         return self.last_t_us or 0
 
-    def _without_lag(self, t_us: int, estimate: ThresholdEstimate) -> ThresholdEstimate:
-        """onEI: the map scaled by :class:`SharedTrend`'s factors (the lag behind a drift shared by all pixels)."""
+    def _without_lag(self, t_us: int, estimate: ThresholdEstimate, fits: list[dict]) -> ThresholdEstimate:
+        """onEI: the map scaled by :class:`SharedTrend`'s factors (the lag behind a drift shared by all pixels),
+        the drift read on ``fits`` (each candidate's) at the candidate nearest the black level used."""
         if self.trend is None:
             self.trend = SharedTrend(self.forget_us)
-        on_factor, off_factor = self.trend.factors(t_us, estimate.on, estimate.off, estimate.valid,
-                                                   estimate.attributes["black_level_used"])
+        fit = fits[self.black_level_index]
+        with np.errstate(invalid="ignore"):
+            valid = estimate.valid.ravel() & fit["solved"] & (fit["on"] > 0) & (fit["off"] > 0)
+        on_factor, off_factor = self.trend.factors(t_us, fit["on"], fit["off"], valid, self.black_level_index)
         estimate.on = (estimate.on * on_factor).astype(np.float32)
         estimate.off = (estimate.off * off_factor).astype(np.float32)
         estimate.attributes.update(lag_factor_on=on_factor, lag_factor_off=off_factor)
