@@ -474,13 +474,13 @@ def test_online_steps_are_seen_with_the_black_level_fitted(seed, factor):
 def test_online_maps_recover_from_a_threshold_step(seed, factor):
     """onEI (0.5 s maps, 1.5 s memory) on the independent generator, every threshold stepping x1.3 or /1.3 at 7 s:
     the step is seen in the first or second map after it (the short memory against the long one: in the first, at
-    0.53 s, in 16 of 17 runs, its shift 5.4-10.7 % against STEP_SHARE's 5 %; CI drew seed 322, 3.9 % at the first
-    map, seen at the second, 1.03 s, and within 2.1 % from 2 s on), and from two seconds after it each
-    map's median ratio to the new thresholds is within 5.5 %. Measured over 16 runs (8 seeds x both steps): at 2 s 0.2-3.3 % off (within 3 % in 15; mean 1.5 %), every later map within 3.7 % (the 1.5 s
-    memory's own noise); with the long memory restarted from the short one at full weight (its frames from before
-    the step unaged): 0.6-4.4 % at 2 s (mean 1.9 %) and 6-17 % off on up to 262 valid pixels in the first map after
-    the step; before the step detection, with the drift correction alone: 0.5-5.7 % at 2 s then an overshoot to
-    6.9 %; with neither, 6.2-10.9 % at 2 s."""
+    0.53 s, in 16 of 17 runs, its shift 5.4-10.7 % against STEP_SHARE's 5 %; CI drew seed 322, 3.9 % at the first map,
+    seen at the second, 1.03 s, and within 2.1 % from 2 s on), and from two seconds after it each map's median ratio to
+    the new thresholds is within 5.5 %. Measured over 16 runs (8 seeds x both steps): at 2 s 0.2-3.3 % off (within 3 %
+    in 15; mean 1.5 %), every later map within 3.7 % (the 1.5 s memory's own noise); with the long memory restarted from
+    the short one at full weight (its frames from before the step unaged): 0.6-4.4 % at 2 s (mean 1.9 %) and 6-17 % off
+    on up to 262 valid pixels in the first map after the step; before the step detection, with the drift correction
+    alone: 0.5-5.7 % at 2 s then an overshoot to 6.9 %; with neither, 6.2-10.9 % at 2 s."""
     on, off = _thresholds(seed % 1000)
     events, frames = davis_recording(W, H, 14_000_000, seed=seed, theta_on=on, theta_off=off, exposure_us=10_000,
                                      pan_px_s=(30.0, -8.0), wobble_px=6.0, black_level=0.0,
