@@ -127,7 +127,7 @@ class SharedTrend:
 
     def __init__(self, forget_us: float) -> None:
         self.forget_us = float(forget_us)
-        self.previous: tuple | None = None  # the last map (on, off, valid, black level) before scaling
+        self.previous: tuple | None = None  # the last map (on, off, valid, candidate) before scaling
         self.first_t_us: int | None = None
         self.levels: list[tuple[int, float, float]] = []  # (t_us, log L on, log L off) of the maps so far
         self.rates = np.zeros(2)  # the drift's latest rate (log units a second, ON and OFF)
@@ -405,9 +405,9 @@ class FrameThresholdEstimator:
         if self.next_map_us is None:
             self.next_map_us = t_us + self.interval_us
         while t_us >= self.next_map_us:
-            fits = [self._fit(index) for index in range(len(self.candidates))]
+            fits = self._fit_all()
             if self._step(self.next_map_us, fits):
-                fits = [self._fit(index) for index in range(len(self.candidates))]  # (the long memory restarted)
+                fits = self._fit_all()  # (the long memory restarted)
             self.maps.append(self._map_of(self.next_map_us,
                                           self._without_lag(self.next_map_us, self._solve(fits), fits)))
             self.next_map_us += self.interval_us
@@ -510,10 +510,8 @@ class FrameThresholdEstimator:
             slopes.append(-float(np.median(ratio)))
         return np.array(slopes)
 
-    def _solve(self, fits: list[dict] | None = None) -> ThresholdEstimate:
-        """The maps from the sums so far (``fits``: each black level's :meth:`_fit`, when made already)."""
-        if fits is None:
-            fits = [self._fit(index) for index in range(len(self.candidates))]
+    def _solve(self, fits: list[dict]) -> ThresholdEstimate:
+        """The maps from the sums so far (``fits``: :meth:`_fit_all`)."""
         fit, black_level = self._black_level(fits)
         self.black_level_index = int(np.argmin(np.abs(self.candidates - black_level)))
         on, off = fit["on"], fit["off"]
@@ -568,7 +566,7 @@ class FrameThresholdEstimator:
         if self.frames_used == 0:
             raise EstimationError("no APS frames: --method frames needs a recording with frames (a DAVIS camera's, "
                                   "or simulate --aps-rate); --method natural estimates from events alone")
-        fits = [self._fit(index) for index in range(len(self.candidates))]
+        fits = self._fit_all()
         estimate = self._solve(fits)
         if self.interval_us is not None:
             estimate = self._without_lag((self.last_t_us or 0) + 1, estimate, fits)
@@ -604,6 +602,10 @@ class FrameThresholdEstimator:
         """One map of an online series (NaN where not valid, as :class:`ThresholdSeries` holds them)."""
         return (t_us, np.where(estimate.valid, estimate.on, np.nan), np.where(estimate.valid, estimate.off, np.nan),
                 estimate.valid, estimate.fit)
+
+    def _fit_all(self) -> list[dict]:
+        """:meth:`_fit` of every black-level candidate."""
+        return [self._fit(index) for index in range(len(self.candidates))]
 
     def _fit(self, index: int) -> dict:
         """Each pixel's least squares for black-level candidate ``index``: thresholds, residual RMS, the RMS the
