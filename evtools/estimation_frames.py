@@ -41,8 +41,8 @@ from typing import Any
 
 import numpy as np
 
-from evtools._kernels.estimate import (FRAMES_OFF, FRAMES_ON, FRAMES_ROW, exposure_counts, fold_runs, frame_sums,
-                                       log_levels, polarity_counts)
+from evtools._kernels.estimate import (FRAMES_OFF, FRAMES_ON, FRAMES_ROW, TIME_SUMS, count_times, exposure_counts,
+                                       fold_runs, frame_sums, frame_time_sums, log_levels, polarity_counts)
 from evtools.estimation import DEFAULT_MIN_EVENTS, EstimationError, ThresholdEstimate, _series_of
 from evtools.events import StreamChecker, StreamInfo, as_chunk, empty_events
 
@@ -86,15 +86,6 @@ NOT_OBSERVABLE_WITH_FRAMES = ("events give thresholds relative to one another an
 STEP_SHARE = 0.05
 """onEI: a shared change of the thresholds by more than this share between the short and the long memory (beyond
 what the drift explains) is a step (see ``FrameThresholdEstimator._step``)."""
-LAG_FORGETS = 1.3
-"""onEI: a map's lag behind a drift, in forgetting times. A least-squares slope from sums forgotten with time
-constant F weighs each pair of frames by both their weights and by how far apart the pair's counts are; its
-thresholds are those of about the pair's middle. Counts that change little beyond a forgetting time give a lag of F
-(an exponential mean's); counts that wander as a random walk weigh pairs by their distance, and the middle of two
-ages drawn with weights ``exp(-age / F)``, weighted by their distance, is 1.5 F back. Measured on the independent
-generator (8 seeds, +/-2 %/s, 12 s, 1 s maps, 3 s memory) at 32 x 24 and at 64 x 48: mean error of the maps from 6 s
-on -0.8 / +1.7 % (rising / falling drift) with F, -0.1 / +0.8 % with 1.2 F, +0.3 / +0.3 % with 1.3 F (the +0.3 %
-is the estimate's own at no drift), +0.7 / -0.3 % with 1.4 F."""
 RESTART_WEIGHT = math.exp(-1.0)
 """onEI: after a step the long memory restarts from the short one aged by one interval (its sums times ``exp(-1)``):
 the step is seen at the end of the first interval after it (rarely the second), when a third of the short memory's
@@ -111,53 +102,57 @@ S_N, S_X1, S_X2, S_Y, S_X1X1, S_X2X2, S_X1X2, S_X1Y, S_X2Y, S_YY = range(N_SUMS)
 
 class SharedTrend:
     """onEI's lag behind a drift shared by all pixels, removed. A map from sums forgotten with time constant
-    ``forget_us`` is a least-squares slope over the past weighted by ``exp(-age / forget)``: under a drift at rate r
-    it lags by :data:`LAG_FORGETS` forgetting times (measured: -5.4 % after 12 s at 2 %/s with 3 s). Per polarity,
-    the shared level ``L`` (the product of each map's median ratio to the one before, over the pixels valid in
-    both: independent of which pixels are valid) gives the drift's rate, the least-squares slope of ``log L`` over
-    the maps of the last two forgetting times, and each map is scaled by ``exp(rate x lag)``: the level a lag on
-    (the extrapolation of linear exponential smoothing, R. G. Brown, "Smoothing, Forecasting and Prediction of
-    Discrete Time Series", 1963, with the slope fitted rather than smoothed). Only the shared level is
-    extrapolated, so the pixels' own noise is not amplified; a step is followed faster, with some overshoot. The
-    maps of the first forgetting time (their sums still filling: their changes are not drift) are left as they
-    are, and a rate needs three maps."""
+    ``forget_us`` is a least-squares slope over the past weighted by ``exp(-age / forget)``: under a drift it holds
+    the thresholds of an earlier time, each pixel's own (:func:`_lags`: 1.5-4.2 s behind with a 3 s memory,
+    following how the scene moved its counts; uncorrected the maps were 5.4-8.5 % off after 12 s at 2 %/s). Per
+    polarity, the shared level ``L`` (the sum of the log of each map's median ratio to the one before, over the
+    pixels valid in both: independent of which pixels are valid) against the maps' shared time ``E`` (likewise the
+    sum of the median change of the pixels' times, ``T + lag``) gives the drift's rate, the least-squares slope of
+    ``L`` on ``E`` over the maps of the last two forgetting times, and each pixel is scaled by ``exp(-rate x lag)``:
+    its level at the map's time (Brown's extrapolation of linear exponential smoothing, R. G. Brown, "Smoothing,
+    Forecasting and Prediction of Discrete Time Series", 1963, with the lag measured rather than assumed). Only the
+    shared rate is fitted, so the pixels' own noise is not amplified; a rate needs three maps."""
 
     MIN_PIXELS = 10
     """Fewer pixels valid in two maps in a row leave the level where it was."""
+    SETTLE_FORGETS = 1.0
 
     def __init__(self, forget_us: float) -> None:
         self.forget_us = float(forget_us)
-        self.previous: tuple | None = None  # the last map (on, off, valid, candidate) before scaling
-        self.first_t_us: int | None = None
-        self.levels: list[tuple[int, float, float]] = []  # (t_us, log L on, log L off) of the maps so far
+        self.previous: tuple | None = None  # the last map before scaling: (thresholds, times, valid, candidate)
+        self.levels: list[tuple] = []  # (t_us, [log L on, off], [E on, off]) of the maps so far
         self.rates = np.zeros(2)  # the drift's latest rate (log units a second, ON and OFF)
 
-    def factors(self, t_us: int, on: np.ndarray, off: np.ndarray, valid: np.ndarray,
-                candidate: int = 0) -> tuple[float, float]:
-        """The factors for the map at ``t_us`` (ON, OFF); maps come in time order. ``on``, ``off``: the thresholds
-        at one black-level ``candidate`` (with the black level fitted, a map's own thresholds move with its
-        interpolated black level: 1 DN moves them by several per cent, a false drift that then hid a step); a map
-        whose candidate differs from the map before's carries the level."""
-        if self.previous is None:
-            self.first_t_us, log_on, log_off = t_us, 0.0, 0.0
-        else:
-            previous_on, previous_off, previous_valid, previous_candidate = self.previous
-            _, log_on, log_off = self.levels[-1]
-            both = valid & previous_valid
+    def factors(self, t_us: int, on: np.ndarray, off: np.ndarray, valid: np.ndarray, lags: np.ndarray,
+                candidate: int = 0) -> np.ndarray:
+        """Each pixel's factors ((2, pixels): ON, OFF; 1 where its lag is unknown) for the map at ``t_us``; maps come
+        in time order. ``on``, ``off``: the thresholds at one black-level ``candidate`` (with the black level fitted,
+        a map's own thresholds move with its interpolated black level: 1 DN moves them by several per cent, a false
+        drift that then hid a step), ``lags``: theirs (:func:`_lags`, seconds); a map whose candidate differs from
+        the map before's carries the level."""
+        thresholds = np.stack([on, off])
+        times_s = t_us * 1e-6 + lags
+        level, shared_s = np.zeros(2), np.zeros(2)
+        if self.previous is not None:
+            previous, previous_times_s, previous_valid, previous_candidate = self.previous
+            _, level, shared_s = self.levels[-1]
+            both = valid & previous_valid & np.isfinite(times_s).all(0) & np.isfinite(previous_times_s).all(0)
             if both.sum() >= self.MIN_PIXELS and candidate == previous_candidate:
-                log_on += math.log(np.median(on[both] / previous_on[both]))
-                log_off += math.log(np.median(off[both] / previous_off[both]))
-        self.previous = (on.copy(), off.copy(), valid.copy(), candidate)
-        self.levels.append((t_us, log_on, log_off))
-        recent = np.array([level for level in self.levels if level[0] >= max(
-            self.first_t_us + self.forget_us, t_us - 2 * self.forget_us)])
-        if len(recent) < 3 or np.ptp(recent[:, 0]) == 0:
-            self.rates = np.zeros(2)
-            return 1.0, 1.0
-        times_s = (recent[:, 0] - recent[:, 0].mean()) * 1e-6
-        self.rates = times_s @ (recent[:, 1:] - recent[:, 1:].mean(0)) / (times_s @ times_s)  # per second
-        on_factor, off_factor = np.exp(self.rates * LAG_FORGETS * self.forget_us * 1e-6)
-        return float(on_factor), float(off_factor)
+                level = level + np.log(np.median(thresholds[:, both] / previous[:, both], axis=1))
+                shared_s = shared_s + np.median(times_s[:, both] - previous_times_s[:, both], axis=1)
+        self.previous = (thresholds, times_s, valid.copy(), candidate)
+        self.levels.append((t_us, level, shared_s))
+        since_us = max(self.levels[0][0] + self.SETTLE_FORGETS * self.forget_us, t_us - 2 * self.forget_us)
+        recent = [(shared, logs) for t, logs, shared in self.levels if t >= since_us]
+        self.rates = np.zeros(2)
+        if len(recent) >= 3:
+            shared, logs = (np.array(column) for column in zip(*recent))
+            shared = shared - shared.mean(0)
+            spread = (shared * shared).sum(0)
+            if (spread > 0).all():
+                self.rates = (shared * (logs - logs.mean(0))).sum(0) / spread  # per second
+        with np.errstate(invalid="ignore"):
+            return np.where(np.isfinite(lags), np.exp(-self.rates[:, None] * lags), 1.0)
 
 
 class FrameThresholdEstimator:
@@ -242,7 +237,11 @@ class FrameThresholdEstimator:
             self.short = {"sums": np.zeros((candidates, N_SUMS, pixels)), "runs": np.zeros((candidates, 3, pixels)),
                           "run_counts": np.full((candidates, 2, pixels), -1, np.int64),
                           "new_counts": np.zeros((candidates, pixels)), "inverse_sums": np.zeros((candidates, pixels)),
-                          "half": np.zeros((2, N_SUMS, 0))}
+                          "half": np.zeros((2, N_SUMS, 0)), "time_sums": np.zeros((candidates, TIME_SUMS, pixels))}
+        # onEI: each pixel's sums of its counted events' times, and the frames' sums of them (see SharedTrend)
+        self.event_times = np.zeros((pixels, FRAMES_ROW)) if interval_us is not None else None
+        self.time_sums = np.zeros((len(self.candidates), TIME_SUMS, pixels)) if interval_us is not None else None
+        self.origin_us: int | None = None
         self.black_level_index = len(self.candidates) // 2  # the candidate nearest the black level last used
         self.steps_us: list[int] = []  # onEI: when a step was seen (and the memory restarted)
         self.black_level_before = None  # onEI: the black level's test before the last step (slopes, frames)
@@ -272,6 +271,8 @@ class FrameThresholdEstimator:
             self.held_events += len(chunk)
             self.events += len(chunk)
             self.last_t_us = int(chunk["t"][-1])
+            if self.origin_us is None:
+                self.origin_us = int(chunk["t"][0])
         self._advance(final=False)
         if self.held_events > HOLD_EVENTS:  # no frame for a long stretch: count what waits (not a pending exposure)
             self._count_before(min(self.last_t_us, self.pending[0].exposure_begin_us) if self.pending
@@ -297,6 +298,9 @@ class FrameThresholdEstimator:
                 else:
                     exposure_counts(part["x"], part["y"], part["p"], self.width, self.counts, self.marks,
                                     exposure, True)
+                if self.event_times is not None:
+                    count_times(part["t"], part["x"], part["y"], part["p"], self.width, self.origin_us,
+                                self.event_times)
                 self.held_events -= split
             if split < len(chunk):
                 self.held[0] = chunk[split:]
@@ -381,6 +385,9 @@ class FrameThresholdEstimator:
                            float(SATURATED_DN), short["sums"][index], short["runs"][index], short["run_counts"][index],
                            short["half"], 0, short["inverse_sums"][index], short["new_counts"][index],
                            self.saturated[:0])
+                for time_sums in (self.time_sums[index], short["time_sums"][index]):
+                    frame_time_sums(image, x0, y0, self.width, self.counts, self.event_times, self.marks,
+                                    self.exposures, self._log_table(index, levels), MAX_EXPOSURE_EVENTS, time_sums)
         self.frames_used += 1
         if self.interval_us is not None:
             self._snapshot_maps(frame.exposure_end_us)
@@ -395,10 +402,10 @@ class FrameThresholdEstimator:
             self.runs *= factor
             self.new_counts *= factor
             self.inverse_sums *= factor
-            if self.short is not None:
-                factor = math.exp(-(t_us - self.t_frame_us) / self.interval_us)
-                for name in ("sums", "runs", "new_counts", "inverse_sums"):
-                    self.short[name] *= factor
+            self.time_sums *= factor
+            factor = math.exp(-(t_us - self.t_frame_us) / self.interval_us)
+            for name in ("sums", "runs", "new_counts", "inverse_sums", "time_sums"):
+                self.short[name] *= factor
         self.t_frame_us = t_us
 
     def _snapshot_maps(self, t_us: int) -> None:
@@ -414,11 +421,11 @@ class FrameThresholdEstimator:
 
     def _step(self, t_us: int, fits: list[dict]) -> bool:
         """onEI: a threshold step shared by the pixels, seen and followed. The short memory (one interval) against the
-        long one (``forget_us``): under a drift at rate r their shared ratio is about ``exp(r LAG_FORGETS (forget -
-        interval))``; when the median over the pixels both fit differs from that by more than :data:`STEP_SHARE` for
-        ON or OFF, the thresholds stepped, and the long memory restarts from the short one aged by one interval
-        (:data:`RESTART_WEIGHT`; its older frames belong to the thresholds before; the shared trend restarts too,
-        and the black level's test, see :meth:`_black_level`).
+        long one (``forget_us``): under a drift at rate r their shared ratio is about ``exp(r d)``, d the median of
+        how much later the short memory's thresholds hold (:func:`_lags` of both); when the median over the pixels
+        both fit differs from that by more than :data:`STEP_SHARE` for ON or OFF, the thresholds stepped, and the long
+        memory restarts from the short one aged by one interval (:data:`RESTART_WEIGHT`; its older frames belong to
+        the thresholds before; the shared trend restarts too, and the black level's test, see :meth:`_black_level`).
         Measured on the independent generator (0.25 s maps): the ratio stays within 1.4 % without a step and passes
         5 % 0.3-0.5 s after a x1.3 or /1.3 step. With the black level fitted, both memories are compared at the
         candidate nearest the black level last used (a wrong black level biases both alike) and every candidate's
@@ -435,15 +442,18 @@ class FrameThresholdEstimator:
             both &= (recent["on"] > 0) & (recent["off"] > 0) & (whole["on"] > 0) & (whole["off"] > 0)
         if both.sum() < MIN_SCALE_PIXELS:
             return False
-        expected = (self.trend.rates * LAG_FORGETS * (self.forget_us - self.interval_us) * 1e-6 if self.trend
-                    else np.zeros(2))
+        expected = np.zeros(2)  # the drift's share: rate times how much later the short memory's thresholds hold
+        if self.trend is not None:
+            later_s = (self._lags_of(short["sums"][index], short["time_sums"][index], recent, t_us)
+                       - self._lags_of(self.sums[index], self.time_sums[index], whole, t_us))[:, both]
+            expected = self.trend.rates * np.nan_to_num(np.median(later_s, axis=1))
         shift = [math.log(np.median(recent[key][both] / whole[key][both])) for key in ("on", "off")]
         if max(abs(shift[0] - expected[0]), abs(shift[1] - expected[1])) <= math.log1p(STEP_SHARE):
             return False
         for candidate in range(len(self.candidates)):  # (the open runs into the sums: the runs restart empty)
             fold_runs(short["sums"][candidate], short["runs"][candidate], short["run_counts"][candidate])
         for name, memory in (("sums", self.sums), ("runs", self.runs), ("new_counts", self.new_counts),
-                             ("inverse_sums", self.inverse_sums)):
+                             ("inverse_sums", self.inverse_sums), ("time_sums", self.time_sums)):
             memory[...] = short[name] * RESTART_WEIGHT
         self.run_counts[...] = short["run_counts"]  # (the open runs' counts: which run, not a weight)
         if len(self.sample):  # the black level's test restarts too, its curve so far kept for pooling
@@ -588,14 +598,22 @@ class FrameThresholdEstimator:
         the drift read on ``fits`` (each candidate's) at the candidate nearest the black level used."""
         if self.trend is None:
             self.trend = SharedTrend(self.forget_us)
-        fit = fits[self.black_level_index]
+        index = self.black_level_index
+        fit = fits[index]
         with np.errstate(invalid="ignore"):
             valid = estimate.valid.ravel() & fit["solved"] & (fit["on"] > 0) & (fit["off"] > 0)
-        on_factor, off_factor = self.trend.factors(t_us, fit["on"], fit["off"], valid, self.black_level_index)
-        estimate.on = (estimate.on * on_factor).astype(np.float32)
-        estimate.off = (estimate.off * off_factor).astype(np.float32)
-        estimate.attributes.update(lag_factor_on=on_factor, lag_factor_off=off_factor)
+        lags = self._lags_of(self.sums[index], self.time_sums[index], fit, t_us)
+        factors = self.trend.factors(t_us, fit["on"], fit["off"], valid, lags, index)
+        shape = estimate.on.shape
+        estimate.on = (estimate.on * factors[0].reshape(shape)).astype(np.float32)
+        estimate.off = (estimate.off * factors[1].reshape(shape)).astype(np.float32)
+        estimate.attributes.update({f"lag_factor_{key}": float(np.median(factors[k][valid])) if valid.any() else 1.0
+                                    for k, key in enumerate(("on", "off"))})
         return estimate
+
+    def _lags_of(self, sums: np.ndarray, time_sums: np.ndarray, fit: dict, t_us: int) -> np.ndarray:
+        """:func:`_lags` of a memory's sums (folded) and fit, for its map at ``t_us``."""
+        return _lags(sums, time_sums, fit["on"], fit["off"], (t_us - (self.origin_us or 0)) * 1e-6)
 
     @staticmethod
     def _map_of(t_us: int, estimate: ThresholdEstimate) -> tuple:
@@ -614,14 +632,13 @@ class FrameThresholdEstimator:
         return _least_squares(self.sums[index], self.new_counts[index], self.inverse_sums[index])
 
 
-def _least_squares(s: np.ndarray, new_counts: np.ndarray, inverse_sums: np.ndarray) -> dict:
-    """Per pixel, ``y = c + theta_on x1 + theta_off x2`` from the sums ``s`` (:data:`N_SUMS` rows)."""
+def _cofactors(s: np.ndarray) -> tuple:
+    """The normal equations' symmetric 3 x 3 matrix [[a, b, c], [b, d, e], [c, e, f]] of the sums ``s``
+    (:data:`N_SUMS` rows), per pixel at once: its cofactors (c11, c12, c13, c22, c23, c33), whether it is solvable,
+    and 1 / its determinant (0 where not). Solved by cofactors: numpy's batched inv and det took 35 + 8 ms a call on
+    90k pixels (22 s of an online run with the black level fitted, 11 candidates a map)."""
     n = s[S_N]
-    # the normal equations' symmetric 3 x 3 matrix [[a, b, c], [b, d, e], [c, e, f]] solved by its cofactors, per
-    # pixel at once (numpy's batched inv and det took 35 + 8 ms a call on 90k pixels: 22 s of an online run with the
-    # black level fitted, 11 candidates a map)
     a, b, c, d, e, f = n, s[S_X1], s[S_X2], s[S_X1X1], s[S_X1X2], s[S_X2X2]
-    v0, v1, v2 = s[S_Y], s[S_X1Y], s[S_X2Y]
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         c11, c12, c13 = d * f - e * e, c * e - b * f, b * e - c * d
         c22, c23, c33 = a * f - c * c, b * c - a * e, a * d - b * b
@@ -629,6 +646,35 @@ def _least_squares(s: np.ndarray, new_counts: np.ndarray, inverse_sums: np.ndarr
         scale = np.maximum(n, 1) * np.maximum(d, 1) * np.maximum(f, 1)
         solved = (n >= 3) & (np.abs(determinant) > 1e-9 * scale)
         inverse_determinant = np.where(solved, 1.0 / np.where(solved, determinant, 1.0), 0.0)
+    return (c11, c12, c13, c22, c23, c33), solved, inverse_determinant
+
+
+def _lags(s: np.ndarray, time_sums: np.ndarray, on: np.ndarray, off: np.ndarray, t_s: float) -> np.ndarray:
+    """onEI: per pixel and polarity ((2, pixels), seconds, negative: behind), where before ``t_s`` (seconds after
+    the origin of the event times) the thresholds fitted from the sums ``s`` hold under a drift shared by all
+    pixels. With ``theta(t) = theta(T) (1 + r (t - T))`` a pixel's log DN is ``theta_on(T) (A (1 - r T) + r z_on)
+    - theta_off(T) (B (1 - r T) + r z_off)`` (z: the sums of its events' times, :func:`count_times`), so the fitted
+    ``theta_on`` is ``theta_on(T) (1 + r lag_on)`` with ``lag_on = a_on(z_on) - T - (theta_off / theta_on)
+    a_on(z_off)``, ``a_on(z)`` the x1 coefficient of z regressed on the same design (``time_sums``), and
+    ``lag_off = -a_off(z_off) - T + (theta_on / theta_off) a_off(z_on)``. Exact to first order in r: it follows
+    the scene (measured on the independent generator, 1 s maps, 3 s memory: 1.5-4.2 s behind, where a fixed
+    1.3 memories assumed 3.9 s)."""
+    (_, c12, c13, c22, c23, c33), solved, inverse_determinant = _cofactors(s)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        z_on, z_off = time_sums[:3], time_sums[3:]
+        on_of = [(c12 * z0 + c22 * z1 + c23 * z2) * inverse_determinant for z0, z1, z2 in (z_on, z_off)]
+        off_of = [(c13 * z0 + c23 * z1 + c33 * z2) * inverse_determinant for z0, z1, z2 in (z_on, z_off)]
+        ratio = off / on
+        lags = np.stack([on_of[0] - t_s - ratio * on_of[1], -off_of[1] - t_s + off_of[0] / ratio])
+    return np.where(solved, lags, np.nan)
+
+
+def _least_squares(s: np.ndarray, new_counts: np.ndarray, inverse_sums: np.ndarray) -> dict:
+    """Per pixel, ``y = c + theta_on x1 + theta_off x2`` from the sums ``s`` (:data:`N_SUMS` rows)."""
+    n = s[S_N]
+    (c11, c12, c13, c22, c23, c33), solved, inverse_determinant = _cofactors(s)
+    v0, v1, v2 = s[S_Y], s[S_X1Y], s[S_X2Y]
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         beta0 = (c11 * v0 + c12 * v1 + c13 * v2) * inverse_determinant
         on = (c12 * v0 + c22 * v1 + c23 * v2) * inverse_determinant
         off = (c13 * v0 + c23 * v1 + c33 * v2) * inverse_determinant

@@ -677,6 +677,51 @@ def exposure_counts(x, y, p, width, counts, marks, exposure, count):  # pragma: 
 
 
 @kernel
+def count_times(t, x, y, p, width, origin_us, times):  # pragma: no cover - compiled
+    """Events into ``times`` (float64, (pixels, FRAMES_ROW)): each pixel's sums of its ON and of its OFF events'
+    times (seconds after ``origin_us``), the counts' first moments in time (onEI's lag, see :func:`frame_time_sums`)."""
+    for k in range(len(x)):
+        i = y[k] * width + x[k]
+        seconds = (t[k] - origin_us) * 1e-6
+        if p[k]:
+            times[i, FRAMES_ON] += seconds
+        else:
+            times[i, FRAMES_OFF] += seconds
+
+
+TIME_SUMS = 6
+"""Rows of :func:`frame_time_sums`: z_on, x1 z_on, x2 z_on, z_off, x1 z_off, x2 z_off."""
+
+
+@kernel
+def frame_time_sums(image, x0, y0, width, counts, times, marks, exposure, log_dn, max_events,
+                    time_sums):  # pragma: no cover - compiled
+    """onEI's lag: every pixel that :func:`frame_sums` uses of this frame (its DN has a log in ``log_dn``, it fired
+    at most ``max_events`` times in the exposure) adds its event-time sums ``z_on``, ``z_off`` (:func:`count_times`)
+    against its ``x1 = A``, ``x2 = -B`` to ``time_sums`` (:data:`TIME_SUMS` rows): the right-hand sides of the
+    least squares that regress z on the design of the thresholds' fit. Under a drift ``theta(t) = theta(T) (1 + r
+    (t - T))`` a pixel's log DN is ``theta_on(T) (A (1 - r T) + r z_on) - theta_off(T) (...)``, so these coefficients
+    say at which time each map's thresholds hold."""
+    for row in range(image.shape[0]):
+        first = (y0 + row) * width + x0
+        for column in range(image.shape[1]):
+            i = first + column
+            log_value = log_dn[image[row, column]]
+            if log_value != log_value or (marks[i, 0] == exposure and marks[i, 1] > max_events):
+                continue
+            x1 = float(counts[i, FRAMES_ON])
+            x2 = -float(counts[i, FRAMES_OFF])
+            z_on = times[i, FRAMES_ON]
+            z_off = times[i, FRAMES_OFF]
+            time_sums[0, i] += z_on
+            time_sums[1, i] += x1 * z_on
+            time_sums[2, i] += x2 * z_on
+            time_sums[3, i] += z_off
+            time_sums[4, i] += x1 * z_off
+            time_sums[5, i] += x2 * z_off
+
+
+@kernel
 def log_levels(table, black, min_signal, saturated_dn):  # pragma: no cover - compiled
     """``table[dn] = log(dn - black)`` for every DN a frame can hold that is neither dark (less than ``min_signal``
     above ``black``) nor saturated (``saturated_dn`` and up); NaN for those (one logarithm per DN, not per pixel)."""

@@ -292,3 +292,29 @@ def naive_frame_sums(image, x0, y0, width, counts, fired, black, log_exposure, m
             if state != last_state[i]:
                 new_counts[i] += 1
                 last_state[i] = state
+
+
+def naive_count_times(events, origin_us: int) -> dict:
+    """{(x, y): [sum of ON event times, sum of OFF event times]} of ``events`` (seconds after ``origin_us``), in
+    plain Python."""
+    times: dict = {}
+    for t, x, y, p in zip(events["t"].tolist(), events["x"].tolist(), events["y"].tolist(), events["p"].tolist()):
+        times.setdefault((x, y), [0.0, 0.0])[0 if p else 1] += (t - origin_us) / 1e6
+    return times
+
+
+def naive_frame_time_sums(image, x0, y0, width, counts, times, fired, black, max_events, min_signal, saturated_dn,
+                          time_sums) -> None:
+    """onEI's event-time sums for one frame, pixel by pixel in plain Python (see
+    ``evtools._kernels.estimate.frame_time_sums``): a usable pixel (as :func:`naive_frame_sums` has it) adds
+    (z_on, A z_on, -B z_on, z_off, A z_off, -B z_off), with z its event-time sums and A, B its counts."""
+    for row in range(image.shape[0]):
+        for column in range(image.shape[1]):
+            i = (y0 + row) * width + x0 + column
+            dn = float(image[row][column])
+            if fired[i] > max_events or dn >= saturated_dn or dn - black < min_signal:
+                continue
+            a, b = float(counts[i][0]), -float(counts[i][1])
+            z_on, z_off = float(times[i][0]), float(times[i][1])
+            for r, value in enumerate((z_on, a * z_on, b * z_on, z_off, a * z_off, b * z_off)):
+                time_sums[r][i] += value
