@@ -385,9 +385,9 @@ class FrameThresholdEstimator:
                            float(SATURATED_DN), short["sums"][index], short["runs"][index], short["run_counts"][index],
                            short["half"], 0, short["inverse_sums"][index], short["new_counts"][index],
                            self.saturated[:0])
-                for time_sums in (self.time_sums[index], short["time_sums"][index]):
-                    frame_time_sums(image, x0, y0, self.width, self.counts, self.event_times, self.marks,
-                                    self.exposures, self._log_table(index, levels), MAX_EXPOSURE_EVENTS, time_sums)
+                frame_time_sums(image, x0, y0, self.width, self.counts, self.event_times, self.marks, self.exposures,
+                                self._log_table(index, levels), MAX_EXPOSURE_EVENTS, self.time_sums[index],
+                                short["time_sums"][index])
         self.frames_used += 1
         if self.interval_us is not None:
             self._snapshot_maps(frame.exposure_end_us)

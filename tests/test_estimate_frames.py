@@ -80,12 +80,14 @@ def test_count_times_against_plain_python(n, seed, cuts, origin_us):
 @given(seed=st.integers(0, 2**32 - 1), width=st.integers(1, 9), height=st.integers(1, 7), frames=st.integers(1, 8),
        black=st.sampled_from([0.0, 4.0, 16.0]), bits=st.sampled_from([8, 16]))
 def test_frame_time_sums_against_plain_python(seed, width, height, frames, black, bits):
-    """onEI's per-frame event-time sums over frames of random regions (pixels dark, saturated or that fired too
-    often in the exposure left out, as the thresholds' sums leave them) against a pixel-by-pixel loop."""
+    """onEI's per-frame event-time sums, both memories' in one pass, over frames of random regions (pixels dark,
+    saturated or that fired too often in the exposure left out, as the thresholds' sums leave them) against a
+    pixel-by-pixel loop."""
     rng = np.random.default_rng(seed)
     pixels = width * height
     dtype = np.uint8 if bits == 8 else np.uint16
     kernel_sums, naive_sums = np.zeros((TIME_SUMS, pixels)), np.zeros((TIME_SUMS, pixels))
+    short_sums, naive_short = np.zeros((TIME_SUMS, pixels)), np.zeros((TIME_SUMS, pixels))
     counts = np.zeros((pixels, FRAMES_ROW), np.int64)
     times = np.zeros((pixels, FRAMES_ROW))
     marks = np.full((pixels, 2), -1, np.int32)
@@ -102,9 +104,13 @@ def test_frame_time_sums_against_plain_python(seed, width, height, frames, black
         x0, y0 = int(rng.integers(0, width)), int(rng.integers(0, height))
         image = rng.integers(0, 256 if bits == 8 else 400, (int(rng.integers(1, height - y0 + 1)),
                                                            int(rng.integers(1, width - x0 + 1)))).astype(dtype)
-        frame_time_sums(image, x0, y0, width, counts, times, marks, exposure, log_dn, 1, kernel_sums)
+        short_sums *= 0.5  # the second memory forgets faster: the same additions on other sums
+        naive_short *= 0.5
+        frame_time_sums(image, x0, y0, width, counts, times, marks, exposure, log_dn, 1, kernel_sums, short_sums)
         naive_frame_time_sums(image, x0, y0, width, counts, times, effective, black, 1, 8.0, 250.0, naive_sums)
+        naive_frame_time_sums(image, x0, y0, width, counts, times, effective, black, 1, 8.0, 250.0, naive_short)
     np.testing.assert_allclose(kernel_sums, naive_sums, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(short_sums, naive_short, rtol=1e-12, atol=1e-12)
 
 
 def _drifting_pixel(seed: int, rate: float, t_s: float):

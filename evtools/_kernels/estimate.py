@@ -694,12 +694,13 @@ TIME_SUMS = 6
 
 
 @kernel
-def frame_time_sums(image, x0, y0, width, counts, times, marks, exposure, log_dn, max_events,
-                    time_sums):  # pragma: no cover - compiled
+def frame_time_sums(image, x0, y0, width, counts, times, marks, exposure, log_dn, max_events, time_sums,
+                    short_time_sums):  # pragma: no cover - compiled
     """onEI's lag: every pixel that :func:`frame_sums` uses of this frame (its DN has a log in ``log_dn``, it fired
     at most ``max_events`` times in the exposure) adds its event-time sums ``z_on``, ``z_off`` (:func:`count_times`)
     against its ``x1 = A``, ``x2 = -B`` to ``time_sums`` (:data:`TIME_SUMS` rows): the right-hand sides of the
-    least squares that regress z on the design of the thresholds' fit. Under a drift ``theta(t) = theta(T) (1 + r
+    least squares that regress z on the design of the thresholds' fit; and to ``short_time_sums`` alike (onEI's
+    second memory: one pass for both). Under a drift ``theta(t) = theta(T) (1 + r
     (t - T))`` a pixel's log DN is ``theta_on(T) (A (1 - r T) + r z_on) - theta_off(T) (...)``, so these coefficients
     say at which time each map's thresholds hold."""
     for row in range(image.shape[0]):
@@ -713,12 +714,13 @@ def frame_time_sums(image, x0, y0, width, counts, times, marks, exposure, log_dn
             x2 = -float(counts[i, FRAMES_OFF])
             z_on = times[i, FRAMES_ON]
             z_off = times[i, FRAMES_OFF]
-            time_sums[0, i] += z_on
-            time_sums[1, i] += x1 * z_on
-            time_sums[2, i] += x2 * z_on
-            time_sums[3, i] += z_off
-            time_sums[4, i] += x1 * z_off
-            time_sums[5, i] += x2 * z_off
+            for sums in (time_sums, short_time_sums):
+                sums[0, i] += z_on
+                sums[1, i] += x1 * z_on
+                sums[2, i] += x2 * z_on
+                sums[3, i] += z_off
+                sums[4, i] += x1 * z_off
+                sums[5, i] += x2 * z_off
 
 
 @kernel
