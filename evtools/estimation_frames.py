@@ -86,6 +86,10 @@ NOT_OBSERVABLE_WITH_FRAMES = ("events give thresholds relative to one another an
 STEP_SHARE = 0.05
 """onEI: a shared change of the thresholds by more than this share between the short and the long memory (beyond
 what the drift explains) is a step (see ``FrameThresholdEstimator._step``)."""
+WEIGHTED = ("sums", "runs", "new_counts", "inverse_sums", "time_sums")
+"""onEI: each memory's arrays that hold frames times their weight (see ``FrameThresholdEstimator._forget``)."""
+MAX_WEIGHT = 1e100
+"""onEI: a memory's frame weight (``exp(t / forget)``) past this starts again from 1, its sums divided by it."""
 RESTART_WEIGHT = math.exp(-1.0)
 """onEI: after a step the long memory restarts from the short one aged by one interval (its sums times ``exp(-1)``):
 the step is seen at the end of the first interval after it (rarely the second), when a third of the short memory's
@@ -227,6 +231,7 @@ class FrameThresholdEstimator:
         self.events = 0
         self.frames_used = self.frames_late = self.frames_outside = 0
         self.t_frame_us: int | None = None  # the last frame used (online forgetting)
+        self.weight = 1.0  # onEI: the weight of a frame added now (see _forget)
         self.next_map_us: int | None = None
         self.maps: list = []
         self.trend: SharedTrend | None = None  # onEI: the shared drift's level, for the maps' lag
@@ -237,7 +242,8 @@ class FrameThresholdEstimator:
             self.short = {"sums": np.zeros((candidates, N_SUMS, pixels)), "runs": np.zeros((candidates, 3, pixels)),
                           "run_counts": np.full((candidates, 2, pixels), -1, np.int64),
                           "new_counts": np.zeros((candidates, pixels)), "inverse_sums": np.zeros((candidates, pixels)),
-                          "half": np.zeros((2, N_SUMS, 0)), "time_sums": np.zeros((candidates, TIME_SUMS, pixels))}
+                          "half": np.zeros((2, N_SUMS, 0)), "time_sums": np.zeros((candidates, TIME_SUMS, pixels)),
+                          "weight": 1.0}
         # onEI: each pixel's sums of its counted events' times, and the frames' sums of them (see SharedTrend)
         self.event_times = np.zeros((pixels, FRAMES_ROW)) if interval_us is not None else None
         self.time_sums = np.zeros((len(self.candidates), TIME_SUMS, pixels)) if interval_us is not None else None
@@ -377,35 +383,37 @@ class FrameThresholdEstimator:
                        self._log_table(index, levels), float(black), log_exposure, MAX_EXPOSURE_EVENTS,
                        float(SATURATED_DN), self.sums[index], self.runs[index], self.run_counts[index],
                        self.half_sums[index], self.sample_step, self.inverse_sums[index], self.new_counts[index],
-                       self.saturated if index == 0 else self.saturated[:0])
+                       self.saturated if index == 0 else self.saturated[:0], self.weight)
             if self.short is not None:
                 short = self.short
                 frame_sums(image, x0, y0, self.width, self.counts, self.marks, self.exposures,
                            self._log_table(index, levels), float(black), log_exposure, MAX_EXPOSURE_EVENTS,
                            float(SATURATED_DN), short["sums"][index], short["runs"][index], short["run_counts"][index],
                            short["half"], 0, short["inverse_sums"][index], short["new_counts"][index],
-                           self.saturated[:0])
+                           self.saturated[:0], short["weight"])
                 frame_time_sums(image, x0, y0, self.width, self.counts, self.event_times, self.marks, self.exposures,
                                 self._log_table(index, levels), MAX_EXPOSURE_EVENTS, self.time_sums[index],
-                                short["time_sums"][index])
+                                self.weight, short["time_sums"][index], short["weight"])
         self.frames_used += 1
         if self.interval_us is not None:
             self._snapshot_maps(frame.exposure_end_us)
 
     def _forget(self, t_us: int) -> None:
-        """onEI: older frames weigh ``exp(-age / forget_us)``."""
+        """onEI: older frames weigh ``exp(-age / forget_us)`` (the short memory's ``exp(-age / interval_us)``), kept
+        lazily: each new frame is added with a weight that grows as ``exp(t / forget_us)`` (``self.weight``, the short
+        memory's ``short["weight"]``) and the sums are read divided by it (:meth:`_fit`), so no sum is touched at a
+        frame (multiplying every sum at every frame took a third of an online run with the black level fitted: 11
+        candidates, two memories); the weights start again from 1 before they pass :data:`MAX_WEIGHT`."""
         if self.interval_us is None:
             return
         if self.t_frame_us is not None and t_us > self.t_frame_us:
-            factor = math.exp(-(t_us - self.t_frame_us) / self.forget_us)
-            self.sums *= factor
-            self.runs *= factor
-            self.new_counts *= factor
-            self.inverse_sums *= factor
-            self.time_sums *= factor
-            factor = math.exp(-(t_us - self.t_frame_us) / self.interval_us)
-            for name in ("sums", "runs", "new_counts", "inverse_sums", "time_sums"):
-                self.short[name] *= factor
+            self.weight *= math.exp((t_us - self.t_frame_us) / self.forget_us)
+            self.short["weight"] *= math.exp((t_us - self.t_frame_us) / self.interval_us)
+            if max(self.weight, self.short["weight"]) > MAX_WEIGHT:
+                for name in WEIGHTED:
+                    getattr(self, name)[...] /= self.weight
+                    self.short[name][...] /= self.short["weight"]
+                self.weight = self.short["weight"] = 1.0
         self.t_frame_us = t_us
 
     def _snapshot_maps(self, t_us: int) -> None:
@@ -436,7 +444,9 @@ class FrameThresholdEstimator:
         index = self.black_level_index
         whole = fits[index]
         fold_runs(short["sums"][index], short["runs"][index], short["run_counts"][index])
-        recent = _least_squares(short["sums"][index], short["new_counts"][index], short["inverse_sums"][index])
+        to_true = 1.0 / short["weight"]
+        recent = _least_squares(short["sums"][index] * to_true, short["new_counts"][index] * to_true,
+                                short["inverse_sums"][index] * to_true)
         both = recent["solved"] & whole["solved"] & (recent["n"] >= MIN_FRAMES / 2) & (whole["n"] >= MIN_FRAMES)
         with np.errstate(divide="ignore", invalid="ignore"):
             both &= (recent["on"] > 0) & (recent["off"] > 0) & (whole["on"] > 0) & (whole["off"] > 0)
@@ -444,17 +454,17 @@ class FrameThresholdEstimator:
             return False
         expected = np.zeros(2)  # the drift's share: rate times how much later the short memory's thresholds hold
         if self.trend is not None:
-            later_s = (self._lags_of(short["sums"][index], short["time_sums"][index], recent, t_us)
-                       - self._lags_of(self.sums[index], self.time_sums[index], whole, t_us))[:, both]
+            later_s = (self._lags_of(short["sums"][index] * to_true, short["time_sums"][index] * to_true, recent, t_us)
+                       - self._lags_of(self.sums[index] / self.weight, self.time_sums[index] / self.weight, whole,
+                                       t_us))[:, both]
             expected = self.trend.rates * np.nan_to_num(np.median(later_s, axis=1))
         shift = [math.log(np.median(recent[key][both] / whole[key][both])) for key in ("on", "off")]
         if max(abs(shift[0] - expected[0]), abs(shift[1] - expected[1])) <= math.log1p(STEP_SHARE):
             return False
         for candidate in range(len(self.candidates)):  # (the open runs into the sums: the runs restart empty)
             fold_runs(short["sums"][candidate], short["runs"][candidate], short["run_counts"][candidate])
-        for name, memory in (("sums", self.sums), ("runs", self.runs), ("new_counts", self.new_counts),
-                             ("inverse_sums", self.inverse_sums), ("time_sums", self.time_sums)):
-            memory[...] = short[name] * RESTART_WEIGHT
+        for name in WEIGHTED:  # (each memory's sums times its weight)
+            getattr(self, name)[...] = short[name] * (RESTART_WEIGHT * self.weight / short["weight"])
         self.run_counts[...] = short["run_counts"]  # (the open runs' counts: which run, not a weight)
         if len(self.sample):  # the black level's test restarts too, its curve so far kept for pooling
             self.black_level_before = self._black_level_curve()
@@ -602,7 +612,7 @@ class FrameThresholdEstimator:
         fit = fits[index]
         with np.errstate(invalid="ignore"):
             valid = estimate.valid.ravel() & fit["solved"] & (fit["on"] > 0) & (fit["off"] > 0)
-        lags = self._lags_of(self.sums[index], self.time_sums[index], fit, t_us)
+        lags = self._lags_of(self.sums[index] / self.weight, self.time_sums[index] / self.weight, fit, t_us)
         factors = self.trend.factors(t_us, fit["on"], fit["off"], valid, lags, index)
         shape = estimate.on.shape
         estimate.on = (estimate.on * factors[0].reshape(shape)).astype(np.float32)
@@ -629,7 +639,9 @@ class FrameThresholdEstimator:
         """Each pixel's least squares for black-level candidate ``index``: thresholds, residual RMS, the RMS the
         model allows, and the fit (the larger relative standard error)."""
         fold_runs(self.sums[index], self.runs[index], self.run_counts[index])
-        return _least_squares(self.sums[index], self.new_counts[index], self.inverse_sums[index])
+        to_true = 1.0 / self.weight  # (onEI's lazy forgetting, see _forget)
+        return _least_squares(self.sums[index] * to_true, self.new_counts[index] * to_true,
+                              self.inverse_sums[index] * to_true)
 
 
 def _cofactors(s: np.ndarray) -> tuple:
@@ -693,7 +705,7 @@ def _least_squares(s: np.ndarray, new_counts: np.ndarray, inverse_sums: np.ndarr
         fit = np.sqrt(np.maximum(se_on / np.abs(on), se_off / np.abs(off)) ** 2 + offset_share**2)
         expected_rms = np.sqrt(band**2 / 12 + (READ_NOISE_DN * mean_inverse) ** 2)
     fit = np.where(solved, fit, np.nan)
-    return {"on": np.where(solved, on, np.nan), "off": np.where(solved, off, np.nan), "n": n, "solved": solved,
+    return {"on": np.where(solved, on, np.nan), "off": np.where(solved, off, np.nan), "n": n.copy(), "solved": solved,
             "rms": np.sqrt(variance), "expected_rms": expected_rms, "fit": fit}
 
 

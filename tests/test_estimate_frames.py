@@ -80,9 +80,9 @@ def test_count_times_against_plain_python(n, seed, cuts, origin_us):
 @given(seed=st.integers(0, 2**32 - 1), width=st.integers(1, 9), height=st.integers(1, 7), frames=st.integers(1, 8),
        black=st.sampled_from([0.0, 4.0, 16.0]), bits=st.sampled_from([8, 16]))
 def test_frame_time_sums_against_plain_python(seed, width, height, frames, black, bits):
-    """onEI's per-frame event-time sums, both memories' in one pass, over frames of random regions (pixels dark,
-    saturated or that fired too often in the exposure left out, as the thresholds' sums leave them) against a
-    pixel-by-pixel loop."""
+    """onEI's per-frame event-time sums, both memories' in one pass with their weights, over frames of random
+    regions (pixels dark, saturated or that fired too often in the exposure left out, as the thresholds' sums leave
+    them) against a pixel-by-pixel loop."""
     rng = np.random.default_rng(seed)
     pixels = width * height
     dtype = np.uint8 if bits == 8 else np.uint16
@@ -104,11 +104,13 @@ def test_frame_time_sums_against_plain_python(seed, width, height, frames, black
         x0, y0 = int(rng.integers(0, width)), int(rng.integers(0, height))
         image = rng.integers(0, 256 if bits == 8 else 400, (int(rng.integers(1, height - y0 + 1)),
                                                            int(rng.integers(1, width - x0 + 1)))).astype(dtype)
-        short_sums *= 0.5  # the second memory forgets faster: the same additions on other sums
-        naive_short *= 0.5
-        frame_time_sums(image, x0, y0, width, counts, times, marks, exposure, log_dn, 1, kernel_sums, short_sums)
-        naive_frame_time_sums(image, x0, y0, width, counts, times, effective, black, 1, 8.0, 250.0, naive_sums)
-        naive_frame_time_sums(image, x0, y0, width, counts, times, effective, black, 1, 8.0, 250.0, naive_short)
+        weight, short_weight = rng.uniform(0.5, 3.0, 2)  # each memory's weight of this frame
+        frame_time_sums(image, x0, y0, width, counts, times, marks, exposure, log_dn, 1, kernel_sums, weight,
+                        short_sums, short_weight)
+        naive_frame_time_sums(image, x0, y0, width, counts, times, effective, black, 1, 8.0, 250.0, naive_sums,
+                              weight)
+        naive_frame_time_sums(image, x0, y0, width, counts, times, effective, black, 1, 8.0, 250.0, naive_short,
+                              short_weight)
     np.testing.assert_allclose(kernel_sums, naive_sums, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(short_sums, naive_short, rtol=1e-12, atol=1e-12)
 
@@ -182,10 +184,12 @@ def test_frame_sums_against_plain_python(seed, width, height, frames, black, ste
         x0, y0 = int(rng.integers(0, width)), int(rng.integers(0, height))
         image = rng.integers(0, 256 if bits == 8 else 400, (int(rng.integers(1, height - y0 + 1)),
                                                            int(rng.integers(1, width - x0 + 1)))).astype(dtype)
+        weight = float(rng.choice([0.5, 1.0, 2.0, 4.0]))  # onEI's forgetting: a frame's weight (a power of two: the
+        # halves' side is a comparison with the weighted mean count level, which must not round differently)
         frame_sums(image, x0, y0, width, counts, marks, exposure, log_dn, black, -4.6, 1, 250.0, kernel_sums,
-                   runs, run_counts, kernel_half, step, kernel_extra[0], kernel_extra[1], kernel_extra[2])
+                   runs, run_counts, kernel_half, step, kernel_extra[0], kernel_extra[1], kernel_extra[2], weight)
         naive_frame_sums(image, x0, y0, width, counts, effective, black, -4.6, 1, 8.0, 250.0, naive_sums,
-                         naive_half, step, naive_extra[0], naive_extra[1], last_state, naive_extra[2])
+                         naive_half, step, naive_extra[0], naive_extra[1], last_state, naive_extra[2], weight)
     fold_runs(kernel_sums, runs, run_counts)
     assert not runs.any()
     for got, expected in zip([kernel_sums, kernel_half] + kernel_extra, [naive_sums, naive_half] + naive_extra):
@@ -560,6 +564,31 @@ def test_online_steps_are_seen_with_the_black_level_fitted(seed, factor):
         valid = series.valid[after[0]]
         for estimated, true in ((series.on[after[0]], on), (series.off[after[0]], off)):
             assert abs(np.median(estimated[valid] / (true[valid] * factor)) - 1) <= 0.06, factor
+
+
+def test_online_forgetting_is_the_same_whenever_the_weights_start_again(monkeypatch):
+    """onEI forgets lazily (each frame added with a weight growing as exp(t / forget), the sums read divided by it,
+    see ``_forget``): with the weights started again from 1 every few frames (MAX_WEIGHT 3 instead of 1e100) the
+    maps, the fit, the steps seen and the valid pixels are those of the default, a step's restart included."""
+    import evtools.estimation_frames as frames_module
+
+    on, off = _thresholds(5)
+    events, frames = davis_recording(W, H, 5_000_000, seed=5, theta_on=on, theta_off=off, exposure_us=10_000,
+                                     pan_px_s=(30.0, -8.0), wobble_px=6.0, black_level=0.0,
+                                     threshold_step=(2_500_000, 1.3))
+    results = []
+    for max_weight in (frames_module.MAX_WEIGHT, 3.0):
+        monkeypatch.setattr(frames_module, "MAX_WEIGHT", max_weight)
+        estimator = FrameThresholdEstimator(W, H, max_fit=0.1, interval_us=500_000)
+        estimator.process(evtools.make_events(events["t"], events["x"], events["y"], events["p"]))
+        estimator.add_frames([evtools.Frame(image, (b + e) // 2, b, e) for b, e, image in frames])
+        results.append(estimator.result())
+    default, restarted = results
+    assert default.attributes["steps_us"] == restarted.attributes["steps_us"] and default.attributes["steps_seen"] == 1
+    np.testing.assert_array_equal(default.series.valid, restarted.series.valid)
+    assert default.series.valid[-1].sum() >= 100
+    for key in ("on", "off", "fit"):
+        np.testing.assert_allclose(getattr(default.series, key), getattr(restarted.series, key), rtol=1e-4)
 
 
 @settings(max_examples=1, deadline=None)  # (and the example: 40 s a run)

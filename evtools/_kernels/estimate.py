@@ -694,15 +694,15 @@ TIME_SUMS = 6
 
 
 @kernel
-def frame_time_sums(image, x0, y0, width, counts, times, marks, exposure, log_dn, max_events, time_sums,
-                    short_time_sums):  # pragma: no cover - compiled
+def frame_time_sums(image, x0, y0, width, counts, times, marks, exposure, log_dn, max_events, time_sums, weight,
+                    short_time_sums, short_weight):  # pragma: no cover - compiled
     """onEI's lag: every pixel that :func:`frame_sums` uses of this frame (its DN has a log in ``log_dn``, it fired
     at most ``max_events`` times in the exposure) adds its event-time sums ``z_on``, ``z_off`` (:func:`count_times`)
     against its ``x1 = A``, ``x2 = -B`` to ``time_sums`` (:data:`TIME_SUMS` rows): the right-hand sides of the
-    least squares that regress z on the design of the thresholds' fit; and to ``short_time_sums`` alike (onEI's
-    second memory: one pass for both). Under a drift ``theta(t) = theta(T) (1 + r
-    (t - T))`` a pixel's log DN is ``theta_on(T) (A (1 - r T) + r z_on) - theta_off(T) (...)``, so these coefficients
-    say at which time each map's thresholds hold."""
+    least squares that regress z on the design of the thresholds' fit, weighing ``weight``; and to
+    ``short_time_sums`` alike, weighing ``short_weight`` (onEI's second memory: one pass for both). Under a drift
+    ``theta(t) = theta(T) (1 + r (t - T))`` a pixel's log DN is ``theta_on(T) (A (1 - r T) + r z_on) - theta_off(T)
+    (...)``, so these coefficients say at which time each map's thresholds hold."""
     for row in range(image.shape[0]):
         first = (y0 + row) * width + x0
         for column in range(image.shape[1]):
@@ -714,13 +714,13 @@ def frame_time_sums(image, x0, y0, width, counts, times, marks, exposure, log_dn
             x2 = -float(counts[i, FRAMES_OFF])
             z_on = times[i, FRAMES_ON]
             z_off = times[i, FRAMES_OFF]
-            for sums in (time_sums, short_time_sums):
-                sums[0, i] += z_on
-                sums[1, i] += x1 * z_on
-                sums[2, i] += x2 * z_on
-                sums[3, i] += z_off
-                sums[4, i] += x1 * z_off
-                sums[5, i] += x2 * z_off
+            for sums, w in ((time_sums, weight), (short_time_sums, short_weight)):
+                sums[0, i] += w * z_on
+                sums[1, i] += w * x1 * z_on
+                sums[2, i] += w * x2 * z_on
+                sums[3, i] += w * z_off
+                sums[4, i] += w * x1 * z_off
+                sums[5, i] += w * x2 * z_off
 
 
 @kernel
@@ -769,7 +769,7 @@ def fold_runs(sums, runs, run_counts):  # pragma: no cover - compiled
 @kernel
 def frame_sums(image, x0, y0, width, counts, marks, exposure, log_dn, black, log_exposure, max_events,
                saturated_dn, sums, runs, run_counts, half, sample_step, inverse_sums, new_counts,
-               saturated):  # pragma: no cover - compiled
+               saturated, weight):  # pragma: no cover - compiled
     """One APS frame (``image``, its corner at ``x0, y0`` on a sensor ``width`` wide) into the frames method's
     per-pixel least-squares sums (see :class:`evtools.estimation_frames.FrameThresholdEstimator`), for one black
     level: a pixel that fired at most ``max_events`` times during the exposure (``marks``: see
@@ -781,7 +781,9 @@ def frame_sums(image, x0, y0, width, counts, marks, exposure, log_dn, black, log
     number, sum y, sum y^2; ``run_counts``: its A and B, -1 before any) and folded into ``sums`` when the counts
     change (``new_counts`` counts those frames) or by :func:`fold_runs`: three sums a frame instead of ten. With
     ``sample_step`` (0: none), every ``sample_step``-th pixel also adds the frame to ``half[0 or 1]``, by whether its
-    count level is above its mean so far. ``saturated`` (unless empty) counts the frames in which a pixel is."""
+    count level is above its mean so far. ``saturated`` (unless empty) counts the frames in which a pixel is. The
+    frame weighs ``weight`` in ``sums``, ``runs``, ``inverse_sums`` and ``new_counts`` (onEI's forgetting: see
+    ``FrameThresholdEstimator._forget``), 1 in ``half``."""
     tally = saturated.shape[0] > 0
     for row in range(image.shape[0]):
         first = (y0 + row) * width + x0
@@ -824,8 +826,8 @@ def frame_sums(image, x0, y0, width, counts, marks, exposure, log_dn, black, log
                 _fold_run(sums, runs, run_counts, i)
                 run_counts[0, i] = on
                 run_counts[1, i] = off
-                new_counts[i] += 1.0
-            runs[0, i] += 1.0
-            runs[1, i] += y
-            runs[2, i] += y * y
-            inverse_sums[i] += 1.0 / (value - black)
+                new_counts[i] += weight
+            runs[0, i] += weight
+            runs[1, i] += weight * y
+            runs[2, i] += weight * y * y
+            inverse_sums[i] += weight / (value - black)

@@ -262,14 +262,15 @@ def naive_polarity_counts(events, width: int, height: int) -> dict:
 
 
 def naive_frame_sums(image, x0, y0, width, counts, fired, black, log_exposure, max_events, min_signal,
-                     saturated_dn, sums, half, sample_step, inverse_sums, new_counts, last_state, saturated) -> None:
+                     saturated_dn, sums, half, sample_step, inverse_sums, new_counts, last_state, saturated,
+                     weight=1.0) -> None:
     """The frames method's sums for one frame, pixel by pixel in plain Python (see
     ``evtools._kernels.estimate.frame_sums``), every sum added at every frame: a pixel of the frame (``image``, its
     corner at ``x0, y0``) counts in ``saturated`` when it is; a usable one (at most ``max_events`` events in its
     exposure: ``fired[i]``, not saturated, at least ``min_signal`` above black) adds (1, A, -B, y, A^2, B^2, -AB,
     Ay, -By, y^2) to ``sums``, with A, B its ``counts`` at the exposure's middle, and 1 / (DN - black) to
     ``inverse_sums``; with ``sample_step``, every such pixel also to ``half[side]`` by its level against its mean
-    so far."""
+    so far. The frame weighs ``weight`` in ``sums``, ``inverse_sums`` and ``new_counts`` (1 in ``half``)."""
     for row in range(image.shape[0]):
         for column in range(image.shape[1]):
             i = (y0 + row) * width + x0 + column
@@ -286,11 +287,11 @@ def naive_frame_sums(image, x0, y0, width, counts, fired, black, log_exposure, m
                 for r in range(10):
                     half[side][r][i // sample_step] += row_of_sums[r]
             for r in range(10):
-                sums[r][i] += row_of_sums[r]
-            inverse_sums[i] += 1.0 / (dn - black)
+                sums[r][i] += weight * row_of_sums[r]
+            inverse_sums[i] += weight / (dn - black)
             state = int(counts[i][0]) + int(counts[i][1])
             if state != last_state[i]:
-                new_counts[i] += 1
+                new_counts[i] += weight
                 last_state[i] = state
 
 
@@ -304,7 +305,7 @@ def naive_count_times(events, origin_us: int) -> dict:
 
 
 def naive_frame_time_sums(image, x0, y0, width, counts, times, fired, black, max_events, min_signal, saturated_dn,
-                          time_sums) -> None:
+                          time_sums, weight=1.0) -> None:
     """onEI's event-time sums for one frame, pixel by pixel in plain Python (see
     ``evtools._kernels.estimate.frame_time_sums``): a usable pixel (as :func:`naive_frame_sums` has it) adds
     (z_on, A z_on, -B z_on, z_off, A z_off, -B z_off), with z its event-time sums and A, B its counts."""
@@ -317,4 +318,4 @@ def naive_frame_time_sums(image, x0, y0, width, counts, times, fired, black, max
             a, b = float(counts[i][0]), -float(counts[i][1])
             z_on, z_off = float(times[i][0]), float(times[i][1])
             for r, value in enumerate((z_on, a * z_on, b * z_on, z_off, a * z_off, b * z_off)):
-                time_sums[r][i] += value
+                time_sums[r][i] += weight * value
