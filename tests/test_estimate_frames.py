@@ -593,17 +593,19 @@ def test_online_forgetting_is_the_same_whenever_the_weights_start_again(monkeypa
 
 @settings(max_examples=1, deadline=None)  # (and the example: 40 s a run)
 @given(seed=st.integers(0, 2**32 - 1), factor=st.sampled_from([1.3, 1 / 1.3]))
-@example(seed=322, factor=1.3)  # CI's draw: seen at the second map after the step
-def test_online_maps_recover_from_a_threshold_step(seed, factor):
+@example(seed=322, factor=1 / 1.3)  # a scene that shows the step slowly: 3.4, 4.0, 3.0 % (seen at 10.5 s before the
+def test_online_maps_recover_from_a_threshold_step(seed, factor):  # two-maps rule; CI drew its x1.3: 3.9, 8.8 %)
     """onEI (0.5 s maps, 1.5 s memory) on the independent generator, every threshold stepping x1.3 or /1.3 at 7 s:
     the step is seen in the first or second map after it (the short memory against the long one: in the first, at
-    0.53 s, in 16 of 17 runs, its shift 5.4-10.7 % against STEP_SHARE's 5 %; CI drew seed 322, 3.9 % at the first map,
-    seen at the second, 1.03 s, and within 2.1 % from 2 s on), and from two seconds after it each map's median ratio to
-    the new thresholds is within 5.5 %. Measured over 16 runs (8 seeds x both steps): at 2 s 0.2-3.3 % off (within 3 %
-    in 15; mean 1.5 %), every later map within 3.7 % (the 1.5 s memory's own noise); with the long memory restarted from
-    the short one at full weight (its frames from before the step unaged): 0.6-4.4 % at 2 s (mean 1.9 %) and 6-17 % off
-    on up to 262 valid pixels in the first map after the step; before the step detection, with the drift correction
-    alone: 0.5-5.7 % at 2 s then an overshoot to 6.9 %; with neither, 6.2-10.9 % at 2 s."""
+    0.53 s, in 16 of 18 runs, its shift 5.3-10.7 % against STEP_SHARE's 5 %; seed 322's scene shows it slowly, 3.9 %
+    (x1.3) and 3.4 % (/1.3) at the first map: seen at the second, by the shift beyond STEP_SHARE_TWICE in both),
+    and from two seconds after it each map's median ratio to the new thresholds is within 5.5 %. Measured over 18
+    runs (seeds 1-8 and 322 x both steps): at 2 s 0.1-3.2 % off (within 3 % in 17; mean 1.3 %), every later map
+    within 3.4 % (the 1.5 s memory's own noise; seed 322 /1.3 8.4 % at 2 s when its step was seen at 10.5 s); with
+    the long memory restarted from the short one at full weight (its frames from before the step unaged): 0.6-4.4 %
+    at 2 s (mean 1.9 %) and 6-17 % off on up to 262 valid pixels in the first map after the step; before the step
+    detection, with the drift correction alone: 0.5-5.7 % at 2 s then an overshoot to 6.9 %; with neither,
+    6.2-10.9 % at 2 s."""
     on, off = _thresholds(seed % 1000)
     events, frames = davis_recording(W, H, 14_000_000, seed=seed, theta_on=on, theta_off=off, exposure_us=10_000,
                                      pan_px_s=(30.0, -8.0), wobble_px=6.0, black_level=0.0,
