@@ -61,6 +61,23 @@ def test_exposure_counts_against_plain_python(n, seed, cuts, plan):
     assert (counts[:, FRAMES_ON] + counts[:, FRAMES_OFF]).tolist() == expected_counts
 
 
+def _random_exposure(rng, counts, marks, exposure: int, width: int, height: int, bits: int):
+    """One random exposure for the per-frame kernels' tests: new counts for half the pixels (added to ``counts``),
+    70 % of the pixels marked with events in it (the others keep their old marks; ``marks`` updated), and a random
+    region's image. Returns the new counts, each pixel's events in this exposure, the region's corner and image."""
+    pixels = width * height
+    new = rng.integers(0, 3, (pixels, 2)) * (rng.random((pixels, 1)) < 0.5)
+    counts[:, :2] += new
+    in_exposure = rng.random(pixels) < 0.7
+    marks[in_exposure, 0] = exposure
+    marks[:, 1] = rng.integers(0, 4, pixels)
+    effective = np.where(marks[:, 0] == exposure, marks[:, 1], 0)
+    x0, y0 = int(rng.integers(0, width)), int(rng.integers(0, height))
+    image = rng.integers(0, 256 if bits == 8 else 400, (int(rng.integers(1, height - y0 + 1)),
+                                                       int(rng.integers(1, width - x0 + 1))))
+    return new, effective, x0, y0, image.astype(np.uint8 if bits == 8 else np.uint16)
+
+
 @settings(max_examples=20, deadline=None)
 @given(n=st.integers(0, 3000), seed=st.integers(0, 2**32 - 1), cuts=st.lists(st.integers(0, 3000), max_size=6),
        origin_us=st.integers(-10**6, 10**6))
@@ -85,7 +102,6 @@ def test_frame_time_sums_against_plain_python(seed, width, height, frames, black
     them) against a pixel-by-pixel loop."""
     rng = np.random.default_rng(seed)
     pixels = width * height
-    dtype = np.uint8 if bits == 8 else np.uint16
     kernel_sums, naive_sums = np.zeros((TIME_SUMS, pixels)), np.zeros((TIME_SUMS, pixels))
     short_sums, naive_short = np.zeros((TIME_SUMS, pixels)), np.zeros((TIME_SUMS, pixels))
     counts = np.zeros((pixels, FRAMES_ROW), np.int64)
@@ -94,16 +110,8 @@ def test_frame_time_sums_against_plain_python(seed, width, height, frames, black
     log_dn = np.empty(2**bits)
     log_levels(log_dn, black, 8.0, 250.0)
     for exposure in range(frames):
-        new = rng.integers(0, 3, (pixels, 2)) * (rng.random((pixels, 1)) < 0.5)
-        counts[:, :2] += new
+        new, effective, x0, y0, image = _random_exposure(rng, counts, marks, exposure, width, height, bits)
         times += new * (exposure + rng.random((pixels, 2)))
-        in_exposure = rng.random(pixels) < 0.7
-        marks[in_exposure, 0] = exposure
-        marks[:, 1] = rng.integers(0, 4, pixels)
-        effective = np.where(marks[:, 0] == exposure, marks[:, 1], 0)
-        x0, y0 = int(rng.integers(0, width)), int(rng.integers(0, height))
-        image = rng.integers(0, 256 if bits == 8 else 400, (int(rng.integers(1, height - y0 + 1)),
-                                                           int(rng.integers(1, width - x0 + 1)))).astype(dtype)
         weight, short_weight = rng.uniform(0.5, 3.0, 2)  # each memory's weight of this frame
         frame_time_sums(image, x0, y0, width, counts, times, marks, exposure, log_dn, 1, kernel_sums, weight,
                         short_sums, short_weight)
@@ -164,7 +172,6 @@ def test_frame_sums_against_plain_python(seed, width, height, frames, black, ste
     halves of the black level's test, the inverse signal, the new-count tally and the saturated frames all carried)."""
     rng = np.random.default_rng(seed)
     pixels = width * height
-    dtype = np.uint8 if bits == 8 else np.uint16
     samples = -(-pixels // step) if step else 0
     kernel_sums, naive_sums = np.zeros((10, pixels)), np.zeros((10, pixels))
     kernel_half, naive_half = np.zeros((2, 10, samples)), np.zeros((2, 10, samples))
@@ -176,14 +183,7 @@ def test_frame_sums_against_plain_python(seed, width, height, frames, black, ste
     log_dn = np.empty(2**bits)
     log_levels(log_dn, black, 8.0, 250.0)
     for exposure in range(frames):
-        counts[:, :2] += rng.integers(0, 3, (pixels, 2)) * (rng.random((pixels, 1)) < 0.5)
-        in_exposure = rng.random(pixels) < 0.7  # pixels with events in this exposure; the others keep old marks
-        marks[in_exposure, 0] = exposure
-        marks[:, 1] = rng.integers(0, 4, pixels)
-        effective = np.where(marks[:, 0] == exposure, marks[:, 1], 0)
-        x0, y0 = int(rng.integers(0, width)), int(rng.integers(0, height))
-        image = rng.integers(0, 256 if bits == 8 else 400, (int(rng.integers(1, height - y0 + 1)),
-                                                           int(rng.integers(1, width - x0 + 1)))).astype(dtype)
+        _, effective, x0, y0, image = _random_exposure(rng, counts, marks, exposure, width, height, bits)
         weight = float(rng.choice([0.5, 1.0, 2.0, 4.0]))  # onEI's forgetting: a frame's weight (a power of two: the
         # halves' side is a comparison with the weighted mean count level, which must not round differently)
         frame_sums(image, x0, y0, width, counts, marks, exposure, log_dn, black, -4.6, 1, 250.0, kernel_sums,
