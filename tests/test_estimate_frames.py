@@ -215,17 +215,19 @@ def davis(tmp_path_factory):
     return path, on, off
 
 
-@settings(max_examples=6, deadline=None)
-@given(chunk_events=st.integers(200, 40_000), frames_late=st.integers(0, 5))
-def test_the_estimate_does_not_depend_on_chunks_or_when_frames_arrive(davis, chunk_events, frames_late):
-    """Chunks of any size, and frames handed over up to 5 chunks after their events: the same maps."""
+@settings(max_examples=8, deadline=None)
+@given(chunk_events=st.integers(200, 40_000), frames_late=st.integers(0, 5), online=st.booleans())
+def test_the_estimate_does_not_depend_on_chunks_or_when_frames_arrive(davis, chunk_events, frames_late, online):
+    """Chunks of any size, and frames handed over up to 5 chunks after their events: the same maps, offline and
+    online (every map of the series: the event-time sums of onEI's lags are counted chunk by chunk too)."""
     path = davis[0]
     events, _, frames = evtools.read(path, frames=True)
-    reference = FrameThresholdEstimator(W, H)
+    options = {"interval_us": 1_000_000, "max_fit": 0.1} if online else {}
+    reference = FrameThresholdEstimator(W, H, **options)
     reference.process(events)
     reference.add_frames(frames)
     expected = reference.result()
-    estimator, waiting = FrameThresholdEstimator(W, H), list(frames)
+    estimator, waiting = FrameThresholdEstimator(W, H, **options), list(frames)
     for index, start in enumerate(range(0, len(events), chunk_events)):
         chunk = events[start:start + chunk_events]
         estimator.process(chunk)
@@ -238,6 +240,10 @@ def test_the_estimate_does_not_depend_on_chunks_or_when_frames_arrive(davis, chu
     np.testing.assert_array_equal(got.valid, expected.valid)
     np.testing.assert_allclose(got.on, expected.on, rtol=1e-9)
     np.testing.assert_allclose(got.off, expected.off, rtol=1e-9)
+    if online:
+        assert len(got.series.t_us) == len(expected.series.t_us) >= 10 and got.series.valid.any()
+        np.testing.assert_array_equal(got.series.valid, expected.series.valid)
+        np.testing.assert_allclose(got.series.on, expected.series.on, rtol=1e-6)
 
 
 def test_the_frames_give_absolute_thresholds_better_than_events_alone(davis, tmp_path):
