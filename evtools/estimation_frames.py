@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 
 from evtools._kernels.estimate import (FRAMES_OFF, FRAMES_ON, FRAMES_ROW, TIME_SUMS, count_times, exposure_counts,
-                                       fold_runs, frame_sums, frame_time_sums, log_levels, polarity_counts)
+                                       fold_runs, frame_sums, log_levels, polarity_counts)
 from evtools.estimation import DEFAULT_MIN_EVENTS, EstimationError, ThresholdEstimate, _series_of
 from evtools.events import StreamChecker, StreamInfo, as_chunk, empty_events
 
@@ -249,10 +249,12 @@ class FrameThresholdEstimator:
                           "run_counts": np.full((candidates, 2, pixels), -1, np.int64),
                           "new_counts": np.zeros((candidates, pixels)), "inverse_sums": np.zeros((candidates, pixels)),
                           "half": np.zeros((2, N_SUMS, 0)), "time_sums": np.zeros((candidates, TIME_SUMS, pixels)),
-                          "weight": 1.0}
+                          "run_times": np.zeros((candidates, FRAMES_ROW, pixels)), "weight": 1.0}
         # onEI: each pixel's sums of its counted events' times, and the frames' sums of them (see SharedTrend)
-        self.event_times = np.zeros((pixels, FRAMES_ROW)) if interval_us is not None else None
-        self.time_sums = np.zeros((len(self.candidates), TIME_SUMS, pixels)) if interval_us is not None else None
+        self.event_times = np.zeros((pixels if interval_us is not None else 0, FRAMES_ROW))
+        online = interval_us is not None  # (offline: empty, the kernels skip them)
+        self.time_sums = np.zeros((len(self.candidates), TIME_SUMS if online else 0, pixels if online else 0))
+        self.run_times = np.zeros((len(self.candidates), FRAMES_ROW if online else 0, pixels if online else 0))
         self.origin_us: int | None = None
         self.black_level_index = len(self.candidates) // 2  # the candidate nearest the black level last used
         self.steps_us: list[int] = []  # onEI: when a step was seen (and the memory restarted)
@@ -311,7 +313,7 @@ class FrameThresholdEstimator:
                 else:
                     exposure_counts(part["x"], part["y"], part["p"], self.width, self.counts, self.marks,
                                     exposure, True)
-                if self.event_times is not None:
+                if len(self.event_times):
                     count_times(part["t"], part["x"], part["y"], part["p"], self.width, self.origin_us,
                                 self.event_times)
                 self.held_events -= split
@@ -390,17 +392,16 @@ class FrameThresholdEstimator:
                        self._log_table(index, levels), float(black), log_exposure, MAX_EXPOSURE_EVENTS,
                        float(SATURATED_DN), self.sums[index], self.runs[index], self.run_counts[index],
                        self.half_sums[index], self.sample_step, self.inverse_sums[index], self.new_counts[index],
-                       self.saturated if index == 0 else self.saturated[:0], self.weight)
+                       self.saturated if index == 0 else self.saturated[:0], self.weight, self.event_times,
+                       self.time_sums[index], self.run_times[index])
             if self.short is not None:
                 short = self.short
                 frame_sums(image, x0, y0, self.width, self.counts, self.marks, self.exposures,
                            self._log_table(index, levels), float(black), log_exposure, MAX_EXPOSURE_EVENTS,
                            float(SATURATED_DN), short["sums"][index], short["runs"][index], short["run_counts"][index],
                            short["half"], 0, short["inverse_sums"][index], short["new_counts"][index],
-                           self.saturated[:0], short["weight"])
-                frame_time_sums(image, x0, y0, self.width, self.counts, self.event_times, self.marks, self.exposures,
-                                self._log_table(index, levels), MAX_EXPOSURE_EVENTS, self.time_sums[index],
-                                self.weight, short["time_sums"][index], short["weight"])
+                           self.saturated[:0], short["weight"], self.event_times, short["time_sums"][index],
+                           short["run_times"][index])
         self.frames_used += 1
         if self.interval_us is not None:
             self._snapshot_maps(frame.exposure_end_us)
@@ -450,7 +451,7 @@ class FrameThresholdEstimator:
         short = self.short
         index = self.black_level_index
         whole = fits[index]
-        fold_runs(short["sums"][index], short["runs"][index], short["run_counts"][index])
+        fold_runs(*self._runs_of(short, index))
         to_true = 1.0 / short["weight"]
         recent = _least_squares(short["sums"][index] * to_true, short["new_counts"][index] * to_true,
                                 short["inverse_sums"][index] * to_true)
@@ -474,10 +475,11 @@ class FrameThresholdEstimator:
             return False
         self.suspected = np.zeros(2)
         for candidate in range(len(self.candidates)):  # (the open runs into the sums: the runs restart empty)
-            fold_runs(short["sums"][candidate], short["runs"][candidate], short["run_counts"][candidate])
+            fold_runs(*self._runs_of(short, candidate))
         for name in WEIGHTED:  # (each memory's sums times its weight)
             getattr(self, name)[...] = short[name] * (RESTART_WEIGHT * self.weight / short["weight"])
-        self.run_counts[...] = short["run_counts"]  # (the open runs' counts: which run, not a weight)
+        self.run_counts[...] = short["run_counts"]  # (the open runs' counts and times: which run, not a weight)
+        self.run_times[...] = short["run_times"]
         if len(self.sample):  # the black level's test restarts too, its curve so far kept for pooling
             self.black_level_before = self._black_level_curve()
             self.frames_at_step = self.frames_used
@@ -647,10 +649,15 @@ class FrameThresholdEstimator:
         """:meth:`_fit` of every black-level candidate."""
         return [self._fit(index) for index in range(len(self.candidates))]
 
+    @staticmethod
+    def _runs_of(memory: dict, index: int) -> tuple:
+        """A memory's (``vars(self)`` or ``self.short``) arrays for :func:`fold_runs`, for candidate ``index``."""
+        return tuple(memory[name][index] for name in ("sums", "runs", "run_counts", "time_sums", "run_times"))
+
     def _fit(self, index: int) -> dict:
         """Each pixel's least squares for black-level candidate ``index``: thresholds, residual RMS, the RMS the
         model allows, and the fit (the larger relative standard error)."""
-        fold_runs(self.sums[index], self.runs[index], self.run_counts[index])
+        fold_runs(*self._runs_of(vars(self), index))
         to_true = 1.0 / self.weight  # (onEI's lazy forgetting, see _forget)
         return _least_squares(self.sums[index] * to_true, self.new_counts[index] * to_true,
                               self.inverse_sums[index] * to_true)

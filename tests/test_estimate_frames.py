@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 
 import evtools
 from evtools._kernels.estimate import (FRAMES_OFF, FRAMES_ON, FRAMES_ROW, TIME_SUMS, count_times, exposure_counts,
-                                       fold_runs, frame_sums, frame_time_sums, log_levels, polarity_counts)
+                                       fold_runs, frame_sums, log_levels, polarity_counts)
 from evtools.estimation import estimate_thresholds
 from evtools.estimation_frames import FrameThresholdEstimator, _lags, _least_squares
 from tests.helpers import assert_clean_error, cut, random_events, run, unread_bytes, wait_until
@@ -93,36 +93,6 @@ def test_count_times_against_plain_python(n, seed, cuts, origin_us):
                                    rtol=1e-9, atol=1e-9)
 
 
-@settings(max_examples=25, deadline=None)
-@given(seed=st.integers(0, 2**32 - 1), width=st.integers(1, 9), height=st.integers(1, 7), frames=st.integers(1, 8),
-       black=st.sampled_from([0.0, 4.0, 16.0]), bits=st.sampled_from([8, 16]))
-def test_frame_time_sums_against_plain_python(seed, width, height, frames, black, bits):
-    """onEI's per-frame event-time sums, both memories' in one pass with their weights, over frames of random
-    regions (pixels dark, saturated or that fired too often in the exposure left out, as the thresholds' sums leave
-    them) against a pixel-by-pixel loop."""
-    rng = np.random.default_rng(seed)
-    pixels = width * height
-    kernel_sums, naive_sums = np.zeros((TIME_SUMS, pixels)), np.zeros((TIME_SUMS, pixels))
-    short_sums, naive_short = np.zeros((TIME_SUMS, pixels)), np.zeros((TIME_SUMS, pixels))
-    counts = np.zeros((pixels, FRAMES_ROW), np.int64)
-    times = np.zeros((pixels, FRAMES_ROW))
-    marks = np.full((pixels, 2), -1, np.int32)
-    log_dn = np.empty(2**bits)
-    log_levels(log_dn, black, 8.0, 250.0)
-    for exposure in range(frames):
-        new, effective, x0, y0, image = _random_exposure(rng, counts, marks, exposure, width, height, bits)
-        times += new * (exposure + rng.random((pixels, 2)))
-        weight, short_weight = rng.uniform(0.5, 3.0, 2)  # each memory's weight of this frame
-        frame_time_sums(image, x0, y0, width, counts, times, marks, exposure, log_dn, 1, kernel_sums, weight,
-                        short_sums, short_weight)
-        naive_frame_time_sums(image, x0, y0, width, counts, times, effective, black, 1, 8.0, 250.0, naive_sums,
-                              weight)
-        naive_frame_time_sums(image, x0, y0, width, counts, times, effective, black, 1, 8.0, 250.0, naive_short,
-                              short_weight)
-    np.testing.assert_allclose(kernel_sums, naive_sums, rtol=1e-12, atol=1e-12)
-    np.testing.assert_allclose(short_sums, naive_short, rtol=1e-12, atol=1e-12)
-
-
 def _drifting_pixel(seed: int, rate: float, t_s: float):
     """One pixel's frames with exact logs under ``theta(t) = theta(T) (1 + rate (t - T))``, T = ``t_s`` (random
     thresholds, event times and polarities, the same for every rate): its sums, event-time sums and true thresholds."""
@@ -165,11 +135,13 @@ def test_lags_give_where_the_fitted_thresholds_hold_under_a_drift(seed, rate, si
 
 @settings(max_examples=25, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), width=st.integers(1, 9), height=st.integers(1, 7), frames=st.integers(1, 8),
-       black=st.sampled_from([0.0, 4.0, 16.0]), step=st.integers(0, 5), bits=st.sampled_from([8, 16]))
-def test_frame_sums_against_plain_python(seed, width, height, frames, black, step, bits):
+       black=st.sampled_from([0.0, 4.0, 16.0]), step=st.integers(0, 5), bits=st.sampled_from([8, 16]),
+       timed=st.booleans())
+def test_frame_sums_against_plain_python(seed, width, height, frames, black, step, bits, timed):
     """The frames method's per-frame kernel (its frames summed in runs, folded when a pixel's counts change) against
-    a pixel-by-pixel loop adding every sum at every frame, over several frames of random regions (the sums, the
-    halves of the black level's test, the inverse signal, the new-count tally and the saturated frames all carried)."""
+    a pixel-by-pixel loop adding every sum at every frame, over several frames of random regions, each with its
+    weight (the sums, the halves of the black level's test, the inverse signal, the new-count tally, the saturated
+    frames and, when ``timed``, onEI's event-time sums all carried)."""
     rng = np.random.default_rng(seed)
     pixels = width * height
     samples = -(-pixels // step) if step else 0
@@ -180,20 +152,33 @@ def test_frame_sums_against_plain_python(seed, width, height, frames, black, ste
     runs, run_counts, last_state = np.zeros((3, pixels)), np.full((2, pixels), -1, np.int64), np.full(pixels, -1)
     counts = np.zeros((pixels, FRAMES_ROW), np.int64)
     marks = np.full((pixels, 2), -1, np.int32)
+    times = np.zeros((pixels if timed else 0, FRAMES_ROW))  # each pixel's sums of its event times, by polarity
+    kernel_times, naive_times = np.zeros((TIME_SUMS, pixels)), np.zeros((TIME_SUMS, pixels))
+    run_times = np.zeros((FRAMES_ROW, pixels))
+    if not timed:
+        kernel_times, run_times = np.zeros((0, 0)), np.zeros((0, 0))
     log_dn = np.empty(2**bits)
     log_levels(log_dn, black, 8.0, 250.0)
     for exposure in range(frames):
-        _, effective, x0, y0, image = _random_exposure(rng, counts, marks, exposure, width, height, bits)
+        new, effective, x0, y0, image = _random_exposure(rng, counts, marks, exposure, width, height, bits)
+        if timed:
+            times += new * (exposure + rng.random((pixels, 2)))
         weight = float(rng.choice([0.5, 1.0, 2.0, 4.0]))  # onEI's forgetting: a frame's weight (a power of two: the
         # halves' side is a comparison with the weighted mean count level, which must not round differently)
         frame_sums(image, x0, y0, width, counts, marks, exposure, log_dn, black, -4.6, 1, 250.0, kernel_sums,
-                   runs, run_counts, kernel_half, step, kernel_extra[0], kernel_extra[1], kernel_extra[2], weight)
+                   runs, run_counts, kernel_half, step, kernel_extra[0], kernel_extra[1], kernel_extra[2], weight,
+                   times, kernel_times, run_times)
         naive_frame_sums(image, x0, y0, width, counts, effective, black, -4.6, 1, 8.0, 250.0, naive_sums,
                          naive_half, step, naive_extra[0], naive_extra[1], last_state, naive_extra[2], weight)
-    fold_runs(kernel_sums, runs, run_counts)
+        if timed:
+            naive_frame_time_sums(image, x0, y0, width, counts, times, effective, black, 1, 8.0, 250.0, naive_times,
+                                  weight)
+    fold_runs(kernel_sums, runs, run_counts, kernel_times, run_times)
     assert not runs.any()
     for got, expected in zip([kernel_sums, kernel_half] + kernel_extra, [naive_sums, naive_half] + naive_extra):
         np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-12)
+    if timed:
+        np.testing.assert_allclose(kernel_times, naive_times, rtol=1e-12, atol=1e-12)
 
 
 def _thresholds(seed):

@@ -679,7 +679,7 @@ def exposure_counts(x, y, p, width, counts, marks, exposure, count):  # pragma: 
 @kernel
 def count_times(t, x, y, p, width, origin_us, times):  # pragma: no cover - compiled
     """Events into ``times`` (float64, (pixels, FRAMES_ROW)): each pixel's sums of its ON and of its OFF events'
-    times (seconds after ``origin_us``), the counts' first moments in time (onEI's lag, see :func:`frame_time_sums`)."""
+    times (seconds after ``origin_us``), the counts' first moments in time (onEI's lag, see :func:`frame_sums`)."""
     for k in range(len(x)):
         i = y[k] * width + x[k]
         seconds = (t[k] - origin_us) * 1e-6
@@ -690,37 +690,8 @@ def count_times(t, x, y, p, width, origin_us, times):  # pragma: no cover - comp
 
 
 TIME_SUMS = 6
-"""Rows of :func:`frame_time_sums`: z_on, x1 z_on, x2 z_on, z_off, x1 z_off, x2 z_off."""
-
-
-@kernel
-def frame_time_sums(image, x0, y0, width, counts, times, marks, exposure, log_dn, max_events, time_sums, weight,
-                    short_time_sums, short_weight):  # pragma: no cover - compiled
-    """onEI's lag: every pixel that :func:`frame_sums` uses of this frame (its DN has a log in ``log_dn``, it fired
-    at most ``max_events`` times in the exposure) adds its event-time sums ``z_on``, ``z_off`` (:func:`count_times`)
-    against its ``x1 = A``, ``x2 = -B`` to ``time_sums`` (:data:`TIME_SUMS` rows): the right-hand sides of the
-    least squares that regress z on the design of the thresholds' fit, weighing ``weight``; and to
-    ``short_time_sums`` alike, weighing ``short_weight`` (onEI's second memory: one pass for both). Under a drift
-    ``theta(t) = theta(T) (1 + r (t - T))`` a pixel's log DN is ``theta_on(T) (A (1 - r T) + r z_on) - theta_off(T)
-    (...)``, so these coefficients say at which time each map's thresholds hold."""
-    for row in range(image.shape[0]):
-        first = (y0 + row) * width + x0
-        for column in range(image.shape[1]):
-            i = first + column
-            log_value = log_dn[image[row, column]]
-            if log_value != log_value or (marks[i, 0] == exposure and marks[i, 1] > max_events):
-                continue
-            x1 = float(counts[i, FRAMES_ON])
-            x2 = -float(counts[i, FRAMES_OFF])
-            z_on = times[i, FRAMES_ON]
-            z_off = times[i, FRAMES_OFF]
-            for sums, w in ((time_sums, weight), (short_time_sums, short_weight)):
-                sums[0, i] += w * z_on
-                sums[1, i] += w * x1 * z_on
-                sums[2, i] += w * x2 * z_on
-                sums[3, i] += w * z_off
-                sums[4, i] += w * x1 * z_off
-                sums[5, i] += w * x2 * z_off
+"""onEI's lag: rows of a memory's event-time sums (:func:`frame_sums` with ``time_sums``): z_on, x1 z_on, x2 z_on,
+z_off, x1 z_off, x2 z_off."""
 
 
 @kernel
@@ -735,9 +706,10 @@ def log_levels(table, black, min_signal, saturated_dn):  # pragma: no cover - co
 
 
 @kernel(inline=True)
-def _fold_run(sums, runs, run_counts, i):  # pragma: no cover - compiled
+def _fold_run(sums, runs, run_counts, i, time_sums, run_times):  # pragma: no cover - compiled
     """Pixel i's open run (its frames since its counts last changed: their number, sum of y and of y^2, all at the
-    same x1 = A, x2 = -B) into its least-squares sums; the run is emptied, its counts kept."""
+    same x1 = A, x2 = -B and event-time sums z_on, z_off) into its least-squares sums (and its event-time sums,
+    unless ``time_sums`` is empty); the run is emptied, its counts and times kept."""
     n = runs[0, i]
     if n == 0.0:
         return
@@ -754,22 +726,31 @@ def _fold_run(sums, runs, run_counts, i):  # pragma: no cover - compiled
     sums[7, i] += x1 * sum_y
     sums[8, i] += x2 * sum_y
     sums[9, i] += runs[2, i]
+    if time_sums.shape[0] > 0:
+        z_on = n * run_times[FRAMES_ON, i]
+        z_off = n * run_times[FRAMES_OFF, i]
+        time_sums[0, i] += z_on
+        time_sums[1, i] += x1 * z_on
+        time_sums[2, i] += x2 * z_on
+        time_sums[3, i] += z_off
+        time_sums[4, i] += x1 * z_off
+        time_sums[5, i] += x2 * z_off
     runs[0, i] = 0.0
     runs[1, i] = 0.0
     runs[2, i] = 0.0
 
 
 @kernel
-def fold_runs(sums, runs, run_counts):  # pragma: no cover - compiled
+def fold_runs(sums, runs, run_counts, time_sums, run_times):  # pragma: no cover - compiled
     """Every pixel's open run into its sums (before a fit): see :func:`frame_sums`."""
     for i in range(sums.shape[1]):
-        _fold_run(sums, runs, run_counts, i)
+        _fold_run(sums, runs, run_counts, i, time_sums, run_times)
 
 
 @kernel
 def frame_sums(image, x0, y0, width, counts, marks, exposure, log_dn, black, log_exposure, max_events,
                saturated_dn, sums, runs, run_counts, half, sample_step, inverse_sums, new_counts,
-               saturated, weight):  # pragma: no cover - compiled
+               saturated, weight, times, time_sums, run_times):  # pragma: no cover - compiled
     """One APS frame (``image``, its corner at ``x0, y0`` on a sensor ``width`` wide) into the frames method's
     per-pixel least-squares sums (see :class:`evtools.estimation_frames.FrameThresholdEstimator`), for one black
     level: a pixel that fired at most ``max_events`` times during the exposure (``marks``: see
@@ -783,7 +764,14 @@ def frame_sums(image, x0, y0, width, counts, marks, exposure, log_dn, black, log
     ``sample_step`` (0: none), every ``sample_step``-th pixel also adds the frame to ``half[0 or 1]``, by whether its
     count level is above its mean so far. ``saturated`` (unless empty) counts the frames in which a pixel is. The
     frame weighs ``weight`` in ``sums``, ``runs``, ``inverse_sums`` and ``new_counts`` (onEI's forgetting: see
-    ``FrameThresholdEstimator._forget``), 1 in ``half``."""
+    ``FrameThresholdEstimator._forget``), 1 in ``half``.
+
+    onEI's lag: unless ``time_sums`` is empty, the pixel's event-time sums ``z_on``, ``z_off`` (``times``:
+    :func:`count_times`, which change only with its counts: a run's are kept in ``run_times``) go against the same
+    x1, x2 into ``time_sums`` (:data:`TIME_SUMS` rows) when a run is folded: the right-hand sides of the least
+    squares that regress z on the design of the thresholds' fit. Under a drift ``theta(t) = theta(T) (1 + r (t -
+    T))`` a pixel's log DN is ``theta_on(T) (A (1 - r T) + r z_on) - theta_off(T) (...)``, so these coefficients say
+    at which time each map's thresholds hold."""
     tally = saturated.shape[0] > 0
     for row in range(image.shape[0]):
         first = (y0 + row) * width + x0
@@ -823,9 +811,12 @@ def frame_sums(image, x0, y0, width, counts, marks, exposure, log_dn, black, log
                 half[side, 8, k] += x2 * y
                 half[side, 9, k] += y * y
             if on != run_counts[0, i] or off != run_counts[1, i]:
-                _fold_run(sums, runs, run_counts, i)
+                _fold_run(sums, runs, run_counts, i, time_sums, run_times)
                 run_counts[0, i] = on
                 run_counts[1, i] = off
+                if time_sums.shape[0] > 0:
+                    run_times[FRAMES_ON, i] = times[i, FRAMES_ON]
+                    run_times[FRAMES_OFF, i] = times[i, FRAMES_OFF]
                 new_counts[i] += weight
             runs[0, i] += weight
             runs[1, i] += weight * y

@@ -307,7 +307,7 @@ def naive_count_times(events, origin_us: int) -> dict:
 def naive_frame_time_sums(image, x0, y0, width, counts, times, fired, black, max_events, min_signal, saturated_dn,
                           time_sums, weight=1.0) -> None:
     """onEI's event-time sums for one frame, pixel by pixel in plain Python (see
-    ``evtools._kernels.estimate.frame_time_sums``): a usable pixel (as :func:`naive_frame_sums` has it) adds
+    ``evtools._kernels.estimate.frame_sums`` with time sums): a usable pixel (as :func:`naive_frame_sums` has it) adds
     (z_on, A z_on, -B z_on, z_off, A z_off, -B z_off), with z its event-time sums and A, B its counts."""
     for row in range(image.shape[0]):
         for column in range(image.shape[1]):
