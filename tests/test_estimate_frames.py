@@ -476,7 +476,7 @@ def test_an_online_frames_run_cut_midway_keeps_its_maps(tmp_path):
         assert f.attrs["partial"] and f["on"].ndim == 3 and len(f["t_us"]) >= 1
 
 
-@settings(max_examples=3, deadline=None)
+@settings(max_examples=2, deadline=None)  # (and the examples: 7 s a run; 122 runs measured, see the docstring)
 @given(seed=st.integers(0, 2**32 - 1), drift=st.sampled_from([-0.02, 0.02]))
 @example(seed=165, drift=-0.02)  # CI's draw of an earlier session: 3.7 % with a fixed lag of one memory
 @example(seed=10, drift=0.02)  # a suite run's draw: 4.8 % with a fixed lag of 1.3 memories (this scene's: 1.5-4.2 s)
