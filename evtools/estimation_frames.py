@@ -457,10 +457,7 @@ class FrameThresholdEstimator:
         short = self.short
         index = self.black_level_index
         whole = fits[index]
-        fold_runs(*self._runs_of(short, index))
-        to_true = 1.0 / short["weight"]
-        recent = _least_squares(short["sums"][index] * to_true, short["new_counts"][index] * to_true,
-                                short["inverse_sums"][index] * to_true)
+        recent = self._fit_of(short, index)
         both = recent["solved"] & whole["solved"] & (recent["n"] >= MIN_FRAMES / 2) & (whole["n"] >= MIN_FRAMES)
         with np.errstate(divide="ignore", invalid="ignore"):
             both &= (recent["on"] > 0) & (recent["off"] > 0) & (whole["on"] > 0) & (whole["off"] > 0)
@@ -468,10 +465,8 @@ class FrameThresholdEstimator:
             return False
         expected = np.zeros(2)  # the drift's share: rate times how much later the short memory's thresholds hold
         if self.trend is not None:
-            later_s = (self._lags_of(short["sums"][index] * to_true, short["time_sums"][index] * to_true, recent, t_us)
-                       - self._lags_of(self.sums[index] / self.weight, self.time_sums[index] / self.weight, whole,
-                                       t_us))[:, both]
-            expected = self.trend.rates * np.nan_to_num(np.median(later_s, axis=1))
+            later_s = self._lags_of(short, index, recent, t_us) - self._lags_of(vars(self), index, whole, t_us)
+            expected = self.trend.rates * np.nan_to_num(np.median(later_s[:, both], axis=1))
         shift = np.array([math.log(np.median(recent[key][both] / whole[key][both])) for key in ("on", "off")])
         deviation = shift - expected
         beyond = np.where(np.abs(deviation) > math.log1p(STEP_SHARE_TWICE), np.sign(deviation), 0.0)
@@ -632,7 +627,7 @@ class FrameThresholdEstimator:
         fit = fits[index]
         with np.errstate(invalid="ignore"):
             valid = estimate.valid.ravel() & fit["solved"] & (fit["on"] > 0) & (fit["off"] > 0)
-        lags = self._lags_of(self.sums[index] / self.weight, self.time_sums[index] / self.weight, fit, t_us)
+        lags = self._lags_of(vars(self), index, fit, t_us)
         factors = self.trend.factors(t_us, fit["on"], fit["off"], valid, lags, index)
         shape = estimate.on.shape
         estimate.on = (estimate.on * factors[0].reshape(shape)).astype(np.float32)
@@ -641,9 +636,12 @@ class FrameThresholdEstimator:
                                     for k, key in enumerate(("on", "off"))})
         return estimate
 
-    def _lags_of(self, sums: np.ndarray, time_sums: np.ndarray, fit: dict, t_us: int) -> np.ndarray:
-        """:func:`_lags` of a memory's sums (folded) and fit, for its map at ``t_us``."""
-        return _lags(sums, time_sums, fit["on"], fit["off"], (t_us - (self.origin_us or 0)) * 1e-6)
+    def _lags_of(self, memory: dict, index: int, fit: dict, t_us: int) -> np.ndarray:
+        """:func:`_lags` of a memory (``vars(self)`` or ``self.short``, its runs folded: :meth:`_fit_of`) for
+        black-level candidate ``index`` and its ``fit``, for its map at ``t_us``."""
+        to_true = 1.0 / memory["weight"]  # (onEI's lazy forgetting, see _forget)
+        return _lags(memory["sums"][index] * to_true, memory["time_sums"][index] * to_true, fit["on"], fit["off"],
+                     (t_us - (self.origin_us or 0)) * 1e-6)
 
     @staticmethod
     def _map_of(t_us: int, estimate: ThresholdEstimate) -> tuple:
@@ -663,10 +661,15 @@ class FrameThresholdEstimator:
     def _fit(self, index: int) -> dict:
         """Each pixel's least squares for black-level candidate ``index``: thresholds, residual RMS, the RMS the
         model allows, and the fit (the larger relative standard error)."""
-        fold_runs(*self._runs_of(vars(self), index))
-        to_true = 1.0 / self.weight  # (onEI's lazy forgetting, see _forget)
-        return _least_squares(self.sums[index] * to_true, self.new_counts[index] * to_true,
-                              self.inverse_sums[index] * to_true)
+        return self._fit_of(vars(self), index)
+
+    def _fit_of(self, memory: dict, index: int) -> dict:
+        """:meth:`_fit` of a memory (``vars(self)``, the long one, or ``self.short``): its open runs folded, its sums
+        read at their true scale (divided by its frame weight: onEI's lazy forgetting, see :meth:`_forget`)."""
+        fold_runs(*self._runs_of(memory, index))
+        to_true = 1.0 / memory["weight"]
+        return _least_squares(memory["sums"][index] * to_true, memory["new_counts"][index] * to_true,
+                              memory["inverse_sums"][index] * to_true)
 
 
 def _cofactors(s: np.ndarray) -> tuple:
