@@ -594,9 +594,8 @@ aedat, faery) would parse the stream description."""
 def _description(info: StreamInfo, compression: int) -> str:
     """The streams' XML: events (id 0) and, when ``info.metadata["frame_size"]`` says the stream has APS frames,
     frames (id :data:`FRAME_STREAM_ID`)."""
-    from html import escape  # (xml.sax.saxutils.escape's &, <, > with quote=False, without its 34 ms of imports)
-
-    source = escape(_NOT_XML.sub("\ufffd", str(info.metadata.get("source") or "evtools")), quote=False)
+    source = _NOT_XML.sub("\ufffd", str(info.metadata.get("source") or "evtools"))
+    source = source.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")  # (html.escape's import: 3 ms)
     frame_size = info.metadata.get("frame_size")
     frames = "" if not frame_size else (
         f'        <node name="{FRAME_STREAM_ID}" path="/mainloop/Recorder/outInfo/{FRAME_STREAM_ID}/">\n'

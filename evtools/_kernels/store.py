@@ -15,7 +15,6 @@ import importlib.util
 import os
 import pickle
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -164,6 +163,8 @@ def _store(record: dict, directory: Path, name: str, stale: str) -> None:
     """Write ``record`` as ``directory/name`` (atomically: under a temporary name, then renamed) and remove the
     files matching ``stale`` but its own shared library (the same kernel and kinds from older sources). A store
     that cannot be written (read-only, full) only costs the next process a compile."""
+    import tempfile  # (only where something is stored: 6 ms of every process's start-up otherwise)
+
     try:
         directory.mkdir(parents=True, exist_ok=True)
         handle, temporary = tempfile.mkstemp(dir=directory, suffix=".tmp")
@@ -260,6 +261,7 @@ def _link(record: dict, path: Path) -> bool:
     import platform
     import shutil
     import subprocess
+    import tempfile
 
     compiler = shutil.which(os.environ.get("CC") or "cc") or shutil.which("gcc")
     trampoline = _TRAMPOLINES.get(platform.machine())
