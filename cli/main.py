@@ -15,6 +15,7 @@ import click
 
 from evtools import __version__, interrupt
 from evtools.errors import EvtoolsError, UsageMistake
+from evtools.inputs import guarding_inputs
 
 EXIT_ERROR = 1
 EXIT_USAGE = 2  # as click: a mistake in the command line
@@ -149,12 +150,14 @@ class EvtoolsGroup(LazyGroup):
 
     def invoke(self, ctx: click.Context):
         try:
-            result = super().invoke(ctx)
+            with guarding_inputs():  # no output replaces a file the command reads
+                result = super().invoke(ctx)
             interrupt.work_done()
         except click.UsageError as error:  # (a subcommand's options: one line, where click prints three)
             if type(error).__name__ == "NoArgsIsHelpError":
                 raise
-            command = error.ctx.command_path if error.ctx is not None else "evtools"
+            command = (error.ctx.command_path if error.ctx is not None  # (click's parser gives none: an option's
+                       else f"{ctx.command_path} {ctx.invoked_subcommand or ''}".strip())  # arguments missing)
             click.echo(f"evtools: usage: {error.format_message()} (see {command} --help)", err=True)
             ctx.exit(EXIT_USAGE)
         except UsageMistake as error:

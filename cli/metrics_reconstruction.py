@@ -14,6 +14,7 @@ from evtools.cli.progress import consume
 from evtools.metrics.reconstruction import HighPassReconstructor, ReconstructionError, reconstruction_errors
 from evtools.formats import open_events
 from evtools.formats.thresholds import read_thresholds
+from evtools.inputs import note_input
 
 DEFAULT_CUTOFF_HZ = 0.0
 """Pure integration by default: what threshold mismatch does to a reconstruction shows undamped (a cut-off hides
@@ -24,6 +25,7 @@ def read_true_frames(path: str) -> tuple[np.ndarray, np.ndarray]:
     """(times us, log frames) of a truth file, or a one-line error saying how to make them."""
     import h5py
 
+    note_input(path)
     try:
         with h5py.File(path, "r") as h5:
             if "log_frames" not in h5 or "log_frame_t_us" not in h5 or len(h5["log_frame_t_us"]) == 0:

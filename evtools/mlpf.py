@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from evtools._kernels import mlpf as kernels
+from evtools.inputs import note_input
 from evtools.errors import EvtoolsError
 from evtools.events import record_words
 
@@ -79,6 +80,7 @@ class Weights:
 def load_weights(path: str | os.PathLike | None = None) -> Weights:
     """The weights in ``path`` (an ``.npz`` written by :meth:`Weights.save`), or the shipped ones; checked."""
     path = DEFAULT_WEIGHTS if path is None else Path(path)
+    note_input(path)
     try:
         with np.load(path, allow_pickle=False) as data:
             weights = Weights(np.asarray(data["w1"], np.float64), np.asarray(data["b1"], np.float64).reshape(-1),

@@ -9,6 +9,7 @@ import numpy as np
 
 from evtools.formats.errors import FormatError
 from evtools.formats.io import STDIO, atomic_path
+from evtools.inputs import note_input
 
 
 class HotPixelsError(FormatError):
@@ -18,6 +19,7 @@ class HotPixelsError(FormatError):
 def read_hot_pixels(path: str, width: int, height: int) -> np.ndarray:
     """A hot-pixel CSV file (header ``x,y``, one pixel a line) as a (height, width) boolean map."""
     hot = np.zeros((height, width), dtype=bool)
+    note_input(path)
     try:
         with open(path, encoding="utf-8") as file:
             lines = file.read().splitlines()

@@ -19,6 +19,7 @@ from typing import BinaryIO, Iterable, Iterator
 import numpy as np
 
 from evtools import interrupt
+from evtools.inputs import input_named_by, note_input
 from evtools.events import EVENT_DTYPE
 from evtools.formats.errors import FormatError
 
@@ -138,6 +139,7 @@ class Source:
             raise FormatError(f"{path}: no such file") from None
         except OSError as error:
             raise FormatError(f"{path}: cannot open ({error.strerror})") from None
+        note_input(path)
         if is_live(raw):  # a FIFO or a device: read as a stream, like stdin
             self._open_stream(raw)
             return
@@ -441,7 +443,7 @@ def output_stream(path: str | os.PathLike | None, *, binary_name: str, needs_see
         except OSError as error:
             raise FormatError(f"{path}: cannot write ({error.strerror or error})") from None
         return
-    with atomic_path(real) as temporary:
+    with atomic_path(path) as temporary:
         try:
             stream = open(temporary, "w+b", buffering=1 << 20)
         except OSError as error:  # name the user's path, not the temporary
@@ -494,6 +496,7 @@ def atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[str]:
     directory = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(directory):
         raise FormatError(f"{named}: directory {directory} does not exist")
+    _refuse_an_input(named, path)
     replaced_mode = stat.S_IMODE(os.stat(path).st_mode) if os.path.exists(path) else None
     if replaced_mode is not None and not replaced_mode & 0o222:
         raise FormatError(f"{named}: exists and is read-only (mode {replaced_mode:o}): remove it or make it writable "
@@ -507,11 +510,21 @@ def atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[str]:
         else:  # a replaced file keeps its permissions (a private 0600 output stays private)
             os.chmod(temporary, replaced_mode)
         yield temporary
+        _refuse_an_input(named, path)  # (an input read after the output was opened)
         os.replace(temporary, path)
     except BaseException:
         with contextlib.suppress(OSError):
             os.unlink(temporary)
         raise
+
+
+def _refuse_an_input(named: str, path: str) -> None:
+    """An error when the output ``path`` is a file the command reads (:mod:`evtools.inputs`)."""
+    read_as = input_named_by(path)
+    if read_as is not None:
+        also = "" if os.path.abspath(read_as) == os.path.abspath(named) else f" ({read_as})"
+        raise FormatError(f"{named}: is an input of this command{also}: an output would replace it; choose another "
+                          "file")
 
 
 def _new_file(directory: str, prefix: str, suffix: str) -> str:

@@ -25,6 +25,7 @@ from typing import Iterator, NamedTuple
 import numpy as np
 
 from evtools.formats.errors import FormatError
+from evtools.inputs import note_input
 from evtools.frames import Frame, gray
 
 EVENTS_FILE, IMAGES_FILE = "events.txt", "images.txt"
@@ -67,6 +68,7 @@ def folder_images(folder: str, layout: str) -> list[Entry]:
 
 def _lines(path: str) -> Iterator[tuple[int, list[str]]]:
     """(line number, fields) of the lines of a text file that are not empty or ``#`` comments (commas or spaces)."""
+    note_input(path)
     with open(path, encoding="utf-8", errors="replace") as text:
         for number, line in enumerate(text, 1):
             fields = line.replace(",", " ").split()
@@ -151,6 +153,7 @@ class FolderFrames:
         if not os.path.isfile(path):
             raise FormatError(f"{path}: no such image")
         cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)  # its own line for a damaged file
+        note_input(path)
         image = cv2.imread(path, cv2.IMREAD_UNCHANGED)
         if image is None:
             raise FormatError(f"{path}: not a readable image")

@@ -17,6 +17,7 @@ import numpy as np
 from evtools import interrupt
 from evtools.formats.errors import FormatError
 from evtools.formats.io import output_stream
+from evtools.inputs import note_input
 from evtools.formats.hdf5 import attribute, check_global_heaps
 from evtools.formats.hdf5 import attributes as hdf5_attributes
 
@@ -66,6 +67,7 @@ def _open_h5(path: str):
     if not os.path.exists(path):
         raise FormatError(f"{path}: no such file")
     check_global_heaps(path, path)  # (its string attributes live there)
+    note_input(path)
     try:
         return h5py.File(path, "r")
     except OSError:

@@ -15,6 +15,7 @@ import numpy as np
 
 from evtools.events import parse_sensor_size
 from evtools.formats.errors import FormatError
+from evtools.inputs import note_input
 
 log = logging.getLogger("evtools")
 
@@ -49,6 +50,7 @@ def read_image(path: str) -> np.ndarray:
 
     if not os.path.isfile(path):
         raise VideoError(f"{path}: no such image file")
+    note_input(path)
     image = cv2.imread(path, cv2.IMREAD_UNCHANGED)
     if image is None:
         raise VideoError(f"{path}: cannot read this image (not a format OpenCV reads)")
@@ -91,6 +93,7 @@ def video_source(path: str, fps: float | None, size: str | None) -> FrameSource:
     os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
     import cv2
 
+    note_input(path)
     capture = cv2.VideoCapture(path)
     if not capture.isOpened():
         raise VideoError(f"{path}: cannot read it as a video (OpenCV could not open it)")
@@ -131,6 +134,7 @@ def _natural_key(name: str):
 def read_timestamps_us(path: str) -> np.ndarray:
     """One time per line in seconds (blank lines and ``#`` comments skipped), as microseconds."""
     times = []
+    note_input(path)
     try:
         with open(path, encoding="utf-8") as file:
             for number, line in enumerate(file, 1):
@@ -184,6 +188,7 @@ def folder_source(folder: str, timestamps: str | None, fps: float | None, size: 
 
     def read(name: str) -> np.ndarray:
         path = os.path.join(folder, name)
+        note_input(path)
         image = cv2.imread(path, cv2.IMREAD_UNCHANGED)
         if image is None:
             raise VideoError(f"{path}: cannot read this image")

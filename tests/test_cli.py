@@ -390,3 +390,54 @@ def test_help_shows_no_implementation_noise(command):
         assert noise not in text, (command, noise)
     if command == "estimate":  # its output is an HDF5 file, never stdout: the help said `-` or absent would do
         assert "absent: stdout" not in text and "never stdout" in " ".join(text.split())
+
+
+def test_no_output_replaces_a_file_the_command_reads(tmp_path):
+    """Whichever option names an input (a hot-pixel list, an image, a folder's frame, timestamps), an
+    output of the same file is refused and the input is left as it was (issue 36's rule; found by a QA sweep: each
+    of these was replaced, exit 0)."""
+    import cv2
+
+    import evtools
+    from evtools.events import make_events
+
+    rng = np.random.default_rng(0)
+    n = 2000
+    events = tmp_path / "in.aedat4"
+    evtools.write(events, make_events(np.sort(rng.integers(0, 200_000, n)), rng.integers(0, 32, n),
+                                      rng.integers(0, 24, n), rng.integers(0, 2, n)), StreamInfo(32, 24))
+    hot = tmp_path / "hot.csv"
+    hot.write_text("x,y\n1,0\n")
+    image = tmp_path / "photo.png"
+    cv2.imwrite(str(image), (rng.random((24, 32)) * 255).astype(np.uint8))
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for k in range(3):
+        cv2.imwrite(str(folder / f"{k}.png"), (rng.random((24, 32)) * 255).astype(np.uint8))
+    stamps = tmp_path / "stamps.txt"
+    stamps.write_text("0.0\n0.033\n0.066\n")
+    cases = [
+        (hot, ["bafilter", events, "--method", "hotpixel", "--hot-pixels", hot, "-o", hot]),
+        (image, ["simulate", "scene:texture", "--image", image, "--size", "32x24", "--duration", "50ms", "-o", image,
+                 "--format", "aedat4"]),
+        (folder / "1.png", ["simulate", folder, "--frame-rate", "30", "-o", folder / "1.png", "--format", "aedat4"]),
+        (stamps, ["simulate", folder, "--timestamps", stamps, "-o", stamps, "--format", "aedat4"]),
+    ]
+    for named, args in cases:
+        before = named.read_bytes()
+        assert_clean_error(run("-q", *args, check=False), str(named), "is an input of this command")
+        assert named.read_bytes() == before, args
+        assert not [p for p in tmp_path.rglob("*.part*")], "a refused output leaves no temporary file"
+
+
+def test_python_may_write_back_a_file_it_read(tmp_path):
+    """The guard is the command line's: a Python session that reads a file and later writes it back on purpose
+    is not refused."""
+    import evtools
+    from evtools.events import make_events
+
+    path = tmp_path / "x.aedat4"
+    evtools.write(path, make_events([1, 2], [0, 1], [0, 0], [1, 0]), StreamInfo(4, 4))
+    events, info = evtools.read(path)
+    evtools.write(path, events[:1], info)
+    assert len(evtools.read(path)[0]) == 1
