@@ -607,7 +607,23 @@ class FrameThresholdEstimator:
             estimate = self._without_lag((self.last_t_us or 0) + 1, estimate, fits)
             self.maps.append(self._map_of((self.last_t_us or 0) + 1, estimate))
             estimate.series = _series_of(self.maps)
+        if not (estimate.valid.any() or any(m[3].any() for m in self.maps)):
+            raise EstimationError(self._none_valid(estimate.attributes))
         return estimate
+
+    def _none_valid(self, attributes: dict) -> str:
+        """Why no pixel is valid (as every method says it, one line): the reason most pixels have."""
+        reasons = {
+            "no_frames": "saw no frame", "few_frames": f"have fewer than {MIN_FRAMES} frames to fit",
+            "saturated": "are saturated in most frames", "few_events": f"have fewer than {self.min_events} events",
+            "one_polarity": "have fewer than 2 events of a polarity",
+            "singular": "have frames and events that do not determine the thresholds",
+            "out_of_range": "come out beyond 0.01-5 log units", "does_not_fit": "do not fit the model",
+            "poor_fit": f"fit worse than --max-fit {self.max_fit:g}"}
+        name = max(reasons, key=lambda key: attributes.get(f"invalid_{key}", 0))
+        return (f"no pixel could be estimated by frames ({self.frames_used} frames used): "
+                f"{attributes.get(f'invalid_{name}', 0):,} of {self.width * self.height:,} pixels {reasons[name]} "
+                "(the attributes invalid_* of an estimate count every reason); give a longer recording with frames")
 
     def maps_so_far(self):
         """onEI: the maps made so far (a run stopped midway keeps them), or None."""

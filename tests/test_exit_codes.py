@@ -319,3 +319,11 @@ def test_global_options_are_taken_after_the_subcommand_too(tmp_path, name):
         result = runner.invoke(cli, argv)
         assert result.exit_code == 2 and "--max-latency" in result.stderr, (where, result.stderr)
     assert not list(tmp_path.iterdir())
+
+
+def test_an_option_missing_its_values_points_to_the_subcommands_help(tmp_path):
+    """click's parser reports a missing option value without a context: the hint must still name the subcommand
+    (it said `see evtools --help`)."""
+    done = run("render", tmp_path / "x.aedat4", "-o", tmp_path / "x.png", "--range", "0.1", check=False)
+    stderr = done.stderr.decode()
+    assert done.returncode == 2 and stderr.count("\n") == 1 and "(see evtools render --help)" in stderr, stderr
