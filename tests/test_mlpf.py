@@ -196,11 +196,11 @@ def test_bad_weights_and_thresholds(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name, seed, margin", [("dvs128_walk.aedat", 1, -0.02), ("dvxplorer_sample.aedat4", 2, 0.01)])
+@pytest.mark.parametrize("name, seed, margin", [("dvs128_walk.aedat", 1, -0.02), ("dvxplorer_sample.aedat4", 2, 0.03)])
 def test_the_shipped_mlpf_against_the_best_stcf(tmp_path, name, seed, margin):
     """5 Hz shot + 0.2 Hz leak injected into two shared recordings (noise seeds that training did not use): the AUC
     of mlpf's threshold sweep with the shipped weights against STCF's correlation-window sweep at the defaults and
-    at the best radius / k of samples/stcf_grid.md. What the README says: above it by 0.03 on the DVXplorer, 0.008
+    at the best radius / k of samples/stcf_grid.md. What the README says: above it by 0.06 on the DVXplorer, 0.004
     below it on the DVS128 walk (samples/mlpf.md); the margins leave room for these three STCF settings."""
     import json
 
@@ -397,3 +397,24 @@ def test_training_without_labels_from_the_command_line(tmp_path):
     assert_clean_error(run("metrics", "train-denoiser", instant, "-o", tmp_path / "i.npz", check=False),
                        "instant.aedat4", "too short")
     assert not (tmp_path / "u.npz").exists() and not (tmp_path / "i.npz").exists()
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**16), signal=st.integers(0, 60), noise=st.integers(0, 60))
+def test_each_stream_trains_on_as_much_noise_as_signal(seed, signal, noise):
+    """train-denoiser's per-stream balance: the commoner kind thinned to the rarer's count, rows in their order
+    with their held-out flags; a stream of one kind kept whole."""
+    from evtools.cli.metrics_train import _balanced
+
+    rng = np.random.default_rng(seed)
+    labels = rng.permutation(np.r_[np.ones(signal, bool), np.zeros(noise, bool)])
+    rows = np.arange(len(labels), dtype=np.float32)[:, None] * np.ones((1, 3), np.float32)
+    check = rng.random(len(labels)) < 0.3
+    features, kept_signal, kept_check = _balanced((rows, labels, check), np.random.default_rng(seed + 1))
+    if min(signal, noise) == 0:
+        assert len(features) == len(labels)
+        return
+    index = features[:, 0].astype(int)
+    assert kept_signal.sum() == (~kept_signal).sum() == min(signal, noise)
+    assert (np.diff(index) > 0).all()
+    assert (labels[index] == kept_signal).all() and (check[index] == kept_check).all()
