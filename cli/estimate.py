@@ -229,6 +229,9 @@ def estimate_one(input, output, *, reading, parameters, slicing=None
             estimator = kind(stream.info.width, stream.info.height, check=False, **parameters)
             consume(stream, estimator, f"estimating from {stream.name}")
             result = estimator.result()
+            if parameters["method"] == "frames" and not (result.valid.any() or (
+                    result.series is not None and result.series.valid.any())):
+                raise EstimationError(estimator.why_none_valid(result.attributes))
         except EvtoolsError as error:
             message = str(error) if str(error).startswith(stream.name) else f"{stream.name}: {error}"
             _write_maps_so_far(estimator, output, stream.name, message)

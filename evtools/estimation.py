@@ -134,8 +134,9 @@ DEFAULT_RADIUS_PX = 1
 more of the pixel's excursion: on moving natural textures (issue 36's setups, independent generator) the RMS
 error over all pixels is 7-15 % at radius 1 against 13-22 % at radius 3."""
 MAX_SERIES_BYTES = 1 << 31
-"""The most memory an online estimate's maps may take (2 GiB: about 1,100 maps of a 320x240 sensor, 93 of a
-1280x720 one); a shorter --interval is refused when it would go past it."""
+"""The most memory an online estimate's maps may take (2 GiB at 13 bytes a pixel, as the file stores them: about
+2,150 maps of a 320x240 sensor, 179 of a 1280x720 one); a shorter --interval is refused when it would go past it
+(:func:`check_series_room`)."""
 DEFAULT_MAX_ERROR = 0.25
 """natural: a pixel whose fit (the largest of its error terms: the halves' disagreement, the counting error
 1 / sqrt(N) of its rarer polarity, the excitation gradient across its window, the scene error) exceeds 0.25 is
@@ -527,14 +528,10 @@ class ThresholdEstimator:
             on = off = fit = np.full(self.width * self.height, np.nan)
             valid = np.zeros(self.width * self.height, dtype=bool)
         shape = (self.height, self.width)
-        map_bytes = 25 * self.width * self.height  # on, off, fit as float64, valid as bool
-        if (len(self._series) + 1) * map_bytes > MAX_SERIES_BYTES:  # (was killed for memory, with no message)
-            raise EstimationError(
-                f"online maps every {self.interval_us:,} us: {len(self._series) + 1:,} maps of {self.width}x"
-                f"{self.height} would take more than {MAX_SERIES_BYTES / 2**30:.0f} GiB by {t_us:,} us; give a "
-                "longer --interval")
-        self._series.append((t_us, np.where(valid, on, np.nan).reshape(shape),
-                             np.where(valid, off, np.nan).reshape(shape), valid.reshape(shape), fit.reshape(shape)))
+        check_series_room(len(self._series) + 1, self.width, self.height, self.interval_us, t_us)
+        self._series.append((t_us, np.where(valid, on, np.nan).reshape(shape).astype(np.float32),
+                             np.where(valid, off, np.nan).reshape(shape).astype(np.float32), valid.reshape(shape),
+                             fit.reshape(shape).astype(np.float32)))
         keep = math.exp(-self.interval_us / self.forget_us)
         if self.method == "natural":
             self._counts[:, :COUNT_LAST] *= keep
@@ -822,6 +819,16 @@ def _relative_to_neighbours(inverse: np.ndarray, usable: np.ndarray, radius_px: 
         mean = _around(total, radius_px) / neighbours
         relative = np.where(usable[..., None], 2.0 * inverse / mean[..., None], np.nan)
     return relative, np.round(neighbours)
+
+
+def check_series_room(maps: int, width: int, height: int, interval_us: int, t_us: int) -> None:
+    """An error when ``maps`` online maps of ``width x height`` (on, off, fit as float32, valid: 13 bytes a pixel, as
+    they are held and written) would pass :data:`MAX_SERIES_BYTES` (a run was once killed for memory, with no
+    message)."""
+    if maps * 13 * width * height > MAX_SERIES_BYTES:
+        raise EstimationError(
+            f"online maps every {interval_us:,} us: {maps:,} maps of {width}x{height} would take more than "
+            f"{MAX_SERIES_BYTES / 2**30:.0f} GiB by {t_us:,} us; give a longer --interval")
 
 
 def _series_of(maps: list) -> ThresholdSeries:

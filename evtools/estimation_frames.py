@@ -43,7 +43,8 @@ import numpy as np
 
 from evtools._kernels.estimate import (FRAMES_OFF, FRAMES_ON, FRAMES_ROW, TIME_SUMS, count_times, exposure_counts,
                                        fold_runs, frame_sums, log_levels, polarity_counts)
-from evtools.estimation import DEFAULT_MIN_EVENTS, EstimationError, ThresholdEstimate, _series_of
+from evtools.estimation import (DEFAULT_MIN_EVENTS, EstimationError, ThresholdEstimate, _series_of,
+                                check_series_room)
 from evtools.events import StreamChecker, StreamInfo, as_chunk, empty_events
 
 MIN_SIGNAL_DN = 8.0
@@ -436,6 +437,7 @@ class FrameThresholdEstimator:
             fits = self._fit_all()
             if self._step(self.next_map_us, fits):
                 fits = self._fit_all()  # (the long memory restarted)
+            check_series_room(len(self.maps) + 1, self.width, self.height, self.interval_us, self.next_map_us)
             self.maps.append(self._map_of(self.next_map_us,
                                           self._without_lag(self.next_map_us, self._solve(fits), fits)))
             self.next_map_us += self.interval_us
@@ -607,12 +609,14 @@ class FrameThresholdEstimator:
             estimate = self._without_lag((self.last_t_us or 0) + 1, estimate, fits)
             self.maps.append(self._map_of((self.last_t_us or 0) + 1, estimate))
             estimate.series = _series_of(self.maps)
-        if not (estimate.valid.any() or any(m[3].any() for m in self.maps)):
-            raise EstimationError(self._none_valid(estimate.attributes))
         return estimate
 
-    def _none_valid(self, attributes: dict) -> str:
-        """Why no pixel is valid (as every method says it, one line): the reason most pixels have."""
+    def why_none_valid(self, attributes: dict) -> str:
+        """Why no pixel of an estimate (its ``attributes``) is valid, in one line: the events and the frames
+        disagreeing when they do, else the reason most pixels have (the command line's error when no map has a valid
+        pixel, as every method's; the estimate itself keeps every reason in its ``invalid_*`` attributes)."""
+        if "disagreement" in attributes:
+            return f"no pixel could be estimated by frames: {attributes['disagreement']}"
         reasons = {
             "no_frames": "saw no frame", "few_frames": f"have fewer than {MIN_FRAMES} frames to fit",
             "saturated": "are saturated in most frames", "few_events": f"have fewer than {self.min_events} events",
@@ -621,9 +625,13 @@ class FrameThresholdEstimator:
             "out_of_range": "come out beyond 0.01-5 log units", "does_not_fit": "do not fit the model",
             "poor_fit": f"fit worse than --max-fit {self.max_fit:g}"}
         name = max(reasons, key=lambda key: attributes.get(f"invalid_{key}", 0))
+        hint = ("give a longer recording with frames" if name in ("no_frames", "few_frames", "few_events",
+                                                                   "one_polarity") else
+                "a larger --max-fit takes less certain pixels" if name == "poor_fit" else
+                "check the black level (--black-level) and that the frames are this sensor's")
         return (f"no pixel could be estimated by frames ({self.frames_used} frames used): "
-                f"{attributes.get(f'invalid_{name}', 0):,} of {self.width * self.height:,} pixels {reasons[name]} "
-                "(the attributes invalid_* of an estimate count every reason); give a longer recording with frames")
+                f"{attributes.get(f'invalid_{name}', 0):,} of {self.width * self.height:,} pixels {reasons[name]}; "
+                f"{hint}")
 
     def maps_so_far(self):
         """onEI: the maps made so far (a run stopped midway keeps them), or None."""

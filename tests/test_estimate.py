@@ -927,7 +927,7 @@ def test_online_maps_beyond_the_memory_bound_are_refused(monkeypatch):
     the series is refused, saying why, once its maps would pass MAX_SERIES_BYTES."""
     import evtools.estimation as estimation
 
-    monkeypatch.setattr(estimation, "MAX_SERIES_BYTES", 25 * 8 * 6 * 10)  # ten maps of 8 x 6
+    monkeypatch.setattr(estimation, "MAX_SERIES_BYTES", 13 * 8 * 6 * 10)  # ten maps of 8 x 6 (float32 and bool)
     events = _spread_events(3, 20_000, 8, 6, 100_000)
     within = estimation.ThresholdEstimator(8, 6, "natural", interval_us=10_000, min_events=1, max_fit=math.inf)
     within.process(events)  # (maps at each interval's end as the stream passes it)

@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 import evtools
 from evtools._kernels.estimate import (FRAMES_OFF, FRAMES_ON, FRAMES_ROW, TIME_SUMS, count_times, exposure_counts,
                                        fold_runs, frame_sums, log_levels, polarity_counts)
-from evtools.estimation import estimate_thresholds
+from evtools.estimation import EstimationError, estimate_thresholds
 from evtools.estimation_frames import FrameThresholdEstimator, _lags, _least_squares
 from tests.helpers import assert_clean_error, cut, random_events, run, unread_bytes, wait_until
 from tests.naive.davis import davis_recording, write_with_dv
@@ -231,6 +231,19 @@ def test_the_estimate_does_not_depend_on_chunks_or_when_frames_arrive(davis, chu
         np.testing.assert_allclose(got.series.on, expected.series.on, rtol=1e-6)
 
 
+def test_online_frames_maps_beyond_the_memory_bound_are_refused(davis, monkeypatch):
+    """onEI held its maps without a bound (natural and stimulus had one): the same bound, the same message."""
+    import evtools.estimation as estimation
+
+    events, _, frames = evtools.read(davis[0], frames=True)
+    monkeypatch.setattr(estimation, "MAX_SERIES_BYTES", 13 * W * H * 5)  # five maps
+    estimator = FrameThresholdEstimator(W, H, interval_us=1_000_000)
+    estimator.add_frames(frames)
+    with pytest.raises(EstimationError, match=rf"online maps every 1,000,000 us: 6 maps of {W}x{H} would take"):
+        estimator.process(events)
+    assert len(estimator.maps) == 5
+
+
 def test_the_frames_give_absolute_thresholds_better_than_events_alone(davis, tmp_path):
     """On the independent generator (ideal pixels, 1 DN offset non-uniformity, 1.5 DN read noise), through the
     command line, issue 38's goals for a clean setup: at least 90 % of the pixels valid, RMS error within 3 %, at
@@ -289,18 +302,23 @@ def test_natural_takes_its_scale_from_the_frames(davis, tmp_path):
 
 def test_frames_on_another_clock_are_said_to_disagree(davis, tmp_path):
     """Frames whose times are 0.3 s off the events' (another clock): the estimate says the events and the frames
-    disagree (attribute and a warning), and calls no pixel valid; on the events' clock it says nothing."""
+    disagree (attribute) and calls no pixel valid, so the command refuses in one line saying why (exit 1, no file);
+    on the events' clock it says nothing."""
     path, on, off = davis
     events, info, frames = evtools.read(path, frames=True)
     shifted = tmp_path / "shifted.aedat4"
-    evtools.write(shifted, events, info, frames=[
-        evtools.Frame(frame.image, frame.t_us + 300_000, frame.exposure_begin_us + 300_000,
-                      frame.exposure_end_us + 300_000) for frame in frames])
-    done = run("estimate", shifted, "--method", "frames", "-o", tmp_path / "shifted.h5")
-    assert "disagree" in done.stderr.decode() and "clock" in done.stderr.decode()
-    with h5py.File(tmp_path / "shifted.h5") as f:
-        assert f.attrs["residual_ratio_median"] > 2 and "disagreement" in f.attrs
-        assert not f["valid"][()].any()
+    frames = [evtools.Frame(frame.image, frame.t_us + 300_000, frame.exposure_begin_us + 300_000,
+                            frame.exposure_end_us + 300_000) for frame in frames]
+    evtools.write(shifted, events, info, frames=frames)
+    done = run("estimate", shifted, "--method", "frames", "-o", tmp_path / "shifted.h5", check=False)
+    assert_clean_error(done, "shifted.aedat4", "no pixel could be estimated", "disagree", "clock")
+    assert not (tmp_path / "shifted.h5").exists()
+    estimator = FrameThresholdEstimator(W, H)
+    estimator.process(events)
+    estimator.add_frames(frames)
+    result = estimator.result()  # (from Python: the estimate, every pixel with its reason)
+    assert result.attributes["residual_ratio_median"] > 2 and "disagreement" in result.attributes
+    assert not result.valid.any()
     done = run("estimate", path, "--method", "frames", "-o", tmp_path / "aligned.h5")
     assert "disagree" not in done.stderr.decode()
     with h5py.File(tmp_path / "aligned.h5") as f:
