@@ -22,9 +22,9 @@ from pathlib import Path
 import numpy as np
 
 from evtools._kernels import mlpf as kernels
-from evtools.inputs import note_input
 from evtools.errors import EvtoolsError
 from evtools.events import record_words
+from evtools.inputs import note_input
 
 DEFAULT_WEIGHTS = Path(__file__).parent / "data" / "mlpf.npz"
 """The weights shipped with evtools (trained as the README says)."""

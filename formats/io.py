@@ -19,9 +19,9 @@ from typing import BinaryIO, Iterable, Iterator
 import numpy as np
 
 from evtools import interrupt
-from evtools.inputs import input_named_by, note_input
 from evtools.events import EVENT_DTYPE
 from evtools.formats.errors import FormatError
+from evtools.inputs import input_named_by, note_input
 
 HEAD_BYTES = 4096
 """How many leading bytes format detection looks at."""
