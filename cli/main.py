@@ -170,8 +170,8 @@ class EvtoolsGroup(LazyGroup):
             # the reader went away (`| head`): stop quietly; point stdout at /dev/null so the final flush is silent
             os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
             ctx.exit(EXIT_BROKEN_PIPE)
-        except KeyboardInterrupt:
-            click.echo("evtools: interrupted", err=True)
+        except (KeyboardInterrupt, interrupt.StopReading):  # (a stop that came as a wait for input ended, past
+            click.echo("evtools: interrupted", err=True)  # the reader's own catch: seen once as a traceback)
             ctx.exit(interrupt.exit_code())
         except MemoryError:
             click.echo("evtools: error: out of memory", err=True)

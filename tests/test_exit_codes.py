@@ -327,3 +327,18 @@ def test_an_option_missing_its_values_points_to_the_subcommands_help(tmp_path):
     done = run("render", tmp_path / "x.aedat4", "-o", tmp_path / "x.png", "--range", "0.1", check=False)
     stderr = done.stderr.decode()
     assert done.returncode == 2 and stderr.count("\n") == 1 and "(see evtools render --help)" in stderr, stderr
+
+
+def test_a_stop_that_escapes_the_reader_ends_in_one_line(monkeypatch, tmp_path):
+    """A stop signal that ends a wait for input (StopReading) past the reader's own handling ends the command as a
+    Ctrl-C does: one line, exit 130, no traceback (a QA sweep saw one traceback through the group's invoke in a
+    stopped three-stage pipeline, not reproduced since)."""
+    import evtools.cli.info as info_module
+    from evtools import interrupt
+
+    def stopped(*args, **kwargs):
+        raise interrupt.StopReading
+
+    monkeypatch.setattr(info_module, "open_events", stopped)
+    result = CliRunner().invoke(cli, ["info", str(tmp_path / "x.aedat4")])
+    assert result.exit_code == 130 and result.stderr == "evtools: interrupted\n", (result.exit_code, result.stderr)
