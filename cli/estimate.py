@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
+import signal
 
 import click
 import numpy as np
@@ -29,8 +31,9 @@ from evtools.estimation_frames import FrameScaledEstimator, FrameThresholdEstima
 from evtools.events import MAX_SENSOR_SIDE
 from evtools.formats import open_events
 from evtools.formats.io import STDIO, same_file
+from evtools import interrupt
 from evtools.errors import EvtoolsError
-from evtools.formats.thresholds import ThresholdMap, write_thresholds
+from evtools.formats.thresholds import ThresholdMap, series_file, write_thresholds
 
 log = logging.getLogger("evtools")
 
@@ -201,55 +204,106 @@ def estimate(inputs, reading, output, jobs, scheduler, as_json,
     run(estimate_one, pairs, options, jobs, scheduler, as_json)
 
 
-def _write_maps_so_far(estimator, output, name: str, message: str) -> None:
-    """An online run that stops midway keeps the maps it made: written (complete, ``partial`` attribute set) and
-    named in the error, which then exits 1 as any error does."""
-    maps = estimator.maps_so_far() if estimator is not None and estimator.interval_us is not None else None
-    if maps is None or output in (None, STDIO):
-        return
-    attributes = {**estimator.parameters, "input": name, "partial": True, "stopped_by": message,
-                  "stopped_at_us": int(estimator.t_last_us), "width": estimator.width, "height": estimator.height}
-    write_thresholds(output, ThresholdMap(maps.on, maps.off, maps.valid, attributes, maps.fit, None, maps.t_us))
-    raise EstimationError(f"{message} (at {estimator.t_last_us:,} us); the {len(maps.t_us)} maps made up to "
-                          f"{int(maps.t_us[-1]):,} us are written to {output} (attribute partial)")
+SPARSE_CHECK_MAPS = 10
+"""Online: after this many maps the command line checks how much each adds (:class:`_MapsToFile`)."""
+SPARSE_MAP_EVENTS = 0.01
+"""Online: maps that add fewer events a pixel than this each are mostly empty (the walk at ``--interval 100us``:
+6e-6): a warning, since nothing bounds the file but the disk (a map is 13 bytes a pixel)."""
+
+
+class _Stopped(Exception):
+    """A stop signal seen between two online maps (:class:`_MapsToFile`)."""
+
+
+class _MapsToFile:
+    """The online maps' way into the file (the estimator's ``map_sink``): each written as it comes, a warning after
+    :data:`SPARSE_CHECK_MAPS` when they are mostly empty, and, while the stream is consumed, a stop (Ctrl-C) seen at
+    the next map (:class:`_Stopped`): one chunk of a sparse stream, or a short interval, can make thousands of maps,
+    and the reader sees a stop only at its next chunk."""
+
+    def __init__(self, maps_file, name: str, width: int, height: int) -> None:
+        self.file, self.name, self.width, self.height = maps_file, name, width, height
+        self.estimator = None
+        self.consuming = True
+
+    def __call__(self, *entry) -> None:
+        if self.consuming and interrupt.received() is not None:
+            raise _Stopped
+        self.file.append(*entry)
+        if self.file.count == SPARSE_CHECK_MAPS and self.estimator is not None:
+            per_map = self.estimator.events / (self.file.count * self.width * self.height)
+            if per_map < SPARSE_MAP_EVENTS:
+                log.warning(f"{self.name}: each online map adds {per_map:.2g} events a pixel: the maps are mostly "
+                            f"empty, and the file grows by {13 * self.width * self.height / 2**20:.2g} MiB a map; a "
+                            "longer --interval saves the disk (Ctrl-C keeps the maps made)")
+
+    def finish_partial(self, message: str) -> None:
+        """The maps so far as a complete file, marked as stopped by ``message``."""
+        estimator = self.estimator
+        self.file.finish({**estimator.parameters, "input": self.name, "partial": True, "stopped_by": message,
+                          "stopped_at_us": int(estimator.t_last_us or 0), "width": self.width,
+                          "height": self.height})
 
 
 def estimate_one(input, output, *, reading, parameters, slicing=None
                  ) -> Outcome:
     """Estimate one file's thresholds into ``output``: its :class:`Outcome` (events in, valid pixels);
-    ``slicing``: the shared slicing options (:func:`evtools.transform.sliced`): the map is of the sliced sensor."""
+    ``slicing``: the shared slicing options (:func:`evtools.transform.sliced`): the map is of the sliced sensor.
+
+    Online, the maps go to the file as they are made (:func:`series_file`: no bound on the run's length but the
+    disk's), and a run that stops midway keeps them: on an error in the stream, or a stop signal between maps, the
+    file is complete, with the attributes ``partial``, ``stopped_by`` and ``stopped_at_us``."""
     if input != STDIO and same_file(output, input):
         raise EstimationError(f"{output}: the thresholds file would overwrite the input; choose another -o")
-    estimator = None
+    online = parameters.get("interval_us") is not None
+    failure = sink = None
     with open_events(input, reading) as opened:
         stream = sliced(opened, slicing)
-        try:
-            kind = (FrameThresholdEstimator if parameters["method"] == "frames" else FrameScaledEstimator
-                    if parameters["nominal"] == "frames" else ThresholdEstimator)
-            estimator = kind(stream.info.width, stream.info.height, check=False, **parameters)
-            consume(stream, estimator, f"estimating from {stream.name}")
-            result = estimator.result()
-            if parameters["method"] == "frames" and not (result.valid.any() or (
-                    result.series is not None and result.series.valid.any())):
-                raise EstimationError(estimator.why_none_valid(result.attributes))
-        except EvtoolsError as error:
-            message = str(error) if str(error).startswith(stream.name) else f"{stream.name}: {error}"
-            _write_maps_so_far(estimator, output, stream.name, message)
-            raise type(error)(message) from None
-        attributes = {**result.attributes, "input": stream.name}
-        if "disagreement" in attributes:
-            log.warning(f"{stream.name}: {attributes['disagreement']}")
-    if result.series is not None:
-        series = result.series
-        thresholds = ThresholdMap(series.on, series.off, series.valid, attributes, series.fit, result.phase_us,
-                                  series.t_us)
-    else:
-        thresholds = ThresholdMap(result.on, result.off, result.valid, attributes, result.fit, result.phase_us)
-    write_thresholds(output, thresholds)
-    last = -1 if thresholds.t_us is not None else slice(None)  # a series: its last map
-    usable, on, off = thresholds.usable()[last], thresholds.on[last], thresholds.off[last]
+        width, height = stream.info.width, stream.info.height
+        with series_file(output, width, height) if online else contextlib.nullcontext() as maps_file:
+            if online:
+                sink = _MapsToFile(maps_file, stream.name, width, height)
+            try:
+                kind = (FrameThresholdEstimator if parameters["method"] == "frames" else FrameScaledEstimator
+                        if parameters["nominal"] == "frames" else ThresholdEstimator)
+                estimator = kind(width, height, check=False, **parameters, **({"map_sink": sink} if online else {}))
+                if online:
+                    sink.estimator = estimator
+                consume(stream, estimator, f"estimating from {stream.name}")
+                if online:
+                    sink.consuming = False  # (the final map is written whatever comes)
+                result = estimator.result()
+                if parameters["method"] == "frames" and not (result.valid.any() or online and maps_file.any_valid):
+                    raise EstimationError(estimator.why_none_valid(result.attributes))
+            except _Stopped:
+                if maps_file.count == 0:
+                    raise interrupt.StopReading from None  # (no map: no file)
+                sink.finish_partial(f"stopped by {signal.Signals(interrupt.received()).name}")
+                return Outcome(estimator.events, None, {"maps": maps_file.count, "partial": True},
+                               f"{maps_file.count} maps (stopped)")
+            except EvtoolsError as error:
+                message = str(error) if str(error).startswith(stream.name) else f"{stream.name}: {error}"
+                if not online or maps_file.count == 0 or maps_file.failed or sink.estimator is None:
+                    raise type(error)(message) from None
+                sink.finish_partial(message)
+                failure = EstimationError(f"{message} (at {estimator.t_last_us:,} us); the {maps_file.count} maps "
+                                          f"made up to {maps_file.last_t_us:,} us are written to {output} "
+                                          "(attribute partial)")
+            else:
+                attributes = {**result.attributes, "input": stream.name}
+                if "disagreement" in attributes:
+                    log.warning(f"{stream.name}: {attributes['disagreement']}")
+                if online:
+                    maps_file.finish(attributes, result.phase_us)
+    if failure is not None:
+        raise failure
+    thresholds = ThresholdMap(result.on, result.off, result.valid, attributes, result.fit, result.phase_us)
+    if not online:
+        write_thresholds(output, thresholds)
+    usable = thresholds.usable()
+    on, off = thresholds.on, thresholds.off
     medians = f", median ON {np.median(on[usable]):.3g} OFF {np.median(off[usable]):.3g}" if usable.any() else ""
-    maps = f", {len(thresholds.t_us)} maps over time" if thresholds.t_us is not None else ""
+    maps = f", {attributes['maps']} maps over time" if online else ""
     log.info(f"estimate {parameters['method']}: {result.attributes['events']:,} events, {int(usable.sum()):,} of "
              f"{usable.size:,} pixels estimated ({100 * usable.mean():.1f} %){medians}{maps} -> {output}")
     valid = int(usable.sum())

@@ -134,9 +134,10 @@ DEFAULT_RADIUS_PX = 1
 more of the pixel's excursion: on moving natural textures (issue 36's setups, independent generator) the RMS
 error over all pixels is 7-15 % at radius 1 against 13-22 % at radius 3."""
 MAX_SERIES_BYTES = 1 << 31
-"""The most memory an online estimate's maps may take (2 GiB at 13 bytes a pixel, as the file stores them: about
-2,150 maps of a 320x240 sensor, 179 of a 1280x720 one); a shorter --interval is refused when it would go past it
-(:func:`check_series_room`)."""
+"""The most memory an online estimate's maps may take when it holds them (2 GiB at 13 bytes a pixel, as the file
+stores them: about 2,150 maps of a 320x240 sensor, 179 of a 1280x720 one): a shorter interval is refused when it
+would go past it (:func:`check_series_room`). With a ``map_sink`` (the command line) none is held and no bound
+applies."""
 DEFAULT_MAX_ERROR = 0.25
 """natural: a pixel whose fit (the largest of its error terms: the halves' disagreement, the counting error
 1 / sqrt(N) of its rarer polarity, the excitation gradient across its window, the scene error) exceeds 0.25 is
@@ -347,6 +348,12 @@ class ThresholdEstimator:
         the disagreement with the natural estimate.
     radius_px : int
         natural: the neighbourhood's half-width (:data:`DEFAULT_RADIUS_PX`).
+    interval_us, forget_us : int and float, optional
+        Online (stimulus, natural): a map every ``interval_us`` from the first event, then every sum decays by
+        ``exp(-interval / forget)`` (default 3 intervals); the result's ``series`` holds the maps.
+    map_sink : callable, optional
+        Online: each map is passed to ``map_sink(t_us, on, off, valid, fit)`` as it is made instead of being held
+        (:class:`OnlineMaps`; the result's ``series`` is then None): the command line writes them to the file.
     check : bool, optional
         Check every chunk as a reader does (default; see :class:`evtools.filters.BAFilter`); the command line
         passes False, its readers having checked.
@@ -374,6 +381,7 @@ class ThresholdEstimator:
         radius_px: int = DEFAULT_RADIUS_PX,
         interval_us: int | None = None,
         forget_us: float | None = None,
+        map_sink=None,
         check: bool = True,
     ) -> None:
         check_sensor_size(width, height)
@@ -421,7 +429,7 @@ class ThresholdEstimator:
         self.interval_us = None if interval_us is None else int(interval_us)
         self.forget_us = None if forget_us is None else float(forget_us)
         self._next_snapshot_us: int | None = None
-        self._series: list[tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+        self._maps = None if interval_us is None else OnlineMaps(self.width, self.height, self.interval_us, map_sink)
         self.reacquired = 0  # online stimulus: polarities of pixels that stepped out of their window and seeded anew
         self._stale = np.zeros(width * height, dtype=bool)  # dropped estimates not yet acquired again
         n = self.width * self.height
@@ -527,11 +535,7 @@ class ThresholdEstimator:
         else:
             on = off = fit = np.full(self.width * self.height, np.nan)
             valid = np.zeros(self.width * self.height, dtype=bool)
-        shape = (self.height, self.width)
-        check_series_room(len(self._series) + 1, self.width, self.height, self.interval_us, t_us)
-        self._series.append((t_us, np.where(valid, on, np.nan).reshape(shape).astype(np.float32),
-                             np.where(valid, off, np.nan).reshape(shape).astype(np.float32), valid.reshape(shape),
-                             fit.reshape(shape).astype(np.float32)))
+        self._maps.add(t_us, on, off, valid, fit)
         keep = math.exp(-self.interval_us / self.forget_us)
         if self.method == "natural":
             self._counts[:, :COUNT_LAST] *= keep
@@ -639,20 +643,17 @@ class ThresholdEstimator:
             phase_us = phase_us.reshape(self.height, self.width)
         series = None
         if self.interval_us is not None:
-            final_fit = fit if fit is not None else np.full(on.shape, np.nan, np.float32)
-            maps = self._series + [(self.t_last_us + 1, np.where(valid.reshape(on.shape), on, np.nan),
-                                    np.where(valid.reshape(on.shape), off, np.nan), valid.reshape(on.shape),
-                                    final_fit)]
-            series = _series_of(maps)
-            attributes["maps"] = len(maps)
+            self._maps.add_final(self.t_last_us + 1, on, off, valid, np.full(on.shape, np.nan) if fit is None else fit)
+            series = self._maps.series()
+            attributes["maps"] = self._maps.count
             if self.method == "stimulus":
                 attributes["reacquired"] = self.reacquired
         return ThresholdEstimate(on, off, valid.reshape(self.height, self.width), attributes, fit, phase_us, series)
 
     def maps_so_far(self) -> ThresholdSeries | None:
-        """Online: the maps taken so far (each complete at its time), or None before the first; what is left of a
-        run that stops midway (an error in the stream)."""
-        return _series_of(self._series) if self._series else None
+        """Online: the maps held so far (each complete at its time), or None before the first or when they went to
+        a ``map_sink``; what is left of a run that stops midway (an error in the stream)."""
+        return None if self._maps is None else self._maps.series()
 
     def finish(self) -> ThresholdEstimate:
         """Alias of :meth:`result`."""
@@ -828,7 +829,8 @@ def check_series_room(maps: int, width: int, height: int, interval_us: int, t_us
     if maps * 13 * width * height > MAX_SERIES_BYTES:
         raise EstimationError(
             f"online maps every {interval_us:,} us: {maps:,} maps of {width}x{height} would take more than "
-            f"{MAX_SERIES_BYTES / 2**30:.0f} GiB by {t_us:,} us; give a longer --interval")
+            f"{MAX_SERIES_BYTES / 2**30:.0f} GiB by {t_us:,} us; give a longer interval, or a map_sink to take them "
+            "as they come")
 
 
 def _series_of(maps: list) -> ThresholdSeries:
@@ -836,6 +838,44 @@ def _series_of(maps: list) -> ThresholdSeries:
     return ThresholdSeries(np.array([m[0] for m in maps], dtype=np.int64),
                            *(np.stack([m[k] for m in maps]).astype(np.float32) for k in (1, 2)),
                            np.stack([m[3] for m in maps]), np.stack([m[4] for m in maps]).astype(np.float32))
+
+
+class OnlineMaps:
+    """An online estimator's maps as they are made: held (for :meth:`series`; at most :data:`MAX_SERIES_BYTES`,
+    :func:`check_series_room`) or, with ``sink``, passed on at once as ``sink(t_us, on, off, valid, fit)`` (height
+    x width each: float32 with NaN where not valid, bool) and not kept, so a run's length is bounded by where they
+    go, not by memory (the command line writes them to the file as they come). The final map (the estimate at the
+    stream's end) is added once, however often the estimate is asked for."""
+
+    def __init__(self, width: int, height: int, interval_us: int, sink=None) -> None:
+        self.width, self.height, self.interval_us, self.sink = width, height, interval_us, sink
+        self.held: list[tuple] = []
+        self.count = 0  # maps made, held or passed on
+        self.final: tuple | None = None
+
+    def add(self, t_us: int, on, off, valid, fit) -> None:
+        """Map ``t_us`` (pixels flattened or not; ``on``/``off`` NaN where not ``valid`` is not required)."""
+        shape = (self.height, self.width)
+        valid = np.asarray(valid, dtype=bool).reshape(shape)
+        entry = (int(t_us), np.where(valid, np.reshape(on, shape), np.nan).astype(np.float32),
+                 np.where(valid, np.reshape(off, shape), np.nan).astype(np.float32), valid,
+                 np.asarray(fit, dtype=np.float32).reshape(shape))
+        if self.sink is not None:
+            self.sink(*entry)
+        else:
+            check_series_room(len(self.held) + 1, self.width, self.height, self.interval_us, t_us)
+            self.held.append(entry)
+        self.count += 1
+
+    def add_final(self, t_us: int, on, off, valid, fit) -> None:
+        """The map at the stream's end, added the first time only."""
+        if self.final is None:
+            self.add(t_us, on, off, valid, fit)
+            self.final = (t_us,)
+
+    def series(self) -> ThresholdSeries | None:
+        """The maps held (None with a sink, or before the first)."""
+        return _series_of(self.held) if self.held else None
 
 
 def _excitation_gradient(inverse: np.ndarray, usable: np.ndarray, radius_px: int) -> np.ndarray:

@@ -43,8 +43,7 @@ import numpy as np
 
 from evtools._kernels.estimate import (FRAMES_OFF, FRAMES_ON, FRAMES_ROW, TIME_SUMS, count_times, exposure_counts,
                                        fold_runs, frame_sums, log_levels, polarity_counts)
-from evtools.estimation import (DEFAULT_MIN_EVENTS, EstimationError, ThresholdEstimate, _series_of,
-                                check_series_room)
+from evtools.estimation import DEFAULT_MIN_EVENTS, EstimationError, OnlineMaps, ThresholdEstimate
 from evtools.events import StreamChecker, StreamInfo, as_chunk, empty_events
 
 MIN_SIGNAL_DN = 8.0
@@ -190,11 +189,14 @@ class FrameThresholdEstimator:
     interval_us, forget_us : int or None
         onEI: a map every ``interval_us`` from the frames so far, older ones forgotten with time constant
         ``forget_us`` (default 3 intervals).
+    map_sink : callable, optional
+        onEI: each map passed to ``map_sink(t_us, on, off, valid, fit)`` as it is made instead of being held (see
+        :class:`evtools.estimation.ThresholdEstimator`).
     """
 
     def __init__(self, width: int, height: int, *, black_level: float | str | None = DEFAULT_BLACK_LEVEL,
                  min_events: int = DEFAULT_MIN_EVENTS, max_fit: float | None = None, interval_us: int | None = None,
-                 forget_us: int | None = None, check: bool = True, **unused) -> None:
+                 forget_us: int | None = None, map_sink=None, check: bool = True, **unused) -> None:
         unknown = sorted(name for name, value in unused.items() if value is not None and name not in (
             "method", "nominal", "segment_us", "stimulus", "phase", "radius_px"))
         if unknown:
@@ -244,7 +246,7 @@ class FrameThresholdEstimator:
         self.t_frame_us: int | None = None  # the last frame used (online forgetting)
         self.weight = 1.0  # onEI: the weight of a frame added now (see _forget)
         self.next_map_us: int | None = None
-        self.maps: list = []
+        self.maps = None if interval_us is None else OnlineMaps(width, height, interval_us, map_sink)
         self.trend: SharedTrend | None = None  # onEI: the shared drift's level, for the maps' lag
         # onEI: a second memory of one interval for every black level, to see a threshold step (see _step)
         self.short = None
@@ -437,9 +439,7 @@ class FrameThresholdEstimator:
             fits = self._fit_all()
             if self._step(self.next_map_us, fits):
                 fits = self._fit_all()  # (the long memory restarted)
-            check_series_room(len(self.maps) + 1, self.width, self.height, self.interval_us, self.next_map_us)
-            self.maps.append(self._map_of(self.next_map_us,
-                                          self._without_lag(self.next_map_us, self._solve(fits), fits)))
+            self._add_map(self.next_map_us, self._without_lag(self.next_map_us, self._solve(fits), fits))
             self.next_map_us += self.interval_us
 
     def _step(self, t_us: int, fits: list[dict]) -> bool:
@@ -607,8 +607,8 @@ class FrameThresholdEstimator:
         estimate = self._solve(fits)
         if self.interval_us is not None:
             estimate = self._without_lag((self.last_t_us or 0) + 1, estimate, fits)
-            self.maps.append(self._map_of((self.last_t_us or 0) + 1, estimate))
-            estimate.series = _series_of(self.maps)
+            self._add_map((self.last_t_us or 0) + 1, estimate, final=True)
+            estimate.series = self.maps.series()
         return estimate
 
     def why_none_valid(self, attributes: dict) -> str:
@@ -634,8 +634,9 @@ class FrameThresholdEstimator:
                 f"{hint}")
 
     def maps_so_far(self):
-        """onEI: the maps made so far (a run stopped midway keeps them), or None."""
-        return _series_of(self.maps) if self.maps else None
+        """onEI: the maps held so far (a run stopped midway keeps them), or None (before the first, or when they
+        went to a ``map_sink``)."""
+        return None if self.maps is None else self.maps.series()
 
     @property
     def t_last_us(self) -> int:
@@ -667,11 +668,11 @@ class FrameThresholdEstimator:
         return _lags(memory["sums"][index] * to_true, memory["time_sums"][index] * to_true, fit["on"], fit["off"],
                      (t_us - (self.origin_us or 0)) * 1e-6)
 
-    @staticmethod
-    def _map_of(t_us: int, estimate: ThresholdEstimate) -> tuple:
-        """One map of an online series (NaN where not valid, as :class:`ThresholdSeries` holds them)."""
-        return (t_us, np.where(estimate.valid, estimate.on, np.nan), np.where(estimate.valid, estimate.off, np.nan),
-                estimate.valid, estimate.fit)
+    def _add_map(self, t_us: int, estimate: ThresholdEstimate, final: bool = False) -> None:
+        """One map of the online series (:class:`evtools.estimation.OnlineMaps`)."""
+        fit = np.full(estimate.on.shape, np.nan) if estimate.fit is None else estimate.fit
+        add = self.maps.add_final if final else self.maps.add
+        add(t_us, estimate.on, estimate.off, estimate.valid, fit)
 
     def _fit_all(self) -> list[dict]:
         """:meth:`_fit` of every black-level candidate."""

@@ -9,6 +9,7 @@ the method and its parameters as attributes of the file.
 from __future__ import annotations
 
 import os
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -163,25 +164,93 @@ def write_thresholds(path: str, thresholds: ThresholdMap) -> None:
             raise
 
 
+UNITS = {"on": "log intensity", "off": "log intensity",
+         "fit": "thresholds (RMS deviation of the level changes; a change that does not fit: 1)",
+         "t_us": "us (map k holds from t_us[k] on)", "phase_us": "us (a valley of the stimulus, modulo its period)"}
+"""The ``units`` attribute of each dataset of a thresholds file."""
+
+
 def _fill(h5, thresholds: ThresholdMap) -> None:
     """The datasets and attributes of a thresholds file."""
     for name in ("on", "off"):
         h5.create_dataset(name, data=np.asarray(getattr(thresholds, name), dtype=np.float32))
-        h5[name].attrs["units"] = "log intensity"
     h5.create_dataset("valid", data=np.asarray(thresholds.valid, dtype=bool))
     if thresholds.fit is not None:
         h5.create_dataset("fit", data=np.asarray(thresholds.fit, dtype=np.float32))
-        h5["fit"].attrs["units"] = "thresholds (RMS deviation of the level changes; a change that does not fit: 1)"
     if thresholds.t_us is not None:
         h5.create_dataset("t_us", data=np.asarray(thresholds.t_us, dtype=np.int64))
-        h5["t_us"].attrs["units"] = "us (map k holds from t_us[k] on)"
-    if thresholds.phase_us is not None:
-        h5.create_dataset("phase_us", data=np.asarray(thresholds.phase_us, dtype=np.float64))
-        h5["phase_us"].attrs["units"] = "us (a valley of the stimulus, modulo its period)"
-    for key, value in thresholds.attributes.items():
+    _finish(h5, thresholds.attributes, thresholds.phase_us)
+
+
+def _finish(h5, attributes: dict, phase_us: np.ndarray | None) -> None:
+    """``phase_us`` (when known), the datasets' units and the file's attributes."""
+    if phase_us is not None:
+        h5.create_dataset("phase_us", data=np.asarray(phase_us, dtype=np.float64))
+    for name, units in UNITS.items():
+        if name in h5:
+            h5[name].attrs["units"] = units
+    for key, value in attributes.items():
         if key == "units":
             continue
         h5.attrs[key] = value if not isinstance(value, (dict, list, tuple)) else str(value)
+
+
+class SeriesFile:
+    """A time series of maps (``estimate --online``) written map by map as an online estimate makes them
+    (:func:`series_file`): the file's layout is :func:`write_thresholds`' for a series, its datasets chunked one map
+    a chunk and grown along the time axis, so the run's length is bounded by the disk, not by memory."""
+
+    def __init__(self, h5, path: str, width: int, height: int) -> None:
+        self.h5, self.path, self.count, self.failed = h5, path, 0, False
+        self.last_t_us: int | None = None
+        self.any_valid = False  # whether any map has a valid pixel
+        for name, dtype in (("on", np.float32), ("off", np.float32), ("valid", bool), ("fit", np.float32)):
+            h5.create_dataset(name, shape=(0, height, width), maxshape=(None, height, width), dtype=dtype,
+                              chunks=(1, height, width))
+        h5.create_dataset("t_us", shape=(0,), maxshape=(None,), dtype=np.int64, chunks=(4096,))
+
+    def append(self, t_us: int, on, off, valid, fit) -> None:
+        """Map ``t_us`` (after the previous one): ``on``, ``off``, ``fit`` height x width, NaN where not valid."""
+        with interrupt.deferred():  # (a stop inside HDF5's writes would crash it)
+            try:
+                for name, value in (("on", on), ("off", off), ("valid", valid), ("fit", fit), ("t_us", t_us)):
+                    dataset = self.h5[name]
+                    dataset.resize(self.count + 1, axis=0)
+                    dataset[self.count] = value
+            except OSError as error:
+                self.failed = True
+                raise FormatError(f"{self.path}: cannot write ({error.strerror or error})") from None
+        self.count += 1
+        self.last_t_us = int(t_us)
+        self.any_valid = self.any_valid or bool(np.any(valid))
+
+    def finish(self, attributes: dict, phase_us: np.ndarray | None = None) -> None:
+        """The file's attributes (and the stimulus phases), once every map is in."""
+        with interrupt.deferred():
+            _finish(self.h5, attributes, phase_us)
+
+
+@contextmanager
+def series_file(path: str, width: int, height: int):
+    """A :class:`SeriesFile` at ``path``, written atomically: the file takes its name when the block ends without
+    an error (call :meth:`SeriesFile.finish` first), and none is left when it raises."""
+    import h5py
+
+    from evtools.formats.hdf5 import abandon
+
+    with output_stream(path, binary_name="HDF5", needs_seek=True) as stream:
+        with interrupt.deferred():
+            h5 = h5py.File(stream, "w")
+        try:
+            yield SeriesFile(h5, path, width, height)
+            with interrupt.deferred():
+                h5.close()  # HDF5 writes its last blocks through the stream here: a full disk fails here
+        except OSError as error:
+            abandon(h5)
+            raise FormatError(f"{path}: cannot write ({error.strerror or error})") from None
+        except BaseException:
+            abandon(h5)
+            raise
 
 
 def read_labels(path: str) -> np.ndarray:

@@ -961,10 +961,82 @@ def test_online_maps_beyond_the_memory_bound_are_refused(monkeypatch):
     events = _spread_events(3, 20_000, 8, 6, 100_000)
     within = estimation.ThresholdEstimator(8, 6, "natural", interval_us=10_000, min_events=1, max_fit=math.inf)
     within.process(events)  # (maps at each interval's end as the stream passes it)
-    assert 5 <= len(within._series) <= 10
+    assert 5 <= within._maps.count <= 10
     beyond = estimation.ThresholdEstimator(8, 6, "natural", interval_us=1_000, min_events=1, max_fit=math.inf)
     with pytest.raises(EstimationError, match=r"online maps every 1,000 us: 11 maps of 8x6 would take more than"):
         beyond.process(events)
+
+
+def test_online_maps_given_to_a_sink_are_neither_held_nor_bounded(monkeypatch):
+    """With a ``map_sink`` (the command line's way to the file) the maps are passed on as they are made: none is
+    held, no memory bound applies, the final map comes once however often the result is asked for, and the maps
+    are those an estimator holding them makes."""
+    import evtools.estimation as estimation
+
+    events = _spread_events(3, 20_000, 8, 6, 1_000_000)
+    options = dict(interval_us=50_000, min_events=1, max_fit=math.inf)
+    held = estimation.ThresholdEstimator(8, 6, "natural", **options)
+    held.process(events)
+    series = held.result().series
+    monkeypatch.setattr(estimation, "MAX_SERIES_BYTES", 13 * 8 * 6 * 10)  # ten maps
+    sent = []
+    streamed = estimation.ThresholdEstimator(8, 6, "natural", map_sink=lambda *entry: sent.append(entry), **options)
+    for chunk in cut(events, [5_000, 5_001, 17_000]):
+        streamed.process(chunk)
+    result = streamed.result()
+    streamed.result()
+    assert result.series is None and streamed.maps_so_far() is None
+    assert len(sent) == result.attributes["maps"] == len(series.t_us) > 10
+    assert [entry[0] for entry in sent] == series.t_us.tolist()
+    for k, name in enumerate(("on", "off", "valid", "fit"), start=1):
+        assert np.array_equal(np.stack([entry[k] for entry in sent]), getattr(series, name), equal_nan=True), name
+
+
+def test_online_maps_in_the_file_are_the_estimators(tmp_path):
+    """`estimate --online` writes each map to the file as it is made: the file holds exactly the series the
+    estimator makes in memory (natural and stimulus), and `correct` reads it."""
+    stream = tmp_path / "flicker.aedat4"
+    run("simulate", "scene:flicker", "--size", "16x12", "--duration", "4s", *LOG_FLICKER, "--seed", "5", "-o", stream)
+    info, events = read_all(stream)
+    for method, args, options in (
+            ("natural", ["--method", "natural", "--min-events", "2"], dict(min_events=2)),
+            ("stimulus", LOG_STIMULUS, dict(stimulus=Stimulus(math.log(25), math.log(250), 1_000_000.0,
+                                                              profile="log")))):
+        out = tmp_path / f"{method}.h5"
+        run("estimate", stream, *args, "--online", "--interval", "500ms", "-o", out)
+        estimator = ThresholdEstimator(16, 12, method, interval_us=500_000, **options)
+        estimator.process(events)
+        series = estimator.result().series
+        written = read_thresholds(out, series=True)
+        assert np.array_equal(written.t_us, series.t_us) and len(series.t_us) >= 8
+        for name in ("on", "off", "valid", "fit"):
+            assert np.array_equal(getattr(written, name), getattr(series, name), equal_nan=True), (method, name)
+        assert written.attributes["maps"] == len(series.t_us) and "partial" not in written.attributes
+        run("correct", stream, "--thresholds", out, "-o", tmp_path / f"{method}.corrected.aedat4")
+
+
+def test_a_stop_between_online_maps_keeps_them(tmp_path):
+    """One chunk can make any number of maps (a sparse stream, a short interval: two events 1,000 s apart at
+    --interval 1ms are a million maps), and the reader sees a stop only at its next chunk: the maps' way to the
+    file sees it at the next map. SIGINT once the maps are under way (the warning that they are mostly empty):
+    exit 130, and the maps made are a complete file marked partial, stopped by SIGINT."""
+    import signal
+
+    stream = tmp_path / "sparse.aedat4"
+    evtools.write(stream, make_events([0, 1, 2, 1_000_000_000], [0, 1, 2, 3], [0, 1, 2, 3], [1, 0, 1, 0]),
+                  StreamInfo(8, 6))
+    out = tmp_path / "series.h5"
+    process = subprocess.Popen([str(Path(sys.executable).with_name("evtools")), "estimate", stream, "--method",
+                                "natural", "--online", "--interval", "1ms", "-o", out], stderr=subprocess.PIPE)
+    first = process.stderr.readline().decode()
+    assert "mostly empty" in first, first
+    process.send_signal(signal.SIGINT)
+    message = first + process.stderr.read().decode()
+    assert process.wait(timeout=60) == 130, message
+    assert "Traceback" not in message and "stopped by SIGINT" in message, message
+    written = read_thresholds(out, series=True)
+    assert written.attributes["partial"] and written.attributes["stopped_by"] == "stopped by SIGINT"
+    assert 10 <= len(written.t_us) < 1_000_000 and np.all(np.diff(written.t_us) == 1_000)
 
 
 @pytest.mark.parametrize("factor", [0.5, 0.7, 1.3, 1.5])
