@@ -282,8 +282,10 @@ def estimate_one(input, output, *, reading, parameters, slicing=None
                 return Outcome(estimator.events, None, {"maps": maps_file.count, "partial": True},
                                f"{maps_file.count} maps (stopped)")
             except EvtoolsError as error:
+                if online and maps_file.failed:
+                    raise  # (the file could not be written: its own error, no partial file)
                 message = str(error) if str(error).startswith(stream.name) else f"{stream.name}: {error}"
-                if not online or maps_file.count == 0 or maps_file.failed or sink.estimator is None:
+                if not online or maps_file.count == 0 or sink.estimator is None:
                     raise type(error)(message) from None
                 sink.finish_partial(message)
                 failure = EstimationError(f"{message} (at {estimator.t_last_us:,} us); the {maps_file.count} maps "

@@ -204,19 +204,22 @@ class SeriesFile:
         self.h5, self.path, self.count, self.failed = h5, path, 0, False
         self.last_t_us: int | None = None
         self.any_valid = False  # whether any map has a valid pixel
-        for name, dtype in (("on", np.float32), ("off", np.float32), ("valid", bool), ("fit", np.float32)):
-            h5.create_dataset(name, shape=(0, height, width), maxshape=(None, height, width), dtype=dtype,
-                              chunks=(1, height, width))
-        h5.create_dataset("t_us", shape=(0,), maxshape=(None,), dtype=np.int64, chunks=(4096,))
+        # (held for the file's life: an h5py object freed after a failed write writes again as it goes, and prints
+        # the failure as an ignored exception; on failure :func:`series_file` abandons them with the file)
+        self.datasets = {name: h5.create_dataset(name, shape=(0, height, width), maxshape=(None, height, width),
+                                                 dtype=dtype, chunks=(1, height, width))
+                         for name, dtype in (("on", np.float32), ("off", np.float32), ("valid", bool),
+                                             ("fit", np.float32))}
+        self.datasets["t_us"] = h5.create_dataset("t_us", shape=(0,), maxshape=(None,), dtype=np.int64,
+                                                  chunks=(4096,))
 
     def append(self, t_us: int, on, off, valid, fit) -> None:
         """Map ``t_us`` (after the previous one): ``on``, ``off``, ``fit`` height x width, NaN where not valid."""
         with interrupt.deferred():  # (a stop inside HDF5's writes would crash it)
             try:
                 for name, value in (("on", on), ("off", off), ("valid", valid), ("fit", fit), ("t_us", t_us)):
-                    dataset = self.h5[name]
-                    dataset.resize(self.count + 1, axis=0)
-                    dataset[self.count] = value
+                    self.datasets[name].resize(self.count + 1, axis=0)
+                    self.datasets[name][self.count] = value
             except OSError as error:
                 self.failed = True
                 raise FormatError(f"{self.path}: cannot write ({error.strerror or error})") from None
@@ -241,15 +244,17 @@ def series_file(path: str, width: int, height: int):
     with output_stream(path, binary_name="HDF5", needs_seek=True) as stream:
         with interrupt.deferred():
             h5 = h5py.File(stream, "w")
+        maps = None
         try:
-            yield SeriesFile(h5, path, width, height)
+            maps = SeriesFile(h5, path, width, height)
+            yield maps
             with interrupt.deferred():
                 h5.close()  # HDF5 writes its last blocks through the stream here: a full disk fails here
         except OSError as error:
-            abandon(h5)
+            abandon(h5, maps)
             raise FormatError(f"{path}: cannot write ({error.strerror or error})") from None
         except BaseException:
-            abandon(h5)
+            abandon(h5, maps)
             raise
 
 

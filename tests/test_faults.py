@@ -190,12 +190,20 @@ def test_a_full_disk_names_the_output_and_leaves_nothing(small_disk, suffix, tmp
     assert os.listdir(small_disk) == []
 
 
-def test_a_thresholds_map_on_a_full_disk_names_it(small_disk, tmp_path):
+@pytest.mark.parametrize("online", [False, True])
+def test_a_thresholds_map_on_a_full_disk_names_it(small_disk, tmp_path, online):
     """estimate's HDF5 map onto a full disk: the map's name in the one line (was "No space left on device" alone),
-    exit 1 (not a crash), no file."""
+    exit 1 (not a crash), no file. Online, the maps go to the file as they are made: the disk fills between two
+    maps, and the same holds (no partial file: the maps could not be written)."""
+    target = small_disk / "t.h5"
+    if online:  # 100 maps of 12 KiB
+        result = run("estimate", SAMPLES / "flicker.aedat4", "--method", "natural", "--online", "--interval", "20ms",
+                     "-o", target, check=False)
+        assert_clean_error(result, str(target), "No space left on device")
+        assert os.listdir(small_disk) == []
+        return
     filler = small_disk / "filler"
     filler.write_bytes(b"\0" * (250 * 1024))
-    target = small_disk / "t.h5"
     result = run("estimate", SAMPLES / "flicker.aedat4", "-o", target, check=False)
     assert_clean_error(result, str(target), "No space left on device")
     assert sorted(os.listdir(small_disk)) == ["filler"]
