@@ -7,7 +7,7 @@ import json
 import click
 
 from evtools.cli.options import figure_path, json_option, wants_json
-from evtools.metrics.thresholds import ThresholdMetricsError, threshold_errors
+from evtools.metrics.thresholds import FIT_IS_ERROR, ThresholdMetricsError, fit_calibration, threshold_errors
 from evtools.formats.thresholds import read_thresholds
 
 @click.command()
@@ -18,7 +18,8 @@ from evtools.formats.thresholds import read_thresholds
               help="Also draw the estimated map, the true map and the relative error side by side.")
 @json_option
 def thresholds(estimate_path, truth_path, plot_path, as_json):
-    """Relative RMSE, bias and correlation of ON and OFF thresholds over valid pixels, and the invalid fraction.
+    """Relative RMSE, bias and correlation of ON and OFF thresholds over valid pixels, the invalid fraction, the
+    valid pixels more than 10 % off, and how well the fit map predicts the error (natural, offe, frames).
 
     \b
     evtools metrics thresholds thresholds.h5 --truth truth.h5 --plot errors.png
@@ -35,7 +36,10 @@ def thresholds(estimate_path, truth_path, plot_path, as_json):
         result = threshold_errors(estimate.on, estimate.off, estimate.valid, truth.on, truth.off)
     except ThresholdMetricsError as error:
         raise ThresholdMetricsError(f"{estimate_path}: {error}") from None
-    result = {"estimate": estimate_path, "truth": truth_path, "method": estimate.attributes.get("method"), **result}
+    method = estimate.attributes.get("method")
+    result = {"estimate": estimate_path, "truth": truth_path, "method": method, **result}
+    if estimate.fit is not None and method in FIT_IS_ERROR:  # how well the fit map predicts the error
+        result["fit"] = fit_calibration(estimate.on, estimate.off, estimate.valid, estimate.fit, truth.on, truth.off)
     if "rejected_by_fit" in estimate.attributes:  # pixels with enough events whose events did not fit the model
         result["rejected_by_fit"] = int(estimate.attributes["rejected_by_fit"])
     if "unchecked" in estimate.attributes:  # offE: estimates its fit could not check (not valid)
@@ -70,6 +74,13 @@ def _print_table(result: dict) -> None:
                             ("pixels", "pixels", str)):
         table.add_row(label, fmt(result["on"][key]), fmt(result["off"][key]))
     table.add_row("invalid pixels", f"{100 * result['invalid_fraction']:.2f} %", "")
+    table.add_row("valid pixels > 10 % off", percent(result["off_by_10_percent"]), "")
+    if result.get("fit"):
+        fit = result["fit"]
+        rank = "-" if fit["rank_correlation"] is None else f"{fit['rank_correlation']:.2f}"
+        table.add_row("error / fit (RMS; < 1: fit conservative)", f"{fit['error_over_fit_rms']:.2f}", "")
+        table.add_row("off by more than 2 fits", percent(fit["beyond_two_fits"]), "")
+        table.add_row("fit-error rank correlation", rank, "")
     if "rejected_by_fit" in result:
         table.add_row("of which rejected by fit", str(result["rejected_by_fit"]), "")
     if "unchecked" in result:

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from evtools.metrics.thresholds import ThresholdMetricsError, threshold_errors
+from evtools.metrics.thresholds import ThresholdMetricsError, fit_calibration, threshold_errors
 from evtools.formats.thresholds import ThresholdMap, write_thresholds
 from tests.helpers import assert_clean_error, run
 
@@ -34,6 +34,28 @@ def test_errors_by_their_definitions():
     assert result["off"]["bias"] == pytest.approx(-0.5 / n, rel=1e-5)
     assert result["invalid_fraction"] == pytest.approx(1 / valid.size)
     assert result["on"]["pixels"] == n
+
+
+def test_fit_calibration_by_its_definitions():
+    """The larger of the ON and OFF relative errors against the fit, over valid pixels with a finite fit: RMS of
+    their ratio, the share past two fits, the rank correlation; and the share of valid pixels 10 % off."""
+    true_on, true_off = maps(shape=(4, 5))
+    errors = np.linspace(0.015, 0.205, 20).reshape(4, 5)  # (none at 0.1 itself)
+    est_on, est_off = true_on * (1 + errors), true_off * (1 - errors / 2)
+    fit = (errors / 1.5).astype(np.float32)  # every error 1.5 times its fit
+    fit[0, 0] = np.nan  # not fitted: left out
+    valid = np.ones((4, 5), bool)
+    valid[3, 4] = False  # not valid: left out
+    result = fit_calibration(est_on, est_off, valid, fit, true_on, true_off)
+    assert result["pixels"] == 18 and result["error_over_fit_rms"] == pytest.approx(1.5, rel=1e-5)
+    assert result["beyond_two_fits"] == 0 and result["rank_correlation"] == pytest.approx(1)
+    # reversed: the largest errors get the smallest fits (the NaN fit lands on the invalid pixel: 19 pixels, of
+    # which e_k > 2 e_(19-k) / 1.5 for k = 12..18)
+    result = fit_calibration(est_on, est_off, valid, fit[::-1, ::-1], true_on, true_off)
+    assert result["pixels"] == 19 and result["rank_correlation"] == pytest.approx(-1)
+    assert result["beyond_two_fits"] == pytest.approx(7 / 19)
+    assert fit_calibration(est_on, est_off, valid, np.full((4, 5), np.nan), true_on, true_off) is None
+    assert threshold_errors(est_on, est_off, valid, true_on, true_off)["off_by_10_percent"] == pytest.approx(10 / 19)
 
 
 def test_wrong_size_is_an_error():
@@ -76,4 +98,8 @@ def test_an_events_only_estimate_says_its_scale_is_relative_and_what_it_cannot_s
         run("estimate", stream, "--method", method, "-o", out)
         report = json.loads(run("metrics", "thresholds", out, "--truth", truth, "--json").stdout)
         assert report["scale"] == scale
+        # offE's fit is a predicted relative error (checked against the truth); stimulus's is in thresholds
+        assert ("fit" in report) == (method == "offe") and 0 <= report["off_by_10_percent"] <= 1
+        if method == "offe":
+            assert report["fit"]["pixels"] > 0 and report["fit"]["error_over_fit_rms"] > 0
         assert ("absolute scale" in report.get("not_observable", "")) == (scale == "relative")

@@ -2,7 +2,9 @@
 
 :func:`threshold_errors` computes, for ON and OFF separately over the pixels whose estimate is valid, the relative
 RMSE ``sqrt(mean(((est - true) / true)^2))`` (the report's Table 1 figure), the bias (mean relative error), the
-correlation between estimated and true thresholds, and the fraction of pixels left invalid.
+correlation between estimated and true thresholds, the fraction of pixels left invalid, and the share of valid
+pixels more than 10 % off (the larger of ON and OFF). :func:`fit_calibration` says how well an estimate's fit map
+predicts its error (issue 36: a fit that predicts the error).
 :func:`evtools.plots.thresholds_figure` draws the estimated map, the true map and the relative error side by side (the
 report's Figure 29).
 """
@@ -71,4 +73,36 @@ def threshold_errors(estimated_on, estimated_off, valid, true_on, true_off) -> d
             "mae_rel": float(np.mean(np.abs(relative))),
             "pixels": int(len(e)),
         }
+    with np.errstate(divide="ignore", invalid="ignore"):
+        worst = np.fmax(np.abs(est_on / true_on - 1.0), np.abs(est_off / true_off - 1.0))[usable]
+    result["off_by_10_percent"] = float(np.mean(worst > 0.1)) if len(worst) else None
     return result
+
+
+FIT_IS_ERROR = ("natural", "offe", "frames")
+"""Methods whose fit map is a predicted relative error of the thresholds (stimulus's is the RMS deviation of the
+level changes, in thresholds)."""
+
+
+def fit_calibration(estimated_on, estimated_off, valid, fit, true_on, true_off) -> dict | None:
+    """How well ``fit`` (a predicted relative error per pixel) predicts the error, over the valid pixels with a
+    finite positive fit: ``error_over_fit_rms``, the RMS of the larger of the ON and OFF relative errors over the
+    fit (about 1 where the fit is the error's size, below 1 where it is conservative); ``beyond_two_fits``, the
+    share of those pixels off by more than twice their fit; ``rank_correlation`` (Spearman) of fit and error, None
+    when either is constant; and ``pixels``. None when no pixel has a fit."""
+    est_on, est_off, valid, true_on, true_off = _check(estimated_on, estimated_off, valid, true_on, true_off)
+    fit = np.asarray(fit, dtype=np.float64)
+    if fit.shape != true_on.shape:
+        raise ThresholdMetricsError("the fit map must have the shape of the thresholds")
+    with np.errstate(divide="ignore", invalid="ignore"):
+        worst = np.fmax(np.abs(est_on / true_on - 1.0), np.abs(est_off / true_off - 1.0)).astype(np.float64)
+        usable = valid.astype(bool) & np.isfinite(worst) & np.isfinite(fit) & (fit > 0)
+    if not usable.any():
+        return None
+    error, predicted = worst[usable], fit[usable]
+    ranks = [np.argsort(np.argsort(values, kind="stable")) for values in (error, predicted)]
+    spread = len(error) > 2 and error.std() > 0 and predicted.std() > 0
+    return {"error_over_fit_rms": float(np.sqrt(np.mean((error / predicted) ** 2))),
+            "beyond_two_fits": float(np.mean(error > 2.0 * predicted)),
+            "rank_correlation": float(np.corrcoef(*ranks)[0, 1]) if spread else None,
+            "pixels": int(usable.sum())}
