@@ -15,8 +15,10 @@ Correction: the mismatched stream re-sampled to 0.2 with the exact thresholds an
 error (Gaussian, per pixel and polarity), each mode; against the ideal sensor (every threshold 0.2) watching the
 same signal: the per-pixel count error (sum over pixels and polarities of |n - n_ideal| over the ideal's total) and
 the total count. Estimation: natural and offE (defaults): the valid fraction, the relative RMSE over valid pixels
-(ON and OFF together), the share of valid pixels more than 10 % off, and the rank correlation of the fit with the
-error over fitted pixels. Run from samples/ (``make natural``); writes natural.md.
+(ON and OFF together), the share of valid pixels more than 10 % off, the rank correlation of the fit with the
+error over fitted pixels, and how well the fit predicts the error's size over valid pixels (``metrics
+thresholds``: the RMS of the larger of the ON and OFF relative errors over the fit, about 1 where the fit is the
+error's size, and the share off by more than two fits). Run from samples/ (``make natural``); writes natural.md.
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ from evtools.correction import correct_thresholds  # noqa: E402
 from evtools.estimation import EstimationError, estimate_thresholds  # noqa: E402
 from evtools.events import make_events  # noqa: E402
 from evtools.filters import ba_filter  # noqa: E402
+from evtools.metrics.thresholds import fit_calibration  # noqa: E402
 from tests.naive.texture import count_error, crossings, smooth_field, texture_signal  # noqa: E402
 
 WIDTH, HEIGHT, DURATION_US = 48, 36, 6_000_000
@@ -109,16 +112,18 @@ def estimation_rows(name: str) -> list[str]:
             worst = np.abs(errors).max(axis=0)
             valid = result.valid
             fitted = np.isfinite(result.fit) & (result.on > 0)
+            calibration = fit_calibration(result.on, result.off, valid, result.fit, on, off) or {}
             figures.setdefault(method, []).append((
                 valid.mean(), float(np.sqrt(np.mean(errors[:, valid] ** 2))) if valid.any() else np.nan,
                 float(np.mean(worst[valid] > 0.1)) if valid.any() else np.nan,
-                rank_correlation(result.fit[fitted], worst[fitted])))
+                rank_correlation(result.fit[fitted], worst[fitted]),
+                calibration.get("error_over_fit_rms", np.nan), calibration.get("beyond_two_fits", np.nan)))
     rows = []
     for method, values in figures.items():
         values = np.array(values, dtype=float)
-        means = [np.nanmean(values[:, k]) if np.isfinite(values[:, k]).any() else np.nan for k in range(4)]
+        means = [np.nanmean(values[:, k]) if np.isfinite(values[:, k]).any() else np.nan for k in range(6)]
         rows.append(f"| {name} | {method} | {100 * means[0]:.0f} % | {100 * means[1]:.1f} % | "
-                    f"{100 * means[2]:.0f} % | {means[3]:.2f} |")
+                    f"{100 * means[2]:.0f} % | {means[3]:.2f} | {means[4]:.2f} | {100 * means[5]:.0f} % |")
     return rows
 
 
@@ -131,8 +136,9 @@ def main() -> None:
     for name in ("wobble", "pan", "boundary", "correlated"):
         lines += correction_rows(name)
     lines += ["", "## Estimation (mean over 3 seeds)", "",
-              "| scene | method | valid | RMSE (valid) | valid > 10 % off | rank corr. fit vs error |",
-              "|---|---|---|---|---|---|"]
+              "| scene | method | valid | RMSE (valid) | valid > 10 % off | rank corr. fit vs error | "
+              "error / fit (RMS, valid) | valid past two fits |",
+              "|---|---|---|---|---|---|---|---|"]
     for name in ("wobble", "pan", "boundary", "correlated", "noisy pan"):
         lines += estimation_rows(name)
     lines += ["", f"({time.time() - started:.0f} s)"]
