@@ -128,8 +128,8 @@ _black_level = _number_or("fit", "a DN (a number from 0)", positive=False)
 @click.option("--max-fit", type=FiniteRange(min=0, min_open=True, infinite=True), default=None, metavar="F",
               help=f"Pixels that fit worse are invalid (the fit map). stimulus: the RMS deviation of their level "
                    f"changes, in thresholds (default {DEFAULT_MAX_FIT}); natural: the relative disagreement of two "
-                   f"halves of the stream; offe: the relative disagreement with the natural estimate, or natural's own fit where larger (default "
-                   f"{DEFAULT_MAX_ERROR}; inf: offE's reference exactly).")
+                   f"halves of the stream; offe: the relative disagreement with the natural estimate, or natural's "
+                   f"own fit where larger (default {DEFAULT_MAX_ERROR}; inf: offE's reference exactly).")
 @click.option("--stimulus-amplitude", type=FiniteRange(min=0, min_open=True), default=None, metavar="A",
               help="stimulus: a triangle linear in log intensity, A log units peak to peak (the same as "
                    "--stimulus-profile log --stimulus-levels 0,A; the base level does not matter).")

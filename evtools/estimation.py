@@ -133,14 +133,6 @@ DEFAULT_RADIUS_PX = 1
 """natural: a pixel is compared with its 8 nearest pixels (a 3 x 3 window less itself). Nearer neighbours share
 more of the pixel's excursion: on moving natural textures (issue 36's setups, independent generator) the RMS
 error over all pixels is 7-15 % at radius 1 against 13-22 % at radius 3."""
-OFFE_FIT = "the larger of the disagreement with natural and natural's own fit"
-"""offE's fit, where the natural estimate of the same events is valid. The disagreement alone was optimistic: both
-methods count the same events, so they err together, and agree where both are off (on issue 36's moving textures,
-independent generator, the RMS of offE's largest relative error over its fit was 1.1-2.7; between two halves of the
-real DVS128 walk, the RMS of the halves' difference over their fits 1.16-1.19, 8 % past two fits). Natural's fit
-(at least its counting error) is a floor that the shared counting sets: with it 0.6-0.9 and 0.67-0.69, none past two
-fits, with the same rank correlation with the error (within 0.06). Valid pixels are the same at the default
-``max_fit`` (natural's fit is within it where natural is valid)."""
 MAX_SERIES_BYTES = 1 << 31
 """The most memory an online estimate's maps may take when it holds them (2 GiB at 13 bytes a pixel, as the file
 stores them: about 2,150 maps of a 320x240 sensor, 179 of a 1280x720 one): a shorter interval is refused when it
@@ -318,7 +310,7 @@ class ThresholdEstimator:
         and beyond the reference: a fit above ``max_fit``. offE's assumption (every pixel sees the same
         log-intensity variance) cannot be checked from a pixel's own events, so its fit is the relative
         disagreement (RMS over ON and OFF) with the ``natural`` method's estimate from the same events, or
-        natural's own fit where that is larger (:data:`OFFE_FIT`), where natural is valid (NaN elsewhere: not
+        natural's own fit where that is larger (:func:`_offe_fit`), where natural is valid (NaN elsewhere: not
         checked, so not valid); its rank correlation with offE's true error is 0.6-0.8 on the texture scene,
         -0.1-0.4 on issue 36's moving textures. ``max_fit=inf`` is the reference exactly (every estimate valid).
         ``stimulus``: the known ``stimulus`` waveform L; ``on`` = mean of ``L(t_k) - L(t_{k-1})`` over ON events
@@ -354,7 +346,7 @@ class ThresholdEstimator:
         event counted and one outside the acceptance window (or of the wrong sign) counting as a whole threshold:
         so a wrong period, a wrong waveform or a scene that is no stimulus cannot give confident values.
         natural (default :data:`DEFAULT_MAX_ERROR`): the halves' relative disagreement; offe (the same default):
-        the disagreement with the natural estimate, or natural's own fit where that is larger (:data:`OFFE_FIT`).
+        the disagreement with the natural estimate, or natural's own fit where that is larger (:func:`_offe_fit`).
     radius_px : int
         natural: the neighbourhood's half-width (:data:`DEFAULT_RADIUS_PX`).
     interval_us, forget_us : int and float, optional
@@ -699,12 +691,12 @@ class ThresholdEstimator:
         on, off = c + b, c - b
         # the fit: offE's assumption (every pixel sees the same log-intensity variance) cannot be checked from a
         # pixel's own events, so it is checked against the natural method's estimate from the same events, where
-        # that one is valid: the larger of their disagreement and natural's own fit (:data:`OFFE_FIT`)
+        # that one is valid (:func:`_offe_fit`)
         natural_on, natural_off, natural_valid, natural_fit, _ = self._natural(DEFAULT_MAX_ERROR)
         with np.errstate(divide="ignore", invalid="ignore"):
             disagreement = np.stack([2 * (on - natural_on) / (on + natural_on),
                                      2 * (off - natural_off) / (off + natural_off)])
-            fit = np.where(valid & natural_valid, np.fmax(np.sqrt(np.mean(disagreement**2, axis=0)), natural_fit),
+            fit = np.where(valid & natural_valid, _offe_fit(np.sqrt(np.mean(disagreement**2, axis=0)), natural_fit),
                            np.nan)
         # NaN (no natural estimate to compare with): not checked, not valid, unless no check is asked (max_fit inf)
         fitting = valid if np.isinf(self.max_fit) else valid & (fit <= self.max_fit)
@@ -832,6 +824,20 @@ def _relative_to_neighbours(inverse: np.ndarray, usable: np.ndarray, radius_px: 
     return relative, np.round(neighbours)
 
 
+def _offe_fit(disagreement: np.ndarray, natural_fit: np.ndarray) -> np.ndarray:
+    """offE's fit where the natural estimate of the same events is valid: the larger of their relative disagreement
+    and natural's own fit. The disagreement alone was optimistic: both methods count the same events, so they err
+    together and agree where both are off (on issue 36's moving textures, independent generator, the RMS of offE's
+    largest relative error over the disagreement was 1.1-2.7 over fitted pixels, 2.3-3.9 over valid ones; between two
+    halves of the real DVS128 walk, the halves' difference over the disagreements 1.16-1.19, 8 % past two). Natural's
+    fit (at least its counting error) is the floor of that shared error: with it 0.8-1.25 over valid pixels
+    (samples/natural.md) and 0.67-0.69 on the walk, at most 7 % past two fits; the valid pixels are the same at the
+    default ``max_fit`` (natural's fit is within it where natural is valid). On a flicker, where offE's assumption
+    holds and its error is 2 %, the floor is conservative (0.12: natural's counting error takes a flicker's regular
+    events for random ones)."""
+    return np.fmax(disagreement, natural_fit)
+
+
 def check_series_room(maps: int, width: int, height: int, interval_us: int, t_us: int) -> None:
     """An error when ``maps`` online maps of ``width x height`` (on, off, fit as float32, valid: 13 bytes a pixel, as
     they are held and written) would pass :data:`MAX_SERIES_BYTES` (a run was once killed for memory, with no
@@ -861,10 +867,11 @@ class OnlineMaps:
         self.width, self.height, self.interval_us, self.sink = width, height, interval_us, sink
         self.held: list[tuple] = []
         self.count = 0  # maps made, held or passed on
-        self.final: tuple | None = None
+        self.finished = False  # the final map is in
 
     def add(self, t_us: int, on, off, valid, fit) -> None:
-        """Map ``t_us`` (pixels flattened or not; ``on``/``off`` NaN where not ``valid`` is not required)."""
+        """Map ``t_us`` (each array height x width or flattened; ``on`` and ``off`` become NaN where not
+        ``valid``)."""
         shape = (self.height, self.width)
         valid = np.asarray(valid, dtype=bool).reshape(shape)
         entry = (int(t_us), np.where(valid, np.reshape(on, shape), np.nan).astype(np.float32),
@@ -879,9 +886,9 @@ class OnlineMaps:
 
     def add_final(self, t_us: int, on, off, valid, fit) -> None:
         """The map at the stream's end, added the first time only."""
-        if self.final is None:
+        if not self.finished:
             self.add(t_us, on, off, valid, fit)
-            self.final = (t_us,)
+            self.finished = True
 
     def series(self) -> ThresholdSeries | None:
         """The maps held (None with a sink, or before the first)."""

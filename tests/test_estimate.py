@@ -736,7 +736,7 @@ def test_the_fit_holds_between_the_halves_of_a_real_recording(tmp_path):
     DVS128 walk (after bafilter), cut at its middle (12.5 s each): the fits are conservative there (RMS of
     |log ratio| / hypot(fits) 0.65-0.69, at most 1 % past 2 fits, measured, both methods). offE's fit was its
     disagreement with natural alone: 1.16-1.19, 8 % past 2 fits (the two count the same events and err together);
-    natural's own fit is now its floor (evtools.estimation.OFFE_FIT)."""
+    natural's own fit is now its floor (evtools.estimation._offe_fit)."""
     filtered = tmp_path / "filtered.aedat4"
     run("bafilter", data_file("dvs128_walk.aedat"), "-o", filtered)
     info, events = read_all(filtered)
