@@ -17,8 +17,9 @@ from evtools.cli.main import LazyGroup
             "E-MLB's event structural ratio per slice of IN and its mean, MESR (higher is better; no labels "
             "needed)."),
     "thresholds": ("evtools.cli.metrics_thresholds:thresholds",
-                   "Relative RMSE, bias and correlation of ON and OFF thresholds over valid pixels, and the invalid "
-                   "fraction."),
+                   "Relative RMSE, bias and correlation of ON and OFF thresholds over valid pixels, the invalid "
+                   "fraction, the valid pixels more than 10 % off, and how well the fit map predicts the error "
+                   "(natural, offe, frames)."),
     "reconstruction": ("evtools.cli.metrics_reconstruction:reconstruction",
                        "RMSE and SSIM of the log intensity reconstructed from EVENTS against the true frames of "
                        "TRUTH.h5; without --truth, how well EVENTS predict their own APS frames (a DAVIS "
