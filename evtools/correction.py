@@ -301,6 +301,7 @@ class ThresholdCorrector:
         self._checks_us = np.empty(0, np.int64)
         self._pool = None
         self._started = False
+        self._flushed = False  # the stream ended: nothing more comes in or out
         self._last_us = 0  # the latest input event's time
         self.parameters: dict[str, Any] = {
             "target_on": self.target_on, "target_off": self.target_off, "mode": mode, "hold_us": self.hold_us,
@@ -336,6 +337,9 @@ class ThresholdCorrector:
 
         A chunk is taken in parts of at most :data:`PART` events; each part is split into the lanes (:data:`LANES`),
         which are re-sampled and released side by side. The output is the same whatever the chunks and threads."""
+        if self._flushed:
+            raise CorrectionError("process() after flush(): the stream has ended; make a new corrector for another "
+                                  "stream")
         chunk = self._checker.check(chunk) if self._checker else as_chunk(chunk)
         if len(chunk) == 0:
             return
@@ -450,6 +454,9 @@ class ThresholdCorrector:
     def flush_parts(self):
         """:meth:`flush` as a generator of parts in time order, of about :data:`PART` events each (a dense
         stream holds millions; one release of them all would need its output and merge buffers at that size)."""
+        if self._flushed:  # (a second flush settled the pixels' runs again: new events, out of order)
+            return
+        self._flushed = True
         for lane in self._lanes:
             lane.hold(lane.settle_all(self))
         yield from (part for part in self._release(NO_EVENT_US, False) if len(part))

@@ -734,3 +734,17 @@ def test_thresholds_that_break_the_consistency_rule_and_backward_series_are_refu
     done = run("correct", events, "--thresholds", tmp_path / "back.h5", "-o", tmp_path / "b.aedat4", check=False)
     assert_clean_error(done, "back.h5")
     assert "out of order" in done.stderr.decode() and not (tmp_path / "b.aedat4").exists()
+
+
+def test_a_second_flush_gives_nothing_and_process_after_flush_is_refused():
+    """A QA sweep: a second flush() re-settled every pixel's run and returned new events, earlier than the first
+    flush's; process() after flush() was taken."""
+    events = random_events(4_000, 8, 6, seed=3)
+    rng = np.random.default_rng(3)
+    on, off = rng.uniform(0.15, 0.25, (2, 6, 8))
+    corrector = ThresholdCorrector(8, 6, on, off)
+    out = join([corrector.process(events), corrector.flush()])
+    assert len(out) > 0 and np.all(np.diff(out["t"]) >= 0)
+    assert len(corrector.flush()) == 0
+    with pytest.raises(CorrectionError, match="after flush"):
+        corrector.process(events[-1:])
