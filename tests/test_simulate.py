@@ -629,3 +629,13 @@ def test_older_option_names_are_aliases(tmp_path):
         tmp_path / "n.aedat4")
     info, _ = read_all(tmp_path / "n.aedat4")
     assert (info.width, info.height) == (8, 6)
+
+
+@pytest.mark.parametrize("bad", [np.inf, np.nan, -1.0])
+def test_a_frame_with_an_impossible_intensity_is_refused(bad):
+    """A QA sweep: one inf pixel made the simulator grow to 24 GB (OOM-killed); NaN or a negative value made a fake
+    burst of events. Now refused, naming the frame and the pixel."""
+    frames = np.full((3, 4, 5), 100.0, np.float32)
+    frames[1, 2, 3] = bad
+    with pytest.raises(SimulationError, match="frame 1 has intensity .* at x=3, y=2"):
+        DvsSimulator(5, 4, seed=0).process(np.arange(3) * 1000, frames)
