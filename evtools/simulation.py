@@ -424,9 +424,9 @@ class DvsSimulator:
             times = np.round(times)
         times = times.astype(np.int64)
         if frames.dtype != np.uint8 and frames.size:  # (one inf pixel made a run grow to 24 GB; NaN a fake burst)
-            finite = np.isfinite(frames) if np.issubdtype(frames.dtype, np.floating) else True
-            if not np.all(finite & (frames >= 0)):
-                k, y, x = np.argwhere(~(finite & (frames >= 0)))[0]
+            possible = (np.isfinite(frames) if np.issubdtype(frames.dtype, np.floating) else True) & (frames >= 0)
+            if not np.all(possible):
+                k, y, x = np.argwhere(~possible)[0]
                 raise SimulationError(f"frame {k} has intensity {frames[k, y, x]} at x={x}, y={y}: intensities must "
                                       "be finite and not negative")
         # 8-bit frames (video) stay 8-bit: the kernel takes their lin-log from a table of the 256 levels

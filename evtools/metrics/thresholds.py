@@ -73,10 +73,15 @@ def threshold_errors(estimated_on, estimated_off, valid, true_on, true_off) -> d
             "mae_rel": float(np.mean(np.abs(relative))),
             "pixels": int(len(e)),
         }
-    with np.errstate(divide="ignore", invalid="ignore"):
-        worst = np.fmax(np.abs(est_on / true_on - 1.0), np.abs(est_off / true_off - 1.0))[usable]
+    worst = _worst_error(est_on, est_off, true_on, true_off)[usable]
     result["off_by_10_percent"] = float(np.mean(worst > 0.1)) if len(worst) else None
     return result
+
+
+def _worst_error(est_on, est_off, true_on, true_off) -> np.ndarray:
+    """Per pixel, the larger of the ON and OFF relative errors (float64; NaN where a threshold is not finite)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.fmax(np.abs(est_on / true_on - 1.0), np.abs(est_off / true_off - 1.0)).astype(np.float64)
 
 
 FIT_IS_ERROR = ("natural", "offe", "frames")
@@ -94,8 +99,8 @@ def fit_calibration(estimated_on, estimated_off, valid, fit, true_on, true_off) 
     fit = np.asarray(fit, dtype=np.float64)
     if fit.shape != true_on.shape:
         raise ThresholdMetricsError("the fit map must have the shape of the thresholds")
-    with np.errstate(divide="ignore", invalid="ignore"):
-        worst = np.fmax(np.abs(est_on / true_on - 1.0), np.abs(est_off / true_off - 1.0)).astype(np.float64)
+    worst = _worst_error(est_on, est_off, true_on, true_off)
+    with np.errstate(invalid="ignore"):
         usable = valid.astype(bool) & np.isfinite(worst) & np.isfinite(fit) & (fit > 0)
     if not usable.any():
         return None
