@@ -454,14 +454,10 @@ def from_columns(t, x, y, p) -> np.ndarray:
     if any(len(shape) != 1 for shape in lengths.values()) or len(set(lengths.values())) != 1:
         said = ", ".join(f"{name} {shape}" for name, shape in lengths.items())
         raise InvalidEventsError(f"columns: four 1-D columns of one length are needed, got shapes {said}")
-    polarity = columns["p"]
-    if polarity.dtype != bool and not np.isin(polarity, (0, 1, -1)).all():
-        bad = polarity[~np.isin(polarity, (0, 1, -1))][0].item()
-        raise InvalidEventsError(f"columns: p holds {bad!r}; a polarity is a bool, 0/1 or -1/+1")
     for name, column in columns.items():
         if column.dtype.kind not in "biuf":
             raise InvalidEventsError(f"columns: {name} holds {column.dtype} values, not numbers")
-    array = np.empty(len(polarity), [(name, column.dtype) for name, column in columns.items()])
+    array = np.empty(len(columns["p"]), [(name, column.dtype) for name, column in columns.items()])
     for name, column in columns.items():
         array[name] = column
     return as_chunk(array, "columns")

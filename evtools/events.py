@@ -168,7 +168,7 @@ def as_chunk(chunk, name: str = "chunk") -> np.ndarray:
     p int64, faery's t, x, y, on: see :func:`event_fields`) is converted field by field, by name (``p > 0`` is ON),
     other fields ignored, and refused when a value would change
     (a fractional time, a coordinate beyond int16); anything else raises :class:`InvalidEventsError` saying how to
-    convert it."""
+    convert it. A polarity is a bool, 0/1 or -1/+1: another value (0.5, 2, 255, NaN) is refused, not guessed."""
     chunk = np.asarray(chunk)
     if chunk.dtype != EVENT_DTYPE:
         keys = event_fields(chunk.dtype)
@@ -183,7 +183,13 @@ def as_chunk(chunk, name: str = "chunk") -> np.ndarray:
             if values.dtype != EVENT_DTYPE[column] and np.any(converted[column] != values):
                 kind = "a whole number of microseconds in int64" if column == "t" else "an int16 coordinate"
                 raise InvalidEventsError(f"{name}: field {column} ({values.dtype}) holds a value that is not {kind}")
-        converted["p"] = chunk[keys["p"]] > 0
+        polarity = chunk[keys["p"]]
+        if polarity.dtype != bool:
+            unknown = ~np.isin(polarity, (0, 1, -1))
+            if unknown.any():
+                raise InvalidEventsError(f"{name}: field {keys['p']} holds {polarity[unknown][0].item()!r}; "
+                                         "a polarity is a bool, 0/1 or -1/+1")
+        converted["p"] = polarity > 0
         chunk = converted
     if chunk.ndim != 1:
         raise InvalidEventsError(f"{name}: a chunk is a 1-D array of events, got shape {chunk.shape}")

@@ -178,6 +178,19 @@ def test_arrays_that_do_not_convert_exactly_are_refused():
         evtools.from_tonic(no_polarity)
 
 
+@pytest.mark.parametrize("polarity", [0.5, 2, np.nan, 255, -3])
+def test_an_array_whose_polarity_is_not_a_polarity_is_refused(polarity):
+    """A structured array passed straight to a processor is held to from_columns' rule: before, p = 0.5, 2, 255 or
+    NaN was silently taken as ON (``p > 0``) and filtered as if real (a QA sweep's finding)."""
+    array = np.zeros(3, dtype=[("t", "<i8"), ("x", "<i2"), ("y", "<i2"), ("p", "<f4" if polarity != 255 else "u1")])
+    array["t"] = array["x"] = [0, 1, 2]
+    array["p"] = [0, 1, polarity]
+    with pytest.raises(evtools.InvalidEventsError, match=r"field p holds .*; a polarity is a bool, 0/1 or -1/\+1"):
+        evtools.bafilter(array, evtools.StreamInfo(4, 4), method="refractory")
+    array["p"][2] = 0
+    assert evtools.bafilter(array, evtools.StreamInfo(4, 4), method="refractory")["p"].tolist() == [False, True, False]
+
+
 def test_the_peers_arrays_are_taken_as_their_events(tmp_path):
     """faery's arrays (and aedat's, and tonic's read_aedat4: the same dtype) call the polarity ``on`` with the
     title ``p``, times uint64: taken at every door as the events they hold (refused before)."""
@@ -211,7 +224,7 @@ def test_the_peers_arrays_are_taken_as_their_events(tmp_path):
     (([1], [1.5], [1], [1]), r"field x \(float64\) holds a value that is not an int16 coordinate"),
     (([1], [70000], [1], [1]), r"field x \(int64\) holds a value that is not an int16 coordinate"),
     (([1, 2], [1], [1], [1]), r"four 1-D columns of one length are needed, got shapes t \(2,\), x \(1,\)"),
-    (([1], [1], [1], ["a"]), r"p holds 'a'"),
+    (([1], [1], [1], ["a"]), r"p holds <U1 values, not numbers"),
 ])
 def test_columns_the_events_cannot_hold_are_refused_not_rounded(columns, message):
     """from_columns (and from_tonic, through it) refuse what would change: before, 1.5 us became 1, p = 2 or 0.5
