@@ -507,6 +507,12 @@ class _Lane:
         self.spare = self.out = _buffers(0)
         self.input = np.empty((0, 2), np.int64)
 
+    def __setstate__(self, state: dict) -> None:
+        """An unpickled lane: its held buffers copied, as :meth:`hold` resizes them in place and an unpickled array
+        may be a view of the pickle's bytes."""
+        self.__dict__.update(state)
+        self.held = tuple(np.array(buffer) for buffer in self.held)
+
     @property
     def n_held(self) -> int:
         """How many created events the runs hold."""
