@@ -12,7 +12,7 @@ import numpy as np
 
 from evtools import interrupt
 from evtools.events import StreamChecker, StreamInfo, concatenate, parse_sensor_size
-from evtools.formats.errors import FormatError, UnknownOutputFormat
+from evtools.formats.errors import FormatError, StreamReadAgain, UnknownOutputFormat
 from evtools.formats.io import (
     STDIO,
     TCP_PREFIX,
@@ -53,6 +53,7 @@ class EventStream:
         self.cut: FormatError | None = None  # a network stream's error, raised on closing (see _chunks)
         self._said_colour = False  # colour frames converted to gray: said once
         self.closed = False
+        self._iterated = False
 
     @property
     def was_cut(self) -> bool:
@@ -61,6 +62,12 @@ class EventStream:
         return bool(getattr(self.reader, "cut_file", False))
 
     def __iter__(self) -> Iterator[np.ndarray]:
+        """The chunks, once: a second pass raises :class:`StreamReadAgain` (it would have read on from where the
+        first stopped, a file's middle taken for a damaged record or time going backwards)."""
+        if self._iterated:
+            raise StreamReadAgain(f"{self.name}: this stream has been read already; a stream is read once, as it "
+                                  "comes: open it again, or keep the events of read_all()")
+        self._iterated = True
         return read_ahead(self._chunks(), READ_AHEAD)
 
     def take_frames(self) -> list:

@@ -9,3 +9,8 @@ class FormatError(EvtoolsError, ValueError):
 
 class UnknownOutputFormat(FormatError, UsageMistake):
     """An output path whose extension names no format, and no ``--format``: a usage mistake (exit 2)."""
+
+
+class StreamReadAgain(EvtoolsError, RuntimeError):
+    """An :class:`~evtools.formats.EventStream` iterated a second time: a stream is read once, as it comes (a pipe
+    or socket cannot go back), so the second pass would see nothing, or the middle of the file."""

@@ -235,6 +235,24 @@ def test_columns_the_events_cannot_hold_are_refused_not_rounded(columns, message
     assert evtools.from_columns([0, 2.0], [5, 6], [1, 1], [True, False])["t"].tolist() == [0, 2]
 
 
+@pytest.mark.parametrize("extension", [".aedat4", ".aedat", ".h5", ".raw", ".csv", ".txt"])
+def test_a_stream_read_a_second_time_says_so(tmp_path, extension):
+    """Found by a QA sweep: iterating an opened stream again read on from where the first pass ended and reported the
+    file damaged ("time goes backwards", "truncated record") or gave nothing."""
+    path = tmp_path / f"events{extension}"
+    events = evtools.from_columns([0, 1, 2], [1, 2, 3], [1, 1, 1], [1, 0, 1])
+    evtools.write(path, events, evtools.StreamInfo(8, 8))
+    with evtools.open(path) as stream:
+        assert sum(len(chunk) for chunk in stream) == 3
+        with pytest.raises(evtools.EvtoolsError, match=rf"{path.name}: this stream has been read already; .* open "
+                                                       "it again"):
+            iter(stream)
+    with evtools.open(path) as stream:
+        assert len(stream.read_all()) == 3
+        with pytest.raises(evtools.EvtoolsError, match="read already"):
+            stream.read_all()
+
+
 def test_the_doors_say_what_info_and_thresholds_must_be():
     events = evtools.from_columns([0, 1], [1, 2], [1, 2], [1, 0])
     for door in (lambda info: evtools.bafilter(events, info), lambda info: evtools.estimate(events, info),
