@@ -147,20 +147,34 @@ def _maps(h5):
 
 def write_thresholds(path: str, thresholds: ThresholdMap) -> None:
     """Write ``on``, ``off``, ``valid`` (and ``fit`` when known) and the attributes to ``path`` atomically."""
+    with _hdf5_output(path) as (h5, _):
+        with interrupt.deferred():  # (a stop inside HDF5's writes would crash it: it waits until the file is made)
+            _fill(h5, thresholds)
+
+
+@contextmanager
+def _hdf5_output(path: str):
+    """An HDF5 file written atomically at ``path`` (:func:`output_stream`), as ``(file, held)``: it takes its name
+    when the block ends without an error; when the block or the closing raises, none is left, the file and the
+    h5py objects the block put in ``held`` are abandoned (:func:`evtools.formats.hdf5.abandon`), and an OSError
+    (a full disk) becomes one line naming ``path``."""
     import h5py
 
     from evtools.formats.hdf5 import abandon
 
-    with output_stream(path, binary_name="HDF5", needs_seek=True) as stream, interrupt.deferred():
-        h5 = h5py.File(stream, "w")  # (a stop inside HDF5's writes would crash it: it waits until the file is made)
+    with output_stream(path, binary_name="HDF5", needs_seek=True) as stream:
+        with interrupt.deferred():
+            h5 = h5py.File(stream, "w")
+        held: list = []
         try:
-            _fill(h5, thresholds)
-            h5.close()  # HDF5 writes its blocks through the stream here: a full disk fails here
+            yield h5, held
+            with interrupt.deferred():
+                h5.close()  # HDF5 writes its last blocks through the stream here: a full disk fails here
         except OSError as error:
-            abandon(h5)
+            abandon(h5, *held)
             raise FormatError(f"{path}: cannot write ({error.strerror or error})") from None
         except BaseException:
-            abandon(h5)
+            abandon(h5, *held)
             raise
 
 
@@ -237,25 +251,10 @@ class SeriesFile:
 def series_file(path: str, width: int, height: int):
     """A :class:`SeriesFile` at ``path``, written atomically: the file takes its name when the block ends without
     an error (call :meth:`SeriesFile.finish` first), and none is left when it raises."""
-    import h5py
-
-    from evtools.formats.hdf5 import abandon
-
-    with output_stream(path, binary_name="HDF5", needs_seek=True) as stream:
-        with interrupt.deferred():
-            h5 = h5py.File(stream, "w")
-        maps = None
-        try:
-            maps = SeriesFile(h5, path, width, height)
-            yield maps
-            with interrupt.deferred():
-                h5.close()  # HDF5 writes its last blocks through the stream here: a full disk fails here
-        except OSError as error:
-            abandon(h5, maps)
-            raise FormatError(f"{path}: cannot write ({error.strerror or error})") from None
-        except BaseException:
-            abandon(h5, maps)
-            raise
+    with _hdf5_output(path) as (h5, held):
+        maps = SeriesFile(h5, path, width, height)
+        held.append(maps)
+        yield maps
 
 
 def read_labels(path: str) -> np.ndarray:
