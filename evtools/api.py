@@ -522,18 +522,18 @@ def to_dv(events: np.ndarray, info: StreamInfo):
     """
     import dv_processing as dv
 
-    store = dv.EventStore()
     if not len(events):
-        return store
+        return dv.EventStore()
+    store = None
     with tempfile.TemporaryDirectory(prefix="evtools-dv-") as folder:
         path = os.path.join(folder, "events.aedat4")
         write(path, events, info, compression="none")
         recording = dv.io.MonoCameraRecording(path)
-        while True:
-            batch = recording.getNextEventBatch()
-            if batch is None:
-                break
-            store.add(batch)
+        while (batch := recording.getNextEventBatch()) is not None:
+            if store is None:  # the first batch is the store: an empty EventStore refuses a time before 0
+                store = batch
+            else:
+                store.add(batch)
     return store
 
 
@@ -549,7 +549,11 @@ def from_dv(store) -> np.ndarray:
     >>> evtools.from_dv(store)["t"].tolist()
     [10]
     """
-    array = store.numpy()
+    numpy = getattr(store, "numpy", None)
+    array = numpy() if callable(numpy) else None
+    if not (isinstance(array, np.ndarray) and {"timestamp", "x", "y", "polarity"} <= set(array.dtype.names or ())):
+        raise EvtoolsError(f"from_dv takes a dv-processing EventStore (or anything whose numpy() gives the fields "
+                           f"timestamp, x, y, polarity), got {type(store).__name__}")
     if not len(array):
         return empty_events()
     events = np.zeros(len(array), dtype=EVENT_DTYPE)  # (padding zero)
