@@ -411,6 +411,12 @@ class DvsSimulator:
         times = np.asarray(t_us)
         if frames.ndim == 2:
             frames, times = frames[None], times.reshape(1)
+        if (frames.ndim in (3, 4) and frames.shape[-3:-1] == (self.height, self.width) and frames.shape[-1] in (3, 4)
+                and frames.shape[1:] != (self.height, self.width)):
+            raise SimulationError(
+                f"frames of shape {frames.shape} are colour (height x width x {frames.shape[-1]}); the simulator "
+                "takes intensities, height x width: convert them to gray first (e.g. cv2.cvtColor, as evtools "
+                "simulate does for a colour video)")
         if frames.ndim != 3 or frames.shape[1:] != (self.height, self.width):
             raise SimulationError(
                 f"frames of shape {frames.shape[-2:] if frames.ndim >= 2 else frames.shape} do not match the "

@@ -492,6 +492,11 @@ def test_bad_parameters_raise_clear_errors():
         simulator.process(0, np.zeros((10, 10)))
     with pytest.raises(SimulationError, match="10x10"):
         simulator.process(5, np.zeros((8, 10)))
+    for colour in (np.zeros((10, 10, 3), np.uint8), np.zeros((2, 10, 10, 4))):  # said "frames of shape (10, 3)"
+        with pytest.raises(SimulationError, match=r"frames of shape \(.*10, 10, [34]\) are colour .* gray first"):
+            simulator.process([5, 6][:len(colour) if colour.ndim == 4 else 1], colour)
+    tiny = DvsSimulator(3, 3)  # a batch of three 3x3 frames is not taken for one colour frame
+    assert len(tiny.process([0, 1, 2], np.zeros((3, 3, 3)))) == 0
 
 
 # -- video and images through the command line ------------------------------------------------------------------
