@@ -74,7 +74,9 @@ def _luma(frame: np.ndarray, name: str) -> np.ndarray:
         return frame
     if frame.dtype == np.uint16:
         return frame.astype(np.float32) * np.float32(255.0 / 65535.0)
-    return np.clip(frame.astype(np.float32) * 255.0, 0.0, 255.0)  # float images: 0-1
+    # float images: 1.0 is the 8-bit image's white, and brighter (an HDR highlight) is kept, not clipped: the
+    # simulator works in log intensity, and a clip at 1.0 made a highlight brightening 4x fire nothing
+    return np.maximum(frame.astype(np.float32) * np.float32(255.0), np.float32(0.0))
 
 
 def _resize(frame: np.ndarray, size: tuple[int, int] | None) -> np.ndarray:

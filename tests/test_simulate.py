@@ -548,6 +548,24 @@ def test_image_folder_with_timestamps(tmp_path):
     assert b"the frames are 10,000 s apart (median): timestamps are read as seconds" in warned
 
 
+def test_float_images_keep_intensities_above_white(tmp_path):
+    """A float image (TIFF, EXR) holds 0-1 with 1.0 the 8-bit white; brighter (an HDR highlight) was clipped at 1.0,
+    so a highlight brightening from 1.0 to 4.0 fired nothing: now it fires ln 4 / 0.2 ~ 7 ON events a pixel."""
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for i, level in enumerate([1.0, 2.0, 4.0]):
+        image = np.full((6, 8), 0.25, np.float32)
+        image[:, :4] = level
+        assert cv2.imwrite(str(folder / f"frame_{i}.tiff"), image)
+    (folder / "timestamps.txt").write_text("0.0\n0.01\n0.02\n")
+    out = tmp_path / "hdr.aedat4"
+    run("simulate", folder, "--preset", "clean", "--sigma-thres", "0", "--seed", 1, "-o", out)
+    _, events = read_all(out)
+    assert np.all(events["x"] < 4) and np.all(events["p"])
+    per_pixel = np.bincount(events["y"].astype(int) * 8 + events["x"], minlength=48).reshape(6, 8)[:, :4]
+    assert np.all(np.abs(per_pixel - np.log(4.0) / 0.2) <= 1), per_pixel
+
+
 def test_cli_bad_inputs_give_one_line_errors(tmp_path):
     out = tmp_path / "out.aedat4"
     assert_clean_error(run("simulate", "scene:flicker", "--size", "0x10", "-o", out, check=False), "width 0")
