@@ -24,6 +24,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import itertools
+import logging
 import os
 import tempfile
 from typing import Any, Iterable, Iterator
@@ -305,7 +306,8 @@ def simulate(source: str | os.PathLike | Iterable[tuple[int, np.ndarray]] = "fli
     source : str, path or iterable of (t_us, frame)
         A built-in scene's name (flicker, gradient, bars, step, static, texture), a video file or a folder of
         images (with its ``timestamps.txt``, else ``frame_rate``), as ``evtools simulate`` reads them, or frames:
-        times in microseconds, increasing, and intensity images (height x width, 0-255).
+        times in microseconds, increasing (a fractional time is rounded to the microsecond), and gray intensity
+        images (height x width, 0-255 with white 255, brighter allowed; frames within 0-1 are warned of).
     size : (width, height) or "WxH", optional
         The scene's size (default 346 x 260), or the size a video's or folder's frames are resized to.
     duration_us : int
@@ -349,7 +351,12 @@ def simulate(source: str | os.PathLike | Iterable[tuple[int, np.ndarray]] = "fli
     first = next(iter(frames), None)
     if first is None:
         raise EvtoolsError("no frames to simulate")
-    frame_height, frame_width = np.asarray(first[1]).shape[:2]
+    first_frame = np.asarray(first[1])
+    if not isinstance(source, (str, os.PathLike)) and first_frame.dtype != np.uint8 and 0 < first_frame.max() <= 1:
+        logging.getLogger("evtools").warning(
+            "the first frame's intensities lie within 0-1, but simulate takes 0-255 (white 255): normalised frames "
+            "are simulated as a very dark scene; multiply them by 255")
+    frame_height, frame_width = first_frame.shape[:2]
     simulator = DvsSimulator(frame_width, frame_height, **parameters)
     events, labels = run_simulator(simulator, itertools.chain([first], frames))
     truth = {"label": labels, "on": simulator.on_thres, "off": simulator.off_thres,

@@ -11,6 +11,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+import evtools
 from evtools._kernels.pixel import _level_tables, time_order
 from evtools.events import EVENT_DTYPE
 from evtools.simulation import (
@@ -546,6 +547,20 @@ def test_image_folder_with_timestamps(tmp_path):
     (folder / "timestamps.txt").write_text("\n".join(str(1_000_000 + 10_000 * i) for i in range(5)) + "\n")
     warned = run("simulate", folder, "--preset", "clean", "-o", out, check=False).stderr
     assert b"the frames are 10,000 s apart (median): timestamps are read as seconds" in warned
+
+
+def test_normalised_frames_from_python_are_warned(caplog):
+    """The simulator takes 0-255; frames normalised to 0-1 (common in Python pipelines) were silently simulated as a
+    very dark scene."""
+    frames = [(0, np.full((4, 6), 0.5)), (1000, np.full((4, 6), 0.9))]
+    with caplog.at_level("WARNING", logger="evtools"):
+        evtools.simulate(frames, seed=1)
+    assert "intensities lie within 0-1, but simulate takes 0-255" in caplog.text
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="evtools"):
+        evtools.simulate([(t, frame * 255) for t, frame in frames], seed=1)
+        evtools.simulate([(t, (frame * 255).astype(np.uint8)) for t, frame in frames], seed=1)
+    assert "0-1" not in caplog.text
 
 
 def test_float_images_keep_intensities_above_white(tmp_path):
