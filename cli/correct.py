@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import logging
 from dataclasses import replace
+from functools import partial
 
 import click
-import numpy as np
 
 from evtools.cli.batch import Outcome, batch_options, plan, run
 from evtools.cli.options import (MICROSECONDS, Microseconds, check_compression, compression_option,
@@ -15,7 +15,7 @@ from evtools.cli.progress import process_stream
 from evtools.correction import CORRECT_DEFAULTS, MAX_WINDOW_US, MODES, CorrectionError, ThresholdCorrector
 from evtools.events import MAX_TIME_US
 from evtools.formats import create_events, open_events
-from evtools.formats.thresholds import read_thresholds
+from evtools.formats.thresholds import open_thresholds, per_map
 from evtools.transform import on_sliced_sensor, sliced
 
 log = logging.getLogger("evtools")
@@ -86,19 +86,19 @@ def correct_one(input, output, *, reading, thresholds_path, target, mode, hold_u
                 max_gap_us, tau_us, start_us, compression=None, slicing=None) -> Outcome:
     """Correct one file: its :class:`Outcome` (events in and out); ``slicing``: the shared slicing options
     (:func:`evtools.transform.sliced`), the thresholds map cut and turned with the events."""
-    thresholds = read_thresholds(thresholds_path, series=True)
-    with open_events(input, reading) as opened:
+    # (a series' maps stay in its file, read as the stream reaches them)
+    with open_thresholds(thresholds_path) as thresholds, open_events(input, reading) as opened:
         thresholds.check_size(opened.info.width, opened.info.height, thresholds_path)  # the file's sensor
         stream = sliced(opened, slicing)
-        thresholds = replace(thresholds, **{name: on_sliced_sensor(stream, getattr(thresholds, name))
+        on_sensor = partial(on_sliced_sensor, stream)
+        thresholds = replace(thresholds, **{name: per_map(getattr(thresholds, name), on_sensor)
                                             for name in ("on", "off", "valid", "fit")
                                             if getattr(thresholds, name) is not None})
         try:
             corrector = ThresholdCorrector(
                 stream.info.width, stream.info.height, thresholds.on, thresholds.off, thresholds.valid,
                 target=target, mode=mode, hold_us=hold_us, max_gap_us=max_gap_us, tau_us=tau_us, start_us=start_us,
-                t_us=thresholds.t_us, check=False,  # the reader has checked the events
-                stale=None if thresholds.t_us is None or thresholds.fit is None else np.isinf(thresholds.fit),
+                t_us=thresholds.t_us, stale=thresholds.stale(), check=False,  # (the reader has checked the events)
             )
         except CorrectionError as error:
             raise CorrectionError(f"{thresholds_path}: {error}") from None

@@ -269,12 +269,13 @@ def correct(events: np.ndarray, info: StreamInfo, thresholds, **params) -> np.nd
     >>> bool(counts > 0)
     True
     """
-    from evtools.correction import correct_thresholds
-    from evtools.formats.thresholds import read_thresholds
+    from evtools.formats.thresholds import open_thresholds, per_map
 
-    series = None
     if isinstance(thresholds, (str, os.PathLike)):
-        thresholds = read_thresholds(os.fspath(thresholds), series=True)
+        with open_thresholds(os.fspath(thresholds)) as maps:  # (a series' maps are read as the events reach them)
+            return correct(events, info, maps, **params)
+    from evtools.correction import correct_thresholds
+
     if isinstance(thresholds, dict):  # simulate()'s truth
         on, off, valid = thresholds["on"], thresholds["off"], None
     elif getattr(thresholds, "series", None) is not None:  # an online ThresholdEstimate
@@ -286,7 +287,7 @@ def correct(events: np.ndarray, info: StreamInfo, thresholds, **params) -> np.nd
         if getattr(thresholds, "t_us", None) is not None:
             params["t_us"] = thresholds.t_us
             if getattr(thresholds, "fit", None) is not None:
-                params.setdefault("stale", np.isinf(thresholds.fit))
+                params.setdefault("stale", per_map(thresholds.fit, np.isinf))
     else:
         raise EvtoolsError(f"thresholds must be an estimate (evtools.estimate), a thresholds map, a thresholds or "
                            f"truth file's path, or simulate()'s truth; got {type(thresholds).__name__} "

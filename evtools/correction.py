@@ -192,7 +192,8 @@ class ThresholdCorrector:
         With turns: when every pixel's reconstruction starts at level 0 (the sensor's start); default the first
         event of the stream.
     t_us : array_like of int, optional
-        A time series of maps (``estimate --online``): ``on``, ``off``, ``valid`` are (maps, height, width) and
+        A time series of maps (``estimate --online``): ``on``, ``off``, ``valid`` are (maps, height, width) (or
+        anything whose ``[k]`` is map k, such as h5py datasets: read map by map, see :class:`SeriesMaps`) and
         map k is used for the events from ``t_us[k]`` on (the first map before its time too: it is the earliest
         estimate); ``target="median"`` is the median over all maps.
     stale : array_like of bool, optional
@@ -216,34 +217,41 @@ class ThresholdCorrector:
         check_sensor_size(width, height)
         self.width, self.height = int(width), int(height)
         self._checker = StreamChecker(StreamInfo(self.width, self.height)) if check else None
-        on = np.asarray(on, dtype=np.float32)
-        off = np.asarray(off, dtype=np.float32)
-        maps = 1 if t_us is None else len(np.atleast_1d(t_us))
-        shape = (self.height, self.width) if t_us is None else (maps, self.height, self.width)
-        if on.shape != shape or off.shape != on.shape:
-            size = f"{on.shape[-1]}x{on.shape[-2]}" if on.ndim >= 2 else "?"
+        series = t_us is not None
+        on, off = (np.asarray(maps, np.float32) if not series or not hasattr(maps, "shape") else maps
+                   for maps in (on, off))  # (a series may be datasets on disk: read map by map)
+        count = len(np.atleast_1d(t_us)) if series else 1
+        shape = (count, self.height, self.width) if series else (self.height, self.width)
+        if tuple(on.shape) != shape or tuple(off.shape) != tuple(on.shape):
+            size = f"{on.shape[-1]}x{on.shape[-2]}" if len(on.shape) >= 2 else "?"
             raise CorrectionError(
-                f"thresholds are {size}{f' ({on.shape[0]} maps)' if on.ndim == 3 else ''} but the sensor is "
-                f"{self.width}x{self.height}{f' and {maps} map times are given' if t_us is not None else ''}; "
+                f"thresholds are {size}{f' ({on.shape[0]} maps)' if len(on.shape) == 3 else ''} but the sensor is "
+                f"{self.width}x{self.height}{f' and {count} map times are given' if series else ''}; "
                 "give the thresholds of this sensor"
             )
-        if t_us is not None:
-            t_us = np.asarray(t_us)
-            if t_us.ndim != 1 or not np.issubdtype(t_us.dtype, np.integer) or np.any(np.diff(t_us) <= 0):
-                raise CorrectionError("the maps' times must be increasing whole microseconds")
-        valid = np.ones(on.shape, dtype=bool) if valid is None else np.asarray(valid, dtype=bool)
-        if valid.shape != on.shape:
-            raise CorrectionError("the valid map must have the shape of the thresholds")
-        with np.errstate(invalid="ignore"):
-            usable = valid & np.isfinite(on) & np.isfinite(off) & (on > 0) & (off > 0)
-        if not usable.any():
-            raise CorrectionError("no pixel has a usable threshold (valid, finite and positive): nothing to correct")
         if mode not in MODES:
             raise CorrectionError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
-        self.target_on, self.target_off = resolve_target(target, on, off, usable)
-        with np.errstate(invalid="ignore"):
-            largest_on = float(np.nanmax(np.where(usable, on, 0)))
-            largest_off = float(np.nanmax(np.where(usable, off, 0)))
+        if series:
+            self._series = SeriesMaps(t_us, on, off, *(maps if maps is None or hasattr(maps, "shape")
+                                                       else np.asarray(maps, bool) for maps in (valid, stale)))
+            median = isinstance(target, str) and target.strip().lower() == "median"
+            values = [np.array([value], np.float32) for value in (self._series.usable_medians() if median else (1, 1))]
+            self.target_on, self.target_off = resolve_target(target, *values, np.ones(1, bool))
+            largest_on, largest_off = self._series.largest_on, self._series.largest_off
+        else:
+            self._series = None
+            valid = np.ones(on.shape, dtype=bool) if valid is None else np.asarray(valid, dtype=bool)
+            if valid.shape != on.shape:
+                raise CorrectionError("the valid map must have the shape of the thresholds")
+            with np.errstate(invalid="ignore"):
+                usable = valid & np.isfinite(on) & np.isfinite(off) & (on > 0) & (off > 0)
+            if not usable.any():
+                raise CorrectionError("no pixel has a usable threshold (valid, finite and positive): nothing to "
+                                      "correct")
+            self.target_on, self.target_off = resolve_target(target, on, off, usable)
+            with np.errstate(invalid="ignore"):
+                largest_on = float(np.nanmax(np.where(usable, on, 0)))
+                largest_off = float(np.nanmax(np.where(usable, off, 0)))
         ratio = max(largest_on / self.target_on, largest_off / self.target_off)
         self._largest = max(largest_on, largest_off)
         if ratio > MAX_EVENTS_PER_EVENT:
@@ -264,19 +272,13 @@ class ThresholdCorrector:
                                      or abs(start_us) > MAX_TIME_US):
             raise CorrectionError(f"start_us must be a whole number of microseconds within +-2^62, got {start_us!r}")
         self.start_us = None if start_us is None else int(start_us)
-        if t_us is None:
+        if self._series is None:
             on = np.where(usable, on, np.median(on[usable])).astype(np.float32)
             off = np.where(usable, off, np.median(off[usable])).astype(np.float32)
-            self._series = None
         else:
-            stale = np.zeros(on.shape, bool) if stale is None else np.asarray(stale, dtype=bool)
-            if stale.shape != on.shape:
-                raise CorrectionError("the stale map must have the shape of the thresholds")
-            filled_on, filled_off = _carried(on, usable, stale), _carried(off, usable, stale)
-            self._series = (t_us.astype(np.int64), filled_on.reshape(maps, -1), filled_off.reshape(maps, -1))
             self._map = 0
-            on, off = filled_on[0], filled_off[0]
-            usable = usable.any(axis=0)
+            on, off = self._series.filled(0)
+            usable = self._series.ever
         n = self.width * self.height
         # one 32-byte row per pixel, aligned to a cache line (see PIXEL_DTYPE)
         raw = np.zeros(n * PIXEL_DTYPE.itemsize + 64, dtype=np.uint8)
@@ -353,12 +355,12 @@ class ThresholdCorrector:
 
     def _process_series(self, chunk: np.ndarray):
         """:meth:`_process` in parts cut at the maps' times, each map taking over before its first event."""
-        times, maps_on, maps_off = self._series
+        times = self._series.t_us
         while len(chunk):
             if self._map + 1 < len(times) and chunk["t"][0] >= times[self._map + 1]:
                 self._map = int(np.searchsorted(times, chunk["t"][0], side="right")) - 1
-                self._state["on"] = maps_on[self._map]
-                self._state["off"] = maps_off[self._map]
+                on, off = self._series.filled(self._map)
+                self._state["on"], self._state["off"] = on.reshape(-1), off.reshape(-1)
             end = len(chunk)
             if self._map + 1 < len(times):
                 end = int(np.searchsorted(chunk["t"], times[self._map + 1], side="left"))
@@ -619,25 +621,112 @@ class _Lane:
         return self.out[0][:count], self.out[1][:count]
 
 
-def _carried(values: np.ndarray, usable: np.ndarray, stale: np.ndarray) -> np.ndarray:
-    """A series of maps (maps, height, width) with every unusable entry filled: a pixel keeps its latest usable
-    value, but where a map marks it ``stale`` (its estimate was dropped: the threshold stepped away) it takes that
-    map's median of the usable pixels (the latest map's that has any); before its first usable value it takes that
-    first one (its earliest estimate: early maps rest on the pixels that fire most, whose median is biased low, 0.16
-    against 0.20 at 1 s of a flicker); a pixel never usable takes the median of the last map's usable pixels."""
-    filled = np.where(usable, values, np.nan)
-    first = np.argmax(usable, axis=0)
-    ever = usable.any(axis=0)
-    last_usable = usable[np.flatnonzero(usable.any(axis=(1, 2)))[-1]]
-    start = np.where(ever, np.take_along_axis(values, first[None], axis=0)[0],
-                     np.median(values[np.flatnonzero(usable.any(axis=(1, 2)))[-1]][last_usable]))
-    filled[0] = np.where(usable[0], values[0], start)
-    median = float(np.median(values[0][usable[0]])) if usable[0].any() else float(np.median(start))
-    for k in range(1, len(filled)):
-        if usable[k].any():
-            median = float(np.median(values[k][usable[k]]))
-        filled[k] = np.where(usable[k], values[k], np.where(stale[k], median, filled[k - 1]))
-    return filled.astype(np.float32)
+class SeriesMaps:
+    """A time series of threshold maps (``estimate --online``), read map by map as the stream reaches them:
+    ``on``, ``off`` and optionally ``valid`` and ``stale`` are (maps, height, width) arrays, or anything whose
+    ``[k]`` gives map k (h5py datasets: a series on disk is never held whole, only two passes read it).
+
+    Every unusable entry is filled (:meth:`filled`): a pixel keeps its latest usable value, but where a map marks
+    it ``stale`` (its estimate was dropped: the threshold stepped away) it takes that map's median of the usable
+    pixels (the latest map's that has any); before its first usable value it takes that first one (its earliest
+    estimate: early maps rest on the pixels that fire most, whose median is biased low, 0.16 against 0.20 at 1 s
+    of a flicker); a pixel never usable takes the median of the last map's usable pixels. The first pass finds
+    those first values and the largest thresholds."""
+
+    def __init__(self, t_us, on, off, valid=None, stale=None) -> None:
+        self.t_us = np.asarray(t_us)
+        if self.t_us.ndim != 1 or not np.issubdtype(self.t_us.dtype, np.integer) or np.any(np.diff(self.t_us) <= 0):
+            raise CorrectionError("the maps' times must be increasing whole microseconds")
+        self.t_us = self.t_us.astype(np.int64)
+        self.on, self.off, self.valid, self.stale = on, off, valid, stale
+        self.shape = tuple(on.shape)
+        for name, maps in (("off", off), ("valid", valid), ("stale", stale)):
+            if maps is not None and tuple(maps.shape) != self.shape:
+                raise CorrectionError(f"the {name} maps must have the shape of the thresholds")
+        first_on = first_off = None
+        self.ever = None  # the pixels usable in some map
+        self.largest_on = self.largest_off = 0.0
+        last = -1  # the last map with a usable pixel
+        for k in range(len(self.t_us)):
+            on_k, off_k, usable = self._map(k)
+            if first_on is None:
+                first_on, first_off, self.ever = np.array(on_k), np.array(off_k), usable.copy()
+            new = usable & ~self.ever
+            first_on[new], first_off[new] = on_k[new], off_k[new]
+            self.ever |= usable
+            if usable.any():
+                last = k
+                self.largest_on = max(self.largest_on, float(on_k[usable].max()))
+                self.largest_off = max(self.largest_off, float(off_k[usable].max()))
+        if last < 0:
+            raise CorrectionError("no pixel has a usable threshold (valid, finite and positive): nothing to correct")
+        on_k, off_k, usable = self._map(last)
+        self._start = (np.where(self.ever, first_on, np.median(on_k[usable])),
+                       np.where(self.ever, first_off, np.median(off_k[usable])))
+        self._k = -1  # the map :meth:`filled` gave last, and its filled maps and medians
+        self._filled = self._medians = None
+
+    def __len__(self) -> int:
+        return len(self.t_us)
+
+    def _map(self, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Map k's thresholds (float32) and its usable pixels (valid, finite and positive)."""
+        on, off = np.asarray(self.on[k], np.float32), np.asarray(self.off[k], np.float32)
+        with np.errstate(invalid="ignore"):
+            usable = np.isfinite(on) & np.isfinite(off) & (on > 0) & (off > 0)
+        if self.valid is not None:
+            usable &= np.asarray(self.valid[k], bool)
+        return on, off, usable
+
+    def filled(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """Map k's ON and OFF thresholds (float32) with every unusable entry filled; maps are taken in order
+        (a map before the last one asked for reads the series again from its start)."""
+        if k < self._k:
+            self._k = -1
+        while self._k < k:
+            self._k += 1
+            on, off, usable = self._map(self._k)
+            if self._k == 0:
+                filled = tuple(np.where(usable, values, start).astype(np.float32)
+                               for values, start in zip((on, off), self._start))
+                self._medians = tuple(float(np.median(values[usable] if usable.any() else start))
+                                      for values, start in zip((on, off), self._start))
+            else:
+                stale = (np.zeros(usable.shape, bool) if self.stale is None
+                         else np.asarray(self.stale[self._k], bool))
+                if usable.any():
+                    self._medians = (float(np.median(on[usable])), float(np.median(off[usable])))
+                filled = tuple(np.where(usable, values, np.where(stale, median, before)).astype(np.float32)
+                               for values, median, before in zip((on, off), self._medians, self._filled))
+            self._filled = filled
+        return self._filled
+
+    def usable_medians(self) -> tuple[float, float]:
+        """The medians of every usable ON and of every usable OFF threshold of the series (``np.median``'s, exactly),
+        in two passes that hold a map and a histogram: the first counts the values by the upper 16 bits of their
+        float32 patterns (in the order of the values: they are positive), the second sorts the one or two bins where
+        the middle ranks fall."""
+        histograms = np.zeros((2, 1 << 16), np.int64)
+        for k in range(len(self)):
+            on, off, usable = self._map(k)
+            for histogram, values in zip(histograms, (on, off)):
+                histogram += np.bincount(values[usable].view(np.uint32) >> 16, minlength=1 << 16)
+        total = int(histograms[0].sum())
+        ranks = np.array([(total - 1) // 2, total // 2])  # the middle one, or the middle two
+        ends = np.cumsum(histograms, axis=1)  # values before the end of each bin
+        bins = [np.searchsorted(end, ranks, side="right") for end in ends]
+        kept = [[], []]
+        for k in range(len(self)):
+            on, off, usable = self._map(k)
+            for keep, values, wanted in zip(kept, (on, off), bins):
+                values = values[usable]
+                keep.append(values[np.isin(values.view(np.uint32) >> 16, wanted)])
+        medians = []
+        for keep, end, wanted in zip(kept, ends, bins):
+            values = np.sort(np.concatenate(keep))
+            before = np.where(wanted > 0, end[wanted - 1], 0)[0]  # values in the bins below the first wanted one
+            medians.append(float(np.mean(values[ranks - before])))
+        return medians[0], medians[1]
 
 
 def correct_thresholds(events: np.ndarray, width: int, height: int, on, off, valid=None, **options) -> np.ndarray:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import os
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -53,6 +53,11 @@ class ThresholdMap:
         with np.errstate(invalid="ignore"):
             return self.valid & np.isfinite(self.on) & np.isfinite(self.off) & (self.on > 0) & (self.off > 0)
 
+    def stale(self):
+        """A series' pixels whose estimate a map dropped (``fit`` infinite: the threshold stepped away), map by map;
+        None for a single map or without ``fit``."""
+        return None if self.t_us is None or self.fit is None else per_map(self.fit, np.isinf)
+
     def check_size(self, width: int, height: int, name: str) -> None:
         """Raise a :class:`FormatError` naming the file ``name`` unless the maps are ``height`` x ``width``."""
         if (self.width, self.height) != (width, height):
@@ -88,8 +93,66 @@ def read_thresholds(path: str, series: bool = False) -> ThresholdMap:
 
     Without a ``valid`` dataset every pixel is marked valid; :meth:`ThresholdMap.usable` also drops pixels whose
     thresholds are not finite and positive. A time series of maps (``estimate --online``: a ``t_us`` dataset and
-    maps with a leading time axis) is returned whole with ``series``, else as its last map.
+    maps with a leading time axis) is returned whole with ``series``, else as its last map (the only one read).
     """
+    with open_thresholds(path) as maps:
+        if maps.t_us is None:
+            return maps
+        if not series:  # the latest map
+            last = len(maps.t_us) - 1
+            return ThresholdMap(maps.on[last], maps.off[last], maps.valid[last], maps.attributes,
+                                None if maps.fit is None else maps.fit[last], maps.phase_us)
+        return replace(maps, **{name: getattr(maps, name).read_all() for name in ("on", "off", "valid", "fit")
+                                if getattr(maps, name) is not None})
+
+
+class MapsOnDisk:
+    """The maps of a series (``estimate --online``) left in its open file: ``[k]`` reads map k (height x width, one
+    HDF5 chunk), through ``then`` when given; :meth:`through` adds a step (a crop of the sensor, a test)."""
+
+    def __init__(self, dataset, dtype, path: str, then=None) -> None:
+        self.dataset, self.dtype, self.path, self.then = dataset, dtype, path, then
+        self.shape = (len(dataset), *self[0].shape)
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def __getitem__(self, k: int) -> np.ndarray:
+        try:
+            values = np.asarray(self.dataset[k], dtype=self.dtype)
+        except OSError as error:
+            raise FormatError(f"{self.path}: cannot read map {k} of {self.dataset.name.lstrip('/')} ({error})") \
+                from None
+        return values if self.then is None else self.then(values)
+
+    def through(self, step) -> "MapsOnDisk":
+        """These maps, each through ``step`` (a function of one map) after what they go through now."""
+        before = self.then
+        return MapsOnDisk(self.dataset, self.dtype, self.path,
+                          step if before is None else (lambda values: step(before(values))))
+
+    def read_all(self) -> np.ndarray:
+        """Every map, in one array (maps, height', width')."""
+        if self.then is not None:
+            return np.stack([self[k] for k in range(len(self))])
+        try:
+            return np.asarray(self.dataset[()], dtype=self.dtype)
+        except OSError as error:
+            raise FormatError(f"{self.path}: cannot read the maps of {self.dataset.name.lstrip('/')} ({error})") \
+                from None
+
+
+def per_map(maps, step):
+    """``step`` (a function of maps with any leading axes: numpy's) applied to ``maps``: an array at once, the maps
+    of a :class:`MapsOnDisk` one by one as they are read."""
+    return maps.through(step) if isinstance(maps, MapsOnDisk) else step(maps)
+
+
+@contextmanager
+def open_thresholds(path: str):
+    """The maps of a thresholds or truth file as a :class:`ThresholdMap` for the block's length; a series' maps
+    (``on``, ``off``, ``valid``, ``fit``) stay on disk as :class:`MapsOnDisk`, read one at a time, so ``correct``
+    with a series of any length holds a few maps, not the file (:func:`read_thresholds` reads them all)."""
     import h5py
 
     with _open_h5(path) as h5:
@@ -100,49 +163,65 @@ def read_thresholds(path: str, series: bool = False) -> ThresholdMap:
                 "height x width: write one with `evtools estimate` or `evtools simulate --truth`)"
             )
         try:
-            on, off, valid, fit, phase_us, t_us = _maps(h5)
+            on, off, valid, fit, phase_us, t_us = _maps(h5, path)
         except OSError:  # a compression filter HDF5 lacks (Zstd, Blosc...): hdf5plugin's, loaded only now (6 MiB)
             try:
                 import hdf5plugin  # noqa: F401
-                on, off, valid, fit, phase_us, t_us = _maps(h5)
+                on, off, valid, fit, phase_us, t_us = _maps(h5, path)
             except (ImportError, OSError) as error:
                 raise FormatError(f"{path}: cannot read the maps ({error})") from None
         attributes = {key: _text(value) for key, value in hdf5_attributes(h5, source=path).items()}
         units = _text(attribute(h5["on"], "units", "", source=path))
-    maps = (valid, fit)
-    if t_us is not None:
-        if t_us.ndim != 1 or not np.issubdtype(t_us.dtype, np.integer) or on.ndim != 3 or len(on) != len(t_us):
-            raise FormatError(f"{path}: a series of maps needs t_us (integer microseconds, one per map) and maps "
-                              "of maps x height x width")
-        if np.any(np.diff(t_us) <= 0):
-            k = int(np.argmax(np.diff(t_us) <= 0)) + 1
-            raise FormatError(f"{path}: the maps' times are out of order (t_us[{k}] = {int(t_us[k])} is not after "
-                              f"t_us[{k - 1}] = {int(t_us[k - 1])})")
-    elif on.ndim != 2:
-        raise FormatError(f"{path}: datasets on, off must be height x width arrays (or a series with t_us)")
-    if on.shape != off.shape or any(m is not None and m.shape != on.shape for m in maps) or (
-            phase_us is not None and phase_us.shape != on.shape[-2:]):
-        raise FormatError(
-            f"{path}: datasets on, off (and valid, fit, phase_us) must be height x width arrays of one shape"
-        )
-    if valid is None:
-        valid = np.ones(on.shape, dtype=bool)
-    attributes.setdefault("units", units)
-    if t_us is not None and not series:  # the latest map
-        return ThresholdMap(on[-1], off[-1], valid[-1], attributes, None if fit is None else fit[-1], phase_us)
-    return ThresholdMap(on, off, valid, attributes, fit, phase_us, None if t_us is None else t_us.astype(np.int64))
+        maps = (valid, fit)
+        if t_us is not None:
+            if (t_us.ndim != 1 or not np.issubdtype(t_us.dtype, np.integer) or len(on.shape) != 3
+                    or len(on) != len(t_us)):
+                raise FormatError(f"{path}: a series of maps needs t_us (integer microseconds, one per map) and maps "
+                                  "of maps x height x width")
+            if not len(t_us):
+                raise FormatError(f"{path}: a series of maps that holds no map (an online estimate stopped before "
+                                  "its first interval ended)")
+            if np.any(np.diff(t_us) <= 0):
+                k = int(np.argmax(np.diff(t_us) <= 0)) + 1
+                raise FormatError(f"{path}: the maps' times are out of order (t_us[{k}] = {int(t_us[k])} is not "
+                                  f"after t_us[{k - 1}] = {int(t_us[k - 1])})")
+        elif len(on.shape) != 2:
+            raise FormatError(f"{path}: datasets on, off must be height x width arrays (or a series with t_us)")
+        if on.shape != off.shape or any(m is not None and m.shape != on.shape for m in maps) or (
+                phase_us is not None and phase_us.shape != on.shape[-2:]):
+            raise FormatError(
+                f"{path}: datasets on, off (and valid, fit, phase_us) must be height x width arrays of one shape"
+            )
+        if valid is None:
+            valid = np.ones(on.shape, dtype=bool) if t_us is None else on.through(_all_valid)
+        attributes.setdefault("units", units)
+        yield ThresholdMap(on, off, valid, attributes, fit, phase_us, None if t_us is None else t_us.astype(np.int64))
 
 
-def _maps(h5):
-    """on, off, valid, fit, phase_us, t_us of an open thresholds file (None for those it lacks)."""
+def _all_valid(values: np.ndarray) -> np.ndarray:
+    """A series without ``valid``: every pixel of a map valid."""
+    return np.ones(values.shape, bool)
+
+
+def _maps(h5, path: str):
+    """on, off, valid, fit, phase_us, t_us of an open thresholds file (None for those it lacks); the maps of a
+    series (t_us, and maps x height x width) as :class:`MapsOnDisk` (their first map read: a missing compression
+    filter fails here)."""
     import h5py
+
+    t_us = h5.get("t_us")
+    t_us = np.asarray(t_us[()]) if isinstance(t_us, h5py.Dataset) else None
 
     def read(name, dtype=None):
         dataset = h5.get(name)
-        return np.asarray(dataset[()], dtype=dtype) if isinstance(dataset, h5py.Dataset) else None
+        if not isinstance(dataset, h5py.Dataset):
+            return None
+        if t_us is not None and dataset.ndim == 3 and len(dataset) > 0:
+            return MapsOnDisk(dataset, dtype, path)
+        return np.asarray(dataset[()], dtype=dtype)
 
     return (read("on", np.float32), read("off", np.float32), read("valid", bool), read("fit", np.float32),
-            read("phase_us", np.float64), read("t_us"))
+            read("phase_us", np.float64), t_us)
 
 
 def write_thresholds(path: str, thresholds: ThresholdMap) -> None:

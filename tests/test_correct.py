@@ -9,13 +9,15 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from evtools.correction import CORRECT_DEFAULTS, CorrectionError, ThresholdCorrector, correct_thresholds
+import evtools
+
+from evtools.correction import CORRECT_DEFAULTS, CorrectionError, SeriesMaps, ThresholdCorrector, correct_thresholds
 from evtools.events import EVENT_DTYPE, join, make_events
 from evtools.simulation import DvsSimulator
 from evtools.metrics.uniformity import detect_edges, edge_uniformity, edges_from_starts
 from evtools.formats.thresholds import ThresholdMap, read_thresholds, write_thresholds
 from tests.helpers import assert_clean_error, assert_same_events, cut, random_events, read_all, run
-from tests.naive.correct import STEP, correct_naive
+from tests.naive.correct import STEP, carried_naive, correct_naive
 
 W, H = 8, 6
 MODES = ("foh", "step", "highpass")
@@ -145,8 +147,9 @@ def test_a_series_of_maps_does_not_depend_on_chunking(cuts, mode, seed):
     whole = correct_thresholds(events, W, H, on, off, valid, t_us=times, **options)
     chunked = run_chunked(ThresholdCorrector(W, H, on, off, valid, t_us=times, **options), cut(events, cuts))
     assert_same_events(chunked, whole)
-    same = correct_thresholds(events, W, H, np.stack([on[0]] * 4), np.stack([off[0]] * 4), t_us=times, **options)
-    assert_same_events(same, correct_thresholds(events, W, H, on[0], off[0], **options))
+    same = correct_thresholds(events, W, H, np.stack([on[0]] * 4), np.stack([off[0]] * 4), np.stack([valid[0]] * 4),
+                              t_us=times, **options)
+    assert_same_events(same, correct_thresholds(events, W, H, on[0], off[0], valid[0], **options))
 
 
 @settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -748,3 +751,77 @@ def test_a_second_flush_gives_nothing_and_process_after_flush_is_refused():
     assert len(corrector.flush()) == 0
     with pytest.raises(CorrectionError, match="after flush"):
         corrector.process(events[-1:])
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), maps=st.integers(1, 6), height=st.integers(1, 4), width=st.integers(1, 5),
+       usable_share=st.floats(0.05, 1.0), stale_share=st.floats(0.0, 0.5),
+       asked=st.lists(st.integers(0, 5), min_size=1, max_size=8))
+def test_a_series_fills_its_maps_as_the_naive_reference(seed, maps, height, width, usable_share, stale_share, asked):
+    """SeriesMaps (maps read one at a time, forward: a series on disk is never held whole) fills every unusable
+    entry as the pixel-by-pixel reference does, whichever maps are asked for in whichever order."""
+    rng = np.random.default_rng(seed)
+    on, off = rng.uniform(0.1, 0.4, (2, maps, height, width)).astype(np.float32)
+    valid = rng.random((maps, height, width)) < usable_share
+    on[rng.random(on.shape) < 0.1] = np.nan  # not finite: not usable, though marked valid
+    one = rng.integers(valid.size)  # (none usable is refused: tested elsewhere)
+    valid.flat[one], on.flat[one] = True, 0.2
+    stale = rng.random((maps, height, width)) < stale_share
+    usable = valid & np.isfinite(on)
+    series = SeriesMaps(np.arange(maps) * 1000, on, off, valid, stale)
+    expected = [carried_naive(values, usable, stale) for values in (on, off)]
+    for k in (k % maps for k in asked):
+        for got, want in zip(series.filled(k), expected):
+            assert np.array_equal(got, want[k])
+    assert np.array_equal(series.ever, usable.any(axis=0))
+    assert series.usable_medians() == (float(np.median(on[usable])), float(np.median(off[usable])))
+
+
+def test_a_series_file_is_read_map_by_map_never_whole(tmp_path, monkeypatch):
+    """correct with a thresholds series (estimate --online) read it whole (memory about the file's size: a 1 s
+    series of an hour at 346 x 260 is 4.2 GB); its maps now stay in the file, each read at most three times (for
+    its shape, the first pass: first values and largest thresholds, then as the stream reaches it; the median
+    target's two passes add two), and the output is the in-memory series' exactly, through the API and the command
+    line, cropped and flipped too."""
+    from evtools.formats import thresholds as files
+
+    rng = np.random.default_rng(8)
+    events = random_events(6000, W, H, seed=8)
+    count = 12
+    times = np.linspace(0, int(events["t"][-1]), count, endpoint=False).astype(np.int64)
+    on, off = rng.uniform(0.15, 0.3, (2, count, H, W)).astype(np.float32)
+    valid = rng.random((count, H, W)) < 0.8
+    fit = np.where(rng.random((count, H, W)) < 0.05, np.inf, 0.1).astype(np.float32)
+    path = tmp_path / "series.h5"
+    write_thresholds(str(path), ThresholdMap(on, off, valid, {"method": "natural"}, fit, None, times))
+    reads = {}
+    original = files.MapsOnDisk.__getitem__
+
+    def counted(self, k):
+        key = (self.dataset.name, k)
+        reads[key] = reads.get(key, 0) + 1
+        return original(self, k)
+
+    def whole(self):
+        raise AssertionError("a series read whole")
+
+    monkeypatch.setattr(files.MapsOnDisk, "__getitem__", counted)
+    monkeypatch.setattr(files.MapsOnDisk, "read_all", whole)
+    info = evtools.StreamInfo(W, H)
+    for target in (0.2, "median"):
+        reads.clear()
+        expected = correct_thresholds(events, W, H, on, off, valid, t_us=times, stale=np.isinf(fit), target=target)
+        assert_same_events(evtools.correct(events, info, str(path), target=target), expected)
+        assert {name for name, _ in reads} == {"/on", "/off", "/valid", "/fit"}
+        assert max(reads.values()) <= 3 + 2 * (target == "median"), reads
+    source = tmp_path / "in.aedat4"
+    evtools.write(source, events, info)
+    out = tmp_path / "out.aedat4"
+    run("correct", source, "--thresholds", path, "--target", "0.2", "--crop", "1,1,6,4", "--flip-x", "-o", out)
+    from evtools.transform import Transform
+
+    cropped = Transform(info, crop=(1, 1, 6, 4), flip_x=True).process(events)
+    view = (slice(None), slice(1, 5), slice(6, 0, -1))
+    expected = correct_thresholds(cropped, 6, 4, on[view], off[view], valid[view], t_us=times,
+                                  stale=np.isinf(fit)[view], target=0.2)
+    assert_same_events(read_all(out)[1], expected)

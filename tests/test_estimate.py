@@ -1082,11 +1082,11 @@ def test_correct_does_not_carry_a_stale_estimate(tmp_path):
     valid = np.isfinite(on)
     stale = np.zeros(on.shape, bool)
     stale[1, 0, 0] = True
-    from evtools.correction import _carried
-    filled = _carried(on, valid, stale)
-    assert filled[1, 0, 0] == np.float32(0.3) and filled[2, 0, 0] == np.float32(0.3)
-    filled = _carried(on, valid, np.zeros(on.shape, bool))
-    assert filled[1, 0, 0] == np.float32(0.2)  # not stale: carried
+    from evtools.correction import SeriesMaps
+    series = SeriesMaps([0, 1, 2], on, on, valid, stale)
+    assert series.filled(1)[0][0, 0] == np.float32(0.3) and series.filled(2)[0][0, 0] == np.float32(0.3)
+    series = SeriesMaps([0, 1, 2], on, on, valid)
+    assert series.filled(1)[0][0, 0] == np.float32(0.2)  # not stale: carried
 
 
 def test_an_online_run_stopped_midway_keeps_its_maps(tmp_path, monkeypatch):

@@ -42,6 +42,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 FOH, STEP, HIGHPASS = "foh", "step", "highpass"
 
 
@@ -311,3 +313,33 @@ def correct_naive(events, on, off, target_on, target_off, mode=FOH, hold_us=100_
             draw(pixel, [(begin, 0.0), (max(0.5 * gone, begin), excess)], last[pixel])
     order = sorted(range(len(created)), key=lambda i: (created[i][0], created[i][2] % 2, i))
     return [created[i] for i in order]
+
+
+def carried_naive(values, usable, stale):
+    """A series of maps (maps, height, width) of one polarity with every unusable entry filled, pixel by pixel:
+    before its first usable value a pixel takes that value (never usable: the median of the usable values of the
+    last map that has any); then it keeps its latest usable value, except where a later map marks it stale: there
+    it takes the median of the usable values of the latest map up to that one that has any (none yet: the median
+    of map 0 as filled)."""
+    maps, height, width = values.shape
+    with_usable = [k for k in range(maps) if usable[k].any()]
+    last_median = np.median(values[with_usable[-1]][usable[with_usable[-1]]])
+    filled = np.empty(values.shape, np.float32)
+    for y in range(height):
+        for x in range(width):
+            usable_at = [k for k in range(maps) if usable[k, y, x]]
+            filled[0, y, x] = values[0, y, x] if usable[0, y, x] else (
+                values[usable_at[0], y, x] if usable_at else last_median)
+    for k in range(1, maps):
+        earlier = [j for j in with_usable if j <= k]
+        median = np.float32(np.median(values[earlier[-1]][usable[earlier[-1]]]) if earlier
+                            else np.median(filled[0]))
+        for y in range(height):
+            for x in range(width):
+                if usable[k, y, x]:
+                    filled[k, y, x] = values[k, y, x]
+                elif stale[k, y, x]:
+                    filled[k, y, x] = median
+                else:
+                    filled[k, y, x] = filled[k - 1, y, x]
+    return filled
