@@ -9,6 +9,7 @@ output is in time order whatever the stage holds back.
 
 from __future__ import annotations
 
+import logging
 from collections import deque
 from dataclasses import dataclass, field
 
@@ -108,3 +109,7 @@ class FrameRelay:
         while self.pending and (released_us is None or self.pending[0].order_us < released_us):
             self.writer.write_frame(self.pending.popleft())
             self.written += 1
+        not_carried = getattr(self.stream, "not_carried", None)
+        if released_us is None and not_carried is not None and not_carried():
+            logging.getLogger("evtools").warning(f"{self.stream.name}: {not_carried()} are not in the output "
+                                                 "(evtools carries events and APS frames only)")

@@ -40,6 +40,11 @@ __all__ = ["FORMATS", "EventStream", "FormatError", "ReadOptions", "WriteOptions
 log = logging.getLogger("evtools")
 
 
+AEDAT3_TYPES = {0: "special", 2: "frames", 3: "IMU6", 4: "IMU9"}
+"""AEDAT 3.1's event types that evtools does not read, by number (cAER's), for :meth:`EventStream.not_carried`."""
+AEDAT2_WORDS = {"special": "special", "aps_imu": "APS/IMU", "external_input": "external-input"}
+
+
 class EventStream:
     """An open input stream: ``info`` is known at once, iterating yields checked chunks of ``EVENT_DTYPE``."""
 
@@ -84,6 +89,24 @@ class EventStream:
             self._said_colour = True
             log.warning(f"{self.name}: its {colour} colour frames are read as gray (OpenCV's weights)")
         return taken
+
+    def not_carried(self) -> str | None:
+        """What of the input a command that writes events and APS frames leaves out (the streams and words the
+        reader skipped: IMU, triggers, jAER's APS samples...), as words, once the stream has been read; None when
+        nothing was."""
+        metadata = self.info.metadata
+        packets = metadata.get("skipped_packets")
+        if isinstance(packets, dict):  # AEDAT 3.1: packets by event type
+            if not packets:
+                return None
+            kinds = ", ".join(f"{AEDAT3_TYPES.get(kind, f'type {kind}')}" for kind in sorted(packets))
+            return f"{sum(packets.values()):,} packets of other event types ({kinds})"
+        if packets:  # AEDAT 4.0: packets of the other streams
+            return f"{packets:,} packets of its {', '.join(metadata.get('skipped_streams') or ['other'])} streams"
+        words = {name: count for name, count in (metadata.get("skipped_words") or {}).items() if count}
+        if words:  # AEDAT 2.0
+            return ", ".join(f"{count:,} {AEDAT2_WORDS.get(name, name)} words" for name, count in words.items())
+        return None
 
     @property
     def frames_read(self) -> int:

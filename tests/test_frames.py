@@ -375,3 +375,21 @@ def test_a_dsec_sequence_folder_is_read_with_its_images_as_frames(tmp_path):
     assert_clean_error(run("info", tmp_path / "without", check=False), "timestamps.txt", "4 times for 3 images")
     stamps.write_text(f"{offset + 150_000}\n{offset + 50_000}\n{offset + 250_000}\n")
     assert_clean_error(run("info", tmp_path / "without", check=False), "timestamps.txt", "backwards")
+
+
+def test_what_a_command_cannot_carry_is_said(tmp_path):
+    """The IMU and trigger packets of a DV recording, the APS/IMU words of a jAER one, are not written by any
+    command (events and APS frames are): bafilter, correct and convert said nothing and the samples were gone."""
+    recording = data_file("davis346_lab_frames.aedat4")
+    out = tmp_path / "out.aedat4"
+    said = run("bafilter", recording, "-o", out).stderr.decode()
+    assert "davis346_lab_frames.aedat4: 24 packets of its imu, triggers streams are not in the output" in said
+    assert len(evtools.read(out, frames=True)[2]) == 3  # the frames are carried
+    jaer = tmp_path / "davis.aedat"
+    words = np.array([1 << 31, 0, 0x00000800, 5], ">u4")  # an APS sample word, then an ON event (DAVIS layout)
+    jaer.write_bytes(b"#!AER-DAT2.0\r\n# AEChip: eu.seebetter.ini.chips.davis.Davis346red\r\n" + words.tobytes())
+    said = run("convert", jaer, "-o", out).stderr.decode()
+    assert "1 APS/IMU words are not in the output" in said
+    clean = tmp_path / "clean.aedat4"
+    evtools.write(clean, random_events(100, 32, 24), evtools.StreamInfo(32, 24))
+    assert "not in the output" not in run("convert", clean, "-o", out).stderr.decode()
