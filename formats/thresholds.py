@@ -72,10 +72,21 @@ def _open_h5(path: str):
 
     if not os.path.exists(path):
         raise FormatError(f"{path}: no such file")
-    check_global_heaps(path, path)  # (its string attributes live there)
+    if os.path.isdir(path):
+        raise FormatError(f"{path}: a folder, not a thresholds file")
     note_input(path)
+    source = path
+    if not os.path.isfile(path):  # a pipe (a shell's <(...)), a FIFO: HDF5 reads by seeking, so from a copy
+        import shutil
+        import tempfile
+
+        source = tempfile.TemporaryFile(prefix="evtools-thresholds-")
+        with open(path, "rb") as pipe:
+            shutil.copyfileobj(pipe, source, 1 << 20)
+        source.seek(0)
+    check_global_heaps(source, path)  # (its string attributes live there)
     try:
-        return h5py.File(path, "r")
+        return h5py.File(source, "r")
     except OSError:
         raise FormatError(f"{path}: cannot read it as HDF5") from None
 

@@ -825,3 +825,32 @@ def test_a_series_file_is_read_map_by_map_never_whole(tmp_path, monkeypatch):
     expected = correct_thresholds(cropped, 6, 4, on[view], off[view], valid[view], t_us=times,
                                   stale=np.isinf(fit)[view], target=0.2)
     assert_same_events(read_all(out)[1], expected)
+
+
+def test_a_thresholds_file_can_come_through_a_pipe(tmp_path):
+    """``--thresholds <(...)`` (a shell's process substitution: a pipe) failed with "File or stream is not
+    seekable." naming nothing: HDF5 reads by seeking, so a pipe is copied to a temporary file first, as the event
+    readers do; a cut one is refused naming it."""
+    import os
+    import threading
+
+    events = random_events(3000, W, H, seed=5)
+    on, off = thresholds(5)
+    maps = tmp_path / "maps.h5"
+    write_thresholds(str(maps), ThresholdMap(on, off, np.ones(on.shape, bool)))
+    source = tmp_path / "in.aedat4"
+    evtools.write(source, events, evtools.StreamInfo(W, H))
+    for given, complete in ((maps.read_bytes(), True), (maps.read_bytes()[:1000], False)):
+        fifo = tmp_path / f"fifo{complete}"
+        os.mkfifo(fifo)
+        feeder = threading.Thread(target=fifo.write_bytes, args=(given,))
+        feeder.start()
+        done = run("correct", source, "--thresholds", fifo, "--target", "0.2", "-o", tmp_path / "out.aedat4",
+                   check=False)
+        feeder.join()
+        if complete:
+            assert done.returncode == 0, done.stderr
+            assert_same_events(read_all(tmp_path / "out.aedat4")[1],
+                               correct_thresholds(events, W, H, on, off, target=0.2))
+        else:
+            assert_clean_error(done, f"{fifo}: cannot read it as HDF5")
