@@ -36,6 +36,7 @@ from evtools.simulation import (
     scene_maker,
 )
 from evtools.formats import create_events, open_events
+from evtools.frames import FrameRelay
 from evtools.formats.io import STDIO, HEAD_BYTES, same_file
 from evtools.formats.registry import FORMATS, detect
 from evtools.formats.truth import TruthWriter, create_truth
@@ -487,6 +488,8 @@ def _inject_into(source, output, written_as, truth, preset, seed, parameters, re
         width, height = stream.info.width, stream.info.height
         injector = _build(NoiseInjector, width, height, seed=seed, **parameters)
         info = StreamInfo(width, height, metadata={"source": f"evtools simulate {stream.name} seed={injector.seed}"})
+        if "frame_size" in stream.info.metadata:  # (an AEDAT 4.0 output declares its frame stream up front)
+            info.metadata["frame_size"] = stream.info.metadata["frame_size"]
         with create_events(output, info, format=output_format, compression=compression, inputs=(source,)) as writer:
             if truth is None:
                 _run_injector(injector, stream, writer, None, counts)
@@ -513,6 +516,7 @@ def _run_injector(injector: NoiseInjector, stream, writer, truth: TruthWriter | 
     """Feed the stream through the injector into the writer (and the labels into the truth file); returns the
     times of the first and last input events."""
     sink = _LabelledSink(writer, truth, counts)
+    frames = FrameRelay(stream, writer)  # the input's APS frames, each once the output has reached it
     first = last = None
 
     for chunk in with_progress(stream, stream, f"adding noise to {stream.name}"):
@@ -521,6 +525,10 @@ def _run_injector(injector: NoiseInjector, stream, writer, truth: TruthWriter | 
         last = int(chunk["t"][-1])
         for events, labels in injector.process_pieces(chunk):
             sink.add(events, labels)
+        if frames.due(last):  # (the output is final before the last input event: noise there is held)
+            sink.write()
+            frames.release(last)
     sink.add(*injector.flush())
     sink.write()
+    frames.release(None)
     return first, last

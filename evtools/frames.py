@@ -102,10 +102,19 @@ class FrameRelay:
         self.pending: deque[Frame] = deque()
         self.written = 0
 
-    def release(self, released_us: int | None) -> None:
+    def due(self, released_us: int) -> bool:
+        """Whether :meth:`release` with ``released_us`` would write a frame (for a writer that buffers events: they
+        go out first)."""
+        self._take()
+        return bool(self.pending) and self.pending[0].order_us < released_us
+
+    def _take(self) -> None:
         take = getattr(self.stream, "take_frames", None)
         if take is not None:
             self.pending.extend(take())
+
+    def release(self, released_us: int | None) -> None:
+        self._take()
         while self.pending and (released_us is None or self.pending[0].order_us < released_us):
             self.writer.write_frame(self.pending.popleft())
             self.written += 1

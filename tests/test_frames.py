@@ -179,6 +179,34 @@ def test_stages_pass_every_frame_on_after_the_events_before_it(tmp_path_factory,
             assert all(int(c["t"].min()) >= call.order_us for c in later if len(c))
 
 
+@settings(max_examples=8, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), chunk_events=st.integers(50, 3000))
+def test_simulate_on_events_passes_the_frames_on(tmp_path_factory, seed, chunk_events):
+    """`simulate EVENTS` (noise added to a recording) left a DAVIS recording's APS frames out, silently: now each
+    goes out once, after every output event before it, and the events are the injector's whatever the chunks."""
+    from evtools.cli.simulate import _run_injector
+    from evtools.noise import NoiseInjector
+
+    rng = np.random.default_rng(seed)
+    events = random_events(4000, 16, 12, seed=seed)
+    frames = _frames(rng, 6, 16, 12, t0_us=int(events["t"][0]))
+    path = tmp_path_factory.mktemp("inject") / "f.aedat4"
+    evtools.write(path, events, evtools.StreamInfo(16, 12), frames=frames)
+    recorder = _Recorder()
+    with evtools.open(path, chunk_events=chunk_events) as stream:
+        _run_injector(NoiseInjector(16, 12, seed=3, shot_noise_rate_hz=20.0), stream, recorder, None,
+                      np.zeros(4, np.int64))
+    written = [call for call in recorder.calls if isinstance(call, Frame)]
+    assert len(written) == len(frames) and all(a.same_as(b) for a, b in zip(written, frames))
+    out = [call for call in recorder.calls if not isinstance(call, Frame)]
+    whole, _ = evtools.inject_noise(events, evtools.StreamInfo(16, 12), seed=3, shot_noise_rate_hz=20.0)
+    assert_same_events(join(out), whole)
+    for index, call in enumerate(recorder.calls):
+        if isinstance(call, Frame):
+            later = [c for c in recorder.calls[index + 1:] if not isinstance(c, Frame)]
+            assert all(int(c["t"].min()) >= call.order_us for c in later if len(c))
+
+
 def test_a_pipeline_keeps_the_frames_and_convert_slices_them_as_the_events(tmp_path):
     source = tmp_path / "s.aedat4"
     events, frames = _recording(source, 5, 5, 3000, 32, 24)
@@ -385,6 +413,9 @@ def test_what_a_command_cannot_carry_is_said(tmp_path):
     said = run("bafilter", recording, "-o", out).stderr.decode()
     assert "davis346_lab_frames.aedat4: 24 packets of its imu, triggers streams are not in the output" in said
     assert len(evtools.read(out, frames=True)[2]) == 3  # the frames are carried
+    said = run("simulate", recording, "--seed", 1, "-o", out).stderr.decode()  # noise added: frames kept too
+    assert "24 packets of its imu, triggers streams are not in the output" in said
+    assert len(evtools.read(out, frames=True)[2]) == 3
     jaer = tmp_path / "davis.aedat"
     words = np.array([1 << 31, 0, 0x00000800, 5], ">u4")  # an APS sample word, then an ON event (DAVIS layout)
     jaer.write_bytes(b"#!AER-DAT2.0\r\n# AEChip: eu.seebetter.ini.chips.davis.Davis346red\r\n" + words.tobytes())
