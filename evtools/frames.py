@@ -120,5 +120,10 @@ class FrameRelay:
             self.written += 1
         not_carried = getattr(self.stream, "not_carried", None)
         if released_us is None and not_carried is not None and not_carried():
-            logging.getLogger("evtools").warning(f"{self.stream.name}: {not_carried()} are not in the output "
-                                                 "(evtools carries events and APS frames only)")
+            note = (f"{self.stream.name}: {not_carried()} are not in the output (evtools carries events and APS "
+                    "frames only)")
+            notes = getattr(self.writer, "notes", None)  # (said once the output is complete: not before an error)
+            if notes is None:
+                logging.getLogger("evtools").warning(note)
+            else:
+                notes.append(note)

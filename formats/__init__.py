@@ -329,7 +329,6 @@ def create_events(
             if writer.cut:  # the input turned out cut: the output says so by ending without the end mark
                 with interrupt.deferred():
                     writer.abort()
-                return
         except BaseException:
             # release the writer's hold on the stream (h5py crashes if its file object closes first) without
             # marking the stream's end: what went out to a pipe, a FIFO or a socket reads as cut, not as whole; a
@@ -337,5 +336,8 @@ def create_events(
             with contextlib.suppress(Exception), interrupt.deferred():
                 writer.abort()
             raise
-        with interrupt.deferred():
-            writer.close()
+        if not writer.cut:
+            with interrupt.deferred():
+                writer.close()
+    for note in writer.notes:  # (the output complete: not said before an error)
+        log.warning(note)

@@ -680,6 +680,7 @@ class WriteBehind:
     def __init__(self, writer, depth: int = 2) -> None:
         self.writer = writer
         self.cut = False  # set when the input turned out cut: create_events then ends the output without its mark
+        self.notes: list[str] = []  # warnings about the output, given once it is complete (create_events)
         self.queue: Queue = Queue(maxsize=depth)
         self.error: BaseException | None = None
         self.thread = threading.Thread(target=self._consume, name="evtools-write-behind", daemon=True)
