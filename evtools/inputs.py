@@ -18,9 +18,10 @@ import stat
 _READ: dict[tuple[int, int], str] | None = None  # (device, inode) -> the name it was read by
 
 
-def note_input(path) -> None:
-    """Record that the current command reads the file ``path`` (nothing outside :func:`guarding_inputs`, or for a
-    path that is not a regular file: stdin, a FIFO, a folder)."""
+def note_input(path, name: str | None = None) -> None:
+    """Record that the current command reads the file ``path`` (or the open descriptor: stdin redirected from a
+    file, ``name`` then saying so); nothing outside :func:`guarding_inputs`, or for what is not a regular file (a
+    pipe, a FIFO, a folder)."""
     if _READ is None:
         return
     try:
@@ -28,7 +29,7 @@ def note_input(path) -> None:
     except (OSError, TypeError, ValueError):
         return
     if stat.S_ISREG(status.st_mode):
-        _READ.setdefault((status.st_dev, status.st_ino), os.fspath(path))
+        _READ.setdefault((status.st_dev, status.st_ino), name or os.fspath(path))
 
 
 def input_named_by(path) -> str | None:

@@ -123,6 +123,8 @@ class Source:
         if path == STDIO:
             self.name, self.path = "<stdin>", None
             raw = sys.stdin.buffer.raw if hasattr(sys.stdin.buffer, "raw") else sys.stdin.buffer
+            if _has_descriptor(raw):  # stdin redirected from a file (`< rec.aedat4`): never an output either
+                note_input(raw.fileno(), "<stdin>, redirected from it")
             self._open_stream(raw)
             return
         if path.startswith(TCP_PREFIX):  # a live network stream (AEDAT 4.0 from DV or dv-processing)
@@ -425,10 +427,13 @@ def output_stream(path: str | os.PathLike | None, *, binary_name: str, needs_see
             raise
         stream.close()
         return
-    real = os.path.realpath(path)
-    if os.path.exists(real) and not os.path.isfile(real) and not os.path.isdir(real):
+    try:  # (followed through links: /dev/stdout names a pipe by a /proc path that is no file name)
+        mode = os.stat(path).st_mode
+    except OSError:
+        mode = None
+    if mode is not None and not stat.S_ISREG(mode) and not stat.S_ISDIR(mode):
         try:
-            stream = open(real, "wb", buffering=1 << 20)
+            stream = open(path, "wb", buffering=1 << 20)
         except OSError as error:
             raise FormatError(f"{path}: cannot open for writing ({error.strerror})") from None
         try:
@@ -501,7 +506,10 @@ def atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[str]:
     if replaced_mode is not None and not replaced_mode & 0o222:
         raise FormatError(f"{named}: exists and is read-only (mode {replaced_mode:o}): remove it or make it writable "
                           "first, or choose another -o")
-    temporary = _new_file(directory, "." + os.path.basename(path) + ".", ".part" + suffix)
+    try:
+        temporary = _new_file(directory, "." + os.path.basename(path) + ".", ".part" + suffix)
+    except OSError as error:  # (a folder one cannot write in, /proc: the user's path named, not the temporary's)
+        raise FormatError(f"{named}: cannot write there ({error.strerror or error})") from None
     try:
         if replaced_mode is None:
             umask = os.umask(0)

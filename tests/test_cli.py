@@ -430,6 +430,33 @@ def test_no_output_replaces_a_file_the_command_reads(tmp_path):
         assert not [p for p in tmp_path.rglob("*.part*")], "a refused output leaves no temporary file"
 
 
+def test_stdin_redirected_from_the_output_is_an_input_and_dev_stdout_a_pipe(tmp_path):
+    """Found by a QA sweep: `bafilter - -o rec.aedat4 < rec.aedat4` replaced the recording (exit 0: stdin was not
+    an input); `-o /dev/stdout` into a pipe failed naming a temporary beside a /proc path, and an output where no
+    file can be made named the temporary, not the user's path."""
+    import subprocess
+
+    import evtools
+
+    events = tmp_path / "rec.aedat4"
+    evtools.write(events, random_events(3000, 32, 24, seed=2), StreamInfo(32, 24))
+    before = events.read_bytes()
+    for command in (["bafilter", "-"], ["convert", "-", "--polarity", "on"], ["estimate", "-", "--method", "offe", "--max-fit", "inf"]):
+        output = events if command[0] != "estimate" else tmp_path / "rec.h5"
+        if command[0] == "estimate":
+            evtools.write(output, random_events(3000, 32, 24, seed=2), StreamInfo(32, 24))
+        kept = output.read_bytes()
+        with open(output, "rb") as stdin:
+            done = subprocess.run([EVTOOLS, *command, "-o", str(output)], stdin=stdin, capture_output=True)
+        assert_clean_error(done, f"{output}: is an input of this command (<stdin>, redirected from it)")
+        assert output.read_bytes() == kept
+    assert events.read_bytes() == before
+    piped = run("bafilter", events, "-o", "/dev/stdout").stdout
+    assert piped == run("bafilter", events, "-o", "-").stdout and len(piped) > 1000
+    assert_clean_error(run("convert", events, "-o", "/proc/evtools-test.aedat4", check=False),
+                       "/proc/evtools-test.aedat4: cannot write there")
+
+
 def test_python_may_write_back_a_file_it_read(tmp_path):
     """The guard is the command line's: a Python session that reads a file and later writes it back on purpose
     is not refused."""
