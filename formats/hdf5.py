@@ -425,6 +425,10 @@ class Hdf5Reader:
         if self.layout == "event_utils" or t.dtype.kind == "f":
             scale = 1e6 if self.layout == "event_utils" and t.dtype.kind == "f" else 1.0
             words[:, 0] = np.rint(t * scale)
+            if scale == 1.0 and t.dtype.kind == "f" and np.any(words[:, 0] != t):  # (1000.7 us, or 1.25 s: taken as 1)
+                k = int(np.argmax(words[:, 0] != t))
+                raise FormatError(f"{self.name}: event time {t[k].item()!r} (event {start + k}) is not a whole "
+                                  "number of microseconds, the unit of this layout's times (seconds? give them in us)")
         else:
             words[:, 0] = t
         if self.t_offset_us:

@@ -237,6 +237,27 @@ def test_polarities_other_than_on_and_off_are_refused(tmp_path):
     assert_clean_error(run("info", tmp_path / "d.h5", check=False), "d.h5", "polarities other than")
 
 
+def test_fractional_times_in_microsecond_layouts_are_refused(tmp_path):
+    """Found by a QA sweep: float times (seconds, or fractional us) in the DSEC and v2e layouts were rounded as
+    microseconds: a 1.25 s stream read as 1 us long, exit 0. Whole-number floats are taken; event_utils' float ts
+    are seconds (rounded to the microsecond), as that layout says."""
+    import h5py
+
+    seconds = np.array([0.001, 0.5, 1.25])
+    with h5py.File(tmp_path / "v2e.h5", "w") as f:
+        f["events"] = np.stack([seconds, [1, 3, 2], [2, 0, 2], [1, 0, 1]], axis=1)
+    with h5py.File(tmp_path / "dsec.h5", "w") as f:
+        f["events/t"] = seconds * 1e6 + 0.5
+        f["events/x"], f["events/y"] = np.array([1, 3, 2], "u2"), np.array([2, 0, 2], "u2")
+        f["events/p"] = np.array([1, 0, 1], "u1")
+    for name, value in (("v2e.h5", "0.001 (event 0)"), ("dsec.h5", "1000.5 (event 0)")):
+        assert_clean_error(run("info", tmp_path / name, "--sensor-size", "4x4", check=False),
+                           f"{name}: event time {value} is not a whole number of microseconds")
+    with h5py.File(tmp_path / "whole.h5", "w") as f:
+        f["events"] = np.stack([seconds * 1e6, [1, 3, 2], [2, 0, 2], [1, 0, 1]], axis=1)
+    assert read_all(tmp_path / "whole.h5", sensor_size=(4, 4))[1]["t"].tolist() == [1000, 500000, 1250000]
+
+
 def test_a_damaged_time_chunk_disagrees_with_ms_to_idx_and_is_refused(tmp_path):
     """Issue 37 item 5: a damaged chunk of t decoded as zeros was read as 30,000 events at one time, exit 0. The
     DSEC layout's ms_to_idx says where each millisecond starts: times that disagree are refused naming the file;
