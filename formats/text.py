@@ -50,6 +50,11 @@ UTF8_BOM = b"\xef\xbb\xbf"
 _NUMBER = re.compile(rb"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
 
 
+WHOLE_SECONDS_LINES = 10
+"""rpg text whose first this many lines or more (the first block) all have whole-number times is refused as
+microseconds taken for seconds (:meth:`TextReader._refuse_whole_seconds`)."""
+
+
 class TextReader:
     """Reads CSV or rpg text, block by block: CSV (t in microseconds) when the file was opened as CSV or its first
     data line has commas, else text (t in seconds); see the module's notes for the separators.
@@ -197,12 +202,24 @@ class TextReader:
         if status == WRONG_COUNT:
             self._wrong_count(line_no + line, fields)
         if status == PARSED:
+            if self.seconds and not point and line_no == self.line_no and n >= WHOLE_SECONDS_LINES:
+                self._refuse_whole_seconds(mantissas[:n, self.index["t"]], line_no)
             if not self.seconds and not point:  # numpy's integer parser reads such a block: the exact integers
                 values = mantissas[:n]
             else:
                 values = mantissas[:n].astype(np.float64) / _POWERS_OF_TEN_FLOAT[decimals[:n]]
             return self._events(values, rows[:n], line_no)
         return self._parse_numpy(block, line_no)
+
+    def _refuse_whole_seconds(self, t: np.ndarray, line_no: int) -> None:
+        """Times in seconds of which the first block's every one is a whole number (no decimal point in it) are
+        microseconds written as rpg text (a QA sweep: a 1 s recording read as 11.6 days, and bafilter then removed
+        every event): refused, never guessed."""
+        if np.ptp(t) > 0:
+            raise FormatError(
+                f"{self.name}: lines {line_no}-{line_no + len(t) - 1}: every time is a whole number, read as seconds "
+                f"as rpg text's are ({int(np.ptp(t)):,} s from the first to the last): microseconds? read the file "
+                "as CSV, whose times are microseconds whatever its separator (--input-format csv)")
 
     def _wrong_count(self, line_no: int, fields: int) -> None:
         raise FormatError(

@@ -101,6 +101,24 @@ def test_txt_absolute_seconds_are_exact(tmp_path):
     assert list(events["t"]) == [1605537493718345, 1605537494308262]
 
 
+def test_txt_whose_times_are_all_whole_numbers_is_refused_as_microseconds(tmp_path):
+    """Found by a QA sweep: 't x y p' lines with integer microseconds (as many tools write them) were read as
+    seconds: a 1 s recording lasted 11.6 days and bafilter removed every event. Ten or more lines of whole-number
+    times are refused with the remedy (read as CSV: microseconds); a few whole seconds, or seconds with a point,
+    are read as before."""
+    lines = "".join(f"{1000 + 37 * k} {k % 4} 1 {k % 2}\n" for k in range(12))
+    with pytest.raises(FormatError, match=r"a.txt: lines 2-13: every time is a whole number, read as seconds .*"
+                                          r"\(407 s .*--input-format csv"):
+        read_text(tmp_path, "4 2\n" + lines, "a.txt")
+    path = tmp_path / "us.txt"
+    path.write_text(lines)
+    assert read_all(path, format="csv", sensor_size=(4, 2))[1]["t"].tolist() == [1000 + 37 * k for k in range(12)]
+    events, _ = read_text(tmp_path, "4 2\n" + "".join(f"{k} 1 1 1\n" for k in range(9)), "b.txt")
+    assert events["t"].tolist() == [k * 1_000_000 for k in range(9)]
+    events, _ = read_text(tmp_path, "4 2\n" + lines.replace("1000 ", "1000.5 "), "c.txt")
+    assert events["t"][0] == 1_000_500_000
+
+
 def test_many_blocks_keep_line_numbers_and_events(tmp_path):
     rng = np.random.default_rng(5)
     n = 30000
