@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+from functools import partial
 import logging
 import math
 import signal
@@ -221,15 +222,16 @@ class _MapsToFile:
     the next map (:class:`_Stopped`): one chunk of a sparse stream, or a short interval, can make thousands of maps,
     and the reader sees a stop only at its next chunk."""
 
-    def __init__(self, maps_file, name: str, width: int, height: int) -> None:
+    def __init__(self, maps_file, name: str, width: int, height: int, to_camera) -> None:
         self.file, self.name, self.width, self.height = maps_file, name, width, height
+        self.to_camera = to_camera  # a map of the (sliced) stream's sensor on the camera's
         self.estimator = None
         self.consuming = True
 
-    def __call__(self, *entry) -> None:
+    def __call__(self, t_us, on, off, valid, fit) -> None:
         if self.consuming and interrupt.received() is not None:
             raise _Stopped
-        self.file.append(*entry)
+        self.file.append(t_us, *self.to_camera(on, off, valid, fit))
         if self.file.count == SPARSE_CHECK_MAPS and self.estimator is not None:
             per_map = self.estimator.events / (self.file.count * self.width * self.height)
             if per_map < SPARSE_MAP_EVENTS:
@@ -241,14 +243,30 @@ class _MapsToFile:
         """The maps so far as a complete file, marked as stopped by ``message``."""
         estimator = self.estimator
         self.file.finish({**estimator.parameters, "input": self.name, "partial": True, "stopped_by": message,
-                          "stopped_at_us": int(estimator.t_last_us or 0), "width": self.width,
-                          "height": self.height})
+                          "stopped_at_us": int(estimator.t_last_us or 0),
+                          "width": self.file.datasets["on"].shape[2], "height": self.file.datasets["on"].shape[1]})
+
+
+def _on_camera(transform, *maps):
+    """``maps`` (of the stream's sensor: sliced by ``transform``, or None) on the camera's whole sensor: not valid
+    (False, NaN) outside the crop (:meth:`evtools.transform.Transform.camera_pixels`); None stays None."""
+    if transform is None or not transform.moves_pixels:
+        return maps
+    return tuple(None if values is None else transform.camera_pixels(
+        np.asarray(values), False if np.asarray(values).dtype == bool else np.nan) for values in maps)
+
+
+def _slicing_argv(slicing: dict) -> list[str]:
+    """The geometry options of ``slicing`` as the command line gives them (for the map's attributes)."""
+    said = [f"--crop {','.join(map(str, slicing['crop']))}"] if slicing.get("crop") else []
+    return said + [f"--{name.replace('_', '-')}" for name in ("flip_x", "flip_y", "transpose") if slicing.get(name)]
 
 
 def estimate_one(input, output, *, reading, parameters, slicing=None
                  ) -> Outcome:
     """Estimate one file's thresholds into ``output``: its :class:`Outcome` (events in, valid pixels);
-    ``slicing``: the shared slicing options (:func:`evtools.transform.sliced`): the map is of the sliced sensor.
+    ``slicing``: the shared slicing options (:func:`evtools.transform.sliced`): estimated on the sliced stream,
+    the map is the camera's (not valid outside the crop), as ``correct`` takes it.
 
     Online, the maps go to the file as they are made (:func:`series_file`: no bound on the run's length but the
     disk's), and a run that stops midway keeps them: on an error in the stream, or a stop signal between maps, the
@@ -260,9 +278,11 @@ def estimate_one(input, output, *, reading, parameters, slicing=None
     with open_events(input, reading) as opened:
         stream = sliced(opened, slicing)
         width, height = stream.info.width, stream.info.height
-        with series_file(output, width, height) if online else contextlib.nullcontext() as maps_file:
+        to_camera = partial(_on_camera, getattr(stream, "transform", None))
+        with series_file(output, opened.info.width, opened.info.height) if online else contextlib.nullcontext() \
+                as maps_file:
             if online:
-                sink = _MapsToFile(maps_file, stream.name, width, height)
+                sink = _MapsToFile(maps_file, stream.name, width, height, to_camera)
             try:
                 kind = (FrameThresholdEstimator if parameters["method"] == "frames" else FrameScaledEstimator
                         if parameters["nominal"] == "frames" else ThresholdEstimator)
@@ -295,14 +315,20 @@ def estimate_one(input, output, *, reading, parameters, slicing=None
                 attributes = {**result.attributes, "input": stream.name}
                 if "disagreement" in attributes:
                     log.warning(f"{stream.name}: {attributes['disagreement']}")
+                if getattr(stream, "transform", None) is not None and stream.transform.moves_pixels:
+                    attributes["sliced"] = ("the map is the camera's; estimated on its events cut and turned "
+                                            f"({' '.join(_slicing_argv(slicing))}): other pixels are not valid")
+                    attributes["width"], attributes["height"] = opened.info.width, opened.info.height
                 if online:
-                    maps_file.finish(attributes, result.phase_us)
+                    phase_us, = to_camera(result.phase_us) if result.phase_us is not None else (None,)
+                    maps_file.finish(attributes, phase_us)
     if failure is not None:
         raise failure
     thresholds = ThresholdMap(result.on, result.off, result.valid, attributes, result.fit, result.phase_us)
     if not online:
-        write_thresholds(output, thresholds)
-    usable = thresholds.usable()
+        on, off, valid, fit, phase_us = to_camera(result.on, result.off, result.valid, result.fit, result.phase_us)
+        write_thresholds(output, ThresholdMap(on, off, valid, attributes, fit, phase_us))
+    usable = thresholds.usable()  # (the stream's pixels: the counts below are of those estimated from)
     on, off = thresholds.on, thresholds.off
     medians = f", median ON {np.median(on[usable]):.3g} OFF {np.median(off[usable]):.3g}" if usable.any() else ""
     maps = f", {attributes['maps']} maps over time" if online else ""

@@ -140,6 +140,22 @@ class Transform:
             values = np.swapaxes(values, -1, -2)
         return np.ascontiguousarray(values)
 
+    def camera_pixels(self, values: np.ndarray, fill) -> np.ndarray:
+        """A per-pixel array of the sliced sensor (``(..., height, width)``: an estimated map) on the whole camera
+        sensor, ``fill`` outside the crop: the inverse of :meth:`pixels`, so that a map made on a sliced stream is
+        the camera's, as every map is (``correct`` cuts and turns it with its own events)."""
+        if self.transpose:
+            values = np.swapaxes(values, -1, -2)
+        if self.flip_y:
+            values = values[..., ::-1, :]
+        if self.flip_x:
+            values = values[..., :, ::-1]
+        width, height = self.source_size
+        camera = np.full(values.shape[:-2] + (height, width), fill, dtype=values.dtype)
+        x0, y0 = self.crop[:2] if self.crop is not None else (0, 0)
+        camera[..., y0:y0 + values.shape[-2], x0:x0 + values.shape[-1]] = values
+        return camera
+
 
 class SlicedStream:
     """An open stream seen through a :class:`Transform`: ``info`` is the transformed stream's, iteration yields
