@@ -203,6 +203,9 @@ def open_thresholds(path: str):
             raise FormatError(
                 f"{path}: datasets on, off (and valid, fit, phase_us) must be height x width arrays of one shape"
             )
+        dead = h5.get("dead_pixels")  # a truth file (simulate --truth): a dead pixel's thresholds (100) are no estimate
+        if valid is None and t_us is None and isinstance(dead, h5py.Dataset) and dead.shape == on.shape:
+            valid = ~np.asarray(dead[()], dtype=bool)
         if valid is None:
             valid = np.ones(on.shape, dtype=bool) if t_us is None else on.through(_all_valid)
         attributes.setdefault("units", units)

@@ -854,3 +854,19 @@ def test_a_thresholds_file_can_come_through_a_pipe(tmp_path):
                                correct_thresholds(events, W, H, on, off, target=0.2))
         else:
             assert_clean_error(done, f"{fifo}: cannot read it as HDF5")
+
+
+def test_a_truth_file_with_dead_pixels_corrects(tmp_path):
+    """Found by a QA sweep: `correct --thresholds truth.h5` of a camera with dead pixels failed ("target 0.2 is 500
+    times smaller than the largest thresholds (100)... give a larger target"): a dead pixel's threshold of 100 is
+    no estimate; the truth's dead_pixels are read as not valid."""
+    out = tmp_path / "dead.aedat4"
+    truth = tmp_path / "truth.h5"
+    run("simulate", "scene:step", "--size", "32x24", "--duration", "1s", "--dead-pixel-fraction", "0.02", "--seed", 7,
+        "--truth", truth, "-o", out)
+    maps = read_thresholds(str(truth))
+    assert (~maps.valid).sum() > 0 and np.all(maps.on[~maps.valid] == 100)
+    run("correct", out, "--thresholds", truth, "--target", "0.2", "-o", tmp_path / "corrected.aedat4")
+    events = read_all(out)[1]
+    expected = correct_thresholds(events, 32, 24, maps.on, maps.off, maps.valid, target=0.2)
+    assert_same_events(read_all(tmp_path / "corrected.aedat4")[1], expected)
