@@ -13,7 +13,7 @@ from evtools.cli.options import (MICROSECONDS, Microseconds, check_compression, 
                                  slicing_options)
 from evtools.cli.progress import process_stream
 from evtools.correction import CORRECT_DEFAULTS, MAX_WINDOW_US, MODES, CorrectionError, ThresholdCorrector
-from evtools.events import MAX_TIME_US
+from evtools.events import MAX_THRESHOLD, MAX_TIME_US
 from evtools.formats import create_events, open_events
 from evtools.formats.thresholds import open_thresholds, per_map
 from evtools.transform import on_sliced_sensor, sliced
@@ -28,8 +28,9 @@ def _target(ctx, param, value):
         number = float(value)
     except ValueError:
         raise click.BadParameter(f"{value!r} is neither a number nor 'median'") from None
-    if not number > 0 or number == float("inf"):
-        raise click.BadParameter(f"the target threshold must be a positive number of log units, got {value}")
+    if not 0 < number <= MAX_THRESHOLD:
+        raise click.BadParameter(f"the target threshold must be a positive number of log units up to "
+                                 f"{MAX_THRESHOLD:g}, got {value}")
     return number
 
 

@@ -29,7 +29,7 @@ from evtools.estimation import (
     ThresholdEstimator,
 )
 from evtools.estimation_frames import FrameScaledEstimator, FrameThresholdEstimator
-from evtools.events import MAX_SENSOR_SIDE
+from evtools.events import MAX_SENSOR_SIDE, MAX_THRESHOLD
 from evtools.formats import open_events
 from evtools.formats.io import STDIO, same_file
 from evtools import interrupt
@@ -76,8 +76,9 @@ def _stimulus(levels, period_us, profile, amplitude, speed, wavelength, rise) ->
     return Stimulus(*levels, period_us, 0.0, profile, rise)
 
 
-def _number_or(word: str, noun: str, positive: bool):
-    """A click callback: the value as a float (positive, or from 0), or the ``word`` itself (or None)."""
+def _number_or(word: str, noun: str, positive: bool, largest: float = math.inf):
+    """A click callback: the value as a float (positive, or from 0; at most ``largest``), or the ``word`` itself
+    (or None)."""
 
     def callback(ctx, param, value):
         if value is None or value == word:
@@ -86,14 +87,15 @@ def _number_or(word: str, noun: str, positive: bool):
             number = float(value)
         except (TypeError, ValueError):
             raise click.BadParameter(f"{value!r} is not {noun} or '{word}'") from None
-        if not math.isfinite(number) or (number <= 0 if positive else number < 0):
+        if not math.isfinite(number) or (number <= 0 if positive else number < 0) or number > largest:
             raise click.BadParameter(f"{value!r} is not {noun}")
         return number
 
     return callback
 
 
-_nominal = _number_or("frames", "a threshold (a positive number of log units)", positive=True)
+_nominal = _number_or("frames", f"a threshold (a positive number of log units up to {MAX_THRESHOLD:g})", positive=True,
+                      largest=MAX_THRESHOLD)
 _black_level = _number_or("fit", "a DN (a number from 0)", positive=False)
 
 

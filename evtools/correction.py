@@ -56,8 +56,8 @@ from evtools._kernels.correct import (
     split_rows,
 )
 from evtools.errors import EvtoolsError
-from evtools.events import (EVENT_DTYPE, MAX_TIME_US, StreamChecker, StreamInfo, as_chunk, check_sensor_size,
-                            empty_events, join, record_words)
+from evtools.events import (EVENT_DTYPE, MAX_THRESHOLD, MAX_TIME_US, StreamChecker, StreamInfo, as_chunk,
+                            check_sensor_size, empty_events, join, record_words)
 
 MAX_EVENTS_PER_EVENT = 100
 """A target this many times smaller than the largest pixel threshold is refused: each input event would create about
@@ -143,8 +143,9 @@ def resolve_target(target, on: np.ndarray, off: np.ndarray, usable: np.ndarray) 
         value = float(target)
     except (TypeError, ValueError):
         raise CorrectionError(f"target must be a positive number or 'median', got {target!r}") from None
-    if not np.isfinite(value) or value <= 0 or np.float32(value) <= 0:
-        raise CorrectionError(f"target threshold must be a positive number of log units, got {target!r}")
+    if not 0 < value <= MAX_THRESHOLD or np.float32(value) <= 0:
+        raise CorrectionError(f"target threshold must be a positive number of log units up to {MAX_THRESHOLD:g}, got "
+                              f"{target!r}")
     value = float(np.float32(value))
     return value, value
 

@@ -67,7 +67,7 @@ from evtools._kernels.estimate import (
 )
 from evtools._kernels.pixel import LIN_LOG_KNEE, LIN_LOG_SLOPE
 from evtools.errors import EvtoolsError
-from evtools.events import MAX_TIME_US, StreamChecker, StreamInfo, check_sensor_size, empty_events
+from evtools.events import MAX_THRESHOLD, MAX_TIME_US, StreamChecker, StreamInfo, check_sensor_size, empty_events
 
 __all__ = [
     "METHODS",
@@ -389,8 +389,9 @@ class ThresholdEstimator:
         self._checker = StreamChecker(StreamInfo(int(width), int(height))) if check else None
         if method not in METHODS:
             raise EstimationError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
-        if not nominal > 0 or not math.isfinite(nominal):
-            raise EstimationError(f"nominal threshold must be positive, got {nominal}")
+        if not 0 < nominal <= MAX_THRESHOLD:
+            raise EstimationError(f"nominal threshold must be a positive number of log units up to {MAX_THRESHOLD:g}, "
+                                  f"got {nominal}")
         if int(segment_us) != segment_us or not 1 <= segment_us <= MAX_TIME_US:
             raise EstimationError(f"segment length must be a whole number of microseconds in 1..{MAX_TIME_US} "
                                   f"(2^62), got {segment_us}")

@@ -30,6 +30,10 @@ MAX_TIME_US = 1 << 62
 """Event times lie in -2^62..2^62 us (146,000 years either way of 0): a kernel adds windows and gaps to a time
 without overflow, and 2^63 - 1 stays free to mean "no event yet"."""
 
+MAX_THRESHOLD = 10.0
+"""The largest contrast threshold taken (log units: a 22,000-fold change of intensity), as a nominal or a target:
+no DVS pixel's is near it, and larger values overflowed float32 maps into inf (a QA sweep: --nominal 1e300)."""
+
 MAX_SENSOR_PIXELS = 1 << 26
 """The largest sensor accepted, in pixels (8192 x 8192; the largest event cameras have about 1.2 million)."""
 

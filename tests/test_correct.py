@@ -870,3 +870,22 @@ def test_a_truth_file_with_dead_pixels_corrects(tmp_path):
     events = read_all(out)[1]
     expected = correct_thresholds(events, 32, 24, maps.on, maps.off, maps.valid, target=0.2)
     assert_same_events(read_all(tmp_path / "corrected.aedat4")[1], expected)
+
+
+def test_thresholds_beyond_ten_log_units_are_refused():
+    """Found by a QA sweep: --nominal 1e300 overflowed the float32 maps into inf (numpy's warnings printed, exit 0)
+    and --target 1e30 removed every event; a threshold above 10 log units (a 22,000-fold intensity change) is no
+    pixel's: refused, a usage error on the command line."""
+    from evtools.estimation import EstimationError, ThresholdEstimator
+
+    on, off = thresholds()
+    for target in (1e30, 11.0, float("inf")):
+        with pytest.raises(CorrectionError, match="positive number of log units up to 10"):
+            ThresholdCorrector(W, H, on, off, target=target)
+    assert ThresholdCorrector(W, H, on, off, target=10.0).target_on == 10.0
+    with pytest.raises(EstimationError, match="nominal threshold must be a positive number of log units up to 10"):
+        ThresholdEstimator(W, H, "offe", nominal=1e300)
+    for args in (["correct", "in.aedat4", "--thresholds", "t.h5", "--target", "1e30"],
+                 ["estimate", "in.aedat4", "--nominal", "1e300"]):
+        done = run(*args, "-o", "/dev/null", check=False)
+        assert done.returncode == 2 and b"up to 10" in done.stderr and b"Traceback" not in done.stderr
