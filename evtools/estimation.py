@@ -29,6 +29,9 @@ from typing import Any
 import numpy as np
 
 from evtools._kernels.estimate import (
+    _NEVER,
+    NEIGHBOUR_AGE_BINS,
+    neighbour_ages,
     OFFE_E,
     OFFE_ROW,
     OFFE_SAMPLES,
@@ -161,6 +164,16 @@ has 3 at radius 1)."""
 MAX_TABLE_US = 1 << 21
 """stimulus: a flicker whose period is a whole number of microseconds up to this (2.1 s, a 16 MB table) is
 tabulated at 1 us over one period; longer periods compute L per event (the same values, slower)."""
+
+
+SCENE_EXPECTED_SHARE = 0.05
+"""natural, offE (:meth:`ThresholdEstimator._check_scene`): the lag tested is where independent pixels at the
+measured rates would follow a neighbour's event this often."""
+SCENE_MIN_DT_US = 1024
+"""... and at least this lag (us): shorter ones are shaped by a sensor's readout (Gen4.1's sample: fewer
+coincidences within 64 us than independent pixels give, z -10; within 1 ms z 43)."""
+SCENE_Z = 3.0
+"""... and the events must follow neighbours' this many standard deviations more often than independent ones."""
 
 
 class EstimationError(EvtoolsError, ValueError):
@@ -439,6 +452,10 @@ class ThresholdEstimator:
         self.t_first_us: int | None = None
         self.t_last_us: int | None = None
         self._finished = False
+        if method in ("offe", "natural"):  # events alone: whether they show a scene at all (_check_scene)
+            self._age_map = np.full((height + 2, width + 2), _NEVER, np.int64)
+            self._pixel_events = np.zeros(n, np.int64)
+            self._neighbour_ages = np.zeros(NEIGHBOUR_AGE_BINS, np.int64)
         if method == "offe":
             self._pixels = _aligned_zeros(n, OFFE_ROW, np.int64)  # per pixel (E, P), samples included, the sums
             self._clock = np.zeros(OFFE_STATE_SIZE, dtype=np.int64)
@@ -509,6 +526,8 @@ class ThresholdEstimator:
             self.t_first_us = int(t[0])
         self.t_last_us = int(t[-1])
         self.events += len(chunk)
+        if self.method in ("offe", "natural"):
+            neighbour_ages(t, x, y, self._age_map, self._pixel_events, self._neighbour_ages)
         if self.method == "offe":
             offe_accumulate(t, x, y, p, self.width, self.segment_us, self._pixels, self._clock, BLOCK_US,
                             self._counts)
@@ -521,6 +540,36 @@ class ThresholdEstimator:
         else:
             stimulus_accumulate(t, x, y, p, self.width, *self._waveform, float(self.stimulus.wavelength_px),
                                 self._profile, self._table, self._state, self._seeds)
+
+    def _check_scene(self) -> None:
+        """Refuse a stream whose events show no scene: natural and offE read thresholds off what neighbouring pixels
+        share, and on pure noise they called a fifth to a third of the pixels valid, at thresholds uncorrelated with
+        the true ones (a QA sweep). The test: the events that follow a neighbour's event within ``dt`` (the binary
+        order of magnitude where independent pixels at the measured rates would give :data:`SCENE_EXPECTED_SHARE`,
+        at least :data:`SCENE_MIN_DT_US`: a sensor's readout shapes shorter lags) must exceed that expectation by
+        :data:`SCENE_Z` standard deviations. Measured z: noise -1.1 to 0.9; a 8x8 flicker of 1 s 4.4; every shared
+        recording 26-430 (DAVIS346, DVXplorer, DVS128, Gen4.1)."""
+        n = int(self._pixel_events.sum())
+        span_s = max(self.t_last_us - self.t_first_us, 1) * 1e-6
+        counts = self._pixel_events.reshape(self.height, self.width).astype(np.float64)
+        padded = np.pad(counts / span_s, 1)
+        neighbours = sum(padded[1 + dy:self.height + 1 + dy, 1 + dx:self.width + 1 + dx]
+                         for dy in (-1, 0, 1) for dx in (-1, 0, 1)) - counts / span_s  # rate, events/s
+        mean_neighbours = float((neighbours * counts).sum() / max(n, 1))
+        if mean_neighbours <= 0:
+            return  # (no pixel has a neighbour that fired: the methods' own checks refuse it)
+        want_us = -math.log(1 - SCENE_EXPECTED_SHARE) / mean_neighbours * 1e6
+        k = int(min(max(round(math.log2(max(want_us, 1.0))), math.log2(SCENE_MIN_DT_US)), NEIGHBOUR_AGE_BINS - 2))
+        expected = float(((1 - np.exp(-neighbours * (2 ** k) * 1e-6)) * counts).sum())
+        observed = int(self._neighbour_ages[:k].sum())
+        z = (observed - expected) / math.sqrt(max(expected * (1 - expected / n), 1.0))
+        if z < SCENE_Z:
+            raise EstimationError(
+                f"the events show no scene: {100 * observed / n:.1f} % follow a neighbour's event within {2 ** k:,} "
+                f"us, as independent noise at the same rates gives ({100 * expected / n:.1f} %, z {z:.1f}); "
+                f"{self.method} reads thresholds off what neighbouring pixels see, and noise alone gives plausible "
+                "but meaningless values: record a moving scene, or use --method stimulus with a known stimulus "
+                "(--max-fit inf takes the estimates unchecked)")
 
     def _snapshot(self, t_us: int) -> None:
         """Online: the maps as they stand at ``t_us`` (invalid where nothing is known yet), then every sum decays
@@ -620,6 +669,8 @@ class ThresholdEstimator:
                 f"no pixel could be estimated by {self.method} (fewer than {self.min_events} events or no usable "
                 "pair of events everywhere): give a longer calibration stream or lower --min-events"
             )
+        if self.method in ("offe", "natural") and math.isfinite(self.max_fit):  # (max_fit inf: unchecked)
+            self._check_scene()  # (after the methods' own refusals: too few events is said as such)
         on_median = float(np.median(on[valid]))
         off_median = float(np.median(off[valid]))
         on = np.where(valid, on, on_median).astype(np.float32).reshape(self.height, self.width)

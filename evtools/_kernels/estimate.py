@@ -822,3 +822,40 @@ def frame_sums(image, x0, y0, width, counts, marks, exposure, log_dn, black, log
             runs[1, i] += weight * y
             runs[2, i] += weight * y * y
             inverse_sums[i] += weight / (value - black)
+
+
+
+NEIGHBOUR_AGE_BINS = 64
+"""Bins of :func:`neighbour_ages`: bin k counts ages in [2^k, 2^(k+1)) us (bin 0 also 0), the last one the events
+whose neighbours never fired."""
+_NEVER = -(1 << 62)  # (bafilter's NEVER: a pixel that never fired)
+
+
+@kernel(inline=True)
+def _age_bin(age, never_bin):  # pragma: no cover - compiled
+    """The bin of an age (us, >= 0): floor(log2(age)) (0 for 0), at most ``never_bin - 1``."""
+    k = 0
+    while k < never_bin - 1 and age >= 2 << k:
+        k += 1
+    return k
+
+
+@kernel
+def neighbour_ages(t, x, y, time_map, pixel_events, ages):  # pragma: no cover - compiled
+    """Per event, the time since the latest event of one of its 8 neighbours (any polarity, not itself), counted in
+    ``ages`` by its binary order of magnitude (:data:`NEIGHBOUR_AGE_BINS`); ``pixel_events`` (one per pixel)
+    counts the events, ``time_map`` (padded by 1, ``NEVER`` where none fired) gets every event's time."""
+    width = time_map.shape[1]
+    flat = time_map.ravel()
+    never_bin = ages.shape[0] - 1
+    for i in range(t.shape[0]):
+        c = (y[i] + 1) * width + x[i] + 1
+        pixel_events[y[i] * (width - 2) + x[i]] += 1
+        above = max(max(flat[c - width - 1], flat[c - width]), flat[c - width + 1])
+        below = max(max(flat[c + width - 1], flat[c + width]), flat[c + width + 1])
+        latest = max(max(above, below), max(flat[c - 1], flat[c + 1]))
+        flat[c] = t[i]
+        if latest == _NEVER:
+            ages[never_bin] += 1
+        else:
+            ages[_age_bin(t[i] - latest, never_bin)] += 1

@@ -319,3 +319,28 @@ def naive_frame_time_sums(image, x0, y0, width, counts, times, fired, black, max
             z_on, z_off = float(times[i][0]), float(times[i][1])
             for r, value in enumerate((z_on, a * z_on, b * z_on, z_off, a * z_off, b * z_off)):
                 time_sums[r][i] += weight * value
+
+
+def neighbour_ages_naive(events, width, height, bins=64):
+    """Per event, the time since the latest earlier event (in stream order) at one of its 8 neighbours, counted by
+    floor(log2(age)) (0 for an age of 0; at most bins - 2), the last bin for an event none of whose neighbours has
+    fired; and the events per pixel. Looks back through the whole stream for each event."""
+    ages = [0] * bins
+    per_pixel = [0] * (width * height)
+    for i, (t, x, y) in enumerate(zip(events["t"].tolist(), events["x"].tolist(), events["y"].tolist())):
+        per_pixel[y * width + x] += 1
+        latest = None
+        for j in range(i - 1, -1, -1):
+            dx, dy = events["x"][j] - x, events["y"][j] - y
+            if max(abs(dx), abs(dy)) == 1:
+                latest = int(events["t"][j])
+                break
+        if latest is None:
+            ages[bins - 1] += 1
+            continue
+        age = t - latest
+        k = 0
+        while k < bins - 2 and 2 ** (k + 1) <= age:
+            k += 1
+        ages[k] += 1
+    return ages, per_pixel
