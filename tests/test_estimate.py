@@ -1190,7 +1190,9 @@ def test_neighbour_ages_match_the_naive_reference_whatever_the_chunks(seed, n, w
     estimator = ThresholdEstimator(width, height, method)
     for chunk in cut(events, cuts):
         estimator.process(chunk)
-    ages, per_pixel = neighbour_ages_naive(events, width, height)
+    from evtools.estimation import SCENE_STRIDE
+
+    ages, per_pixel = neighbour_ages_naive(events, width, height, SCENE_STRIDE)
     assert estimator._neighbour_ages.tolist() == ages
     assert estimator._pixel_events.tolist() == per_pixel
 

@@ -831,25 +831,22 @@ whose neighbours never fired."""
 _NEVER = -(1 << 62)  # (bafilter's NEVER: a pixel that never fired)
 
 
-@kernel(inline=True)
-def _age_bin(age, never_bin):  # pragma: no cover - compiled
-    """The bin of an age (us, >= 0): floor(log2(age)) (0 for 0), at most ``never_bin - 1``."""
-    k = 0
-    while k < never_bin - 1 and age >= 2 << k:
-        k += 1
-    return k
-
-
 @kernel
-def neighbour_ages(t, x, y, time_map, pixel_events, ages):  # pragma: no cover - compiled
-    """Per event, the time since the latest event of one of its 8 neighbours (any polarity, not itself), counted in
-    ``ages`` by its binary order of magnitude (:data:`NEIGHBOUR_AGE_BINS`); ``pixel_events`` (one per pixel)
-    counts the events, ``time_map`` (padded by 1, ``NEVER`` where none fired) gets every event's time."""
+def neighbour_ages(t, x, y, first, stride, time_map, pixel_events, ages):  # pragma: no cover - compiled
+    """For every ``stride``-th event of the stream (``first``: the stream index of ``t[0]``), the time since the
+    latest event of one of its 8 neighbours (any polarity, not itself), counted in ``ages`` by its binary order of
+    magnitude (:data:`NEIGHBOUR_AGE_BINS`), and at its pixel in ``pixel_events``; ``time_map`` (padded by 1,
+    ``NEVER`` where none fired) gets every event's time."""
     width = time_map.shape[1]
     flat = time_map.ravel()
     never_bin = ages.shape[0] - 1
+    as_float = np.zeros(1, np.float64)  # an age's binary order of magnitude: its float's exponent bits
+    exponent = as_float.view(np.int64)
     for i in range(t.shape[0]):
         c = (y[i] + 1) * width + x[i] + 1
+        if (first + i) & (stride - 1) != 0:  # (stride a power of 2: no division)
+            flat[c] = t[i]
+            continue
         pixel_events[y[i] * (width - 2) + x[i]] += 1
         above = max(max(flat[c - width - 1], flat[c - width]), flat[c - width + 1])
         below = max(max(flat[c + width - 1], flat[c + width]), flat[c + width + 1])
@@ -858,4 +855,5 @@ def neighbour_ages(t, x, y, time_map, pixel_events, ages):  # pragma: no cover -
         if latest == _NEVER:
             ages[never_bin] += 1
         else:
-            ages[_age_bin(t[i] - latest, never_bin)] += 1
+            as_float[0] = t[i] - latest  # (exact below 2^53 us; 0 has exponent -1023: bin 0)
+            ages[min(max((exponent[0] >> 52) - 1023, 0), never_bin - 1)] += 1

@@ -321,13 +321,15 @@ def naive_frame_time_sums(image, x0, y0, width, counts, times, fired, black, max
                 time_sums[r][i] += weight * value
 
 
-def neighbour_ages_naive(events, width, height, bins=64):
-    """Per event, the time since the latest earlier event (in stream order) at one of its 8 neighbours, counted by
+def neighbour_ages_naive(events, width, height, stride=1, bins=64):
+    """Per event of every ``stride``-th (by its index in the stream), the time since the latest earlier event (in stream order) at one of its 8 neighbours, counted by
     floor(log2(age)) (0 for an age of 0; at most bins - 2), the last bin for an event none of whose neighbours has
-    fired; and the events per pixel. Looks back through the whole stream for each event."""
+    fired; and those events per pixel. Looks back through the whole stream for each event."""
     ages = [0] * bins
     per_pixel = [0] * (width * height)
     for i, (t, x, y) in enumerate(zip(events["t"].tolist(), events["x"].tolist(), events["y"].tolist())):
+        if i % stride:
+            continue
         per_pixel[y * width + x] += 1
         latest = None
         for j in range(i - 1, -1, -1):
