@@ -172,9 +172,9 @@ measured rates would follow a neighbour's event this often."""
 SCENE_MIN_DT_US = 1024
 """... and at least this lag (us): shorter ones are shaped by a sensor's readout (Gen4.1's sample: fewer
 coincidences within 64 us than independent pixels give, z -10; within 1 ms z 43)."""
-SCENE_STRIDE = 4
-"""... one event in this many (a power of 2) is looked at, in stream order: the check cost natural 30 -> 22 Mev/s
-looking at every event (2.8M events of a texture at 346 x 260)."""
+SCENE_STRIDE = 1
+"""... one event in this many (a power of 2) is looked at, in stream order (1: every one; 4 halved the test's power:
+a small flicker fell below :data:`SCENE_Z`)."""
 SCENE_EVENTS = 4_000_000
 """... among the stream's first this many events (then the check costs nothing: a long recording estimates at the
 speed it did before it)."""
@@ -559,7 +559,7 @@ class ThresholdEstimator:
         at least :data:`SCENE_MIN_DT_US`: a sensor's readout shapes shorter lags) must exceed that expectation by
         :data:`SCENE_Z` standard deviations, one event in :data:`SCENE_STRIDE` looked at. Measured z (every
         event): noise -1.1 to 0.9; a 8x8 flicker of 1 s 4.4; every shared recording 26-430 (DAVIS346, DVXplorer,
-        DVS128, Gen4.1); a quarter of the events gives about half these."""
+        DVS128, Gen4.1)."""
         n = int(self._pixel_events.sum())  # (the events looked at: one in SCENE_STRIDE; their rates scaled up)
         span_s = max(self._scene_last_us - self.t_first_us, 1) * 1e-6 / SCENE_STRIDE
         counts = self._pixel_events.reshape(self.height, self.width).astype(np.float64)
