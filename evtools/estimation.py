@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -164,6 +164,21 @@ has 3 at radius 1)."""
 MAX_TABLE_US = 1 << 21
 """stimulus: a flicker whose period is a whole number of microseconds up to this (2.1 s, a 16 MB table) is
 tabulated at 1 us over one period; longer periods compute L per event (the same values, slower)."""
+
+LEVELS_STEP = 2.0 ** 0.25
+"""stimulus (intensity profile): the levels check estimates the stream again with the low level times and divided by
+this (the high one kept), and refuses the levels given when the fits say another ratio explains the events much
+better (:meth:`ThresholdEstimator._check_levels`)."""
+LEVELS_CHECK_PIXELS = 4096
+"""The levels check looks at every s-th row, s chosen to keep at most this many pixels (its memory and time)."""
+LEVELS_STEPS = 4
+"""... and this many steps either side (log ratios from 1/2 to 2 times the given's)."""
+LEVELS_MIN_FIT = 0.01
+"""The levels check takes levels whose median fit is below this (level changes within 1 % of the thresholds)."""
+LEVELS_BETTER = 1 / math.sqrt(2.0)
+"""The levels check refuses when the best ratio's median fit is below this times the given levels' (a fit 30 %
+lower; measured: levels 20 % off fit 0.04-0.05 against 0.001 clean; with v2e's noisy preset the given true levels'
+neighbours fit 0.96-1.13 times theirs, and levels 2x off fit 1.5 times worse)."""
 
 
 SCENE_EXPECTED_SHARE = 0.05
@@ -485,6 +500,19 @@ class ThresholdEstimator:
                 if s.wavelength_px == 0 and s.period_us == int(s.period_us) and s.period_us <= MAX_TABLE_US:
                     self._table = np.empty(int(s.period_us), dtype=np.float64)
                     stimulus_table(*self._waveform, profile, self._table)
+        # the levels check: the same estimate on a sample of rows, at the levels given and at two other ratios
+        self._level_rows = 0
+        self.levels_fits: tuple[float, float, float] | None = None  # (given, best, best's ln ratio offset)
+        self._level_probes: list[ThresholdEstimator] = []
+        if (method == "stimulus" and interval_us is None and stimulus.profile == "intensity" and stimulus.low > 0
+                and math.isfinite(self.max_fit)):
+            self._level_rows = max(1, math.ceil(width * height / LEVELS_CHECK_PIXELS))
+            rows = math.ceil(height / self._level_rows)
+            log_ratio = math.log(stimulus.high / stimulus.low)
+            self._level_probes = [  # (the log ratio high / low times LEVELS_STEP^-2..2, the high level kept)
+                ThresholdEstimator(width, rows, "stimulus", phase=phase, min_events=min_events, max_fit=math.inf,
+                                   check=False, stimulus=replace(stimulus, low=stimulus.high / math.exp(log_ratio * k)))
+                for k in LEVELS_STEP ** np.arange(-LEVELS_STEPS, LEVELS_STEPS + 1)]
 
     @property
     def parameters(self) -> dict[str, Any]:
@@ -550,6 +578,11 @@ class ThresholdEstimator:
         else:
             stimulus_accumulate(t, x, y, p, self.width, *self._waveform, float(self.stimulus.wavelength_px),
                                 self._profile, self._table, self._state, self._seeds)
+        if self._level_probes:
+            sampled = chunk[chunk["y"] % self._level_rows == 0]
+            sampled["y"] //= self._level_rows
+            for probe in self._level_probes:
+                probe._accumulate(sampled)
 
     def _check_scene(self) -> None:
         """Refuse a stream whose events show no scene: natural and offE read thresholds off what neighbouring pixels
@@ -582,6 +615,49 @@ class ThresholdEstimator:
                 f"{self.method} reads thresholds off what neighbouring pixels see, and noise alone gives plausible "
                 "but meaningless values: record a moving scene, or use --method stimulus with a known stimulus "
                 "(--max-fit inf takes the estimates unchecked)")
+
+    def _check_levels(self) -> None:
+        """Refuse stimulus levels the events contradict. A triangle linear in intensity is curved in log intensity,
+        more so the larger the ratio high / low, so the events' timing shows the ratio: an ideal pixel fits the
+        levels given to ~1e-3, levels 20 % off to ~0.04, while every threshold comes out 12-14 % off (and 38-49 %
+        with levels 2x off, most pixels still valid: a QA sweep). The same estimate on every s-th row at the ratio
+        given and a step either side gives three median fits; a parabola through their squares in log ratio puts
+        the best ratio, and when its fit is below :data:`LEVELS_BETTER` times the given levels', the levels are
+        refused with the ones that fit. A triangle in log intensity has no such curvature: its amplitude only scales
+        the thresholds, which no event can show."""
+        if not self._level_probes:
+            return
+        results = [probe._stimulus() for probe in self._level_probes]
+        fits = [np.where(valid & np.isfinite(fit), extra["deviation"], np.nan) for _, _, valid, fit, extra in results]
+        usable = np.logical_and.reduce([np.isfinite(fit) for fit in fits])
+        if usable.sum() < MIN_NEIGHBOURS:
+            return  # (too few pixels to compare)
+        squares = np.array([np.median(fit[usable]) ** 2 for fit in fits])  # at ln scale -4d..4d
+        given_square, step = squares[LEVELS_STEPS], math.log(LEVELS_STEP)
+        lowest = int(np.argmin(squares))
+        best, best_square = (lowest - LEVELS_STEPS) * step, squares[lowest]
+        if 0 < lowest < len(squares) - 1:  # the parabola through the lowest and its neighbours: its lowest point
+            below, at, above = squares[lowest - 1:lowest + 2]
+            curvature = (below + above - 2 * at) / (2 * step**2)
+            slope = (above - below) / (2 * step)
+            if curvature > 0:
+                offset = min(max(-slope / (2 * curvature), -step), step)
+                best, best_square = best + offset, max(at + slope * offset + curvature * offset**2, 0.0)
+        self.levels_fits = (float(np.sqrt(given_square)), float(np.sqrt(best_square)), float(math.exp(best)))
+        if given_square <= LEVELS_MIN_FIT**2 or best_square >= LEVELS_BETTER**2 * given_square:
+            return
+        s = self.stimulus
+        low = s.high / (s.high / s.low) ** math.exp(best)
+        if 0 < lowest < len(squares) - 1:
+            better = f"levels near {low:.3g}, {s.high:g} fit them better ({math.sqrt(best_square):.3f})"
+        else:
+            better = (f"a low level {'below' if best > 0 else 'above'} {low:.3g} (the high one {s.high:g}) fits "
+                      f"them better ({math.sqrt(best_square):.3f})")
+        raise EstimationError(
+            f"the events do not fit the stimulus levels given ({s.low:g}, {s.high:g}: median fit "
+            f"{math.sqrt(given_square):.3f}); {better}, and the thresholds scale with the log ratio of the levels "
+            f"(these would make them about {math.exp(best):.2g} times larger): check --stimulus-levels (the "
+            "stimulus's lowest and highest intensity), or give --max-fit inf to take the estimates as they are")
 
     def _snapshot(self, t_us: int) -> None:
         """Online: the maps as they stand at ``t_us`` (invalid where nothing is known yet), then every sum decays
@@ -654,6 +730,7 @@ class ThresholdEstimator:
             on, off, valid, fit, extra = self._natural()
         else:
             on, off, valid, fit, extra = self._stimulus()
+            del extra["deviation"]  # (for the levels check only)
             fitting = valid & (fit <= self.max_fit)
             if valid.any() and fitting.sum() < MIN_FITTING_SHARE * valid.sum():
                 raise EstimationError(
@@ -663,6 +740,7 @@ class ThresholdEstimator:
                 )
             extra["rejected_by_fit"] = int((valid & ~fitting).sum())
             valid = fitting
+            self._check_levels()
         if not valid.any() and self.method == "natural":
             raise EstimationError(
                 f"no pixel could be estimated by natural: none has {self.min_events} events of each polarity, "
@@ -851,6 +929,9 @@ class ThresholdEstimator:
             deviations = (squares - 2 * thresholds * level_sums + pairs * thresholds**2) / thresholds**2
             misfits = np.where(pairs > 0, np.maximum(deviations, 0.0), 0.0) + (changes - pairs)
             fit = np.sqrt(misfits.sum(axis=0) / changes.sum(axis=0))
+            # the accepted changes' part alone (the levels check: misfits are mostly noise, whatever the levels)
+            extra["deviation"] = np.sqrt(np.where(pairs > 0, np.maximum(deviations, 0.0), 0.0).sum(axis=0)
+                                         / pairs.sum(axis=0))
         fit[changes.sum(axis=0) < FIT_MIN_CHANGES] = np.inf  # too few changes to show a fit
         return thresholds[0], thresholds[1], valid, fit, extra
 

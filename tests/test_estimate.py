@@ -460,6 +460,50 @@ def test_a_stream_that_does_not_show_the_described_stimulus_gives_no_confident_v
         assert estimate.attributes["rejected_by_fit"] >= 1
 
 
+def _ideal_intensity_triangles(seed, low, high, period_us, width=8, height=6, span_us=3_000_000):
+    """Ideal pixels (tests/naive/ideal_pixel.py) under a triangle linear in intensity from ``low`` to ``high``
+    (above the photoreceptor's knee, so log intensity is ln I), every pixel at its own phase: the intensity
+    triangle's corners, each side cut into 400 pieces in log intensity."""
+    rng = np.random.default_rng(seed)
+    on = rng.normal(0.2, 0.03, (height, width)).clip(0.1)
+    off = rng.normal(0.2, 0.03, (height, width)).clip(0.1)
+    rows = []
+    for j in range(height):
+        for i in range(width):
+            corners = triangle_corners(0, span_us, low, high - low, period_us / 2, period_us / 2, rng.uniform(0, 1))
+            dense = [(t0 + (t1 - t0) * k / 400, math.log(v0 + (v1 - v0) * k / 400))
+                     for (t0, v0), (t1, v1) in zip(corners, corners[1:]) for k in range(400)]
+            dense.append((corners[-1][0], math.log(corners[-1][1])))
+            rows += [(math.floor(t + 0.5), i, j, p) for t, p in ideal_events(dense, on[j, i], off[j, i])]
+    rows.sort(key=lambda row: row[0])
+    t, x, y, p = zip(*rows)
+    return make_events(t, x, y, p), on, off
+
+
+@settings(max_examples=10, deadline=None)
+@given(seed=st.integers(0, 10**6), low=st.floats(30, 90), high=st.floats(150, 250),
+       wrong=st.sampled_from([0.5, 0.7, 0.8, 1.25, 1.4]))
+def test_wrong_stimulus_levels_are_refused_not_called_valid(seed, low, high, wrong):
+    """A triangle linear in intensity: with the levels given right every pixel is valid and exact; with the low
+    level 20 % or more off (every threshold 10-50 % off) the estimate is refused, naming levels that fit (a QA
+    sweep: levels 2x off gave 64-93 % valid pixels at 38-49 % error). Unchecked (max_fit inf) it still runs."""
+    period_us = 400_000
+    events, on, off = _ideal_intensity_triangles(seed, low, high, period_us)
+    right = estimate_thresholds(events, 8, 6, "stimulus", stimulus=Stimulus(low, high, period_us))
+    assert right.valid.mean() > 0.9 and np.abs(right.on / on - 1)[right.valid].max() < 0.01
+    given_low = min(low * wrong, high / 1.2)
+    stimulus = Stimulus(given_low, high, period_us)
+    with pytest.raises(EstimationError) as refused:
+        estimate_thresholds(events, 8, 6, "stimulus", stimulus=stimulus)
+    assert "do not fit the stimulus levels given" in str(refused.value) or \
+        "do not fit the described stimulus" in str(refused.value)
+    if "levels near" in str(refused.value):  # the levels it names are nearer the truth than those given
+        named = float(str(refused.value).split("levels near ")[1].split(",")[0])
+        assert abs(math.log(named / low)) < abs(math.log(given_low / low))
+    unchecked = estimate_thresholds(events, 8, 6, "stimulus", stimulus=stimulus, max_fit=math.inf)
+    assert unchecked.valid.any()
+
+
 def test_a_natural_scene_is_no_stimulus(tmp_path, dvxplorer_events):
     """A real street scene, denoised as a calibration would be: not one pixel is claimed to fit the default flicker."""
     path = tmp_path / "street.aedat4"
