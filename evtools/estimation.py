@@ -166,9 +166,9 @@ MAX_TABLE_US = 1 << 21
 tabulated at 1 us over one period; longer periods compute L per event (the same values, slower)."""
 
 LEVELS_STEP = 2.0 ** 0.25
-"""stimulus (intensity profile): the levels check estimates the stream again with the low level times and divided by
-this (the high one kept), and refuses the levels given when the fits say another ratio explains the events much
-better (:meth:`ThresholdEstimator._check_levels`)."""
+"""stimulus (intensity profile): the levels check estimates the stream again with the log ratio of the levels
+(high / low) times powers of this, the high level kept, and refuses the levels given when another ratio explains the
+events much better (:meth:`ThresholdEstimator._check_levels`)."""
 LEVELS_CHECK_PIXELS = 4096
 """The levels check looks at every s-th row, s chosen to keep at most this many pixels (its memory and time)."""
 LEVELS_STEPS = 4
@@ -621,9 +621,10 @@ class ThresholdEstimator:
         more so the larger the ratio high / low, so the events' timing shows the ratio: an ideal pixel fits the
         levels given to ~1e-3, levels 20 % off to ~0.04, while every threshold comes out 12-14 % off (and 38-49 %
         with levels 2x off, most pixels still valid: a QA sweep). The same estimate on every s-th row at the ratio
-        given and a step either side gives three median fits; a parabola through their squares in log ratio puts
-        the best ratio, and when its fit is below :data:`LEVELS_BETTER` times the given levels', the levels are
-        refused with the ones that fit. A triangle in log intensity has no such curvature: its amplitude only scales
+        given and :data:`LEVELS_STEPS` steps either side gives the median deviation of the accepted changes at each
+        (the misfits, mostly noise, left out); a parabola through the lowest one's and its neighbours' squares puts
+        the best ratio, and when its deviation is below :data:`LEVELS_BETTER` times the given levels', the levels
+        are refused with the ones that fit. A triangle in log intensity has no such curvature: its amplitude only scales
         the thresholds, which no event can show."""
         if not self._level_probes:
             return
