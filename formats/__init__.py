@@ -37,6 +37,8 @@ more a stream at the same speed; `correct` on 10M LZ4 events, `bafilter` on 50M,
 
 __all__ = ["FORMATS", "EventStream", "FormatError", "ReadOptions", "WriteOptions", "create_events", "open_events"]
 
+CUT_NOTE = "written from a cut input: the events after the cut are missing"
+"""What an output of a cut input says of itself (HDF5's ``cut`` attribute, a text file's last comment line)."""
 log = logging.getLogger("evtools")
 
 
@@ -256,6 +258,18 @@ class _NamedWriter:
             log.warning(f"{self.target}: {self.description} does not store APS frames: the input's "
                         f"{self.frames_left_out:,} frames are left out (AEDAT 4.0 and HDF5 keep them)")
 
+    def mark_cut(self) -> None:
+        """The input turned out cut: the writer marks its output so (AEDAT 4.0 by ending without the end mark,
+        HDF5 by an attribute ``cut``, CSV and text by a last comment line) and readers warn; a format with nowhere to
+        say it (AEDAT 2.0, RAW) is refused, so that no cut stream passes on as whole."""
+        mark = getattr(self.writer, "mark_cut", None)
+        if mark is None:
+            _named(self.target, self.writer.close)
+            raise FormatError(f"{self.target}: the input was cut (events after the cut are missing) and "
+                              f"{self.description} has nowhere to say so: nothing is written; write AEDAT 4.0, HDF5 "
+                              "or CSV, which carry the cut, or read the input up to the cut with --end")
+        _named(self.target, mark, CUT_NOTE)
+
     def abort(self) -> None:
         """Release the writer without marking the stream's end (its ``abort``), or close it (formats without an
         end mark)."""
@@ -326,9 +340,9 @@ def create_events(
                                               live, fmt.description))
         try:
             yield writer
-            if writer.cut:  # the input turned out cut: the output says so by ending without the end mark
+            if writer.cut:  # the input turned out cut: the output says so (or is refused where it cannot)
                 with interrupt.deferred():
-                    writer.abort()
+                    writer.mark_cut()
         except BaseException:
             # release the writer's hold on the stream (h5py crashes if its file object closes first) without
             # marking the stream's end: what went out to a pipe, a FIFO or a socket reads as cut, not as whole; a

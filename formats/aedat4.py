@@ -775,6 +775,10 @@ class Aedat4Writer:
             if self.pool is not None:
                 self.pool.shutdown()
 
+    def mark_cut(self, note: str) -> None:
+        """The input was cut: the output ends without the end mark (:meth:`abort`), which says so to its reader."""
+        self.abort()
+
     def close(self) -> None:
         """Write what is held, then the end mark (an empty event packet, see :data:`END_MARK_KEY`)."""
         if self.frames_left_out:

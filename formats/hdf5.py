@@ -17,6 +17,7 @@ Layouts read (see FORMATS.md):
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 from collections import deque
 from typing import BinaryIO, Iterator
@@ -258,6 +259,9 @@ class Hdf5Reader:
         self._refuse_ecf()
         if isinstance(group, h5py.Group) and all(k in group for k in ("x", "y", "t", "p")):
             self.layout = "evtools" if _text(attribute(f, "format", source=self.name)) == "evtools" else "dsec"
+            if self.layout == "evtools" and "cut" in f.attrs:  # (written from a cut input: said, and passed on)
+                self.cut_file = True
+                logging.getLogger("evtools").warning(f"{self.name}: {_text(attribute(f, 'cut', source=self.name))}")
             self.columns = [group[k] for k in ("t", "x", "y", "p")]
             index = f.get("ms_to_idx")
             if isinstance(index, h5py.Dataset) and index.ndim == 1 and index.dtype.kind in "iu" and (
@@ -731,6 +735,12 @@ class Hdf5Writer:
             self.ms_written = stop
             self.ms_pending = [rest] if len(rest) else []
             self.ms_pending_count = len(rest)
+
+    def mark_cut(self, note: str) -> None:
+        """The input was cut: the root attribute ``cut`` says so (evtools warns reading it), then :meth:`close`."""
+        if self.file is not None:
+            self.file.attrs["cut"] = note
+        self.close()
 
     def close(self) -> None:
         """Write the last events, ``t_offset`` and ``ms_to_idx``, and close the HDF5 file (not ``stream``)."""

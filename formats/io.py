@@ -729,6 +729,14 @@ class WriteBehind:
         self._raise()
         self.writer.close()
 
+    def mark_cut(self) -> None:
+        """The input turned out cut: what is queued is written, then the writer marks the output cut."""
+        if self.thread.is_alive():
+            self.queue.put(_DONE)
+            self.thread.join()
+        self._raise()
+        self.writer.mark_cut()
+
     def abort(self) -> None:
         """The producer stopped with an error: what is queued is written, then the writer is released without
         marking the stream's end (``abort`` where the writer has one, else ``close``)."""

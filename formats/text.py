@@ -17,6 +17,7 @@ Writing formats whole chunks with numpy.
 
 from __future__ import annotations
 
+import logging
 import re
 from typing import BinaryIO, Iterator
 
@@ -54,6 +55,9 @@ WHOLE_SECONDS_LINES = 10
 """rpg text whose first this many lines or more (the first block) all have whole-number times is refused as
 microseconds taken for seconds (:meth:`TextReader._refuse_whole_seconds`)."""
 
+
+CUT_COMMENT = b"# evtools: "
+"""The start of the last line of a CSV or text file written from a cut input (then :data:`CUT_NOTE`)."""
 
 class TextReader:
     """Reads CSV or rpg text, block by block: CSV (t in microseconds) when the file was opened as CSV or its first
@@ -129,7 +133,15 @@ class TextReader:
             stripped = line.strip()
             if not line or (stripped and not stripped.startswith(b"#")):
                 return line
+            self._comment(line)
             self._consumed()
+
+    def _comment(self, line: bytes) -> None:
+        """A ``#`` comment line; the one evtools writes after the events of a cut input (:data:`CUT_COMMENT`) is
+        said, and the stream counts as cut (a command's output of it is marked cut too)."""
+        if line.lstrip().startswith(CUT_COMMENT) and not getattr(self, "cut_file", False):
+            self.cut_file = True
+            logging.getLogger("evtools").warning(f"{self.name}: {line.strip()[len(CUT_COMMENT):].decode('utf-8', 'replace')}")
 
     def _consumed(self) -> None:
         self.line_no += 1
@@ -191,7 +203,18 @@ class TextReader:
 
     def _parse(self, block: bytes, line_no: int) -> np.ndarray:
         """Events of one block of whole lines (the first numbered ``line_no``): read by the kernel
-        (:func:`evtools._kernels.text.parse_text`), or by numpy when a field is more than a plain decimal."""
+        (:func:`evtools._kernels.text.parse_text`), or by numpy when a field is more than a plain decimal; a ``#``
+        comment line among them is left out (:meth:`_comment`)."""
+        hash_at = block.find(b"#")
+        if hash_at >= 0:
+            start = block.rfind(b"\n", 0, hash_at) + 1
+            if not block[start:hash_at].strip():  # a comment line: the lines before it and after it
+                end = block.find(b"\n", hash_at) + 1 or len(block)
+                self._comment(block[start:end])
+                parts = [self._parse(block[:start], line_no)] if start else []
+                if end < len(block):
+                    parts.append(self._parse(block[end:], line_no + block.count(b"\n", 0, end)))
+                return np.concatenate(parts) if parts else np.empty(0, EVENT_DTYPE)
         if self.semicolons:
             block = block.replace(b",", b" ").replace(b";", b",")  # (a comma inside a field is no separator)
         lines = block.count(b"\n") + 1  # (+ 1: room for a last line without its newline, were there one)
@@ -439,6 +462,11 @@ class _TextWriter:
     def close(self) -> None:
         """Flush (the stream stays open)."""
         self.stream.flush()
+
+    def mark_cut(self, note: str) -> None:
+        """The input was cut: a last comment line says so (:data:`CUT_COMMENT`; evtools warns reading it)."""
+        self.stream.write(CUT_COMMENT + note.encode() + b"\n")
+        self.close()
 
 
 class CsvWriter(_TextWriter):

@@ -390,6 +390,47 @@ def test_a_stream_cut_at_a_packet_boundary_is_not_passed_as_whole(tmp_path, comp
     assert intact.returncode == 0 and intact.stderr == b""
 
 
+@pytest.mark.parametrize("output", ["h5", "csv", "txt", "aedat4", "aedat", "raw"])
+def test_a_cut_file_converted_to_any_format_is_marked_cut_or_refused(tmp_path, output):
+    """A cut AEDAT 4.0 file (its end mark missing) converted to HDF5, CSV or text came out looking whole (a QA
+    sweep): each output now says it (HDF5's attribute ``cut``, a last comment line, AEDAT 4.0's missing end mark),
+    evtools warns reading it and carries the cut on through the next command; AEDAT 2.0 and RAW, with nowhere to
+    say it, are refused (exit 1, one line, no file)."""
+    import subprocess
+
+    from tests.helpers import EVTOOLS
+
+    events = random_events(3000, 64, 48, seed=5)
+    whole = tmp_path / "whole.aedat4"
+    with create_events(whole, StreamInfo(64, 48)) as writer:
+        writer.write(events)
+    data = whole.read_bytes()
+    position = len(b"#!AER-DAT4.0\r\n") + 4 + struct.unpack_from("<I", data, len(b"#!AER-DAT4.0\r\n"))[0]
+    packets = []
+    while position < len(data):
+        packets.append(position)
+        position += 8 + struct.unpack_from("<iI", data, position)[1]
+    cut = tmp_path / "cut.aedat4"
+    cut.write_bytes(data[:packets[-1]])
+    out = tmp_path / f"out.{output}"
+    converted = subprocess.run([EVTOOLS, "convert", cut, "-o", out, "-q"], capture_output=True)
+    if output in ("aedat", "raw"):
+        assert converted.returncode == 1 and converted.stderr.count(b"\n") == 1, converted.stderr
+        assert b"nowhere to say so" in converted.stderr and not out.exists()
+        return
+    assert converted.returncode == 0 and out.exists(), converted.stderr
+    assert_same_events(read_all(out)[1], events)
+    read = subprocess.run([EVTOOLS, "info", out], capture_output=True)
+    assert read.returncode == 0 and b"warning" in read.stderr and b"cut" in read.stderr
+    again = tmp_path / "again.h5"  # the cut is carried on
+    subprocess.run([EVTOOLS, "convert", out, "-o", again, "-q"], check=True, capture_output=True)
+    assert b"written from a cut input" in subprocess.run([EVTOOLS, "info", again], capture_output=True).stderr
+    # a whole stream's outputs say nothing
+    intact = tmp_path / f"intact.{output}"
+    subprocess.run([EVTOOLS, "convert", whole, "-o", intact, "-q"], check=True, capture_output=True)
+    assert subprocess.run([EVTOOLS, "info", intact], capture_output=True).stderr == b""
+
+
 def test_the_header_uses_only_attribute_types_every_reader_knows(tmp_path):
     """faery 0.7's decoder refuses an info node attribute of type "bool" (evtools' end mark once was one, and
     faery could not open evtools' files): every attribute is an "int" or a "string"; faery reads the file (the test

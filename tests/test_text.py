@@ -134,6 +134,31 @@ def test_many_blocks_keep_line_numbers_and_events(tmp_path):
         read_all(path, sensor_size=(100, 90), chunk_events=1000)
 
 
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(seed=st.integers(0, 2**32 - 1), comments=st.lists(st.integers(1, 12000), max_size=6),
+       csv=st.booleans(), bad=st.integers(3, 12000))
+def test_comment_lines_among_the_events_are_left_out_and_line_numbers_kept(tmp_path, seed, comments, csv, bad):
+    """``#`` comment lines anywhere among the events (evtools writes one after a cut input's events) are left out
+    whatever the blocks, and a bad line after them is named by its own line number."""
+    rng = np.random.default_rng(seed)
+    n = 12000
+    events = make_events(np.arange(n) * 3, rng.integers(0, 100, n), rng.integers(0, 90, n), rng.integers(0, 2, n))
+    writer_class = CsvWriter if csv else TxtWriter
+    lines = write_bytes(writer_class, events, [], StreamInfo(100, 90)).split(b"\n")
+    for at in sorted(comments, reverse=True):
+        lines.insert(at, b"  # a note, 1,2,3")
+    path = tmp_path / ("c.csv" if csv else "c.txt")
+    path.write_bytes(b"\n".join(lines))
+    _, got = read_all(path, sensor_size=(100, 90), chunk_events=500)  # 16 KB blocks
+    assert np.array_equal(got, events)
+    if lines[bad].lstrip().startswith(b"#") or not lines[bad]:
+        return
+    lines[bad] = lines[bad] + b" 7" if not csv else lines[bad] + b",7"
+    path.write_bytes(b"\n".join(lines))
+    with pytest.raises(FormatError, match=rf"line {bad + 1}: 5 columns"):
+        read_all(path, sensor_size=(100, 90), chunk_events=500)
+
+
 def test_reads_csv_from_stdin(monkeypatch):
     data = b"t,x@10,y@10,p\n1,2,3,1\n"
     monkeypatch.setattr(sys, "stdin", types.SimpleNamespace(buffer=io.BufferedReader(io.BytesIO(data))))
