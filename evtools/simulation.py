@@ -572,21 +572,41 @@ DEFAULT_FRAME_RATE_HZ = 1000.0
 """Scenes are sampled at 1 kHz: between two frames the pixel model interpolates linearly in log intensity."""
 
 
-def _frame_times_us(duration_us: int, frame_rate_hz: float) -> np.ndarray:
+FRAME_TIMES_BLOCK = 65_536
+"""A scene's frame times are made this many at a time (a day at 1 kHz is 86M frames: never all at once)."""
+
+
+def _frame_times_us(duration_us: int, frame_rate_hz: float) -> Iterator[np.ndarray]:
+    """The frame times (microseconds, int64) from 0 at ``frame_rate_hz``, the last one at ``duration_us``, in
+    blocks of at most :data:`FRAME_TIMES_BLOCK`; the arguments are checked at the call, the blocks made as read."""
     if not duration_us > 0:
         raise SimulationError(f"duration must be positive, got {duration_us} us")
+    if duration_us != int(duration_us):
+        raise SimulationError(f"duration must be a whole number of microseconds, got {duration_us} us")
     if not frame_rate_hz > 0 or math.isinf(frame_rate_hz):
         raise SimulationError(f"frame rate must be positive, got {frame_rate_hz} Hz")
     if frame_rate_hz > 1e6:  # (checked before the frame times are made: 10^9 Hz asked for more than 3 GiB)
         raise SimulationError(f"frame rate {frame_rate_hz:g} Hz is more than one frame a microsecond (1e+06 Hz), "
                               "the resolution of event times")
     n = int(math.floor(duration_us * 1e-6 * frame_rate_hz + 1e-9)) + 1
-    times = np.round(np.arange(n) * (1e6 / frame_rate_hz)).astype(np.int64)
-    if times[-1] < duration_us:
-        times = np.append(times, duration_us)
-    if len(times) < 2 or np.any(np.diff(times) <= 0):
-        raise SimulationError(f"frame rate {frame_rate_hz} Hz is too high for microsecond frame times")
-    return times
+    return _frame_time_blocks(n, 1e6 / frame_rate_hz, int(duration_us))
+
+
+def _frame_time_blocks(n: int, step_us: float, duration_us: int) -> Iterator[np.ndarray]:
+    last = -1
+    for start in range(0, n, FRAME_TIMES_BLOCK):
+        times = np.round(np.arange(start, min(n, start + FRAME_TIMES_BLOCK)) * step_us).astype(np.int64)
+        if start + FRAME_TIMES_BLOCK >= n and times[-1] < duration_us:
+            times = np.append(times, duration_us)
+        if times[0] <= last or np.any(np.diff(times) <= 0):
+            raise SimulationError(f"frame rate {1e6 / step_us} Hz is too high for microsecond frame times")
+        last = int(times[-1])
+        yield times
+
+
+def _each_time(blocks: Iterator[np.ndarray]) -> Iterator[int]:
+    for block in blocks:
+        yield from block.tolist()
 
 
 def _triangle(phase: np.ndarray | float) -> np.ndarray | float:
@@ -637,14 +657,18 @@ def flicker_scene(
             return np.exp(math.log(min_level) + (math.log(max_level) - math.log(min_level)) * wave).astype(np.float32)
         return (min_level + (max_level - min_level) * wave).astype(np.float32)
 
-    if phase_spread == 0.0:  # one level per frame
-        wave = _triangle(times * 1e-6 / period_s + phase)
-        if profile == "log":
-            levels = np.exp(math.log(min_level) + (math.log(max_level) - math.log(min_level)) * wave)
-        else:
-            levels = min_level + (max_level - min_level) * wave
-        return ((int(t), np.full((height, width), level, dtype=np.float32)) for t, level in zip(times, levels))
-    return ((int(t), frame(t)) for t in times)
+    def levels(blocks):  # one level per frame
+        for block in blocks:
+            wave = _triangle(block * 1e-6 / period_s + phase)
+            if profile == "log":
+                yield from zip(block.tolist(), np.exp(math.log(min_level) + (math.log(max_level)
+                                                                             - math.log(min_level)) * wave))
+            else:
+                yield from zip(block.tolist(), min_level + (max_level - min_level) * wave)
+
+    if phase_spread == 0.0:
+        return ((t, np.full((height, width), level, dtype=np.float32)) for t, level in levels(times))
+    return ((t, frame(t)) for t in _each_time(times))
 
 
 PHASE_SPREAD_SEED = 0
@@ -666,7 +690,7 @@ def gradient_scene(
         row = min_level + (max_level - min_level) * _triangle((x - speed_px_s * t * 1e-6) / wavelength_px)
         return _broadcast_rows(row.astype(np.float32), height)
 
-    return ((int(t), frame(t)) for t in times)
+    return ((t, frame(t)) for t in _each_time(times))
 
 
 def bars_scene(
@@ -698,7 +722,7 @@ def bars_scene(
             return _broadcast_rows(profile, height)
         return np.ascontiguousarray(np.broadcast_to(profile[:, None], (height, width)))
 
-    return ((int(t), frame(t)) for t in times)
+    return ((t, frame(t)) for t in _each_time(times))
 
 
 def step_scene(
@@ -713,9 +737,12 @@ def step_scene(
     _check_levels(min_level, max_level)
     _check_positive("period", period_s)
     times = _frame_times_us(duration_us, frame_rate_hz)
-    high = np.mod(times * 1e-6 / period_s, 1.0) >= 0.5
-    levels = np.where(high, max_level, min_level)
-    return ((int(t), np.full((height, width), level, dtype=np.float32)) for t, level in zip(times, levels))
+
+    def levels(blocks):
+        for block in blocks:
+            yield from zip(block.tolist(), np.where(np.mod(block * 1e-6 / period_s, 1.0) >= 0.5, max_level, min_level))
+
+    return ((t, np.full((height, width), level, dtype=np.float32)) for t, level in levels(times))
 
 
 def static_scene(
@@ -725,7 +752,7 @@ def static_scene(
     """A constant uniform image: every event is noise."""
     _check_levels(level, level)
     times = _frame_times_us(duration_us, frame_rate_hz)
-    return ((int(t), np.full((height, width), level, dtype=np.float32)) for t in times)
+    return ((t, np.full((height, width), level, dtype=np.float32)) for t in _each_time(times))
 
 
 def procedural_texture(size_px: int, seed: int = 0) -> np.ndarray:
@@ -791,7 +818,7 @@ def texture_scene(
         return cv2.warpAffine(texture, matrix, (width, height), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                               borderMode=cv2.BORDER_REFLECT)
 
-    return ((int(t), frame(t)) for t in times)
+    return ((t, frame(t)) for t in _each_time(times))
 
 
 def _broadcast_rows(row: np.ndarray, height: int) -> np.ndarray:

@@ -677,3 +677,23 @@ def test_a_frame_with_an_impossible_intensity_is_refused(bad):
     frames[1, 2, 3] = bad
     with pytest.raises(SimulationError, match="frame 1 has intensity .* at x=3, y=2"):
         DvsSimulator(5, 4, seed=0).process(np.arange(3) * 1000, frames)
+
+
+@pytest.mark.parametrize("scene", ["flicker", "gradient", "bars", "step", "static", "texture"])
+def test_a_long_duration_costs_no_memory_up_front(scene):
+    """The frame times are made as the frames are read: a scene of 30 years at 1 kHz (about 10^12 frames; all at
+    once they took 24 bytes a frame: `--duration 1e5s` ran out of memory, a QA sweep) starts at once, its first
+    frames those of a short one, and a fractional duration is named as such."""
+    import tracemalloc
+
+    tracemalloc.start()
+    frames = scene_frames(scene, 8, 6, 10**15)
+    first = [next(frames) for _ in range(3)]
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert peak < 32 << 20, peak
+    short = list(scene_frames(scene, 8, 6, 2_000))
+    assert [t for t, _ in first] == [t for t, _ in short[:3]] == [0, 1000, 2000]
+    assert all(np.array_equal(a, b) for (_, a), (_, b) in zip(first, short))
+    with pytest.raises(SimulationError, match="whole number of microseconds"):
+        scene_frames(scene, 8, 6, 100_000.5)
