@@ -211,7 +211,13 @@ SPARSE_CHECK_MAPS = 10
 """Online: after this many maps the command line checks how much each adds (:class:`_MapsToFile`)."""
 SPARSE_MAP_EVENTS = 0.01
 """Online: maps that add fewer events a pixel than this each are mostly empty (the walk at ``--interval 100us``:
-6e-6): a warning, since nothing bounds the file but the disk (a map is 13 bytes a pixel)."""
+6e-6): an error, since nothing bounds the file but the disk (a map is 13 bytes a pixel; ``--interval 1us`` on a
+1 s flicker asked for 9.3 GiB, a QA sweep)."""
+
+
+def _duration(us: float) -> str:
+    """``us`` with a unit --interval takes (3 digits)."""
+    return f"{us / 1e6:.3g}s" if us >= 1e6 else f"{us / 1e3:.3g}ms" if us >= 1e3 else f"{us:.3g}us"
 
 
 class _Stopped(Exception):
@@ -236,10 +242,14 @@ class _MapsToFile:
         self.file.append(t_us, *self.to_camera(on, off, valid, fit))
         if self.file.count == SPARSE_CHECK_MAPS and self.estimator is not None:
             per_map = self.estimator.events / (self.file.count * self.width * self.height)
-            if per_map < SPARSE_MAP_EVENTS:
-                log.warning(f"{self.name}: each online map adds {per_map:.2g} events a pixel: the maps are mostly "
-                            f"empty, and the file grows by {13 * self.width * self.height / 2**20:.2g} MiB a map; a "
-                            "longer --interval saves the disk (Ctrl-C keeps the maps made)")
+            if per_map < SPARSE_MAP_EVENTS:  # (an error: nothing else would stop it before the disk is full)
+                interval_us = self.estimator.interval_us
+                raise EstimationError(
+                    f"each online map adds {per_map:.2g} events a pixel (over the first {self.file.count}): the maps "
+                    f"would be empty and the file grow by {13 * self.width * self.height / 2**20:.2g} MiB a map, "
+                    f"{1e6 / interval_us * 13 * self.width * self.height / 2**30:.3g} GiB a second of the stream; "
+                    f"give an --interval of at least {_duration(interval_us / per_map)} (about one event a pixel a "
+                    "map)")
 
     def finish_partial(self, message: str) -> None:
         """The maps so far as a complete file, marked as stopped by ``message``."""

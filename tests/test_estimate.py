@@ -1062,20 +1062,25 @@ def test_online_maps_in_the_file_are_the_estimators(tmp_path):
 
 
 def test_a_stop_between_online_maps_keeps_them(tmp_path):
-    """One chunk can make any number of maps (a sparse stream, a short interval: two events 1,000 s apart at
-    --interval 1ms are a million maps), and the reader sees a stop only at its next chunk: the maps' way to the
-    file sees it at the next map. SIGINT once the maps are under way (the warning that they are mostly empty):
-    exit 130, and the maps made are a complete file marked partial, stopped by SIGINT."""
+    """One chunk can make any number of maps (a gap in the stream, a short interval: a busy 40 ms and an event 1,000 s
+    later at --interval 1ms are a million maps), and the reader sees a stop only at its next chunk: the maps' way to
+    the file sees it at the next map. SIGINT once the maps are under way: exit 130, and the maps made are a complete
+    file marked partial, stopped by SIGINT."""
     import signal
 
-    stream = tmp_path / "sparse.aedat4"
-    evtools.write(stream, make_events([0, 1, 2, 1_000_000_000], [0, 1, 2, 3], [0, 1, 2, 3], [1, 0, 1, 0]),
-                  StreamInfo(8, 6))
+    stream = tmp_path / "gap.aedat4"
+    busy = random_events(2000, 8, 6, seed=1)  # (over 40 ms)
+    evtools.write(stream, np.concatenate([busy, make_events([1_000_000_000], [3], [3], [0])]), StreamInfo(8, 6))
     out = tmp_path / "series.h5"
     process = subprocess.Popen([str(Path(sys.executable).with_name("evtools")), "estimate", stream, "--method",
-                                "natural", "--online", "--interval", "1ms", "-o", out], stderr=subprocess.PIPE)
-    first = process.stderr.readline().decode()
-    assert "mostly empty" in first, first
+                                "natural", "--max-fit", "inf", "--online", "--interval", "1ms", "-o", out],
+                               stderr=subprocess.PIPE)
+    for _ in range(1200):  # (until the maps' file is made: the maps are under way)
+        if len(list(tmp_path.iterdir())) > 1:
+            break
+        time.sleep(0.05)
+    time.sleep(0.5)
+    first = ""
     process.send_signal(signal.SIGINT)
     message = first + process.stderr.read().decode()
     assert process.wait(timeout=60) == 130, message
@@ -1083,6 +1088,27 @@ def test_a_stop_between_online_maps_keeps_them(tmp_path):
     written = read_thresholds(out, series=True)
     assert written.attributes["partial"] and written.attributes["stopped_by"] == "stopped by SIGINT"
     assert 10 <= len(written.t_us) < 1_000_000 and np.all(np.diff(written.t_us) == 1_000)
+
+
+def test_online_maps_that_would_be_empty_are_refused(tmp_path):
+    """Maps at an interval too short for the stream (each adding less than 0.01 events a pixel) would fill the disk
+    with empty maps (`--interval 1us` on a 1 s stream asked for 9.3 GiB, with only a warning: a QA sweep): after
+    ten maps the run stops, exit 1, one line naming the interval that would do; the ten maps are kept, marked
+    partial."""
+    stream = tmp_path / "sparse.aedat4"
+    evtools.write(stream, random_events(400, 32, 24, seed=2), StreamInfo(32, 24))  # (over 8 ms)
+    out = tmp_path / "series.h5"
+    refused = run("estimate", stream, "--method", "natural", "--online", "--interval", "100us", "-o", out,
+                  check=False)
+    refused.stderr = refused.stderr.decode()
+    assert refused.returncode == 1 and refused.stderr.count("\n") == 1, refused.stderr
+    assert "would be empty" in refused.stderr and "give an --interval of at least" in refused.stderr
+    suggested = refused.stderr.split("at least ")[1].split(" ")[0]
+    assert read_thresholds(str(out), series=True).attributes["partial"]
+    # the interval it names makes maps of about one event a pixel: accepted (no longer refused for emptiness)
+    again = run("estimate", stream, "--method", "natural", "--max-fit", "inf", "--online", "--interval", suggested,
+                "-o", tmp_path / "ok.h5", check=False)
+    assert b"would be empty" not in again.stderr, again.stderr
 
 
 @pytest.mark.parametrize("factor", [0.5, 0.7, 1.3, 1.5])
