@@ -609,6 +609,7 @@ class FrameThresholdEstimator:
             estimate = self._without_lag((self.last_t_us or 0) + 1, estimate, fits)
             self._add_map((self.last_t_us or 0) + 1, estimate, final=True)
             estimate.series = self.maps.series()
+            estimate.attributes["maps"] = self.maps.count
         return estimate
 
     def why_none_valid(self, attributes: dict) -> str:

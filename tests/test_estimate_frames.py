@@ -18,6 +18,7 @@ from evtools._kernels.estimate import (FRAMES_OFF, FRAMES_ON, FRAMES_ROW, TIME_S
                                        fold_runs, frame_sums, log_levels, polarity_counts)
 from evtools.estimation import EstimationError, estimate_thresholds
 from evtools.estimation_frames import FrameThresholdEstimator, _lags, _least_squares
+from evtools.formats.thresholds import read_thresholds
 from tests.helpers import assert_clean_error, cut, random_events, run, unread_bytes, wait_until
 from tests.naive.davis import davis_recording, write_with_dv
 from tests.naive.estimate import naive_count_times, naive_frame_sums, naive_frame_time_sums, naive_polarity_counts
@@ -639,3 +640,16 @@ def test_online_maps_recover_from_a_threshold_step(seed, factor):  # two-maps ru
             assert abs(np.median(estimated[valid] / (true[valid] * factor)) - 1) <= 0.055, (t_us, factor)
         checked += 1
     assert checked >= 8
+
+
+def test_an_online_frames_run_ends_with_its_summary(tmp_path):
+    """`estimate --method frames --online` (the README's drift command) ended every good run with a KeyError
+    traceback, exit 1, though its maps file was whole (a QA sweep): exit 0, the summary names the maps."""
+    stream, truth, out = tmp_path / "d.aedat4", tmp_path / "d.truth.h5", tmp_path / "d.h5"
+    run("simulate", "scene:texture", "--size", "32x24", "--duration", "12s", "--seed", "8", "--speed", "200",
+        "--aps-rate", "25", "--aps-exposure", "10ms", "--truth", truth, "-o", stream)
+    done = run("estimate", stream, "--method", "frames", "--online", "--interval", "2s", "-o", out, check=False)
+    assert done.returncode == 0 and b"Traceback" not in done.stderr, done.stderr
+    written = read_thresholds(str(out), series=True)
+    assert b"%d maps over time" % len(written.t_us) in done.stderr and "partial" not in written.attributes
+    assert written.attributes["maps"] == len(written.t_us)
