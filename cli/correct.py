@@ -69,7 +69,7 @@ def correct(inputs, reading, output, jobs, scheduler, as_json, thresholds_path,
 
     Each pixel's events are read as samples of its log intensity at its own thresholds (--thresholds), the
     signal reconstructed between them and sampled again at --target: the founding report's section 4.2, online
-    and event by event. Pixels without a usable estimate take the median thresholds.
+    and event by event. Pixels without a usable estimate are passed on as they are.
 
     \b
     evtools correct flicker.aedat4 --thresholds thresholds.h5 -o corrected.aedat4
@@ -105,6 +105,10 @@ def correct_one(input, output, *, reading, thresholds_path, target, mode, hold_u
             raise CorrectionError(f"{thresholds_path}: {error}") from None
         with create_events(output, stream.info, compression=compression, inputs=(input, thresholds_path)) as writer:
             events_in, events_out = process_stream(stream, corrector, writer, f"correcting {stream.name}")
+    unknown = int((~corrector.usable).sum())
+    if unknown:
+        log.info(f"correct: {unknown:,} of {corrector.usable.size:,} pixels have no usable threshold estimate: their "
+                 "events are passed on as they are")
     log.info(f"correct {mode}: {events_in:,} events in, {events_out:,} out (target {corrector.target_on:.4g} ON, "
              f"{corrector.target_off:.4g} OFF)")
     change = events_out / events_in - 1 if events_in else 0.0

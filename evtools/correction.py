@@ -161,8 +161,10 @@ class ThresholdCorrector:
         Each pixel's ON and OFF contrast thresholds (log units), e.g. from ``evtools estimate`` or the truth file
         of ``evtools simulate``.
     valid : array_like of bool, shape (height, width), optional
-        Pixels that hold an estimate; pixels not valid (or whose thresholds are not finite and positive) take the
-        median of the usable pixels' thresholds, ON and OFF separately.
+        Pixels that hold an estimate; pixels not valid (or whose thresholds are not finite and positive) are passed
+        on as they are (their thresholds taken as the target): a pixel whose threshold is not known is not made
+        worse. (They took the median of the usable pixels', a biased sample: the pixels that fire most, whose
+        thresholds are lowest; correct then made sparse scenes worse than doing nothing: a QA sweep.)
     target : float or "median"
         The threshold every pixel is re-sampled at (one value for ON and OFF), or the median of the maps; default
         0.2 (v2e's nominal threshold), the same in the command line and the API.
@@ -238,6 +240,7 @@ class ThresholdCorrector:
             median = isinstance(target, str) and target.strip().lower() == "median"
             values = [np.array([value], np.float32) for value in (self._series.usable_medians() if median else (1, 1))]
             self.target_on, self.target_off = resolve_target(target, *values, np.ones(1, bool))
+            self._series.never_usable(self.target_on, self.target_off)
             largest_on, largest_off = self._series.largest_on, self._series.largest_off
         else:
             self._series = None
@@ -273,9 +276,9 @@ class ThresholdCorrector:
                                      or abs(start_us) > MAX_TIME_US):
             raise CorrectionError(f"start_us must be a whole number of microseconds within +-2^62, got {start_us!r}")
         self.start_us = None if start_us is None else int(start_us)
-        if self._series is None:
-            on = np.where(usable, on, np.median(on[usable])).astype(np.float32)
-            off = np.where(usable, off, np.median(off[usable])).astype(np.float32)
+        if self._series is None:  # (pixels without a usable estimate: at the target, passed on as they are)
+            on = np.where(usable, on, np.float32(self.target_on)).astype(np.float32)
+            off = np.where(usable, off, np.float32(self.target_off)).astype(np.float32)
         else:
             self._map = 0
             on, off = self._series.filled(0)
@@ -631,8 +634,9 @@ class SeriesMaps:
     it ``stale`` (its estimate was dropped: the threshold stepped away) it takes that map's median of the usable
     pixels (the latest map's that has any); before its first usable value it takes that first one (its earliest
     estimate: early maps rest on the pixels that fire most, whose median is biased low, 0.16 against 0.20 at 1 s
-    of a flicker); a pixel never usable takes the median of the last map's usable pixels. The first pass finds
-    those first values and the largest thresholds."""
+    of a flicker); a pixel never usable takes the values given to :meth:`never_usable` (the corrector's target:
+    passed on as it is), until then the median of the last map's usable pixels. The first pass finds those first
+    values and the largest thresholds."""
 
     def __init__(self, t_us, on, off, valid=None, stale=None) -> None:
         self.t_us = np.asarray(t_us)
@@ -666,6 +670,11 @@ class SeriesMaps:
                        np.where(self.ever, first_off, np.median(off_k[usable])))
         self._k = -1  # the map :meth:`filled` gave last, and its filled maps and medians
         self._filled = self._medians = None
+
+    def never_usable(self, on: float, off: float) -> None:
+        """The thresholds of the pixels never usable in any map (before the first :meth:`filled`)."""
+        self._start = tuple(np.where(self.ever, start, np.float32(value)) for start, value in zip(self._start, (on, off)))
+        self._k = -1
 
     def __len__(self) -> int:
         return len(self.t_us)

@@ -315,15 +315,15 @@ def correct_naive(events, on, off, target_on, target_off, mode=FOH, hold_us=100_
     return [created[i] for i in order]
 
 
-def carried_naive(values, usable, stale):
+def carried_naive(values, usable, stale, never=None):
     """A series of maps (maps, height, width) of one polarity with every unusable entry filled, pixel by pixel:
-    before its first usable value a pixel takes that value (never usable: the median of the usable values of the
-    last map that has any); then it keeps its latest usable value, except where a later map marks it stale: there
+    before its first usable value a pixel takes that value (never usable: ``never``, or without it the median of
+    the usable values of the last map that has any); then it keeps its latest usable value, except where a later map marks it stale: there
     it takes the median of the usable values of the latest map up to that one that has any (none yet: the median
     of map 0 as filled)."""
     maps, height, width = values.shape
     with_usable = [k for k in range(maps) if usable[k].any()]
-    last_median = np.median(values[with_usable[-1]][usable[with_usable[-1]]])
+    last_median = np.median(values[with_usable[-1]][usable[with_usable[-1]]]) if never is None else np.float32(never)
     filled = np.empty(values.shape, np.float32)
     for y in range(height):
         for x in range(width):
