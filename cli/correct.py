@@ -53,7 +53,8 @@ def _target(ctx, param, value):
               show_default=True,
               help="All but foh: a gap longer than this is a rest (held constant, no interpolation).")
 @click.option("--max-gap-us", type=Microseconds(maximum_us=MAX_WINDOW_US), default=CORRECT_DEFAULTS["max_gap_us"],
-              show_default=True, help="Interpolation never reaches further back than this: bounds latency/memory.")
+              show_default=True, help="Interpolation never reaches further back than this: bounds latency/memory; "
+                                      "all but foh: a longer gap is a rest (the hold at most this).")
 @click.option("--tau-us", type=MICROSECONDS, default=int(CORRECT_DEFAULTS["tau_us"]),
               show_default=True, help="highpass: time constant of the decay of the carried level over a rest.")
 @click.option("--start-us", type=Microseconds(minimum_us=-MAX_TIME_US), default=None, metavar="T",
