@@ -14,6 +14,7 @@ from evtools.cli.progress import with_progress
 from evtools.filters import METHODS, BAFilter, BAFilterError, check_preset, not_applying, parse_methods
 from evtools.filters.registry import parameters
 from evtools.metrics.denoise import LABEL_NAMES, DenoiseMatcher, DenoiseMetricsError, EsrMeter, roc_auc
+from evtools.errors import EvtoolsError
 from evtools.formats import open_events
 from evtools.formats.thresholds import read_labels
 
@@ -101,6 +102,10 @@ def denoise(filtered, truth, noisy, as_json):
                 _feed_input(matcher, part, labels, noisy, truth)
         for part in inputs:
             _feed_input(matcher, part, labels, noisy, truth)
+        if output.was_cut:  # (a part of the filter's output scored against the whole input reads as a better filter)
+            raise EvtoolsError(f"{output.name} was cut (its filter stopped early or its copy broken off): its score "
+                               "against the whole input would count the missing part as removed; filter the whole "
+                               "input again")
         score = matcher.finish()
     result = {"file": output.name, "input": noisy, **score.as_dict()}
     if wants_json(as_json):

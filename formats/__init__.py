@@ -6,6 +6,7 @@ import contextlib
 import dataclasses
 import logging
 import os
+import signal
 from typing import Iterator
 
 import numpy as np
@@ -39,6 +40,8 @@ __all__ = ["FORMATS", "EventStream", "FormatError", "ReadOptions", "WriteOptions
 
 CUT_NOTE = "written from a cut input: the events after the cut are missing"
 """What an output of a cut input says of itself (HDF5's ``cut`` attribute, a text file's last comment line)."""
+STOPPED_NOTE = "written by a run stopped by {} before its input's end: the events after the stop are missing"
+"""What an output of a run stopped early (Ctrl-C, SIGTERM) says of itself: it is a cut stream too."""
 log = logging.getLogger("evtools")
 
 
@@ -258,17 +261,23 @@ class _NamedWriter:
             log.warning(f"{self.target}: {self.description} does not store APS frames: the input's "
                         f"{self.frames_left_out:,} frames are left out (AEDAT 4.0 and HDF5 keep them)")
 
-    def mark_cut(self) -> None:
-        """The input turned out cut: the writer marks its output so (AEDAT 4.0 by ending without the end mark,
-        HDF5 by an attribute ``cut``, CSV and text by a last comment line) and readers warn; a format with nowhere to
-        say it (AEDAT 2.0, RAW) is refused, so that no cut stream passes on as whole."""
+    def mark_cut(self, note: str, refuse: bool = True) -> None:
+        """The output is a cut stream (its input was cut, or a stop ended the run early): the writer marks it so
+        (AEDAT 4.0 by ending without the end mark, HDF5 by an attribute ``cut``, CSV and text by a last comment
+        line, each holding ``note``) and readers warn; a format with nowhere to say it (AEDAT 2.0, RAW) is refused
+        (``refuse``: a cut input, so that no cut stream passes on as whole) or kept with a warning (a stop: the
+        user asked for what was processed)."""
         mark = getattr(self.writer, "mark_cut", None)
         if mark is None:
             _named(self.target, self.writer.close)
-            raise FormatError(f"{self.target}: the input was cut (events after the cut are missing) and "
-                              f"{self.description} has nowhere to say so: nothing is written; write AEDAT 4.0, HDF5 "
-                              "or CSV, which carry the cut, or read the input up to the cut with --end")
-        _named(self.target, mark, CUT_NOTE)
+            if refuse:
+                raise FormatError(f"{self.target}: the input was cut (events after the cut are missing) and "
+                                  f"{self.description} has nowhere to say so: nothing is written; write AEDAT 4.0, "
+                                  "HDF5 or CSV, which carry the cut, or read the input up to the cut with --end")
+            log.warning(f"{self.target}: {note}, and {self.description} has nowhere to say so: whoever reads it "
+                        "next sees a whole stream")
+            return
+        _named(self.target, mark, note)
 
     def abort(self) -> None:
         """Release the writer without marking the stream's end (its ``abort``), or close it (formats without an
@@ -340,9 +349,11 @@ def create_events(
                                               live, fmt.description))
         try:
             yield writer
-            if writer.cut:  # the input turned out cut: the output says so (or is refused where it cannot)
-                with interrupt.deferred():
-                    writer.mark_cut()
+            stop = interrupt.received()
+            if writer.cut or stop is not None:  # the input turned out cut, or a stop (Ctrl-C) ended it early: the
+                with interrupt.deferred():      # output says so (or is refused where it cannot say a cut input)
+                    writer.mark_cut(CUT_NOTE if writer.cut else STOPPED_NOTE.format(signal.Signals(stop).name),
+                                    refuse=writer.cut)
         except BaseException:
             # release the writer's hold on the stream (h5py crashes if its file object closes first) without
             # marking the stream's end: what went out to a pipe, a FIFO or a socket reads as cut, not as whole; a
@@ -350,7 +361,7 @@ def create_events(
             with contextlib.suppress(Exception), interrupt.deferred():
                 writer.abort()
             raise
-        if not writer.cut:
+        if not writer.cut and interrupt.received() is None:
             with interrupt.deferred():
                 writer.close()
     for note in writer.notes:  # (the output complete: not said before an error)

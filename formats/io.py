@@ -729,13 +729,13 @@ class WriteBehind:
         self._raise()
         self.writer.close()
 
-    def mark_cut(self) -> None:
-        """The input turned out cut: what is queued is written, then the writer marks the output cut."""
+    def mark_cut(self, note: str, refuse: bool = True) -> None:
+        """The output is a cut stream: what is queued is written, then the writer marks it (``note``)."""
         if self.thread.is_alive():
             self.queue.put(_DONE)
             self.thread.join()
         self._raise()
-        self.writer.mark_cut()
+        self.writer.mark_cut(note, refuse)
 
     def abort(self) -> None:
         """The producer stopped with an error: what is queued is written, then the writer is released without

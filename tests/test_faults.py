@@ -76,7 +76,9 @@ def _no_temporaries(folder: Path) -> None:
 @pytest.mark.parametrize("name", sorted(STREAM_COMMANDS))
 def test_sigterm_while_waiting_on_a_pipe_stops_cleanly(tmp_path, stream, name):
     """SIGTERM while a command waits for more of a live pipe: exit 143, one line, no traceback, no temporary; what
-    it wrote is complete (an event file readable, and a prefix of the whole run's events where it is a filter)."""
+    it wrote is readable (an event file, a prefix of the whole run's events where it is a filter) and says it was
+    cut (it looked whole: a QA sweep scored a stopped filter's output as a better filter), as does its copy in
+    HDF5."""
     output = tmp_path / f"out{STREAM_COMMANDS[name][1]}"
     feed = _feed(stream[0], 0.5)
     stage = _stage(name, output, feed, _options(name, stream), keep_pipe=True)
@@ -93,6 +95,9 @@ def test_sigterm_while_waiting_on_a_pipe_stops_cleanly(tmp_path, stream, name):
     _no_temporaries(tmp_path)
     if output.exists() and output.suffix == ".aedat4":
         events, _ = evtools.read(output)
+        assert b"without the end mark" in run("info", output).stderr
+        run("convert", output, "-o", tmp_path / "copy.h5")
+        assert b"cut input" in run("info", tmp_path / "copy.h5").stderr
         if name in ("convert", "bafilter"):  # a filter's output is a prefix of its whole run's
             whole = tmp_path / "whole.aedat4"
             run(name, stream[0], *_options(name, stream), "-o", whole)
