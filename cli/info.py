@@ -8,6 +8,7 @@ import click
 
 from evtools.cli.options import input_options, json_option, wants_json
 from evtools.cli.progress import with_progress
+from evtools.errors import EvtoolsError
 from evtools.summary import StreamSummary
 from evtools.formats import open_events
 
@@ -18,20 +19,39 @@ from evtools.formats import open_events
 @json_option
 def info(inputs, reading, as_json):
     """Format, sensor size, event count, time span, rate and ON fraction of each FILE (`-` = stdin), and its APS
-    frames (count, rate, exposure, size) where it has them."""
-    rows = []
-    for path in inputs or ("-",):
-        with open_events(path, reading) as stream:
-            summary = StreamSummary()
-            for chunk in with_progress(stream, stream, f"reading {stream.name}"):
-                summary.add(chunk)
-                summary.add_frames(stream.take_frames())
-            summary.add_frames(stream.take_frames())
-            rows.append({"file": stream.name, **summary.as_dict(stream.info)})
+    frames (count, rate, exposure, size) where it has them.
+
+    With several files, one that cannot be read is said on stderr (and in the JSON as ``{"file", "error"}``) and
+    the others are shown; the exit code is then 1."""
+    paths = inputs or ("-",)
+    rows, failed = [], 0
+    for path in paths:
+        try:
+            rows.append(_summary(path, reading))
+        except (EvtoolsError, OSError) as error:
+            if len(paths) == 1:
+                raise
+            if isinstance(error, OSError):
+                error = f"{error.filename or path}: {error.strerror or error}"
+            click.echo(f"evtools: error: {error}", err=True)
+            rows.append({"file": path, "error": str(error)})
+            failed += 1
     if wants_json(as_json):
         click.echo(json.dumps(rows if len(rows) > 1 else rows[0], indent=2, default=str))
-    else:
-        _print_table(rows)
+    elif len(rows) > failed:
+        _print_table([row for row in rows if "error" not in row])
+    if failed:
+        raise click.exceptions.Exit(1)
+
+
+def _summary(path: str, reading) -> dict:
+    with open_events(path, reading) as stream:
+        summary = StreamSummary()
+        for chunk in with_progress(stream, stream, f"reading {stream.name}"):
+            summary.add(chunk)
+            summary.add_frames(stream.take_frames())
+        summary.add_frames(stream.take_frames())
+        return {"file": stream.name, **summary.as_dict(stream.info)}
 
 
 def _print_table(rows: list[dict]) -> None:

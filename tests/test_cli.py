@@ -46,6 +46,20 @@ def test_info_prints_json_when_stdout_is_not_a_terminal(sample):
     assert summary["rate_hz"] == pytest.approx(len(events) / ((events["t"][-1] - events["t"][0]) * 1e-6))
 
 
+def test_info_on_several_files_shows_the_good_ones_beside_a_bad_one(sample, tmp_path):
+    """One bad file hid every other file's summary (a QA sweep): each bad one is said on stderr and in the JSON,
+    the good ones are shown, exit 1."""
+    path, events = sample
+    bad = tmp_path / "bad.aedat4"
+    bad.write_bytes(path.read_bytes()[:5000])
+    result = run("info", path, bad, tmp_path / "missing.aedat4", path, "--json", check=False)
+    assert result.returncode == 1 and b"Traceback" not in result.stderr
+    rows = json.loads(result.stdout)
+    assert [row.get("events") for row in rows] == [len(events), None, None, len(events)]
+    assert "bad.aedat4" in rows[1]["error"] and "missing.aedat4" in rows[2]["error"]
+    assert result.stderr.decode().count("evtools: error: ") == 2
+
+
 @pytest.mark.parametrize("ext", ["aedat4", "aedat", "h5", "csv", "txt"])
 def test_convert_round_trips_every_writable_format(sample, tmp_path, ext):
     path, events = sample
