@@ -14,6 +14,7 @@ from evtools.cli.options import (MICROSECONDS, FiniteRange, IntRange, check_comp
 from evtools.cli.progress import process_stream
 from evtools.filters import (METHODS, PRESETS, BAFilter, BAFilterError, Param, check_preset, not_applying,
                              parse_methods)
+from evtools.filters.chain import checked_parameters
 from evtools.filters.registry import option_help, parameters
 from evtools.formats import create_events, open_events
 from evtools.formats.hotpixels import HotPixelsError, read_hot_pixels, write_hot_pixels
@@ -124,6 +125,10 @@ def bafilter(inputs, reading, output, jobs, scheduler, as_json, methods, preset,
     if unused:  # (was ignored: `-m baf --k 3` ran baf as if --k were not there)
         flags = ", ".join(next(param.option for _, param in parameters()[name]) for name in unused)
         raise click.UsageError(f"{flags} do(es) not apply to --method {','.join(methods)} (--preset {preset})")
+    try:  # (a value out of its range is a usage error: exit 2)
+        checked_parameters(methods, preset, given)
+    except BAFilterError as error:
+        raise click.UsageError(str(error)) from None
     if (hot_pixels_path or save_hot_pixels) and "hotpixel" not in methods:
         raise click.UsageError("--hot-pixels and --save-hot-pixels need --method hotpixel")
     if save_hot_pixels == STDIO and output in (None, STDIO):

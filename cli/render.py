@@ -158,6 +158,9 @@ def render(ctx, input, reading, output, window_us, start, end, scale, fps,
                       "scale": "--scale"},
                 "applies to event streams, not to --map (a figure, drawn at print resolution)")
         figure_path(output, "-o", (map_path,))
+        if value_range is not None and not value_range[0] < value_range[1]:
+            raise click.BadParameter(f"{value_range[0]:g} {value_range[1]:g}: LOW must be below HIGH",
+                                     param_hint="'--range'")
         _render_map(map_path, output, value_range, colormap)
         return
     _refuse(ctx, {"value_range": "--range"}, "applies to --map only")

@@ -217,7 +217,7 @@ def _float_option(name: str, help: str, low: float | None = 0.0, high: float | N
 @_float_option("--dead-pixel-fraction", "Fraction of dead pixels (default 0).", high=1.0)
 @click.option("--seed", type=click.IntRange(min=0), default=None,
               help="Seed of every random draw (default: a fresh one, recorded in --truth and the output's source).")
-@click.option("--frame-rate", type=FINITE, default=None,
+@click.option("--frame-rate", type=FiniteRange(min=0, min_open=True, max=1e6), default=None,
               help="Frame rate, Hz: of a scene (default 1000), of an image folder without timestamps, or to "
                    "override a video's.")
 @click.option("--period", type=Duration(), default=None, metavar="TIME",

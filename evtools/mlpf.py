@@ -91,10 +91,11 @@ def load_weights(path: str | os.PathLike | None = None) -> Weights:
                 weights.info["trained"] = str(data["info"])
     except FileNotFoundError:
         raise MlpfError(f"{path}: no such weights file") from None
-    except KeyError as error:
-        raise MlpfError(f"{path}: not MLPF weights (no {error.args[0]!r} array)") from None
-    except (OSError, ValueError, EOFError) as error:
-        raise MlpfError(f"{path}: not an MLPF weights file ({error})") from None
+    except KeyError as error:  # (numpy's message: "w1 is not a file in the archive")
+        missing = str(error.args[0]).split(" ")[0] if error.args else "?"
+        raise MlpfError(f"{path}: not MLPF weights (no {missing!r} array; train-denoiser writes them)") from None
+    except (OSError, ValueError, EOFError):
+        raise MlpfError(f"{path}: not an MLPF weights file (an .npz archive as train-denoiser writes)") from None
     return weights.check(str(path))
 
 

@@ -313,7 +313,9 @@ def output_format(path: str | os.PathLike | None, format: str | None):
         if fmt is None and os.path.exists(path) and not os.path.isfile(path) and not os.path.isdir(path):
             fmt = by_name(PIPE_FORMAT)
         if fmt is None:
-            raise UnknownOutputFormat(f"{path}: cannot tell the output format from the extension; give --format")
+            written = ", ".join(ext for f in FORMATS if f.writer is not None for ext in f.extensions)
+            raise UnknownOutputFormat(f"{path}: cannot tell the output format from the extension: end the name "
+                                      f"with one of {written} (convert and simulate also take --format)")
     if fmt.writer is None:
         raise FormatError(f"{fmt.description} cannot be written (read-only format)")
     return fmt

@@ -19,6 +19,7 @@ from click.testing import CliRunner
 from evtools.cli.main import COMMANDS, cli
 from evtools.cli.metrics import metrics
 from evtools.cli.options import Duration, Microseconds, TimeBound
+from evtools.formats.thresholds import ThresholdMap, write_thresholds
 from tests.conftest import data_file
 from tests.helpers import run
 
@@ -136,6 +137,7 @@ def test_unknown_options_missing_inputs_and_help(tmp_path, name):
     (["render", "{S}", "-o", "{T}/v.mp4", "--frame-rate", "nan"], "--frame-rate"),
     (["render", "{S}", "-o", "{T}/v.mp4", "--fps", "nan"], "--fps"),
     (["convert", "{S}", "-o", "{T}/c.aedat4", "--realtime", "--speed", "1e-300"], "--speed"),
+    (["simulate", "scene:bars", "--size", "8x8", "--frame-rate", "0", "-o", "{T}/s.aedat4"], "--frame-rate"),
 ])
 def test_values_beyond_what_the_kernels_hold_are_usage_errors(tmp_path, args, option):
     """A number beyond int64 reached the numba kernels (a traceback), 2^63 - 1 us overflowed a window (every event
@@ -144,6 +146,25 @@ def test_values_beyond_what_the_kernels_hold_are_usage_errors(tmp_path, args, op
     result = run(*[a.replace("{S}", str(sample)).replace("{T}", str(tmp_path)) for a in args], check=False)
     assert result.returncode == 2, result.stderr
     assert f"Invalid value for '{option}'" in result.stderr.decode() and b"Traceback" not in result.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("args, words", [
+    (["bafilter", "{S}", "-m", "stcf", "--k", "100", "-o", "{T}/o.aedat4"], "k must be a whole number in 1..8"),
+    (["bafilter", "{S}", "-m", "stcf", "--radius", "2", "--k", "25", "-o", "{T}/o.aedat4"], "in 1..24"),
+    (["render", "--map", "{M}", "--range", "0.3", "0.1", "-o", "{T}/r.png"], "LOW must be below HIGH"),
+])
+def test_option_values_out_of_their_range_exit_2(tmp_path, args, words):
+    """Values out of range that the filters or the renderer checked once the run began exited 1, as for bad data
+    (a QA sweep): each is a usage error (exit 2, one line), and nothing is written."""
+    sample = data_file("dvxplorer_sample.aedat4")
+    maps = tmp_path.parent / f"{tmp_path.name}-maps.h5"
+    write_thresholds(str(maps), ThresholdMap(np.full((4, 4), 0.2, np.float32), np.full((4, 4), 0.2, np.float32),
+                                             np.ones((4, 4), bool), {"method": "natural"}))
+    result = run(*[a.replace("{S}", str(sample)).replace("{T}", str(tmp_path)).replace("{M}", str(maps))
+                   for a in args], check=False)
+    stderr = result.stderr.decode()
+    assert result.returncode == 2 and stderr.count("\n") == 1 and words in stderr, stderr
     assert list(tmp_path.iterdir()) == []
 
 

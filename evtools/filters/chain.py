@@ -44,6 +44,23 @@ def not_applying(methods: list[str], preset: str, names) -> list[str]:
     return [name for name in names if name not in used]
 
 
+def checked_parameters(methods: list[str], preset: str, given: dict[str, Any]) -> list[dict[str, Any]]:
+    """Each method's parameters: the preset's defaults with ``given`` over them, each checked
+    (:meth:`evtools.filters.spec.Param.check`; BAFilterError), before any stage is made (the command line checks
+    them so, as usage)."""
+    checked = []
+    for method in methods:
+        kind = BY_NAME[method]
+        defaults = kind.defaults[preset]
+        q: dict[str, Any] = {}
+        for param in kind.params:
+            if param.name in defaults:
+                value = given.get(param.name, defaults[param.name])
+                q[param.name] = value if value is None else param.check(value, q)
+        checked.append(q)
+    return checked
+
+
 class BAFilter:
     """One or several background-activity filter stages for a ``width x height`` sensor, run in order.
 
@@ -88,16 +105,9 @@ class BAFilter:
         stray = not_applying(names, preset, given)
         if stray:
             raise BAFilterError(f"{', '.join(stray)} do(es) not apply to {','.join(names)} (preset {preset})")
-        self.stages: list[Filter] = []
-        for method in names:
-            kind = BY_NAME[method]
-            defaults = kind.defaults[preset]
-            q: dict[str, Any] = {}
-            for param in kind.params:
-                if param.name in defaults:
-                    value = given.get(param.name, defaults[param.name])
-                    q[param.name] = value if value is None else param.check(value, q)
-            self.stages.append(kind(self.width, self.height, preset, kind.prepare(q, self.width, self.height)))
+        self.stages: list[Filter] = [
+            BY_NAME[method](self.width, self.height, preset, BY_NAME[method].prepare(q, self.width, self.height))
+            for method, q in zip(names, checked_parameters(names, preset, given))]
         self.parameters = [{"method": stage.name, **stage.record()} for stage in self.stages]
         self.events_in = self.events_out = 0
         self._flushed = False
