@@ -85,6 +85,8 @@ def convert_one(input, output, *, reading, output_format, compression, speed=Non
                     stopped = True
                     break
             frames.release(None)
+            if transform and not stopped:
+                transform.said_at_end(stream.name)
             writer.cut = getattr(stream, "was_cut", False)  # a cut input's output ends without the end mark too
     read = f"{events_in:,} events read (then --end: the rest not read)" if stopped else f"{events_in:,} events in"
     log.info(f"convert: {read}, {events_out:,} out")

@@ -9,6 +9,7 @@ x and y (the sensor becomes ``H x W``). Each step is per event, so the output do
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -70,7 +71,19 @@ class Transform:
         if self.moves_pixels and info.metadata.get("frame_size"):
             self.info.metadata["frame_size"] = (out_width, out_height)
         self.first_us: int | None = None
+        self.last_us: int | None = None  # the last event seen
+        self.kept = False  # whether any event was kept
         self.done = False  # the end has passed: no later event can be kept
+
+    def said_at_end(self, name: str) -> None:
+        """At the stream's end: a warning when the start lies after its last event (nothing kept, and why)."""
+        start = self.start
+        if self.kept or self.last_us is None or start is None or self._bounds()[0] <= self.last_us:
+            return
+        logging.getLogger("evtools").warning(
+            f"{name}: the start ({'@' if start.absolute else ''}{start.us / 1e6:g} s) lies after the stream's last "
+            f"event ({(self.last_us - self.first_us) / 1e6:.6g} s after its first, at {self.last_us:,} us): no event "
+            "is kept")
 
     def _bounds(self) -> tuple[float, float]:
         return (-np.inf if self.start is None else self.start.resolve(self.first_us),
@@ -83,6 +96,7 @@ class Transform:
             self.first_us = int(chunk["t"][0])
         start, end = self._bounds()
         t = chunk["t"]
+        self.last_us = int(t[-1])
         if t[-1] >= end:
             self.done = True
         chunk = chunk[int(np.searchsorted(t, start, "left")):int(np.searchsorted(t, end, "left"))]
@@ -103,6 +117,7 @@ class Transform:
             chunk["y"] = height - 1 - chunk["y"]
         if self.transpose:
             chunk["x"], chunk["y"] = chunk["y"].copy(), chunk["x"].copy()
+        self.kept = self.kept or bool(len(chunk))
         return chunk
 
     def flush(self) -> np.ndarray:
@@ -182,6 +197,7 @@ class SlicedStream:
                 yield chunk
             if self.transform.done:
                 return
+        self.transform.said_at_end(self._stream.name)
 
 
 def sliced(stream, slicing: dict | None):

@@ -236,3 +236,17 @@ def read_all_thresholds(path):
     from evtools.formats.thresholds import read_thresholds
 
     return read_thresholds(str(path))
+
+
+def test_a_start_after_the_last_event_is_said(tmp_path):
+    """--start past the stream's end kept nothing with no word of why ("31,035 events in, 0 out"; estimate said
+    the stream had no events: a QA sweep): a warning names the start and where the stream ends; a start within it
+    says nothing."""
+    import evtools
+
+    stream = tmp_path / "s.aedat4"
+    evtools.write(stream, make_events([1_000, 500_000, 1_001_000], [0, 1, 2], [0, 1, 2], [1, 0, 1]), StreamInfo(4, 4))
+    late = run("convert", stream, "--start", "2s", "-o", tmp_path / "late.aedat4").stderr.decode()
+    assert "the start (2 s) lies after the stream's last event (1 s after its first" in late, late
+    within = run("convert", stream, "--start", "400ms", "-o", tmp_path / "within.aedat4").stderr.decode()
+    assert "lies after" not in within and len(read_all(tmp_path / "within.aedat4")[1]) == 2
