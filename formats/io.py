@@ -588,10 +588,14 @@ def resolve_sensor_size(source: Source, from_file, sensor_size, scan=None) -> tu
             raise FormatError(f"{source.name}: the file does not store the sensor size and its events reach "
                               f"{width}x{height}, larger than any camera ({MAX_INFERRED_SIDE} a side): a damaged "
                               "file? If the size is right, give --sensor-size WxH")
-        logging.getLogger("evtools").warning(
-            "%s: sensor size not stored in the file; inferred %dx%d from the events (give --sensor-size to set it)",
-            source.name, max(width, 1), max(height, 1),
-        )
+        if width == 0 and height == 0:  # (no event to infer it from: the 1x1 of an empty stream)
+            logging.getLogger("evtools").warning(
+                "%s: the file holds no events and does not store the sensor size: taken as 1x1 (give --sensor-size "
+                "to set it)", source.name)
+        else:
+            logging.getLogger("evtools").warning(
+                "%s: sensor size not stored in the file; inferred %dx%d from the events (give --sensor-size to set "
+                "it)", source.name, max(width, 1), max(height, 1))
         return checked((max(width, 1), max(height, 1)), "inferred from the events, the sensor is")
     raise FormatError(f"{source.name}: the file does not store the sensor size; give --sensor-size WxH")
 

@@ -13,7 +13,7 @@ from evtools.events import EVENT_DTYPE, make_events, record_words
 from evtools.formats import FormatError
 from evtools.formats.prophesee import header_size, parse_header
 from tests.conftest import data_file
-from tests.helpers import assert_same_events, read_all
+from tests.helpers import assert_same_events, read_all, run
 from tests.naive import (NaiveEvt3Decoder, evt2_decode_naive, evt3_decode_naive, evt21_decode_naive,
                          evt21_encode_naive)
 
@@ -530,3 +530,13 @@ def test_formats_evtools_does_not_read_are_named(tmp_path):
     path = tmp_path / "recording.bag"
     path.write_bytes(b"#ROSBAG V2.0\n" + bytes(64))
     assert_clean_error(run("info", path, check=False), "recording.bag", "a ROS 1 bag")
+
+
+def test_a_header_without_events_or_size_is_said_as_such(tmp_path):
+    """A RAW file of a header alone, no geometry: "inferred 1x1 from the events" was said of no events (a QA
+    sweep); it says the file holds none."""
+    path = tmp_path / "header.raw"
+    path.write_bytes(b"% evt 2.0\n% end\n")
+    result = run("info", path, "--json")
+    assert b"holds no events and does not store the sensor size" in result.stderr, result.stderr
+    assert b"inferred" not in result.stderr
