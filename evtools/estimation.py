@@ -470,6 +470,7 @@ class ThresholdEstimator:
         self._stale = np.zeros(width * height, dtype=bool)  # dropped estimates not yet acquired again
         n = self.width * self.height
         self.events = 0
+        self.on_events = 0
         self.t_first_us: int | None = None
         self.t_last_us: int | None = None
         self._finished = False
@@ -560,6 +561,7 @@ class ThresholdEstimator:
             self.t_first_us = int(t[0])
         self.t_last_us = int(t[-1])
         self.events += len(chunk)
+        self.on_events += int(np.count_nonzero(p))
         before = self.events - len(chunk)
         if self.method in ("offe", "natural") and before < SCENE_EVENTS:  # (the stream's first SCENE_EVENTS)
             end = min(len(chunk), SCENE_EVENTS - before)
@@ -724,6 +726,10 @@ class ThresholdEstimator:
         """
         if not self.events:
             raise EstimationError("the stream has no events: nothing to estimate thresholds from")
+        if self.on_events in (0, self.events):  # (every method reads both polarities: a stream cut to one, say)
+            raise EstimationError(
+                f"the stream's {self.events:,} events are all {'OFF' if self.on_events == 0 else 'ON'}: the "
+                "thresholds are estimated from both polarities (was --polarity given?)")
         fit = None
         if self.method == "offe":
             on, off, valid, fit, extra = self._offe(self._pixels[:, OFFE_E] >= self.min_events)

@@ -1292,3 +1292,13 @@ def test_events_alone_refuse_a_stream_of_noise_and_take_a_moving_texture(seed, r
         estimate_thresholds(texture, width, height, method, min_events=2)
     except EstimationError as error:  # (too few events for a fit, say: not taken for noise)
         assert "no scene" not in str(error)
+
+
+@pytest.mark.parametrize("method", ["stimulus", "natural", "offe"])
+def test_a_stream_of_one_polarity_is_named_as_such(tmp_path, method):
+    """`--polarity on` left a flicker's ON events alone, and the estimate said "fewer than 10 events or no usable
+    pair of events everywhere" of pixels with dozens (a QA sweep): the message names the one polarity."""
+    stream = tmp_path / "f.aedat4"
+    run("simulate", "scene:flicker", "--size", "8x6", "--duration", "2s", "-o", stream)
+    done = run("estimate", stream, "--method", method, "--polarity", "on", "-o", tmp_path / "t.h5", check=False)
+    assert_clean_error(done, "events are all ON", "--polarity")
