@@ -221,7 +221,8 @@ class TextReader:
         mantissas, decimals = np.empty((lines, self.ncols), np.int64), np.empty((lines, self.ncols), np.int64)
         rows = np.empty(lines, np.int64)
         status, n, line, fields, point = parse_text(np.frombuffer(block, np.uint8), self.ncols, self.csv,
-                                                    mantissas, decimals, rows)
+                                                    mantissas, decimals, rows,
+                                                    self.index["t"] if self.seconds else -1)
         if status == WRONG_COUNT:
             self._wrong_count(line_no + line, fields)
         if status == PARSED:
@@ -231,7 +232,13 @@ class TextReader:
                 values = mantissas[:n]
             else:
                 values = mantissas[:n].astype(np.float64) / _POWERS_OF_TEN_FLOAT[decimals[:n]]
-            return self._events(values, rows[:n], line_no)
+            events = self._events(values, rows[:n], line_no)
+            if self.seconds:  # times to the microsecond (6 decimals or fewer) exactly, in integers: through float64
+                column = self.index["t"]  # seconds they lost 1 us near 2^53 us (285 years: Unix times in us)
+                digits = decimals[:n, column]
+                exact = digits <= 6
+                events["t"][exact] = mantissas[:n, column][exact] * 10 ** (6 - digits[exact])
+            return events
         return self._parse_numpy(block, line_no)
 
     def _refuse_whole_seconds(self, t: np.ndarray, line_no: int) -> None:

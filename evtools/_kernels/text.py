@@ -32,7 +32,7 @@ MAX_DECIMALS = 22
 
 
 @kernel
-def parse_text(block, columns, csv, mantissas, decimals, row_lines):  # pragma: no cover - compiled
+def parse_text(block, columns, csv, mantissas, decimals, row_lines, exact_column):  # pragma: no cover - compiled
     """Split a block of whole lines into ``columns`` numbers a line and read them.
 
     Parameters
@@ -48,6 +48,9 @@ def parse_text(block, columns, csv, mantissas, decimals, row_lines):  # pragma: 
         Each number as ``mantissa / 10**decimals`` (trailing zeros of the decimals removed).
     row_lines : ndarray of int64, shape (lines,)
         The line (index in the block) of each row.
+    exact_column : int
+        A column read as an exact decimal where it has at most 6 decimals, whatever its mantissa (times in
+        seconds: the caller makes microseconds of mantissa and decimals in integers); -1: none.
 
     Returns
     -------
@@ -125,7 +128,7 @@ def parse_text(block, columns, csv, mantissas, decimals, row_lines):  # pragma: 
                     places = last - first
                 # 18 significant digits always fit in int64; beyond, numpy reads the field (and saturates as it does)
                 if k != stop or digits == 0 or used > 18 or places > MAX_DECIMALS or \
-                        (places > 0 and mantissa >= EXACT_MANTISSA):
+                        (places > 0 and mantissa >= EXACT_MANTISSA and not (fields == exact_column and places <= 6)):
                     return OTHER_SYNTAX, 0, line, 0, point
                 mantissas[rows, fields] = -mantissa if negative else mantissa
                 decimals[rows, fields] = places
