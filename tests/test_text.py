@@ -430,3 +430,16 @@ def test_txt_times_in_seconds_are_read_to_the_microsecond(tmp_path_factory, base
     path = tmp_path_factory.mktemp("txt") / "a.txt"
     path.write_bytes(write_bytes(TxtWriter, events, [], StreamInfo(4, 4)))
     assert np.array_equal(read_all(path)[1]["t"], t)
+
+
+@pytest.mark.parametrize("first, second", [(0, -1), (-1, 0)])
+def test_a_csv_that_mixes_polarity_conventions_is_refused(tmp_path, first, second):
+    """0 and -1 both taken as OFF in one file (a QA sweep: a file joined from two writers passed silently): the
+    first line of the other convention is named; either convention alone is read."""
+    lines = [f"{t},1,1,{p}" for t, p in enumerate([1, first] * 300 + [1, second], start=1)]
+    path = tmp_path / "mixed.csv"
+    path.write_text("t,x,y,p\n" + "\n".join(lines) + "\n")
+    with pytest.raises(FormatError, match=f"line 603: p is {second} where earlier lines wrote OFF as {first}"):
+        read_all(path, sensor_size=(4, 4), chunk_events=100)
+    path.write_text("t,x,y,p\n" + "\n".join(lines[:-1]) + "\n")
+    assert read_all(path, sensor_size=(4, 4))[1]["p"].sum() == 300
