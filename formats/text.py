@@ -339,12 +339,13 @@ class TextReader:
         self._check((x < 0) | (x > MAX_SENSOR_SIDE) | (y < 0) | (y > MAX_SENSOR_SIDE), rows, line_no,
                     f"x or y outside 0..{MAX_SENSOR_SIDE}")
         self._check((p != 0) & (p != 1) & (p != -1), rows, line_no, "p must be 0 or 1 (or -1 and +1)")
-        for off in (0, -1):  # one file, one convention for OFF: 0 with 1, or -1 with +1 (mixed: a file joined wrong)
-            if self.off_seen is None and (p == off).any():
-                self.off_seen = off
-            if self.off_seen is not None and self.off_seen != off:
-                self._check(p == off, rows, line_no, f"p is {off} where earlier lines wrote OFF as {self.off_seen}: "
-                                                     "one file takes one convention (0 and 1, or -1 and +1)")
+        off = p <= 0  # one file, one convention for OFF: 0 with 1, or -1 with +1 (mixed: a file joined wrong)
+        if off.any():
+            if self.off_seen is None:
+                self.off_seen = int(p[int(np.argmax(off))])
+            other = -1 - self.off_seen  # (0 <-> -1)
+            self._check(p == other, rows, line_no, f"p is {other} where earlier lines wrote OFF as {self.off_seen}: "
+                                                   "one file takes one convention (0 and 1, or -1 and +1)")
         out = np.empty(len(values), dtype=EVENT_DTYPE)
         out["t"] = t
         out["x"] = x

@@ -439,7 +439,8 @@ def test_a_csv_that_mixes_polarity_conventions_is_refused(tmp_path, first, secon
     lines = [f"{t},1,1,{p}" for t, p in enumerate([1, first] * 300 + [1, second], start=1)]
     path = tmp_path / "mixed.csv"
     path.write_text("t,x,y,p\n" + "\n".join(lines) + "\n")
-    with pytest.raises(FormatError, match=f"line 603: p is {second} where earlier lines wrote OFF as {first}"):
-        read_all(path, sensor_size=(4, 4), chunk_events=100)
+    for chunk_events in (100, 100_000):  # (the two conventions in one block or in two)
+        with pytest.raises(FormatError, match=f"line 603: p is {second} where earlier lines wrote OFF as {first}"):
+            read_all(path, sensor_size=(4, 4), chunk_events=chunk_events)
     path.write_text("t,x,y,p\n" + "\n".join(lines[:-1]) + "\n")
-    assert read_all(path, sensor_size=(4, 4))[1]["p"].sum() == 300
+    assert read_all(path, sensor_size=(4, 4))[1]["p"].sum() == 301
