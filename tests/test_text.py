@@ -253,7 +253,7 @@ def test_polarity_must_be_zero_one_or_minus_one_plus_one(tmp_path):
         path = tmp_path / "p.csv"
         path.write_text(f"t,x,y,p\n1,1,1,1\n2,1,1,{value}\n")
         assert_clean_error(run("info", path, "--sensor-size", "4x4", check=False), "p.csv", "line 3", "p must be")
-    path.write_text("t,x,y,p\n1,1,1,-1\n2,1,1,1\n3,1,1,0\n")
+    path.write_text("t,x,y,p\n1,1,1,-1\n2,1,1,1\n3,1,1,-1\n")
     assert run("info", path, "--sensor-size", "4x4").returncode == 0
 
 
@@ -277,6 +277,7 @@ def _text_file(draw):
     column), times increasing."""
     csv = draw(st.booleans())
     floats = not csv or draw(st.booleans())
+    polarities = draw(st.sampled_from([["0", "1"], ["-1", "1"] + (["+1"] if csv else [])]))  # (one file, one way)
     lines, t = [], 0
     for _ in range(draw(st.integers(0, 40))):
         if draw(st.integers(0, 9)) == 0:
@@ -288,7 +289,7 @@ def _text_file(draw):
         else:
             t_text = str(t) + (draw(st.sampled_from(["", ".0", ".000"])) if floats else "")  # (.5: refused)
         x, y = draw(st.integers(0, 2047)), draw(st.integers(0, 2047))
-        p = draw(st.sampled_from(["0", "1", "-1", "+1"] if csv else ["0", "1", "-1"]))
+        p = draw(st.sampled_from(polarities))
         fields = [t_text, str(x).zfill(draw(st.integers(1, 4))), str(y), p]
         separator = "," if csv else draw(st.sampled_from([" ", "\t", "  "]))
         line = separator.join(fields) + (draw(st.sampled_from(["", " ", "\r"])) if not csv else draw(
