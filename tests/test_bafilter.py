@@ -148,6 +148,18 @@ def test_hot_pixels_equal_reference_and_are_found():
     assert got[~((both["x"] == 3) & (both["y"] == 4))].mean() > 0.95
 
 
+def test_a_lone_pixel_is_not_hot_for_want_of_neighbours():
+    """On a 1 x 1 sensor every event was dropped: a pixel with no neighbour passed the relative test (a QA sweep).
+    Only the absolute rate can make it hot; the naive reference agrees."""
+    events = make_events(np.arange(0, 2_000_000, 20_000), 0, 0, 1)  # 50 Hz, 100 events
+    params = {"learn_us": 1_000_000, "hot_ratio": 5.0, "hot_min_events": 20, "hot_rate_hz": 10_000.0}
+    for stream, hot in ((events, False), (make_events(np.arange(0, 2_000_000, 50), 0, 0, 1), True)):  # 20 kHz
+        ba = BAFilter(1, 1, "hotpixel", **params)
+        kept = join([ba.process(stream), ba.flush()])
+        assert bool(ba.hot_map[0, 0]) == hot and len(kept) == (0 if hot else len(stream))
+        assert naive_hot_pixels(tuples(stream), 1, 1, **params) == [not hot] * len(stream)
+
+
 # -- chunk invariance ---------------------------------------------------------------------------------------------
 
 CHAINS = ["baf", "stcf", "dwf", "orderN", "refractory", "hotpixel", "ynoise", "hotpixel,refractory,stcf",

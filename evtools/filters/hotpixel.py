@@ -19,12 +19,13 @@ def learn_hot_pixels(counts: np.ndarray, duration_s: float, hot_ratio: float, ho
 
     A pixel is hot when it has at least ``hot_min_events`` events and either its rate is at least
     ``hot_rate_hz`` (libcaer's absolute test) or its count is at least ``hot_ratio`` times the largest count of
-    its 4 neighbours (faery's relative test).
+    its 4 neighbours (faery's relative test; a 1 x 1 sensor's pixel has none: only the absolute test, it was
+    always hot).
     """
     counts = np.asarray(counts, dtype=np.int64)
     padded = np.pad(counts, 1)
     neighbours = np.maximum.reduce([padded[:-2, 1:-1], padded[2:, 1:-1], padded[1:-1, :-2], padded[1:-1, 2:]])
-    relative = counts >= hot_ratio * neighbours
+    relative = (counts >= hot_ratio * neighbours) & (counts.size > 1)  # (a lone pixel has none to compare with)
     absolute = counts >= hot_rate_hz * duration_s
     return (counts >= hot_min_events) & (relative | absolute)
 

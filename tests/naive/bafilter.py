@@ -121,7 +121,8 @@ def naive_hot_pixels(events, width, height, learn_us, hot_ratio, hot_min_events,
     hot = set()
     for (x, y), n in counts.items():
         neighbours = max(counts.get(q, 0) for q in ((x - 1, y), (x + 1, y), (x, y - 1), (x, y + 1)))
-        if n >= hot_min_events and (n >= hot_rate_hz * duration_us * 1e-6 or n >= hot_ratio * neighbours):
+        alone = width * height == 1  # (no neighbour to compare with: the absolute test only)
+        if n >= hot_min_events and (n >= hot_rate_hz * duration_us * 1e-6 or (not alone and n >= hot_ratio * neighbours)):
             hot.add((x, y))
     return [(x, y) not in hot for t, x, y, p in events]
 
