@@ -33,6 +33,7 @@ C. Scheerlinck, N. Barnes, R. Mahony, "Continuous-time Intensity Estimation Usin
 
 from __future__ import annotations
 
+import logging
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
@@ -328,6 +329,7 @@ class ThresholdCorrector:
     def _start(self, t_first: int) -> None:
         """The reconstruction of every pixel starts at level 0 at the stream's start (``turns``: anchored)."""
         self._started = True
+        self._first_us = t_first
         if self.start_us is not None and self.start_us > t_first:  # (was taken as the first event's, silently)
             raise CorrectionError(f"start_us ({self.start_us} us) is after the stream's first event ({t_first} us): "
                                   "the sensor started before it; give an earlier time or none")
@@ -468,6 +470,11 @@ class ThresholdCorrector:
         if self._flushed:  # (a second flush settled the pixels' runs again: new events, out of order)
             return
         self._flushed = True
+        if self._series is not None and self._started and self._last_us < self._series.t_us[0]:
+            logging.getLogger("evtools").warning(  # (a series estimated on another clock: said, not silent)
+                f"the stream ({self._first_us:,} .. {self._last_us:,} us) ends before the thresholds series' first "
+                f"map ({int(self._series.t_us[0]):,} us): every event took that map; is the series of another "
+                "recording or clock?")
         for lane in self._lanes:
             lane.hold(lane.settle_all(self))
         yield from (part for part in self._release(NO_EVENT_US, False) if len(part))

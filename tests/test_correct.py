@@ -970,3 +970,16 @@ def test_a_short_max_gap_is_a_rest_and_loses_no_events(tmp_path, mode):  # whate
         return float(np.abs(counts[0] - counts[1]).mean())
 
     assert count_error(short) < count_error(events), (count_error(short), count_error(events))
+
+
+def test_a_series_on_another_clock_is_said(caplog):
+    """A series whose first map comes after the stream's last event (estimated on another recording's Unix clock:
+    maps at 1.7e15 us, a stream of 0-2 s) was used without a word (a QA sweep): a warning says every event took its
+    first map; a series within the stream says nothing."""
+    events = random_events(2000, W, H, seed=4)
+    on = np.full((2, H, W), 0.25, np.float32)
+    for times, said in (([1_700_000_000_000_000, 1_700_000_001_000_000], True), ([0, 20_000], False)):
+        caplog.clear()
+        with caplog.at_level("WARNING", logger="evtools"):
+            correct_thresholds(events, W, H, on, on, t_us=np.array(times), target=0.2)
+        assert ("ends before the thresholds series' first map" in caplog.text) == said, caplog.text
