@@ -138,6 +138,7 @@ def test_unknown_options_missing_inputs_and_help(tmp_path, name):
     (["render", "{S}", "-o", "{T}/v.mp4", "--fps", "nan"], "--fps"),
     (["convert", "{S}", "-o", "{T}/c.aedat4", "--realtime", "--speed", "1e-300"], "--speed"),
     (["simulate", "scene:bars", "--size", "8x8", "--frame-rate", "0", "-o", "{T}/s.aedat4"], "--frame-rate"),
+    (["simulate", "scene:bars", "--size", "8x8", "--frame-rate", "1e9", "-o", "{T}/s.aedat4"], "--frame-rate"),
 ])
 def test_values_beyond_what_the_kernels_hold_are_usage_errors(tmp_path, args, option):
     """A number beyond int64 reached the numba kernels (a traceback), 2^63 - 1 us overflowed a window (every event
