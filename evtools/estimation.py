@@ -168,15 +168,19 @@ tabulated at 1 us over one period; longer periods compute L per event (the same 
 LEVELS_STEP = 2.0 ** 0.25
 """stimulus (intensity profile): the levels check estimates the stream again with the log ratio of the levels
 (high / low) times powers of this, the high level kept, and refuses the levels given when another ratio explains the
-events much better (:meth:`ThresholdEstimator._check_levels`)."""
-LEVELS_CHECK_PIXELS = 4096
-"""The levels check looks at every s-th row, s chosen to keep at most this many pixels (its memory and time)."""
+events much better (:meth:`ThresholdEstimator._check_description`)."""
+LEVELS_CHECK_PIXELS = 2048
+"""The description check (levels, period) looks at every s-th row, s chosen to keep at most this many pixels (its
+memory and time: 15 estimates of them)."""
 LEVELS_STEPS = 4
 """... and this many steps either side (log ratios from 1/2 to 2 times the given's)."""
 LEVELS_MIN_FIT = 0.01
-"""The levels check takes levels whose median fit is below this (level changes within 1 % of the thresholds)."""
+"""The description check takes a description whose median deviation is below this (level changes within 1 % of
+the thresholds)."""
+PERIOD_FACTORS = (0.96, 0.98, 0.99, 1.01, 1.02, 1.04)
+"""stimulus: the description check estimates the stream again with the period times each of these."""
 LEVELS_BETTER = 1 / math.sqrt(2.0)
-"""The levels check refuses when the best ratio's median deviation is below this times the given levels' (the
+"""The description check refuses when another description's median deviation is below this times the given one's (the
 simulated 32 x 24 flicker, levels 50,200: ideal pixels 0.001 at the true levels, 0.02-0.1 at low levels 25-100; with
 v2e's noisy preset the best over the given is 0.93-1.0 for low levels 45-60 and 0.46-0.67 for 25-40 and 70-100)"""
 
@@ -501,19 +505,27 @@ class ThresholdEstimator:
                 if s.wavelength_px == 0 and s.period_us == int(s.period_us) and s.period_us <= MAX_TABLE_US:
                     self._table = np.empty(int(s.period_us), dtype=np.float64)
                     stimulus_table(*self._waveform, profile, self._table)
-        # the levels check: the same estimate on a sample of rows, at the levels given and at two other ratios
+        # the description check: the same estimate on a sample of rows, as described and with other levels and
+        # periods (:meth:`_check_description`)
         self._level_rows = 0
         self.levels_fits: tuple[float, float, float] | None = None  # (given, best, best's ln ratio offset)
-        self._level_probes: list[ThresholdEstimator] = []
-        if (method == "stimulus" and interval_us is None and stimulus.profile == "intensity" and stimulus.low > 0
-                and math.isfinite(self.max_fit)):
+        self._probes: dict[tuple[str, float], ThresholdEstimator] = {}  # ("levels", log ratio scale) or ("period", x)
+        if method == "stimulus" and interval_us is None and math.isfinite(self.max_fit):
             self._level_rows = max(1, math.ceil(width * height / LEVELS_CHECK_PIXELS))
             rows = math.ceil(height / self._level_rows)
-            log_ratio = math.log(stimulus.high / stimulus.low)
-            self._level_probes = [  # (the log ratio high / low times LEVELS_STEP^-2..2, the high level kept)
-                ThresholdEstimator(width, rows, "stimulus", phase=phase, min_events=min_events, max_fit=math.inf,
-                                   check=False, stimulus=replace(stimulus, low=stimulus.high / math.exp(log_ratio * k)))
-                for k in LEVELS_STEP ** np.arange(-LEVELS_STEPS, LEVELS_STEPS + 1)]
+
+            def probe(description: Stimulus) -> ThresholdEstimator:
+                return ThresholdEstimator(width, rows, "stimulus", phase=phase, min_events=min_events,
+                                          max_fit=math.inf, check=False, stimulus=description)
+
+            self._probes[("given", 1.0)] = probe(stimulus)
+            if stimulus.profile == "intensity" and stimulus.low > 0:  # (the log ratio high / low scaled, high kept)
+                log_ratio = math.log(stimulus.high / stimulus.low)
+                for k in LEVELS_STEP ** np.arange(-LEVELS_STEPS, LEVELS_STEPS + 1):
+                    if k != 1.0:
+                        self._probes[("levels", k)] = probe(replace(stimulus, low=stimulus.high / math.exp(log_ratio * k)))
+            for factor in PERIOD_FACTORS:
+                self._probes[("period", factor)] = probe(replace(stimulus, period_us=stimulus.period_us * factor))
 
     @property
     def parameters(self) -> dict[str, Any]:
@@ -580,10 +592,10 @@ class ThresholdEstimator:
         else:
             stimulus_accumulate(t, x, y, p, self.width, *self._waveform, float(self.stimulus.wavelength_px),
                                 self._profile, self._table, self._state, self._seeds)
-        if self._level_probes:
+        if self._probes:
             sampled = chunk[chunk["y"] % self._level_rows == 0]
             sampled["y"] //= self._level_rows
-            for probe in self._level_probes:
+            for probe in self._probes.values():
                 probe._accumulate(sampled)
 
     def _check_scene(self) -> None:
@@ -618,49 +630,65 @@ class ThresholdEstimator:
                 "but meaningless values: record a moving scene, or use --method stimulus with a known stimulus "
                 "(--max-fit inf takes the estimates unchecked)")
 
-    def _check_levels(self) -> None:
-        """Refuse stimulus levels the events contradict. A triangle linear in intensity is curved in log intensity,
-        more so the larger the ratio high / low, so the events' timing shows the ratio: an ideal pixel fits the
-        levels given to ~1e-3, levels 20 % off to ~0.04, while every threshold comes out 12-14 % off (and 38-49 %
-        with levels 2x off, most pixels still valid: a QA sweep). The same estimate on every s-th row at the ratio
-        given and :data:`LEVELS_STEPS` steps either side gives the median deviation of the accepted changes at each
-        (the misfits, mostly noise, left out); a parabola through the lowest one's and its neighbours' squares puts
-        the best ratio, and when its deviation is below :data:`LEVELS_BETTER` times the given levels', the levels
-        are refused with the ones that fit. A triangle in log intensity has no such curvature: its amplitude only scales
-        the thresholds, which no event can show."""
-        if not self._level_probes:
+    def _check_description(self) -> None:
+        """Refuse a stimulus description the events contradict: the levels (the ratio high / low) or the period.
+        The same estimate on every s-th row as described and with other levels and periods gives the median
+        deviation of each one's accepted changes from its thresholds (the misfits, mostly noise, left out); when
+        another description's is below :data:`LEVELS_BETTER` times the given one's (and the given one's above
+        :data:`LEVELS_MIN_FIT`), the description is refused, naming what fits better.
+
+        Levels: a triangle linear in intensity is curved in log intensity, more so the larger the ratio, so the
+        events' timing shows the ratio: an ideal pixel fits the levels given to ~1e-3, levels 20 % off to ~0.04,
+        while every threshold comes out 12-14 % off (and 38-49 % with levels 2x off, most pixels still valid: a QA
+        sweep). The log ratio is scaled by :data:`LEVELS_STEP` to the power -:data:`LEVELS_STEPS`..; a parabola
+        through the lowest and its neighbours' squares puts the best. A triangle in log intensity has no such
+        curvature: its amplitude only scales the thresholds, which no event can show. Period: 2 % off (490 ms
+        for 500 ms) called every pixel valid at 8.6 % error (a QA sweep); the deviation is sharpest at the true
+        period (ideal 0.001 against 0.04 at 1 % off; v2e's noisy preset 0.04 against 0.07)."""
+        if not self._probes:
             return
-        results = [probe._stimulus() for probe in self._level_probes]
-        fits = [np.where(valid & np.isfinite(fit), extra["deviation"], np.nan) for _, _, valid, fit, extra in results]
-        usable = np.logical_and.reduce([np.isfinite(fit) for fit in fits])
+        deviations = {}
+        for key, probe in self._probes.items():
+            try:
+                _, _, valid, fit, extra = probe._stimulus()
+            except EstimationError:  # (a longer period than the stream: that description cannot be compared)
+                continue
+            deviations[key] = np.where(valid & np.isfinite(fit), extra["deviation"], np.nan)
+        if ("given", 1.0) not in deviations:
+            return
+        usable = np.logical_and.reduce([np.isfinite(values) for values in deviations.values()])
         if usable.sum() < MIN_NEIGHBOURS:
             return  # (too few pixels to compare)
-        squares = np.array([np.median(fit[usable]) ** 2 for fit in fits])  # at ln scale -4d..4d
-        given_square, step = squares[LEVELS_STEPS], math.log(LEVELS_STEP)
-        lowest = int(np.argmin(squares))
-        best, best_square = (lowest - LEVELS_STEPS) * step, squares[lowest]
-        if 0 < lowest < len(squares) - 1:  # the parabola through the lowest and its neighbours: its lowest point
-            below, at, above = squares[lowest - 1:lowest + 2]
-            curvature = (below + above - 2 * at) / (2 * step**2)
-            slope = (above - below) / (2 * step)
-            if curvature > 0:
-                offset = min(max(-slope / (2 * curvature), -step), step)
-                best, best_square = best + offset, max(at + slope * offset + curvature * offset**2, 0.0)
-        self.levels_fits = (float(np.sqrt(given_square)), float(np.sqrt(best_square)), float(math.exp(best)))
-        if given_square <= LEVELS_MIN_FIT**2 or best_square >= LEVELS_BETTER**2 * given_square:
+        squares = {key: float(np.median(values[usable])) ** 2 for key, values in deviations.items()}
+        given_square = squares[("given", 1.0)]
+        if given_square <= LEVELS_MIN_FIT**2:
             return
         s = self.stimulus
-        low = s.high / (s.high / s.low) ** math.exp(best)
-        if 0 < lowest < len(squares) - 1:
-            better = f"levels near {low:.3g}, {s.high:g} fit them better ({math.sqrt(best_square):.3f})"
-        else:
-            better = (f"a low level {'below' if best > 0 else 'above'} {low:.3g} (the high one {s.high:g}) fits "
-                      f"them better ({math.sqrt(best_square):.3f})")
-        raise EstimationError(
-            f"the events do not fit the stimulus levels given ({s.low:g}, {s.high:g}: median fit "
-            f"{math.sqrt(given_square):.3f}); {better}, and the thresholds scale with the log ratio of the levels "
-            f"(these would make them about {math.exp(best):.2g} times larger): check --stimulus-levels (the "
-            "stimulus's lowest and highest intensity), or give --max-fit inf to take the estimates as they are")
+        problems = []
+        levels = sorted(k for kind, k in squares if kind == "levels")
+        if levels:
+            scales = sorted([1.0, *levels])
+            curve = np.array([given_square if k == 1.0 else squares[("levels", k)] for k in scales])
+            best, best_square = _lowest(np.log(scales), curve)
+            self.levels_fits = (math.sqrt(given_square), math.sqrt(best_square), float(math.exp(best)))
+            if best_square < LEVELS_BETTER**2 * given_square:
+                low = s.high / (s.high / s.low) ** math.exp(best)
+                where = "near" if np.log(scales[0]) < best < np.log(scales[-1]) else "beyond"
+                problems.append(f"levels {where} {low:.3g}, {s.high:g} fit them better ({math.sqrt(best_square):.3f}; "
+                                f"the thresholds scale with the log ratio of the levels: these would make them about "
+                                f"{math.exp(best):.2g} times larger)")
+        periods = {factor: square for (kind, factor), square in squares.items() if kind == "period"}
+        if periods:
+            factor = min(periods, key=periods.get)
+            if periods[factor] < LEVELS_BETTER**2 * given_square:
+                problems.append(f"a period near {s.period_us * factor / 1e3:.4g} ms fits them better "
+                                f"({math.sqrt(periods[factor]):.3f})")
+        if problems:
+            raise EstimationError(
+                f"the events do not fit the stimulus described (levels {s.low:g}, {s.high:g}, period "
+                f"{s.period_us / 1e3:.4g} ms: median deviation {math.sqrt(given_square):.3f}); "
+                f"{'; '.join(problems)}: check --stimulus-levels and --stimulus-period, or give --max-fit inf to "
+                "take the estimates as they are")
 
     def _snapshot(self, t_us: int) -> None:
         """Online: the maps as they stand at ``t_us`` (invalid where nothing is known yet), then every sum decays
@@ -726,10 +754,6 @@ class ThresholdEstimator:
         """
         if not self.events:
             raise EstimationError("the stream has no events: nothing to estimate thresholds from")
-        if self.on_events in (0, self.events):  # (every method reads both polarities: a stream cut to one, say)
-            raise EstimationError(
-                f"the stream's {self.events:,} events are all {'OFF' if self.on_events == 0 else 'ON'}: the "
-                "thresholds are estimated from both polarities (was --polarity given?)")
         fit = None
         if self.method == "offe":
             on, off, valid, fit, extra = self._offe(self._pixels[:, OFFE_E] >= self.min_events)
@@ -747,7 +771,11 @@ class ThresholdEstimator:
                 )
             extra["rejected_by_fit"] = int((valid & ~fitting).sum())
             valid = fitting
-            self._check_levels()
+            self._check_description()
+        if not valid.any() and self.on_events in (0, self.events):  # (every method reads both polarities)
+            raise EstimationError(
+                f"the stream's {self.events:,} events are all {'OFF' if self.on_events == 0 else 'ON'}: the "
+                "thresholds are estimated from both polarities (was --polarity given?)")
         if not valid.any() and self.method == "natural":
             raise EstimationError(
                 f"no pixel could be estimated by natural: none has {self.min_events} events of each polarity, "
@@ -941,6 +969,22 @@ class ThresholdEstimator:
                                          / pairs.sum(axis=0))
         fit[changes.sum(axis=0) < FIT_MIN_CHANGES] = np.inf  # too few changes to show a fit
         return thresholds[0], thresholds[1], valid, fit, extra
+
+
+def _lowest(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+    """Where the sampled curve ``y(x)`` (x increasing, evenly spaced) is lowest: the parabola through its lowest
+    sample and their neighbours, its vertex kept within a step (the lowest sample itself at either end)."""
+    lowest = int(np.argmin(y))
+    if not 0 < lowest < len(y) - 1:
+        return float(x[lowest]), float(y[lowest])
+    step = float(x[lowest + 1] - x[lowest])
+    below, at, above = y[lowest - 1:lowest + 2]
+    curvature = (below + above - 2 * at) / (2 * step**2)
+    slope = (above - below) / (2 * step)
+    if curvature <= 0:
+        return float(x[lowest]), float(at)
+    offset = min(max(-slope / (2 * curvature), -step), step)
+    return float(x[lowest] + offset), max(float(at + slope * offset + curvature * offset**2), 0.0)
 
 
 def _effective_inverse(counts: np.ndarray) -> np.ndarray:

@@ -11,6 +11,7 @@ import subprocess
 import sys
 import termios
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import h5py
@@ -495,13 +496,49 @@ def test_wrong_stimulus_levels_are_refused_not_called_valid(seed, low, high, wro
     stimulus = Stimulus(given_low, high, period_us)
     with pytest.raises(EstimationError) as refused:
         estimate_thresholds(events, 8, 6, "stimulus", stimulus=stimulus)
-    assert "do not fit the stimulus levels given" in str(refused.value) or \
+    assert "do not fit the stimulus described" in str(refused.value) or \
         "do not fit the described stimulus" in str(refused.value)
     if "levels near" in str(refused.value):  # the levels it names are nearer the truth than those given
         named = float(str(refused.value).split("levels near ")[1].split(",")[0])
         assert abs(math.log(named / low)) < abs(math.log(given_low / low))
     unchecked = estimate_thresholds(events, 8, 6, "stimulus", stimulus=stimulus, max_fit=math.inf)
     assert unchecked.valid.any()
+
+
+@settings(max_examples=10, deadline=None)
+@given(seed=st.integers(0, 10**6), wrong=st.sampled_from([0.97, 0.98, 0.99, 1.01, 1.02, 1.03]),
+       log=st.booleans())
+def test_a_wrong_stimulus_period_is_refused_not_called_valid(seed, wrong, log):
+    """A period 2 % off (490 ms for 500 ms) called every pixel valid at 8.6 % error (a QA sweep): 1-3 % off, on
+    ideal pixels under a triangle in intensity or in log intensity (phases per pixel, fitted), the estimate is
+    refused and names a period nearer the truth (a log triangle, whose changes stay uniform: refused, or within
+    the period's error + 1 %); the true one is valid and exact."""
+    period_us = 400_000
+    if log:
+        events, on, off = _ideal_triangles(seed, period_us, phases=True)
+        stimulus = Stimulus.log_triangle(1.5, period_us)
+    else:
+        events, on, off = _ideal_intensity_triangles(seed, 50.0, 200.0, period_us)
+        stimulus = Stimulus(50.0, 200.0, period_us)
+    right = estimate_thresholds(events, 8, 6, "stimulus", stimulus=stimulus)
+    assert right.valid.mean() > 0.9 and np.abs(right.on / on - 1)[right.valid].max() < 0.01
+    wrong_stimulus = replace(stimulus, period_us=period_us * wrong)
+    if log:  # a triangle linear in log: a period p off rescales the thresholds by about p, as an amplitude would,
+        try:  # and the changes stay uniform: refused, or every valid pixel within p + 1 % (2 % off: 2.5 % measured)
+            close = estimate_thresholds(events, 8, 6, "stimulus", stimulus=wrong_stimulus)
+        except EstimationError:
+            pass
+        else:
+            assert np.abs(close.on / on - 1)[close.valid].max() < abs(wrong - 1) + 0.01
+            assert np.abs(close.off / off - 1)[close.valid].max() < abs(wrong - 1) + 0.01
+            return
+    with pytest.raises(EstimationError) as refused:
+        estimate_thresholds(events, 8, 6, "stimulus", stimulus=wrong_stimulus)
+    message = str(refused.value)
+    assert "do not fit the stimulus described" in message or "do not fit the described stimulus" in message
+    if "a period near" in message:
+        named = float(message.split("a period near ")[1].split(" ms")[0]) * 1e3
+        assert abs(named - period_us) < abs(period_us * wrong - period_us)
 
 
 def test_a_natural_scene_is_no_stimulus(tmp_path, dvxplorer_events):
