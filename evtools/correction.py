@@ -673,13 +673,12 @@ class SeriesMaps:
             self.ever |= usable
             if usable.any():
                 last = k
+                last_medians = (np.median(on_k[usable]), np.median(off_k[usable]))  # (the last such map's)
                 self.largest_on = max(self.largest_on, float(on_k[usable].max()))
                 self.largest_off = max(self.largest_off, float(off_k[usable].max()))
         if last < 0:
             raise CorrectionError("no pixel has a usable threshold (valid, finite and positive): nothing to correct")
-        on_k, off_k, usable = self._map(last)
-        self._start = (np.where(self.ever, first_on, np.median(on_k[usable])),
-                       np.where(self.ever, first_off, np.median(off_k[usable])))
+        self._start = (np.where(self.ever, first_on, last_medians[0]), np.where(self.ever, first_off, last_medians[1]))
         self._k = -1  # the map :meth:`filled` gave last, and its filled maps and medians
         self._filled = self._medians = None
 
