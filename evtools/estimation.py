@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -575,11 +576,26 @@ class ThresholdEstimator:
         self.events += len(chunk)
         self.on_events += int(np.count_nonzero(p))
         before = self.events - len(chunk)
-        if self.method in ("offe", "natural") and before < SCENE_EVENTS:  # (the stream's first SCENE_EVENTS)
-            end = min(len(chunk), SCENE_EVENTS - before)
-            neighbour_ages(t[:end], x[:end], y[:end], before, SCENE_STRIDE, self._age_map, self._pixel_events,
-                           self._neighbour_ages)
+        scene = None
+        if self.method in ("offe", "natural") and before < SCENE_EVENTS:  # (the stream's first SCENE_EVENTS, on a
+            end = min(len(chunk), SCENE_EVENTS - before)                 # second thread beside the counting: its
+            scene = _scene_thread().submit(                               # own arrays; kernels release the GIL)
+                neighbour_ages, t[:end], x[:end], y[:end], before, SCENE_STRIDE, self._age_map, self._pixel_events,
+                self._neighbour_ages)
             self._scene_last_us = int(t[end - 1])
+        try:
+            self._count(t, x, y, p)
+        finally:
+            if scene is not None:
+                scene.result()
+        if self._probes:
+            sampled = chunk[chunk["y"] % self._level_rows == 0]
+            sampled["y"] //= self._level_rows
+            for probe in self._probes.values():
+                probe._accumulate(sampled)
+
+    def _count(self, t, x, y, p) -> None:
+        """The method's sums of one chunk's events (its kernel)."""
         if self.method == "offe":
             offe_accumulate(t, x, y, p, self.width, self.segment_us, self._pixels, self._clock, BLOCK_US,
                             self._counts)
@@ -592,11 +608,6 @@ class ThresholdEstimator:
         else:
             stimulus_accumulate(t, x, y, p, self.width, *self._waveform, float(self.stimulus.wavelength_px),
                                 self._profile, self._table, self._state, self._seeds)
-        if self._probes:
-            sampled = chunk[chunk["y"] % self._level_rows == 0]
-            sampled["y"] //= self._level_rows
-            for probe in self._probes.values():
-                probe._accumulate(sampled)
 
     def _check_scene(self) -> None:
         """Refuse a stream whose events show no scene: natural and offE read thresholds off what neighbouring pixels
@@ -969,6 +980,17 @@ class ThresholdEstimator:
                                          / pairs.sum(axis=0))
         fit[changes.sum(axis=0) < FIT_MIN_CHANGES] = np.inf  # too few changes to show a fit
         return thresholds[0], thresholds[1], valid, fit, extra
+
+
+_SCENE_THREAD: ThreadPoolExecutor | None = None
+
+
+def _scene_thread() -> ThreadPoolExecutor:
+    """The one worker thread the scene check runs on beside the methods' counting (made on first use)."""
+    global _SCENE_THREAD
+    if _SCENE_THREAD is None:
+        _SCENE_THREAD = ThreadPoolExecutor(1, thread_name_prefix="evtools-scene")
+    return _SCENE_THREAD
 
 
 def _lowest(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
