@@ -696,7 +696,7 @@ class ThresholdEstimator:
                                 f"({math.sqrt(periods[factor]):.3f})")
         if problems:
             raise EstimationError(
-                f"the events do not fit the stimulus described (levels {s.low:g}, {s.high:g}, period "
+                f"the events do not fit the described stimulus (levels {s.low:g}, {s.high:g}, period "
                 f"{s.period_us / 1e3:.4g} ms: median deviation {math.sqrt(given_square):.3f}); "
                 f"{'; '.join(problems)}: check --stimulus-levels and --stimulus-period, or give --max-fit inf to "
                 "take the estimates as they are")

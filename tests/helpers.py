@@ -65,6 +65,18 @@ def run(*args, input=None, check=True, cwd=None) -> subprocess.CompletedProcess:
     return result
 
 
+def aedat4_packets(data: bytes) -> list[int]:
+    """The byte offsets of an AEDAT 4.0 file's packets (after its header), checking that they end with the file."""
+    magic = b"#!AER-DAT4.0\r\n"
+    position = len(magic) + 4 + struct.unpack_from("<I", data, len(magic))[0]
+    packets = []
+    while position < len(data):
+        packets.append(position)
+        position += 8 + struct.unpack_from("<iI", data, position)[1]
+    assert position == len(data), "packets do not end with the file"
+    return packets
+
+
 def assert_clean_error(result: subprocess.CompletedProcess, *needles: str) -> None:
     """Exit 1, one line on stderr naming the problem, no traceback, nothing on stdout."""
     stderr = result.stderr.decode()

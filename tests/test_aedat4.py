@@ -14,7 +14,7 @@ from evtools.formats import FormatError, create_events, open_events
 from evtools.formats.aedat4 import Aedat4Writer, _parse_ioheader
 from evtools.formats.registry import WriteOptions
 from tests.conftest import data_file
-from tests.helpers import assert_same_events, cut, random_events, read_all
+from tests.helpers import aedat4_packets, assert_same_events, cut, random_events, read_all
 
 COMPRESSIONS = ["none", "lz4", "zstd"]
 
@@ -370,12 +370,8 @@ def test_a_stream_cut_at_a_packet_boundary_is_not_passed_as_whole(tmp_path, comp
         writer.write(events[2500:])
     data = whole.read_bytes()
     assert b'key="evtoolsEndMark"' in data[:2000]
-    position = len(b"#!AER-DAT4.0\r\n") + 4 + struct.unpack_from("<I", data, len(b"#!AER-DAT4.0\r\n"))[0]
-    packets = []
-    while position < len(data):
-        packets.append(position)
-        position += 8 + struct.unpack_from("<iI", data, position)[1]
-    assert position == len(data) and len(packets) >= 2
+    packets = aedat4_packets(data)
+    assert len(packets) >= 2
     cut = tmp_path / "cut.aedat4"
     cut.write_bytes(data[:packets[-1]])  # the end mark removed: a cut at a packet boundary
     assert len(_read_by_dv(whole)) == 5000
@@ -405,11 +401,7 @@ def test_a_cut_file_converted_to_any_format_is_marked_cut_or_refused(tmp_path, o
     with create_events(whole, StreamInfo(64, 48)) as writer:
         writer.write(events)
     data = whole.read_bytes()
-    position = len(b"#!AER-DAT4.0\r\n") + 4 + struct.unpack_from("<I", data, len(b"#!AER-DAT4.0\r\n"))[0]
-    packets = []
-    while position < len(data):
-        packets.append(position)
-        position += 8 + struct.unpack_from("<iI", data, position)[1]
+    packets = aedat4_packets(data)
     cut = tmp_path / "cut.aedat4"
     cut.write_bytes(data[:packets[-1]])
     out = tmp_path / f"out.{output}"

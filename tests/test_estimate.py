@@ -417,21 +417,27 @@ def test_with_noise_and_bafilter_first_the_best_method_stays_within_3_percent(tm
 # -- goodness of fit decides validity (issue 13) ----------------------------------------------------------------
 
 
-def _ideal_triangles(seed, period_us, phases, width=8, height=6, amplitude=1.5, rise=0.5, span_us=4_000_000):
-    """Ideal pixels (tests/naive/ideal_pixel.py, not the simulator) under a log triangle; per-pixel phases when
-    ``phases``, else every pixel at its valley at t = 0 (the stimulus method's convention)."""
+def _ideal_pixels(seed, corners_of, width=8, height=6):
+    """Ideal pixels (tests/naive/ideal_pixel.py, not the simulator), thresholds 0.2 +- 0.03 drawn per pixel, each
+    watching the log-intensity polyline ``corners_of(rng)`` gives it; the events and the thresholds."""
     rng = np.random.default_rng(seed)
     on = rng.normal(0.2, 0.03, (height, width)).clip(0.1)
     off = rng.normal(0.2, 0.03, (height, width)).clip(0.1)
     rows = []
     for j in range(height):
         for i in range(width):
-            corners = triangle_corners(0, span_us, 0.0, amplitude, rise * period_us, (1 - rise) * period_us,
-                                       rng.uniform(0, 1) if phases else 0.0)
-            rows += [(math.floor(t + 0.5), i, j, p) for t, p in ideal_events(corners, on[j, i], off[j, i])]
+            rows += [(math.floor(t + 0.5), i, j, p) for t, p in ideal_events(corners_of(rng), on[j, i], off[j, i])]
     rows.sort(key=lambda row: row[0])
     t, x, y, p = zip(*rows)
     return make_events(t, x, y, p), on, off
+
+
+def _ideal_triangles(seed, period_us, phases, amplitude=1.5, rise=0.5, span_us=4_000_000):
+    """Ideal pixels under a log triangle; per-pixel phases when ``phases``, else every pixel at its valley at t = 0
+    (the stimulus method's convention)."""
+    return _ideal_pixels(seed, lambda rng: triangle_corners(0, span_us, 0.0, amplitude, rise * period_us,
+                                                             (1 - rise) * period_us,
+                                                             rng.uniform(0, 1) if phases else 0.0))
 
 
 @settings(max_examples=12, deadline=None)
@@ -461,28 +467,23 @@ def test_a_stream_that_does_not_show_the_described_stimulus_gives_no_confident_v
         assert estimate.attributes["rejected_by_fit"] >= 1
 
 
-def _ideal_intensity_triangles(seed, low, high, period_us, width=8, height=6, span_us=3_000_000):
-    """Ideal pixels (tests/naive/ideal_pixel.py) under a triangle linear in intensity from ``low`` to ``high``
-    (above the photoreceptor's knee, so log intensity is ln I), every pixel at its own phase: the intensity
-    triangle's corners, each side cut into 400 pieces in log intensity."""
-    rng = np.random.default_rng(seed)
-    on = rng.normal(0.2, 0.03, (height, width)).clip(0.1)
-    off = rng.normal(0.2, 0.03, (height, width)).clip(0.1)
-    rows = []
-    for j in range(height):
-        for i in range(width):
-            corners = triangle_corners(0, span_us, low, high - low, period_us / 2, period_us / 2, rng.uniform(0, 1))
-            dense = [(t0 + (t1 - t0) * k / 400, math.log(v0 + (v1 - v0) * k / 400))
-                     for (t0, v0), (t1, v1) in zip(corners, corners[1:]) for k in range(400)]
-            dense.append((corners[-1][0], math.log(corners[-1][1])))
-            rows += [(math.floor(t + 0.5), i, j, p) for t, p in ideal_events(dense, on[j, i], off[j, i])]
-    rows.sort(key=lambda row: row[0])
-    t, x, y, p = zip(*rows)
-    return make_events(t, x, y, p), on, off
+def _ideal_intensity_triangles(seed, low, high, period_us, span_us=3_000_000):
+    """Ideal pixels under a triangle linear in intensity from ``low`` to ``high`` (above the photoreceptor's knee,
+    so log intensity is ln I), every pixel at its own phase: the intensity triangle's corners, each side cut into
+    400 pieces in log intensity."""
+    def corners_of(rng):
+        corners = triangle_corners(0, span_us, low, high - low, period_us / 2, period_us / 2, rng.uniform(0, 1))
+        dense = [(t0 + (t1 - t0) * k / 400, math.log(v0 + (v1 - v0) * k / 400))
+                 for (t0, v0), (t1, v1) in zip(corners, corners[1:]) for k in range(400)]
+        return dense + [(corners[-1][0], math.log(corners[-1][1]))]
+
+    return _ideal_pixels(seed, corners_of)
 
 
 @settings(max_examples=10, deadline=None)
-@given(seed=st.integers(0, 10**6), low=st.floats(30, 90), high=st.floats(150, 250),
+@given(seed=st.integers(0, 10**6), low=st.floats(30, 70), high=st.floats(150, 250),  # (ratio >= 2.1: a 3 s stream
+                                                                                     # of 85..150 leaves 1 pixel in 5
+                                                                                     # under 8 changes, unfitted)
        wrong=st.sampled_from([0.5, 0.7, 0.8, 1.25, 1.4]))
 def test_wrong_stimulus_levels_are_refused_not_called_valid(seed, low, high, wrong):
     """A triangle linear in intensity: with the levels given right every pixel is valid and exact; with the low
@@ -496,8 +497,7 @@ def test_wrong_stimulus_levels_are_refused_not_called_valid(seed, low, high, wro
     stimulus = Stimulus(given_low, high, period_us)
     with pytest.raises(EstimationError) as refused:
         estimate_thresholds(events, 8, 6, "stimulus", stimulus=stimulus)
-    assert "do not fit the stimulus described" in str(refused.value) or \
-        "do not fit the described stimulus" in str(refused.value)
+    assert "do not fit the described stimulus" in str(refused.value)
     if "levels near" in str(refused.value):  # the levels it names are nearer the truth than those given
         named = float(str(refused.value).split("levels near ")[1].split(",")[0])
         assert abs(math.log(named / low)) < abs(math.log(given_low / low))
@@ -535,7 +535,7 @@ def test_a_wrong_stimulus_period_is_refused_not_called_valid(seed, wrong, log):
     with pytest.raises(EstimationError) as refused:
         estimate_thresholds(events, 8, 6, "stimulus", stimulus=wrong_stimulus)
     message = str(refused.value)
-    assert "do not fit the stimulus described" in message or "do not fit the described stimulus" in message
+    assert "do not fit the described stimulus" in message
     if "a period near" in message:
         named = float(message.split("a period near ")[1].split(" ms")[0]) * 1e3
         assert abs(named - period_us) < abs(period_us * wrong - period_us)

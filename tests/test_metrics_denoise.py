@@ -12,7 +12,7 @@ from evtools.filters import ba_filter
 from evtools.events import make_events
 from evtools.metrics.denoise import DenoiseMatcher, DenoiseMetricsError, EsrMeter, esr, roc_auc
 from tests.conftest import data_file
-from tests.helpers import assert_clean_error, cut, random_events, read_all, run
+from tests.helpers import aedat4_packets, assert_clean_error, cut, random_events, read_all, run
 from tests.naive.bafilter import naive_baf
 
 
@@ -109,13 +109,7 @@ def test_cli_denoise_matches_the_library(noisy, tmp_path):
     # a cut filtered stream (its end mark missing: a stopped filter, a broken copy) is refused, not scored as a
     # filter that removed the missing part (a QA sweep: FPR 0.208 -> 0.105 for half a stream)
     data = filtered.read_bytes()
-    import struct
-
-    position = len(b"#!AER-DAT4.0\r\n") + 4 + struct.unpack_from("<I", data, len(b"#!AER-DAT4.0\r\n"))[0]
-    packets = []
-    while position < len(data):
-        packets.append(position)
-        position += 8 + struct.unpack_from("<iI", data, position)[1]
+    packets = aedat4_packets(data)
     half = tmp_path / "half.aedat4"
     half.write_bytes(data[:packets[len(packets) // 2]])
     assert_clean_error(run("-q", "metrics", "denoise", half, "--truth", truth, "--input", path, check=False),
