@@ -481,9 +481,8 @@ def _ideal_intensity_triangles(seed, low, high, period_us, span_us=3_000_000):
 
 
 @settings(max_examples=10, deadline=None)
-@given(seed=st.integers(0, 10**6), low=st.floats(30, 70), high=st.floats(150, 250),  # (ratio >= 2.1: a 3 s stream
-                                                                                     # of 85..150 leaves 1 pixel in 5
-                                                                                     # under 8 changes, unfitted)
+# (ratios >= 2.1: a 3 s stream of 85..150 leaves a fifth of the pixels under 8 changes, unfitted)
+@given(seed=st.integers(0, 10**6), low=st.floats(30, 70), high=st.floats(150, 250),
        wrong=st.sampled_from([0.5, 0.7, 0.8, 1.25, 1.4]))
 def test_wrong_stimulus_levels_are_refused_not_called_valid(seed, low, high, wrong):
     """A triangle linear in intensity: with the levels given right every pixel is valid and exact; with the low
