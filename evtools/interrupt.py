@@ -2,8 +2,8 @@
 
 The first signal while a command consumes an event stream asks the stream to end: the reader stops at its next
 chunk (at once when it is waiting for input, e.g. on a live pipe), so the processors flush what they hold and the
-writers close their outputs as readable files holding every event that was processed, marked as cut (see
-:func:`evtools.formats.create_events`); the command then
+writers close their outputs as readable files holding every event that was processed (marked as cut when the
+inputs were files: see :func:`evtools.formats.create_events`); the command then
 exits with ``128 + signal``. A signal before any stream is consumed, or a second one, aborts at once
 (``KeyboardInterrupt``: outputs are not committed, as for any failed run).
 

@@ -7,6 +7,7 @@ import dataclasses
 import logging
 import os
 import signal
+import stat
 from typing import Iterator
 
 import numpy as np
@@ -321,6 +322,23 @@ def output_format(path: str | os.PathLike | None, format: str | None):
     return fmt
 
 
+def _any_live(inputs: tuple[str, ...]) -> bool:
+    """Whether one of ``inputs`` (paths, ``-``, ``tcp://``) is live: a network stream, a pipe, a FIFO, a device.
+    A stop (Ctrl-C) ends a live stream where it is, as a camera's recording ends; a file's reading stopped early
+    leaves its output cut."""
+    for path in inputs:
+        path = os.fspath(path) if path is not None else STDIO
+        if path.startswith(TCP_PREFIX):
+            return True
+        try:
+            mode = os.fstat(0).st_mode if path == STDIO else os.stat(path).st_mode
+        except OSError:
+            continue
+        if not stat.S_ISREG(mode):
+            return True
+    return False
+
+
 @contextlib.contextmanager
 def create_events(
     path: str | os.PathLike | None,
@@ -352,8 +370,9 @@ def create_events(
         try:
             yield writer
             stop = interrupt.received()
-            if writer.cut or stop is not None:  # the input turned out cut, or a stop (Ctrl-C) ended it early: the
-                with interrupt.deferred():      # output says so (or is refused where it cannot say a cut input)
+            writer.stopped = stop is not None and not _any_live(inputs)  # (a live input's stop is its end)
+            if writer.cut or writer.stopped:  # the input turned out cut, or a stop (Ctrl-C) ended a file's reading
+                with interrupt.deferred():    # early: the output says so (or is refused where it cannot say a cut)
                     writer.mark_cut(CUT_NOTE if writer.cut else STOPPED_NOTE.format(signal.Signals(stop).name),
                                     refuse=writer.cut)
         except BaseException:
@@ -363,7 +382,7 @@ def create_events(
             with contextlib.suppress(Exception), interrupt.deferred():
                 writer.abort()
             raise
-        if not writer.cut and interrupt.received() is None:
+        if not writer.cut and not writer.stopped:
             with interrupt.deferred():
                 writer.close()
     for note in writer.notes:  # (the output complete: not said before an error)

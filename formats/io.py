@@ -692,6 +692,7 @@ class WriteBehind:
     def __init__(self, writer, depth: int = 2) -> None:
         self.writer = writer
         self.cut = False  # set when the input turned out cut: create_events then ends the output without its mark
+        self.stopped = False  # set when a stop (Ctrl-C) ended the reading of a file early: the output is cut too
         self.notes: list[str] = []  # warnings about the output, given once it is complete (create_events)
         self.queue: Queue = Queue(maxsize=depth)
         self.error: BaseException | None = None

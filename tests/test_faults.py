@@ -76,9 +76,9 @@ def _no_temporaries(folder: Path) -> None:
 @pytest.mark.parametrize("name", sorted(STREAM_COMMANDS))
 def test_sigterm_while_waiting_on_a_pipe_stops_cleanly(tmp_path, stream, name):
     """SIGTERM while a command waits for more of a live pipe: exit 143, one line, no traceback, no temporary; what
-    it wrote is readable (an event file, a prefix of the whole run's events where it is a filter) and says it was
-    cut (it looked whole: a QA sweep scored a stopped filter's output as a better filter), as does its copy in
-    HDF5."""
+    it wrote is complete (an event file readable, and a prefix of the whole run's events where it is a filter):
+    a live stream stopped ends there, as a camera's recording does (a file's reading stopped early is cut:
+    test_a_stopped_simulation_is_marked_cut)."""
     output = tmp_path / f"out{STREAM_COMMANDS[name][1]}"
     feed = _feed(stream[0], 0.5)
     stage = _stage(name, output, feed, _options(name, stream), keep_pipe=True)
@@ -95,14 +95,34 @@ def test_sigterm_while_waiting_on_a_pipe_stops_cleanly(tmp_path, stream, name):
     _no_temporaries(tmp_path)
     if output.exists() and output.suffix == ".aedat4":
         events, _ = evtools.read(output)
-        assert b"without the end mark" in run("info", output).stderr
-        run("convert", output, "-o", tmp_path / "copy.h5")
-        assert b"cut input" in run("info", tmp_path / "copy.h5").stderr
+        assert run("info", output).stderr == b""
         if name in ("convert", "bafilter"):  # a filter's output is a prefix of its whole run's
             whole = tmp_path / "whole.aedat4"
             run(name, stream[0], *_options(name, stream), "-o", whole)
             assert 0 < len(events) and len(events) <= len(evtools.read(whole)[0])
             assert_same_events(events, evtools.read(whole)[0][:len(events)])
+
+
+@pytest.mark.parametrize("suffix", [".aedat4", ".h5", ".csv"])
+def test_a_stopped_simulation_is_marked_cut(tmp_path, suffix):
+    """A run stopped before its input's end (here a simulation of 1,000 s stopped once under way; likewise a file
+    read halfway) writes what it made, readable, and says it was cut (it looked whole: a QA sweep scored a stopped
+    filter's output as a better filter); the next command carries the mark on."""
+    import signal
+
+    output = tmp_path / f"long{suffix}"
+    process = subprocess.Popen([EVTOOLS, "simulate", "scene:flicker", "--size", "16x12", "--duration", "1000s",
+                                "-o", str(output)], stderr=subprocess.PIPE)
+    wait_until(lambda: any(p.name.startswith(".") or p.name.endswith(".part") for p in tmp_path.iterdir()),
+               "the output under way")
+    time.sleep(0.5)
+    process.send_signal(signal.SIGINT)
+    assert process.wait(timeout=60) == 130
+    process.stderr.close()
+    said = run("info", output).stderr.decode()
+    assert ("without the end mark" if suffix == ".aedat4" else "stopped by SIGINT") in said, said
+    run("convert", output, "-o", tmp_path / "copy.h5")
+    assert b"cut" in run("info", tmp_path / "copy.h5").stderr
 
 
 @pytest.mark.parametrize("name", sorted(STREAM_COMMANDS))
