@@ -53,6 +53,10 @@ def _levels(ctx, param, value):
     return low, high
 
 
+MAX_LOG_AMPLITUDE = 10.0
+"""A log-intensity triangle of more than this many log units (a contrast of 22,000) is no display's: a mistake."""
+
+
 def _stimulus(levels, period_us, profile, amplitude, speed, wavelength, rise) -> Stimulus:
     """The stimulus the options describe (click usage errors for contradictory ones)."""
     if (speed is None) != (wavelength is None):
@@ -71,6 +75,13 @@ def _stimulus(levels, period_us, profile, amplitude, speed, wavelength, rise) ->
     if profile == "intensity" and not 0 <= levels[0] < levels[1] <= 255:
         raise click.BadParameter(f"intensities need 0 <= LOW < HIGH <= 255, got {levels[0]:g},{levels[1]:g}",
                                  param_hint="--stimulus-levels")
+    if profile == "log" and levels[1] - levels[0] > MAX_LOG_AMPLITUDE:  # (simulate's --profile log levels are 0-255)
+        hint = (f": did you mean --stimulus-amplitude {math.log(levels[1] / levels[0]):.4g} (the log of "
+                f"{levels[1]:g} / {levels[0]:g}, intensities as simulate's --min-level and --max-level)?"
+                if 0 < levels[0] < levels[1] <= 255 else "")
+        raise click.BadParameter(f"with --stimulus-profile log the levels are log intensities, and {levels[0]:g},"
+                                 f"{levels[1]:g} is {levels[1] - levels[0]:g} log units peak to peak, a contrast "
+                                 f"no display shows (at most {MAX_LOG_AMPLITUDE:g}){hint}", param_hint="--stimulus-levels")
     if speed is not None:
         return Stimulus.moving(*levels, speed, wavelength, profile, rise)
     return Stimulus(*levels, period_us, 0.0, profile, rise)
@@ -197,6 +208,11 @@ def estimate(inputs, reading, output, jobs, scheduler, as_json,
     if method == "stimulus":
         stimulus = _stimulus(stimulus_levels, stimulus_period, stimulus_profile, stimulus_amplitude, stimulus_speed,
                              stimulus_wavelength, stimulus_rise)
+        crop = (slicing or {}).get("crop")
+        moved = (crop is not None and crop[0] != 0) or (slicing or {}).get("flip_x") or (slicing or {}).get("transpose")
+        if stimulus.wavelength_px and stimulus_phase == "given" and moved:  # (the delay is the camera's column's)
+            raise click.UsageError("--stimulus-phase given delays the camera's columns, which --crop (from a column "
+                                   "other than 0), --flip-x and --transpose move: use --stimulus-phase fit")
     pairs = plan(inputs, output, ".h5", second_is_output=False)
     options = dict(reading=reading,
                    parameters=dict(method=method, nominal=nominal, segment_us=segment_us, stimulus=stimulus,

@@ -493,6 +493,7 @@ def _inject_into(source, output, written_as, truth, preset, seed, parameters, re
         with create_events(output, info, format=output_format, compression=compression, inputs=(source,)) as writer:
             if truth is None:
                 _run_injector(injector, stream, writer, None, counts)
+                writer.cut = getattr(stream, "was_cut", False)  # (a cut input's output says so too)
                 return
             with create_truth(truth) as truth_writer:
                 truth_writer.write_maps({"hot_pixels": injector.hot_pixels,
@@ -508,6 +509,7 @@ def _inject_into(source, output, written_as, truth, preset, seed, parameters, re
                     "labels": ", ".join(f"{code} {name}" for code, name in LABELS.items()),
                 })
                 first, last = _run_injector(injector, stream, writer, truth_writer, counts)
+                writer.cut = getattr(stream, "was_cut", False)
                 if first is not None:  # the noise spans the input's events, these two times included
                     truth_writer.write_attributes({"t_first_us": first, "t_last_us": last})
 

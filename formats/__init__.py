@@ -239,6 +239,7 @@ class _NamedWriter:
 
     def __init__(self, target: str, writer, stream, live: bool, description: str) -> None:
         self.target, self.writer, self.description = target, writer, description
+        self.live = live  # (a pipe, a socket, stdout: what is written has gone out)
         self.flush = (getattr(writer, "flush", None) or stream.flush) if live else None
         self.frames_left_out = 0
 
@@ -272,9 +273,11 @@ class _NamedWriter:
         if mark is None:
             _named(self.target, self.writer.close)
             if refuse:
+                written = ("the events that went out are a cut stream, unmarked" if self.live or
+                           self.target == "<stdout>" else "nothing is written")
                 raise FormatError(f"{self.target}: the input was cut (events after the cut are missing) and "
-                                  f"{self.description} has nowhere to say so: nothing is written; write AEDAT 4.0, "
-                                  "HDF5 or CSV, which carry the cut, or read the input up to the cut with --end")
+                                  f"{self.description} has nowhere to say so: {written}; write AEDAT 4.0, HDF5 or "
+                                  "CSV, which carry the cut")
             log.warning(f"{self.target}: {note}, and {self.description} has nowhere to say so: whoever reads it "
                         "next sees a whole stream")
             return

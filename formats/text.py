@@ -59,6 +59,17 @@ microseconds taken for seconds (:meth:`TextReader._refuse_whole_seconds`)."""
 CUT_COMMENT = b"# evtools: "
 """The start of the last line of a CSV or text file written from a cut input (then :data:`CUT_NOTE`)."""
 
+
+def _microseconds(mantissas: np.ndarray, decimals: np.ndarray) -> np.ndarray:
+    """Seconds written as ``mantissa / 10**decimals`` in whole microseconds, in integers: exact with up to 6
+    decimals, rounded half to even beyond (``1.0000005`` -> 1,000,000 us, ``1.0000015`` -> 1,000,002 us)."""
+    scale = 10 ** np.maximum(6 - decimals, 0)
+    divisor = 10 ** np.maximum(decimals - 6, 0)
+    magnitude = np.abs(mantissas)
+    whole, rest = np.divmod(magnitude, divisor)
+    up = (2 * rest > divisor) | ((2 * rest == divisor) & (whole % 2 == 1))
+    return np.sign(mantissas) * (whole + up) * scale
+
 class TextReader:
     """Reads CSV or rpg text, block by block: CSV (t in microseconds) when the file was opened as CSV or its first
     data line has commas, else text (t in seconds); see the module's notes for the separators.
@@ -234,11 +245,9 @@ class TextReader:
             else:
                 values = mantissas[:n].astype(np.float64) / _POWERS_OF_TEN_FLOAT[decimals[:n]]
             events = self._events(values, rows[:n], line_no)
-            if self.seconds:  # times to the microsecond (6 decimals or fewer) exactly, in integers: through float64
-                column = self.index["t"]  # seconds they lost 1 us near 2^53 us (285 years: Unix times in us)
-                digits = decimals[:n, column]
-                exact = digits <= 6
-                events["t"][exact] = mantissas[:n, column][exact] * 10 ** (6 - digits[exact])
+            if self.seconds:  # microseconds from the decimal digits in integers (through float64 seconds they lost
+                column = self.index["t"]  # 1 us near 2^53 us, Unix times in us): exact to 6 decimals, rounded half
+                events["t"] = _microseconds(mantissas[:n, column], decimals[:n, column])  # to even beyond
             return events
         return self._parse_numpy(block, line_no)
 

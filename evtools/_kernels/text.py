@@ -49,8 +49,8 @@ def parse_text(block, columns, csv, mantissas, decimals, row_lines, exact_column
     row_lines : ndarray of int64, shape (lines,)
         The line (index in the block) of each row.
     exact_column : int
-        A column read as an exact decimal where it has at most 6 decimals, whatever its mantissa (times in
-        seconds: the caller makes microseconds of mantissa and decimals in integers); -1: none.
+        A column read as an exact decimal whatever its mantissa (up to 18 digits: times in seconds, whose
+        microseconds the caller makes of mantissa and decimals in integers); -1: none.
 
     Returns
     -------
@@ -126,9 +126,11 @@ def parse_text(block, columns, csv, mantissas, decimals, row_lines, exact_column
                         mantissa = mantissa * 10 + (block[q] - 48)
                         used += mantissa != 0
                     places = last - first
-                # 18 significant digits always fit in int64; beyond, numpy reads the field (and saturates as it does)
-                if k != stop or digits == 0 or used > 18 or places > MAX_DECIMALS or \
-                        (places > 0 and mantissa >= EXACT_MANTISSA and not (fields == exact_column and places <= 6)):
+                # 18 significant digits always fit in int64; beyond, numpy reads the field (and saturates as it does);
+                # the exact column takes 19 where they fit (at most one wrap: negative)
+                wide = used == 19 and fields == exact_column and mantissa >= 0
+                if k != stop or digits == 0 or (used > 18 and not wide) or places > MAX_DECIMALS or \
+                        (places > 0 and mantissa >= EXACT_MANTISSA and fields != exact_column):
                     return OTHER_SYNTAX, 0, line, 0, point
                 mantissas[rows, fields] = -mantissa if negative else mantissa
                 decimals[rows, fields] = places
