@@ -417,6 +417,11 @@ def test_a_cut_file_converted_to_any_format_is_marked_cut_or_refused(tmp_path, o
     again = tmp_path / "again.h5"  # the cut is carried on
     subprocess.run([EVTOOLS, "convert", out, "-o", again, "-q"], check=True, capture_output=True)
     assert b"written from a cut input" in subprocess.run([EVTOOLS, "info", again], capture_output=True).stderr
+    if output == "csv":  # noise added to a cut recording (simulate EVENTS) says so too
+        noisy = tmp_path / "noisy.csv"
+        subprocess.run([EVTOOLS, "simulate", cut, "--shot-noise-rate-hz", "1", "--seed", "1", "-o", noisy, "-q"],
+                       check=True, capture_output=True)
+        assert b"cut input" in subprocess.run([EVTOOLS, "info", noisy], capture_output=True).stderr
     # a whole stream's outputs say nothing
     intact = tmp_path / f"intact.{output}"
     subprocess.run([EVTOOLS, "convert", whole, "-o", intact, "-q"], check=True, capture_output=True)

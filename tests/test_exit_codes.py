@@ -154,6 +154,10 @@ def test_values_beyond_what_the_kernels_hold_are_usage_errors(tmp_path, args, op
     (["bafilter", "{S}", "-m", "stcf", "--k", "100", "-o", "{T}/o.aedat4"], "k must be a whole number in 1..8"),
     (["bafilter", "{S}", "-m", "stcf", "--radius", "2", "--k", "25", "-o", "{T}/o.aedat4"], "in 1..24"),
     (["render", "--map", "{M}", "--range", "0.3", "0.1", "-o", "{T}/r.png"], "LOW must be below HIGH"),
+    (["estimate", "{S}", "--method", "stimulus", "--stimulus-speed", "50", "--stimulus-wavelength", "64",
+      "--stimulus-phase", "given", "--crop", "2,0,30,48", "-o", "{T}/t.h5"], "use --stimulus-phase fit"),
+    (["estimate", "{S}", "--method", "stimulus", "--stimulus-profile", "log", "--stimulus-levels", "50,200", "-o",
+      "{T}/t.h5"], "did you mean --stimulus-amplitude 1.386"),
 ])
 def test_option_values_out_of_their_range_exit_2(tmp_path, args, words):
     """Values out of range that the filters or the renderer checked once the run began exited 1, as for bad data
