@@ -51,7 +51,7 @@ def _summary(path: str, reading) -> dict:
             summary.add(chunk)
             summary.add_frames(stream.take_frames())
         summary.add_frames(stream.take_frames())
-        return {"file": stream.name, **summary.as_dict(stream.info)}
+        return {"file": stream.name, **summary.as_dict(stream.info), "cut": bool(stream.was_cut)}
 
 
 def _print_table(rows: list[dict]) -> None:

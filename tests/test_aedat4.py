@@ -1,6 +1,7 @@
 """AEDAT 4.0: evtools' reader against `aedat` and dv-processing, its writer read back by both, chunk invariance."""
 
 import io
+import json
 import struct
 
 import numpy as np
@@ -412,8 +413,9 @@ def test_a_cut_file_converted_to_any_format_is_marked_cut_or_refused(tmp_path, o
         return
     assert converted.returncode == 0 and out.exists(), converted.stderr
     assert_same_events(read_all(out)[1], events)
-    read = subprocess.run([EVTOOLS, "info", out], capture_output=True)
+    read = subprocess.run([EVTOOLS, "info", out, "--json"], capture_output=True)
     assert read.returncode == 0 and b"warning" in read.stderr and b"cut" in read.stderr
+    assert json.loads(read.stdout)["cut"] is True
     again = tmp_path / "again.h5"  # the cut is carried on
     subprocess.run([EVTOOLS, "convert", out, "-o", again, "-q"], check=True, capture_output=True)
     assert b"written from a cut input" in subprocess.run([EVTOOLS, "info", again], capture_output=True).stderr
@@ -425,7 +427,8 @@ def test_a_cut_file_converted_to_any_format_is_marked_cut_or_refused(tmp_path, o
     # a whole stream's outputs say nothing
     intact = tmp_path / f"intact.{output}"
     subprocess.run([EVTOOLS, "convert", whole, "-o", intact, "-q"], check=True, capture_output=True)
-    assert subprocess.run([EVTOOLS, "info", intact], capture_output=True).stderr == b""
+    intact_info = subprocess.run([EVTOOLS, "info", intact, "--json"], capture_output=True)
+    assert intact_info.stderr == b"" and json.loads(intact_info.stdout)["cut"] is False
 
 
 def test_the_header_uses_only_attribute_types_every_reader_knows(tmp_path):
