@@ -692,14 +692,18 @@ class ThresholdEstimator:
         if periods:
             factor = min(periods, key=periods.get)
             if periods[factor] < LEVELS_BETTER**2 * given_square:
-                problems.append(f"a period near {s.period_us * factor / 1e3:.4g} ms fits them better "
+                speed = (f" (a speed near {s.wavelength_px / (s.period_us * factor) * 1e6:.4g} px/s)"
+                         if s.wavelength_px else "")
+                problems.append(f"a period near {s.period_us * factor / 1e3:.4g} ms{speed} fits them better "
                                 f"({math.sqrt(periods[factor]):.3f})")
         if problems:
+            timing = ("--stimulus-speed, --stimulus-wavelength (the period: wavelength / speed)" if s.wavelength_px
+                      else "--stimulus-period")
             raise EstimationError(
                 f"the events do not fit the described stimulus (levels {s.low:g}, {s.high:g}, period "
                 f"{s.period_us / 1e3:.4g} ms: median deviation {math.sqrt(given_square):.3f}); "
-                f"{'; '.join(problems)}: check --stimulus-levels and --stimulus-period, or give --max-fit inf to "
-                "take the estimates as they are")
+                f"{'; '.join(problems)}: check --stimulus-levels, {timing}, or give --max-fit inf to take the "
+                "estimates as they are")
 
     def _snapshot(self, t_us: int) -> None:
         """Online: the maps as they stand at ``t_us`` (invalid where nothing is known yet), then every sum decays
