@@ -354,7 +354,9 @@ def create_events(
 ):
     """Write an event stream to ``path`` (``-``/None: stdout), atomically; yields a writer with ``write(chunk)``.
 
-    ``inputs`` are the paths being read, which the output may not overwrite.
+    ``inputs`` are the paths being read, which the output may not overwrite. When the input turned out cut (the
+    caller sets ``writer.cut``) or a stop (Ctrl-C) ended the reading of files (not of a live input: its end), the
+    output is marked cut (:meth:`_NamedWriter.mark_cut`) instead of closed whole.
     """
     fmt = output_format(path, format)
     if path is not None and os.fspath(path) != STDIO:
