@@ -170,17 +170,17 @@ LEVELS_STEP = 2.0 ** 0.25
 """stimulus (intensity profile): the levels check estimates the stream again with the log ratio of the levels
 (high / low) times powers of this, the high level kept, and refuses the levels given when another ratio explains the
 events much better (:meth:`ThresholdEstimator._check_description`)."""
-LEVELS_CHECK_PIXELS = 2048
+DESCRIPTION_CHECK_PIXELS = 2048
 """The description check (levels, period) looks at every s-th row, s chosen to keep at most this many pixels (its
 memory and time: 15 estimates of them)."""
 LEVELS_STEPS = 4
 """... and this many steps either side (log ratios from 1/2 to 2 times the given's)."""
-LEVELS_MIN_FIT = 0.01
+DESCRIPTION_MIN_DEVIATION = 0.01
 """The description check takes a description whose median deviation is below this (level changes within 1 % of
 the thresholds)."""
 PERIOD_FACTORS = (0.96, 0.98, 0.99, 1.01, 1.02, 1.04)
 """stimulus: the description check estimates the stream again with the period times each of these."""
-LEVELS_BETTER = 1 / math.sqrt(2.0)
+DESCRIPTION_BETTER = 1 / math.sqrt(2.0)
 """The description check refuses when another description's median deviation is below this times the given one's (the
 simulated 32 x 24 flicker, levels 50,200: ideal pixels 0.001 at the true levels, 0.02-0.1 at low levels 25-100; with
 v2e's noisy preset the best over the given is 0.93-1.0 for low levels 45-60 and 0.46-0.67 for 25-40 and 70-100)"""
@@ -508,12 +508,11 @@ class ThresholdEstimator:
                     stimulus_table(*self._waveform, profile, self._table)
         # the description check: the same estimate on a sample of rows, as described and with other levels and
         # periods (:meth:`_check_description`)
-        self._level_rows = 0
-        self.levels_fits: tuple[float, float, float] | None = None  # (given, best, best's ln ratio offset)
+        self._probe_rows = 0
         self._probes: dict[tuple[str, float], ThresholdEstimator] = {}  # ("levels", log ratio scale) or ("period", x)
         if method == "stimulus" and interval_us is None and math.isfinite(self.max_fit):
-            self._level_rows = max(1, math.ceil(width * height / LEVELS_CHECK_PIXELS))
-            rows = math.ceil(height / self._level_rows)
+            self._probe_rows = max(1, math.ceil(width * height / DESCRIPTION_CHECK_PIXELS))
+            rows = math.ceil(height / self._probe_rows)
 
             def probe(description: Stimulus) -> ThresholdEstimator:
                 return ThresholdEstimator(width, rows, "stimulus", phase=phase, min_events=min_events,
@@ -589,8 +588,8 @@ class ThresholdEstimator:
             if scene is not None:
                 scene.result()
         if self._probes:
-            sampled = chunk[chunk["y"] % self._level_rows == 0]
-            sampled["y"] //= self._level_rows
+            sampled = chunk[chunk["y"] % self._probe_rows == 0]
+            sampled["y"] //= self._probe_rows
             for probe in self._probes.values():
                 probe._accumulate(sampled)
 
@@ -630,12 +629,11 @@ class ThresholdEstimator:
         want_us = -math.log(1 - SCENE_EXPECTED_SHARE) / mean_neighbours * 1e6
         k = int(min(max(round(math.log2(max(want_us, 1.0))), math.log2(SCENE_MIN_DT_US)), NEIGHBOUR_AGE_BINS - 2))
         share = float(((1 - np.exp(-neighbours * (2 ** k) * 1e-6)) * counts).sum()) / n
-        looked = n
         observed = int(self._neighbour_ages[:k].sum())
-        z = (observed - share * looked) / math.sqrt(max(share * (1 - share) * looked, 1.0))
+        z = (observed - share * n) / math.sqrt(max(share * (1 - share) * n, 1.0))
         if z < SCENE_Z:
             raise EstimationError(
-                f"the events show no scene: {100 * observed / looked:.1f} % follow a neighbour's event within "
+                f"the events show no scene: {100 * observed / n:.1f} % follow a neighbour's event within "
                 f"{2 ** k:,} us, as independent noise at the same rates gives ({100 * share:.1f} %, z {z:.1f}); "
                 f"{self.method} reads thresholds off what neighbouring pixels see, and noise alone gives plausible "
                 "but meaningless values: record a moving scene, or use --method stimulus with a known stimulus "
@@ -645,8 +643,8 @@ class ThresholdEstimator:
         """Refuse a stimulus description the events contradict: the levels (the ratio high / low) or the period.
         The same estimate on every s-th row as described and with other levels and periods gives the median
         deviation of each one's accepted changes from its thresholds (the misfits, mostly noise, left out); when
-        another description's is below :data:`LEVELS_BETTER` times the given one's (and the given one's above
-        :data:`LEVELS_MIN_FIT`), the description is refused, naming what fits better.
+        another description's is below :data:`DESCRIPTION_BETTER` times the given one's (and the given one's above
+        :data:`DESCRIPTION_MIN_DEVIATION`), the description is refused, naming what fits better.
 
         Levels: a triangle linear in intensity is curved in log intensity, more so the larger the ratio, so the
         events' timing shows the ratio: an ideal pixel fits the levels given to ~1e-3, levels 20 % off to ~0.04,
@@ -661,7 +659,7 @@ class ThresholdEstimator:
         deviations = {}
         for key, probe in self._probes.items():
             try:
-                _, _, valid, fit, extra = probe._stimulus()
+                _, _, valid, fit, extra = probe._stimulus(deviation=True)
             except EstimationError:  # (a longer period than the stream: that description cannot be compared)
                 continue
             deviations[key] = np.where(valid & np.isfinite(fit), extra["deviation"], np.nan)
@@ -672,7 +670,7 @@ class ThresholdEstimator:
             return  # (too few pixels to compare)
         squares = {key: float(np.median(values[usable])) ** 2 for key, values in deviations.items()}
         given_square = squares[("given", 1.0)]
-        if given_square <= LEVELS_MIN_FIT**2:
+        if given_square <= DESCRIPTION_MIN_DEVIATION**2:
             return
         s = self.stimulus
         problems = []
@@ -681,8 +679,7 @@ class ThresholdEstimator:
             scales = sorted([1.0, *levels])
             curve = np.array([given_square if k == 1.0 else squares[("levels", k)] for k in scales])
             best, best_square = _lowest(np.log(scales), curve)
-            self.levels_fits = (math.sqrt(given_square), math.sqrt(best_square), float(math.exp(best)))
-            if best_square < LEVELS_BETTER**2 * given_square:
+            if best_square < DESCRIPTION_BETTER**2 * given_square:
                 low = s.high / (s.high / s.low) ** math.exp(best)
                 where = "near" if np.log(scales[0]) < best < np.log(scales[-1]) else "beyond"
                 problems.append(f"levels {where} {low:.3g}, {s.high:g} fit them better ({math.sqrt(best_square):.3f}; "
@@ -691,7 +688,7 @@ class ThresholdEstimator:
         periods = {factor: square for (kind, factor), square in squares.items() if kind == "period"}
         if periods:
             factor = min(periods, key=periods.get)
-            if periods[factor] < LEVELS_BETTER**2 * given_square:
+            if periods[factor] < DESCRIPTION_BETTER**2 * given_square:
                 speed = (f" (a speed near {s.wavelength_px / (s.period_us * factor) * 1e6:.4g} px/s)"
                          if s.wavelength_px else "")
                 problems.append(f"a period near {s.period_us * factor / 1e3:.4g} ms{speed} fits them better "
@@ -776,7 +773,6 @@ class ThresholdEstimator:
             on, off, valid, fit, extra = self._natural()
         else:
             on, off, valid, fit, extra = self._stimulus()
-            del extra["deviation"]  # (for the levels check only)
             fitting = valid & (fit <= self.max_fit)
             if valid.any() and fitting.sum() < MIN_FITTING_SHARE * valid.sum():
                 raise EstimationError(
@@ -936,7 +932,7 @@ class ThresholdEstimator:
         off = np.where(valid, self.nominal * relative[..., 1], 0.0)
         return on.ravel(), off.ravel(), valid.ravel(), fit.ravel(), extra
 
-    def _stimulus(self, final: bool = True):
+    def _stimulus(self, final: bool = True, deviation: bool = False):
         span_us = self.t_last_us - self.t_first_us
         if final and span_us < self.stimulus.period_us:  # (44 % of the pixels were "estimated" from 1 s of a 1.28 s
             raise EstimationError(  # stimulus: from a part of one rise or fall, levels the stimulus never repeats)
@@ -977,11 +973,10 @@ class ThresholdEstimator:
             # squared deviations of the accepted changes from the threshold, in thresholds, plus one per change
             # that did not fit (outside the window or the wrong sign)
             deviations = (squares - 2 * thresholds * level_sums + pairs * thresholds**2) / thresholds**2
-            misfits = np.where(pairs > 0, np.maximum(deviations, 0.0), 0.0) + (changes - pairs)
-            fit = np.sqrt(misfits.sum(axis=0) / changes.sum(axis=0))
-            # the accepted changes' part alone (the levels check: misfits are mostly noise, whatever the levels)
-            extra["deviation"] = np.sqrt(np.where(pairs > 0, np.maximum(deviations, 0.0), 0.0).sum(axis=0)
-                                         / pairs.sum(axis=0))
+            accepted = np.where(pairs > 0, np.maximum(deviations, 0.0), 0.0)
+            fit = np.sqrt((accepted + (changes - pairs)).sum(axis=0) / changes.sum(axis=0))
+            if deviation:  # the accepted changes' part alone (the description check: misfits are mostly noise)
+                extra["deviation"] = np.sqrt(accepted.sum(axis=0) / pairs.sum(axis=0))
         fit[changes.sum(axis=0) < FIT_MIN_CHANGES] = np.inf  # too few changes to show a fit
         return thresholds[0], thresholds[1], valid, fit, extra
 
