@@ -208,8 +208,8 @@ def estimate(inputs, reading, output, jobs, scheduler, as_json,
     if method == "stimulus":
         stimulus = _stimulus(stimulus_levels, stimulus_period, stimulus_profile, stimulus_amplitude, stimulus_speed,
                              stimulus_wavelength, stimulus_rise)
-        crop = (slicing or {}).get("crop")
-        moved = (crop is not None and crop[0] != 0) or (slicing or {}).get("flip_x") or (slicing or {}).get("transpose")
+        slices = slicing or {}
+        moved = (slices.get("crop") or (0,))[0] != 0 or slices.get("flip_x") or slices.get("transpose")
         if stimulus.wavelength_px and stimulus_phase == "given" and moved:  # (the delay is the camera's column's)
             raise click.UsageError("--stimulus-phase given delays the camera's columns, which --crop (from a column "
                                    "other than 0), --flip-x and --transpose move: use --stimulus-phase fit")

@@ -609,6 +609,14 @@ def _each_time(blocks: Iterator[np.ndarray]) -> Iterator[int]:
         yield from block.tolist()
 
 
+def _uniform_frames(blocks: Iterator[np.ndarray], levels: Callable[[np.ndarray], np.ndarray], width: int,
+                    height: int) -> Iterator[tuple[int, np.ndarray]]:
+    """Frames of one level each, ``levels(block)`` giving a block of frame times' levels."""
+    for block in blocks:
+        for t, level in zip(block.tolist(), levels(block)):
+            yield t, np.full((height, width), level, dtype=np.float32)
+
+
 def _triangle(phase: np.ndarray | float) -> np.ndarray | float:
     """0 at integer phases, 1 at half-integer ones, linear in between."""
     phase = np.mod(phase, 1.0)
@@ -657,17 +665,14 @@ def flicker_scene(
             return np.exp(math.log(min_level) + (math.log(max_level) - math.log(min_level)) * wave).astype(np.float32)
         return (min_level + (max_level - min_level) * wave).astype(np.float32)
 
-    def levels(blocks):  # one level per frame
-        for block in blocks:
-            wave = _triangle(block * 1e-6 / period_s + phase)
-            if profile == "log":
-                yield from zip(block.tolist(), np.exp(math.log(min_level) + (math.log(max_level)
-                                                                             - math.log(min_level)) * wave))
-            else:
-                yield from zip(block.tolist(), min_level + (max_level - min_level) * wave)
+    def levels(block):  # one level per frame
+        wave = _triangle(block * 1e-6 / period_s + phase)
+        if profile == "log":
+            return np.exp(math.log(min_level) + (math.log(max_level) - math.log(min_level)) * wave)
+        return min_level + (max_level - min_level) * wave
 
     if phase_spread == 0.0:
-        return ((t, np.full((height, width), level, dtype=np.float32)) for t, level in levels(times))
+        return _uniform_frames(times, levels, width, height)
     return ((t, frame(t)) for t in _each_time(times))
 
 
@@ -737,12 +742,8 @@ def step_scene(
     _check_levels(min_level, max_level)
     _check_positive("period", period_s)
     times = _frame_times_us(duration_us, frame_rate_hz)
-
-    def levels(blocks):
-        for block in blocks:
-            yield from zip(block.tolist(), np.where(np.mod(block * 1e-6 / period_s, 1.0) >= 0.5, max_level, min_level))
-
-    return ((t, np.full((height, width), level, dtype=np.float32)) for t, level in levels(times))
+    return _uniform_frames(times, lambda block: np.where(np.mod(block * 1e-6 / period_s, 1.0) >= 0.5, max_level,
+                                                         min_level), width, height)
 
 
 def static_scene(
@@ -752,7 +753,7 @@ def static_scene(
     """A constant uniform image: every event is noise."""
     _check_levels(level, level)
     times = _frame_times_us(duration_us, frame_rate_hz)
-    return ((t, np.full((height, width), level, dtype=np.float32)) for t in _each_time(times))
+    return _uniform_frames(times, lambda block: np.full(len(block), level), width, height)
 
 
 def procedural_texture(size_px: int, seed: int = 0) -> np.ndarray:

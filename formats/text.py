@@ -88,6 +88,7 @@ class TextReader:
         self.stream = source.stream
         self.chunk_events = max(1, int(options.chunk_events))
         self.off_seen: int | None = None  # how the file writes OFF (0 or -1), once seen
+        self.cut_file = False  # the file says it was written from a cut input (its comment: :meth:`_comment`)
         self.block_bytes = int(min(BLOCK_BYTES, max(1 << 16, self.chunk_events * 32)))
         if source.head.startswith(UTF8_BOM):  # (Excel's CSV): not part of the first field
             self.stream.read(len(UTF8_BOM))
@@ -151,7 +152,7 @@ class TextReader:
     def _comment(self, line: bytes) -> None:
         """A ``#`` comment line; the one evtools writes after the events of a cut input (:data:`CUT_COMMENT`) is
         said, and the stream counts as cut (a command's output of it is marked cut too)."""
-        if line.lstrip().startswith(CUT_COMMENT) and not getattr(self, "cut_file", False):
+        if line.lstrip().startswith(CUT_COMMENT) and not self.cut_file:
             self.cut_file = True
             logging.getLogger("evtools").warning(f"{self.name}: {line.strip()[len(CUT_COMMENT):].decode('utf-8', 'replace')}")
 
