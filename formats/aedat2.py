@@ -32,7 +32,7 @@ import numpy as np
 import evtools
 from evtools.events import EVENT_DTYPE, MAX_TIME_US, StreamInfo
 from evtools.formats.errors import FormatError
-from evtools.formats.io import Source, resolve_sensor_size
+from evtools.formats.io import Source, ends_cut, resolve_sensor_size
 from evtools.formats.registry import ReadOptions, WriteOptions
 
 log = logging.getLogger("evtools")
@@ -122,6 +122,7 @@ class Aedat2Reader:
 
     def __init__(self, source: Source, options: ReadOptions) -> None:
         self.source = source
+        self.cut_file = False  # the file ends inside a record (read up to it: formats.io.ends_cut)
         self.name = source.name
         self.chunk_records = max(1, int(options.chunk_events))
         lines, self.header_bytes, self._first = read_hash_header(source.stream)
@@ -184,10 +185,8 @@ class Aedat2Reader:
                 break
         if pending:
             offset = self.header_bytes + records_read * RECORD_BYTES
-            raise FormatError(
-                f"{self.name}: truncated AEDAT 2.0 record at byte offset {offset} "
-                f"({len(pending)} of {RECORD_BYTES} bytes)"
-            )
+            ends_cut(self, f"truncated AEDAT 2.0 record at byte offset {offset:,} ({len(pending)} of "
+                           f"{RECORD_BYTES} bytes)")
 
     def _decode(self, words: np.ndarray) -> np.ndarray:
         """Events of a block of big-endian (address, timestamp) words, special/APS/IMU words dropped."""

@@ -29,7 +29,7 @@ import numpy as np
 from evtools.events import EVENT_DTYPE, StreamInfo
 from evtools.frames import Frame, gray
 from evtools.formats.errors import FormatError
-from evtools.formats.io import read_at_most, Source, resolve_sensor_size
+from evtools.formats.io import Source, ends_cut, read_at_most, resolve_sensor_size
 from evtools.formats.registry import ReadOptions
 
 MAGIC = b"#!AER-DAT3.1\r\n"
@@ -78,6 +78,7 @@ class Aedat3Reader:
 
     def __init__(self, source: Source, options: ReadOptions) -> None:
         self.source = source
+        self.cut_file = False  # the file ends inside a packet (read up to it: formats.io.ends_cut)
         self.name = source.name
         self.chunk_events = max(1, int(options.chunk_events))
         first = source.stream.readline()
@@ -117,10 +118,9 @@ class Aedat3Reader:
             if not head:
                 return
             if len(head) < PACKET_HEADER.size:
-                raise FormatError(
-                    f"{self.name}: truncated AEDAT 3.1 packet header at byte offset {offset} "
-                    f"({len(head)} of {PACKET_HEADER.size} bytes)"
-                )
+                ends_cut(self, f"truncated AEDAT 3.1 packet header at byte offset {offset:,} ({len(head)} of "
+                               f"{PACKET_HEADER.size} bytes)")
+                return
             kind, _, size, ts_offset, overflow, capacity, number, _ = PACKET_HEADER.unpack(head)
             if size <= 0 or capacity < 0 or not 0 <= number <= capacity:
                 raise FormatError(
@@ -129,10 +129,9 @@ class Aedat3Reader:
                 )
             body = read_at_most(stream, size * capacity, self.source.seekable)
             if len(body) < size * capacity:
-                raise FormatError(
-                    f"{self.name}: truncated AEDAT 3.1 packet at byte offset {offset} "
-                    f"({len(body)} of {size * capacity} body bytes)"
-                )
+                ends_cut(self, f"truncated AEDAT 3.1 packet at byte offset {offset:,} ({len(body):,} of "
+                               f"{size * capacity:,} body bytes)")
+                return
             packet_offset, offset = offset, offset + PACKET_HEADER.size + size * capacity
             if kind == FRAME_EVENT and frames is not None:
                 frames.extend(self._frames_of(body, size, number, overflow, packet_offset))

@@ -32,7 +32,7 @@ from evtools.events import EVENT_DTYPE, StreamInfo
 from evtools.frames import FORMAT_BGR, FORMAT_BGRA, FORMAT_GRAY, FORMAT_GRAY16, Frame, gray
 from evtools.formats import io as formats_io
 from evtools.formats.errors import FormatError
-from evtools.formats.io import Source
+from evtools.formats.io import Source, ends_cut
 from evtools.formats.registry import ReadOptions, WriteOptions
 
 MAGIC = b"#!AER-DAT4.0\r\n"
@@ -272,6 +272,7 @@ class Aedat4Reader:
         self.frame_stream_id = frame_ids[0] if frame_ids else None
         self.frames: deque[Frame] = deque()  # read, not yet taken (EventStream.take_frames): file order
         self.frames_read = 0
+        self.cut_file = False  # the file turned out cut (no end mark where one was promised, or cut inside a packet)
         self.expects_end_mark = events["end_mark"]
         self._last_count: int | None = None  # events in the last event packet read (0: the end mark)
         try:
@@ -335,17 +336,25 @@ class Aedat4Reader:
                     self._chunk, self._filled = self._recycled.take(self.options.chunk_events), 0
                 head = stream.read(8)
                 if not head:
+                    if self.data_position >= 0:  # (a cut at a packet's end, in a file DV wrote with its data table)
+                        ends_cut(self, f"the file ends at byte {self.position:,}, before the data table its header "
+                                       f"places at byte {self.data_position:,}")
                     break
                 if live and not (self._filled or pending or group):
                     first_arrival_s = time.monotonic()
                 if len(head) != 8:
-                    raise FormatError(f"{self.name}: truncated AEDAT 4.0 packet header at byte {self.position}")
+                    ends_cut(self, f"truncated AEDAT 4.0 packet header at byte {self.position:,}")
+                    break
                 stream_id, size = struct.unpack("<iI", head)
                 offset = self.position
+                if size > MAX_PACKET_BYTES:
+                    raise FormatError(f"{self.name}: damaged AEDAT 4.0 packet header at byte {offset:,} (its size "
+                                      f"field says {size:,} bytes, more than a packet holds)")
+                if offset + 8 + size > file_bytes:
+                    ends_cut(self, f"truncated AEDAT 4.0 packet at byte {offset:,} (its size field says {size:,} "
+                                   f"bytes, {file_bytes - offset - 8:,} follow)")
+                    break
                 self.position += 8 + size
-                if self.position > file_bytes or size > MAX_PACKET_BYTES:
-                    raise FormatError(f"{self.name}: truncated AEDAT 4.0 packet at byte {offset} (its size field says "
-                                      f"{size:,} bytes: the file was cut or damaged)")
                 if stream_id != self.stream_id:
                     if stream_id == self.frame_stream_id and self.frame_stream_id is not None:
                         self._take_frame(self._read_packet(size, size, offset), offset)
@@ -376,8 +385,9 @@ class Aedat4Reader:
                 target_bytes = target.view(np.uint8)
                 have = len(start) - events_at
                 target_bytes[:have] = np.frombuffer(start, np.uint8, have, events_at)
-                if stream.readinto(memoryview(target_bytes)[have:]) != 16 * count - have:
-                    raise FormatError(f"{self.name}: truncated AEDAT 4.0 packet at byte {offset}")
+                if stream.readinto(memoryview(target_bytes)[have:]) != 16 * count - have:  # (a stream of unknown size)
+                    ends_cut(self, f"truncated AEDAT 4.0 packet at byte {offset:,}")
+                    break
                 target.view(np.uint64).reshape(-1, 2)[:, 1] &= PAYLOAD_MASK  # the file's padding: zeroed
                 self._filled += count
             if group:
@@ -391,7 +401,7 @@ class Aedat4Reader:
         if self._filled:
             yield self._chunk[:self._filled]
         self.info.metadata["skipped_packets"] = self._skipped_packets
-        if self.expects_end_mark and self._last_count != 0:
+        if self.expects_end_mark and self._last_count != 0 and not self.cut_file:
             self._cut()
 
     def _scan_uncompressed(self) -> Iterator[np.ndarray]:

@@ -382,6 +382,19 @@ def read_at_most(stream: BinaryIO, n: int, seekable: bool) -> bytes:
     return b"".join(pieces)
 
 
+def ends_cut(reader, problem: str) -> None:
+    """A file that ends inside a record or packet (``problem`` says where) was cut: a recording stopped by a crash,
+    a copy broken off. The whole records before it have been read and go on; a warning says what was lost and the
+    stream is marked cut (``reader.cut_file``: its outputs say so, DESIGN.md), so no input is lost and no cut stream
+    passes as whole. A live input cut so (its writer stopped mid-write) is an error, as a live input ending without
+    its end mark is."""
+    if reader.source.live:
+        raise FormatError(f"{reader.name}: {problem}")
+    logging.getLogger("evtools").warning(f"{reader.name}: {problem}: the file was cut (or damaged there); the events "
+                                         "before it are read, the rest is lost, and the stream is marked cut")
+    reader.cut_file = True
+
+
 def same_file(a: str, b: str) -> bool:
     """True if paths ``a`` and ``b`` name the same existing file."""
     try:

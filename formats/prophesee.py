@@ -41,7 +41,7 @@ from evtools._kernels.prophesee import (DROPPED_NO_TIME, DROPPED_NO_Y, EVT2_DROP
                                         decode_evt3, decode_evt21, encode_evt2, new_evt2_state, new_evt3_state)
 from evtools.events import MAX_TIME_US, StreamInfo, record_words, second_words
 from evtools.formats.errors import FormatError
-from evtools.formats.io import Recycled, Source, resolve_sensor_size
+from evtools.formats.io import Recycled, Source, ends_cut, resolve_sensor_size
 from evtools.formats.registry import ReadOptions, WriteOptions
 
 GENERATION_SIZES = (("genx320", (320, 320)), ("imx636", (1280, 720)), ("gen4", (1280, 720)), ("gen3", (640, 480)))
@@ -134,6 +134,7 @@ class PropheseeRawReader:
 
     def __init__(self, source: Source, options: ReadOptions) -> None:
         self.source = source
+        self.cut_file = False  # the file ends inside a word (read up to it: formats.io.ends_cut)
         self.name = source.name
         self.chunk_events = max(1, int(options.chunk_events))
         lines, self.header_bytes, self._first = self._read_header()
@@ -202,10 +203,8 @@ class PropheseeRawReader:
                 break
         if pending:
             offset = self.header_bytes + words_read * self.word_bytes
-            raise FormatError(
-                f"{self.name}: truncated EVT {self.version} word at byte offset {offset} "
-                f"({len(pending)} of {self.word_bytes} bytes)"
-            )
+            ends_cut(self, f"truncated EVT {self.version} word at byte offset {offset:,} ({len(pending)} of "
+                           f"{self.word_bytes} bytes)")
 
     def _events(self, counts: dict[str, int]) -> Iterator[np.ndarray]:
         if self.version == "3.0":
@@ -349,6 +348,7 @@ class PropheseeDatReader:
 
     def __init__(self, source: Source, options: ReadOptions) -> None:
         self.source, self.name = source, source.name
+        self.cut_file = False  # the file ends inside a record (read up to it: formats.io.ends_cut)
         self.chunk_events = max(1, int(options.chunk_events))
         stream = source.stream
         lines: list[str] = []
@@ -391,7 +391,7 @@ class PropheseeDatReader:
             if not data:
                 break
         if pending:
-            raise FormatError(f"{self.name}: truncated Prophesee DAT event at the end ({len(pending)} of 8 bytes)")
+            ends_cut(self, f"truncated Prophesee DAT event at the end ({len(pending)} of 8 bytes)")
 
     def _events(self) -> Iterator[np.ndarray]:
         last, loops, recycled = -1, 0, Recycled()

@@ -26,7 +26,7 @@ import numpy as np
 from evtools._kernels.text import PARSED, WRONG_COUNT, parse_text
 from evtools.events import EVENT_DTYPE, MAX_SENSOR_SIDE, MAX_TIME_US, StreamInfo
 from evtools.formats.errors import FormatError
-from evtools.formats.io import Source, resolve_sensor_size
+from evtools.formats.io import Source, ends_cut, resolve_sensor_size
 from evtools.formats.registry import ReadOptions, WriteOptions
 
 _POWERS_OF_TEN_FLOAT = 10.0 ** np.arange(23)
@@ -125,11 +125,13 @@ class TextReader:
         size = None
         tokens = text.split()
         if len(tokens) == 2 and all(token.isdigit() for token in tokens):
+            if not line.endswith(b"\n"):  # ("346 26" of "346 260"): a size cut short, not a size
+                raise FormatError(f"{self.name}: the file ends inside its first line, the sensor size (a cut file?)")
             size = int(tokens[0]), int(tokens[1])
             self._consumed()
             line = self._next_content_line()
             tokens = line.split()
-        if line and len(tokens) not in (4, 5):
+        if line and len(tokens) not in (4, 5) and line.endswith(b"\n"):  # (not: the last line, cut: see _parsed)
             raise FormatError(
                 f"{self.name}: line {self.line_no}: {len(tokens)} columns, expected 't x y p' "
                 "(t in seconds, optional 5th label column)"
@@ -203,7 +205,8 @@ class TextReader:
             data = read(self.block_bytes)
             if not data:
                 if carry.strip():
-                    yield (carry if carry.endswith(b"\n") else carry + b"\n"), line_no
+                    self._last_line = line_no  # (without its newline: cut short, if it does not parse)
+                    yield carry + b"\n", line_no
                 return
             buffer = carry + data if carry else data
             cut = buffer.rfind(b"\n")
@@ -371,17 +374,31 @@ class TextReader:
     def _scan_size(self) -> tuple[int, int]:
         position = self.stream.tell()
         width = height = 0
-        for block, line_no in self._blocks():
-            events = self._parse(block, line_no)
+        for events in self._parsed(scanning=True):
             if len(events):
                 width = max(width, int(events["x"].max()) + 1)
                 height = max(height, int(events["y"].max()) + 1)
         self.stream.seek(position)
         return width, height
 
-    def __iter__(self) -> Iterator[np.ndarray]:
+    def _parsed(self, scanning: bool = False) -> Iterator[np.ndarray]:
+        """The events of each block. A last line without its newline that does not read as an event is left out:
+        the file was cut inside it (a writer stopped mid-line), said when read (not when scanned for the size)."""
+        self._last_line = None
         for block, line_no in self._blocks():
-            events = self._parse(block, line_no)
+            try:
+                events = self._parse(block, line_no)
+            except FormatError as error:
+                if line_no != self._last_line:
+                    raise
+                if not scanning:
+                    ends_cut(self, f"line {line_no}, the last, ends without its newline and does not read as an "
+                                   f"event ({str(error).removeprefix(f'{self.name}: line {line_no}: ')})")
+                return
+            yield events
+
+    def __iter__(self) -> Iterator[np.ndarray]:
+        for events in self._parsed():
             for start in range(0, len(events), self.chunk_events):
                 yield events[start : start + self.chunk_events]
 

@@ -1,6 +1,7 @@
 """AEDAT 3.1 (cAER / libcaer): the derived recording, hand-built packets, bad input."""
 
 import io
+import re
 import struct
 
 import numpy as np
@@ -9,7 +10,7 @@ import pytest
 from evtools.events import make_events
 from evtools.formats import FormatError
 from tests.conftest import data_file
-from tests.helpers import assert_same_events, read_all
+from tests.helpers import assert_clean_error, assert_same_events, read_all, run
 
 HEADER = b"#!AER-DAT3.1\r\n#Format: RAW\r\n#Source 1: DAVIS346B\r\n#!END-HEADER\r\n"
 
@@ -68,15 +69,18 @@ def test_packets_overflow_invalid_events_and_other_types(tmp_path):
     assert info.metadata["invalid_events"] == 1
 
 
-def test_truncated_packet_names_the_file(tmp_path):
+def test_truncated_packet_names_the_file_and_the_packets_before_it_are_read(tmp_path, caplog):
     path = tmp_path / "cut.aedat3"
     packet = _packet(1, [(_polarity(1, 2, True), 1), (_polarity(1, 2, True), 2)])
     path.write_bytes(HEADER + packet[:-3])
-    with pytest.raises(FormatError, match=rf"cut\.aedat3.*truncated AEDAT 3\.1 packet at byte offset {len(HEADER)}"):
-        read_all(path, sensor_size=(346, 260))
+    assert len(read_all(path, sensor_size=(346, 260))[1]) == 0
+    assert re.search(rf"cut\.aedat3.*truncated AEDAT 3\.1 packet at byte offset {len(HEADER)}.*file was cut", caplog.text)
+    caplog.clear()
     path.write_bytes(HEADER + packet + packet[:10])
-    with pytest.raises(FormatError, match=r"cut\.aedat3.*truncated AEDAT 3\.1 packet header"):
-        read_all(path, sensor_size=(346, 260))
+    assert len(read_all(path, sensor_size=(346, 260))[1]) == 2
+    assert re.search(r"cut\.aedat3.*truncated AEDAT 3\.1 packet header.*file was cut", caplog.text)
+    piped = run("info", "-", "--sensor-size", "346x260", input=path.read_bytes(), check=False)  # its writer stopped
+    assert_clean_error(piped, "<stdin>", "truncated AEDAT 3.1 packet header")
 
 
 def test_wrong_magic_and_missing_end_of_header_name_the_file(tmp_path):

@@ -16,7 +16,7 @@ from evtools.formats import create_events
 from evtools.formats.aedat4 import Aedat4Writer
 from evtools.formats.registry import WriteOptions
 from tests.conftest import data_file
-from tests.helpers import assert_clean_error, assert_same_events, EVTOOLS, random_events, read_all, run
+from tests.helpers import EVTOOLS, aedat4_packets, assert_clean_error, assert_same_events, random_events, read_all, run
 
 
 @pytest.fixture
@@ -51,7 +51,7 @@ def test_info_on_several_files_shows_the_good_ones_beside_a_bad_one(sample, tmp_
     the good ones are shown, exit 1."""
     path, events = sample
     bad = tmp_path / "bad.aedat4"
-    bad.write_bytes(path.read_bytes()[:5000])
+    bad.write_bytes(path.read_bytes()[:20])  # (cut inside its header)
     result = run("info", path, bad, tmp_path / "missing.aedat4", path, "--json", check=False)
     assert result.returncode == 1 and b"Traceback" not in result.stderr
     rows = json.loads(result.stdout)
@@ -116,15 +116,11 @@ def _bad_inputs(tmp_path: Path) -> dict[str, tuple[Path, list[str], tuple[str, .
     good = tmp_path / "good.aedat4"
     with create_events(good, StreamInfo(64, 48)) as writer:
         writer.write(random_events(5000, 64, 48))
-    truncated = tmp_path / "truncated.aedat4"
-    truncated.write_bytes(good.read_bytes()[:-1000])
-    cases["truncated AEDAT 4.0 packet"] = (truncated, [], ("truncated.aedat4", "truncated"))
-    aedat2 = tmp_path / "good.aedat"
-    with create_events(aedat2, StreamInfo(128, 128)) as writer:
-        writer.write(random_events(5000, 128, 128))
-    truncated2 = tmp_path / "truncated.aedat"
-    truncated2.write_bytes(aedat2.read_bytes()[:-3])
-    cases["truncated AEDAT 2.0 record"] = (truncated2, [], ("truncated.aedat", "truncated"))
+    damaged = bytearray(good.read_bytes())  # (a file cut inside a packet is read up to it: tests/test_faults.py)
+    first = aedat4_packets(bytes(damaged))[0]
+    damaged[first + 4:first + 8] = (1 << 31).to_bytes(4, "little")  # a size no packet has
+    (tmp_path / "damaged.aedat4").write_bytes(damaged)
+    cases["damaged AEDAT 4.0 packet"] = (tmp_path / "damaged.aedat4", [], ("damaged.aedat4", "damaged"))
     letters = tmp_path / "letters.csv"
     letters.write_text("t,x,y,p\n1,2,3,1\n2,3,oops,0\n")
     cases["CSV line with letters"] = (letters, ["--sensor-size", "10x10"], ("letters.csv", "line 3"))
@@ -150,7 +146,7 @@ def _bad_inputs(tmp_path: Path) -> dict[str, tuple[Path, list[str], tuple[str, .
     return cases
 
 
-BAD = ["empty file", "random bytes", "truncated AEDAT 4.0 packet", "truncated AEDAT 2.0 record",
+BAD = ["empty file", "random bytes", "damaged AEDAT 4.0 packet",
        "CSV line with letters", "HDF5 without events", "coordinates outside the sensor", "time going backwards",
        "missing file"]
 

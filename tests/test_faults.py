@@ -14,8 +14,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import evtools
+import evtools.formats
+from evtools.events import concatenate
 from tests.helpers import assert_clean_error, assert_same_events, run, wait_until, wait_until_waiting_for_input
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -391,3 +395,93 @@ def test_a_stop_at_any_moment_of_an_hdf5_write_is_clean(tmp_path, signal_number)
             assert evtools.read(out)[0].size <= len(events)
             out.unlink()
         _no_temporaries(tmp_path)
+
+
+# --- a file cut inside a record or packet: the whole ones before the cut are read, the stream marked cut ---
+
+CUT_KINDS = {"aedat4": ("aedat4", "none"), "aedat4 lz4": ("aedat4", "lz4"), "aedat": ("aedat", None),
+             "raw": ("raw", None)}
+"""The writable formats whose files are records or packets (a cut can fall inside one): suffix, compression."""
+
+
+def _whole_ends(path: Path, suffix: str) -> list[int]:
+    """The byte offsets at which a cut of ``path`` loses no part of a record or packet (after the header)."""
+    from tests.helpers import aedat4_packets
+
+    data = path.read_bytes()
+    if suffix == "aedat4":
+        return aedat4_packets(data)
+    with evtools.open(path) as stream:
+        header_bytes = stream.reader.header_bytes
+    record_bytes = 8 if suffix == "aedat" else 4  # (AEDAT 2.0: address and time; EVT 2.0: 32-bit words)
+    return list(range(header_bytes, len(data) + 1, record_bytes))
+
+
+def _read_cut(path: Path) -> tuple[np.ndarray, bool]:
+    with evtools.open(path) as stream:
+        events = concatenate(stream)
+        return events, stream.was_cut
+
+
+@settings(max_examples=40, deadline=None)
+@given(kind=st.sampled_from(sorted(CUT_KINDS)), n=st.integers(1, 2000), seed=st.integers(0, 2**31),
+       chunks=st.lists(st.integers(0, 2000), max_size=6), at=st.floats(0, 1, exclude_max=True))
+def test_a_file_cut_anywhere_keeps_every_whole_record_before_the_cut(tmp_path_factory, kind, n, seed, chunks, at):
+    """A recording whose copy broke off (or whose camera crashed) inside a record or packet was refused whole: every
+    event lost. Now the whole records/packets before the cut are read (the same events as a cut at the start of the
+    broken one), a warning names the file, and the stream is marked cut."""
+    from tests.helpers import cut, random_events
+
+    suffix, compression = CUT_KINDS[kind]
+    folder = tmp_path_factory.mktemp("cut")
+    events = random_events(n, 64, 48, seed=seed)
+    whole = folder / f"whole.{suffix}"
+    with evtools.formats.create_events(whole, evtools.StreamInfo(64, 48), compression=compression) as writer:
+        for part in cut(events, chunks):  # (AEDAT 4.0: a packet a write)
+            writer.write(part)
+    ends = _whole_ends(whole, suffix)
+    data = whole.read_bytes()
+    position = ends[0] + int(at * (len(data) - ends[0]))
+    inside = position not in ends
+    broken = folder / f"broken.{suffix}"
+    broken.write_bytes(data[:position])
+    clean = folder / f"clean.{suffix}"
+    clean.write_bytes(data[:max(end for end in ends if end <= position)])
+    got, was_cut = _read_cut(broken)
+    expected, _ = _read_cut(clean)
+    assert_same_events(got, expected)
+    assert_same_events(got, events[:len(got)])
+    assert was_cut == (inside or suffix == "aedat4")  # (AEDAT 4.0 of evtools: its end mark is missing too)
+
+
+def test_a_file_cut_inside_a_packet_goes_through_a_command_marked_cut(tmp_path):
+    """On the command line: exit 0, one warning line naming the file and the cut, the events before it written and
+    the output marked cut (read back: said again); through a pipe (a live input: its writer stopped mid-write) it
+    stays an error, one line, and a damaged size field inside the file is an error."""
+    from tests.helpers import aedat4_packets, random_events
+
+    events = random_events(100_000, 64, 48, seed=2)
+    whole = tmp_path / "whole.aedat4"
+    evtools.write(whole, events, evtools.StreamInfo(64, 48))
+    data = whole.read_bytes()
+    second = aedat4_packets(data)[1]
+    (tmp_path / "at_boundary.aedat4").write_bytes(data[:second])
+    in_first = len(evtools.read(tmp_path / "at_boundary.aedat4")[0])  # (the first packet's events)
+    assert 0 < in_first < len(events)
+    broken = tmp_path / "broken.aedat4"
+    broken.write_bytes(data[:second + 500])
+    out = tmp_path / "out.h5"
+    result = run("convert", broken, "-o", out, check=False)
+    stderr = result.stderr.decode()
+    assert result.returncode == 0 and stderr.count("warning") == 1 and "Traceback" not in stderr, stderr
+    assert "broken.aedat4" in stderr and f"packet at byte {second:,}" in stderr and "cut" in stderr
+    with evtools.open(out) as stream:
+        assert_same_events(concatenate(stream), events[:in_first])
+        assert stream.was_cut
+    piped = run("convert", "-", "-o", tmp_path / "piped.h5", input=broken.read_bytes(), check=False)
+    assert_clean_error(piped, "<stdin>", "truncated AEDAT 4.0 packet")
+    assert not (tmp_path / "piped.h5").exists()
+    damaged = bytearray(data)
+    damaged[second + 4:second + 8] = (1 << 31).to_bytes(4, "little")  # a size field no packet has, inside the file
+    (tmp_path / "damaged.aedat4").write_bytes(damaged)
+    assert_clean_error(run("info", tmp_path / "damaged.aedat4", check=False), "damaged.aedat4", "damaged")

@@ -465,3 +465,34 @@ def test_txt_times_with_more_decimals_round_half_to_even(tmp_path_factory, times
     path = tmp_path_factory.mktemp("ns") / "ns.txt"
     path.write_text("4 4\n" + "\n".join(lines) + "\n")
     assert read_all(path)[1]["t"].tolist() == expected
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(suffix=st.sampled_from(["csv", "txt"]), n=st.integers(1, 300), seed=st.integers(0, 2**31),
+       at=st.floats(0, 1, exclude_max=True))
+def test_a_text_file_cut_inside_its_last_line_keeps_the_lines_before_it(tmp_path, suffix, n, seed, at):
+    """A CSV or text file cut mid-line (its writer stopped) was refused whole. Its last line, without its newline,
+    is now left out when it does not read as an event (said, the stream marked cut); a line cut exactly before its
+    newline is whole. Whatever the cut, the events read are the written ones' prefix, and the stream is marked cut
+    exactly when a line was lost."""
+    from tests.helpers import random_events
+
+    events = random_events(n, 64, 48, seed=seed)
+    whole = tmp_path / f"whole_{seed}_{n}.{suffix}"
+    with create_events(whole, StreamInfo(64, 48)) as writer:
+        writer.write(events)
+    data = whole.read_bytes()
+    header = data.index(b"\n") + 1  # (CSV: the column names; text: the sensor size)
+    position = header + int(at * (len(data) - header))
+    cut = tmp_path / f"cut_{seed}_{n}.{suffix}"
+    cut.write_bytes(data[:position])
+    with open_events(cut, sensor_size=(64, 48)) as stream:
+        got = concatenate(stream)
+        was_cut = stream.was_cut
+    complete_lines = data[header:position].count(b"\n")
+    partial = data[header:position].rsplit(b"\n", 1)[-1]
+    whole_last = partial != b"" and data[position:position + 1] == b"\n"  # (cut just before a newline: a whole line)
+    assert len(got) == complete_lines + whole_last
+    assert np.array_equal(got["t"], events["t"][:len(got)]) and np.array_equal(got["x"], events["x"][:len(got)])
+    assert np.array_equal(got["p"], events["p"][:len(got)])
+    assert was_cut == (partial != b"" and not whole_last)
