@@ -78,10 +78,11 @@ def convert_one(input, output, *, reading, output_format, compression, speed=Non
                 if transform:
                     chunk = transform.process(chunk)
                 if len(chunk):
-                    writer.write(chunk)
+                    frames.write(chunk)
                 events_out += len(chunk)
                 frames.release(last_us)
-                if transform and transform.done:  # past --end: the rest of the input is not read
+                # past --end: the rest of the input is not read (but for the side streams' packets stored later)
+                if transform and transform.done and not stream.reads_past_the_end:
                     stopped = True
                     break
             frames.release(None)

@@ -67,12 +67,12 @@ def process_stream(stream, processor, writer, label: str) -> tuple[int, int]:
         for out in process_parts(chunk):
             events_out += len(out)
             if len(out):
-                writer.write(out)
+                frames.write(out)
         frames.release(released(int(chunk["t"][-1])))
     for rest in flush_parts():
         events_out += len(rest)
         if len(rest):
-            writer.write(rest)
+            frames.write(rest)
     frames.release(None)
     writer.cut = getattr(stream, "was_cut", False)  # a cut input's output ends without the end mark too
     return events_in, events_out

@@ -95,29 +95,63 @@ def gray(pixels: np.ndarray, order: str = "BGR") -> tuple[np.ndarray, str | None
 class FrameRelay:
     """Passes a stream's frames on to a writer (``write_frame``), each once the output has reached its
     :attr:`Frame.order_us`: :meth:`release` with the time before which the processor's output is final, and with
-    None when the stream has ended."""
+    None when the stream has ended. Where the writer carries them (AEDAT 4.0 to AEDAT 4.0), the stream's side
+    streams' packets (IMU samples, triggers: ``write_side``) go on the same way."""
 
     def __init__(self, stream, writer) -> None:
         self.stream, self.writer = stream, writer
         self.pending: deque[Frame] = deque()
+        self.side_pending: deque = deque()
         self.written = 0
+        self.carries_side = bool(getattr(writer, "carries_side_streams", False)) and \
+            hasattr(stream, "carry_side_streams")
+        if self.carries_side:
+            stream.carry_side_streams()
 
     def due(self, released_us: int) -> bool:
-        """Whether :meth:`release` with ``released_us`` would write a frame (for a writer that buffers events: they
-        go out first)."""
+        """Whether :meth:`release` with ``released_us`` would write a frame or a side packet (for a writer that
+        buffers events: they go out first)."""
         self._take()
-        return bool(self.pending) and self.pending[0].order_us < released_us
+        return any(queue and queue[0].order_us < released_us for queue in (self.pending, self.side_pending))
 
     def _take(self) -> None:
         take = getattr(self.stream, "take_frames", None)
         if take is not None:
             self.pending.extend(take())
+        if self.carries_side:
+            self.side_pending.extend(self.stream.take_side_packets())
+
+    def write(self, events: np.ndarray) -> None:
+        """Write a chunk of the output (time-ordered, as every later one), each frame or side packet waiting for a
+        time within it written before the chunk's first event at or after that time, so that a reader (a time
+        slice's, a live one) meets it where it belongs, not a whole chunk later."""
+        self._take()
+        t, start = events["t"], 0
+        while len(t):
+            heads = [queue for queue in (self.pending, self.side_pending) if queue and queue[0].order_us <= t[-1]]
+            if not heads:
+                break
+            queue = min(heads, key=lambda waiting: waiting[0].order_us)
+            item = queue.popleft()
+            cut = start + int(np.searchsorted(t[start:], item.order_us, side="left"))
+            if cut > start:
+                self.writer.write(events[start:cut])
+                start = cut
+            if queue is self.pending:
+                self.writer.write_frame(item)
+                self.written += 1
+            else:
+                self.writer.write_side(item)
+        if start < len(events):
+            self.writer.write(events[start:] if start else events)
 
     def release(self, released_us: int | None) -> None:
         self._take()
         while self.pending and (released_us is None or self.pending[0].order_us < released_us):
             self.writer.write_frame(self.pending.popleft())
             self.written += 1
+        while self.side_pending and (released_us is None or self.side_pending[0].order_us < released_us):
+            self.writer.write_side(self.side_pending.popleft())
         not_carried = getattr(self.stream, "not_carried", None)
         if released_us is None and not_carried is not None and not_carried():
             note = (f"{self.stream.name}: {not_carried()} are not in the output (evtools carries events and APS "

@@ -64,7 +64,9 @@ class StreamSummary:
             "rate_hz": self.rate_hz,
             "on_fraction": None if not self.events else self.on_fraction,
             "frames": self.frames_dict(),
-            "metadata": info.metadata,
+            # (the side streams' XML attributes, kept for an AEDAT 4.0 output, are not shown: their names are in
+            # "skipped_streams")
+            "metadata": {key: value for key, value in info.metadata.items() if key != "side_streams"},
         }
 
     def frames_dict(self) -> dict:

@@ -123,15 +123,19 @@ class Transform:
     def flush(self) -> np.ndarray:
         return empty_events()
 
+    def keeps(self, order_us: int) -> bool:
+        """Whether the time slice keeps something (an APS frame, a side stream's packet) at ``order_us``."""
+        if self.first_us is None:  # no event yet: times relative to the stream's start count from this one
+            start, end = (-np.inf if self.start is None else self.start.resolve(order_us),
+                          np.inf if self.end is None else self.end.resolve(order_us))
+        else:
+            start, end = self._bounds()
+        return start <= order_us < end
+
     def frame(self, frame):
         """An APS frame (:class:`evtools.Frame`) under the same time slice (by the end of its exposure), crop, flips
         and transpose as the events; None outside the slice."""
-        if self.first_us is None:  # no event yet: times relative to the stream's start count from this frame
-            start, end = (-np.inf if self.start is None else self.start.resolve(frame.order_us),
-                          np.inf if self.end is None else self.end.resolve(frame.order_us))
-        else:
-            start, end = self._bounds()
-        if not start <= frame.order_us < end:
+        if not self.keeps(frame.order_us):
             return None
         if not self.moves_pixels:
             return frame
@@ -190,12 +194,17 @@ class SlicedStream:
         frames = (self.transform.frame(frame) for frame in self._stream.take_frames())
         return [frame for frame in frames if frame is not None]
 
+    def take_side_packets(self) -> list:
+        """The stream's side packets (IMU samples, triggers) read since the last call, within the time slice (they
+        are the camera's: crops, flips and transposes leave them as they are)."""
+        return [packet for packet in self._stream.take_side_packets() if self.transform.keeps(packet.order_us)]
+
     def __iter__(self):
         for chunk in self._stream:
             chunk = self.transform.process(chunk)
             if len(chunk):
                 yield chunk
-            if self.transform.done:
+            if self.transform.done and not getattr(self._stream, "reads_past_the_end", False):
                 return
         self.transform.said_at_end(self._stream.name)
 

@@ -96,6 +96,29 @@ class EventStream:
             log.warning(f"{self.name}: its {colour} colour frames are read as gray (OpenCV's weights)")
         return taken
 
+    def carry_side_streams(self) -> None:
+        """Ask the reader to keep its side streams' packets (an AEDAT 4.0 input's IMU samples, triggers: each an
+        :class:`evtools.formats.aedat4.SidePacket`) for :meth:`take_side_packets`, not skip them: for an output that
+        carries them (AEDAT 4.0). Called before the stream is read."""
+        if hasattr(self.reader, "carry_side"):
+            self.reader.carry_side = True
+
+    @property
+    def reads_past_the_end(self) -> bool:
+        """Whether a time slice's end should not stop the reading of this stream: a file whose side streams are
+        carried (their packets may be stored after the events of their time: dv-processing's writer stores an
+        IMU's samples when a packet is full), so that the packets that begin before the end are all met."""
+        return bool(getattr(self.reader, "carry_side", False) and getattr(self.reader, "side_ids", None)) and \
+            not self.source.live
+
+    def take_side_packets(self) -> list:
+        """The side streams' packets read since the last call (after :meth:`carry_side_streams`), in file order."""
+        packets = getattr(self.reader, "side_packets", None)
+        taken = []
+        while packets:
+            taken.append(packets.popleft())
+        return taken
+
     def not_carried(self) -> str | None:
         """What of the input a command that writes events and APS frames leaves out (the streams and words the
         reader skipped: IMU, triggers, jAER's APS samples...), as words, once the stream has been read; None when
@@ -254,6 +277,18 @@ class _NamedWriter:
             self.frames_left_out += 1
             return
         _named(self.target, self.writer.write_frame, frame)
+        if self.flush is not None:
+            _named(self.target, self.flush)
+
+    @property
+    def carries_side_streams(self) -> bool:
+        """Whether the output declares side streams (AEDAT 4.0 written with an AEDAT 4.0 input's metadata) and takes
+        their packets (:meth:`write_side`)."""
+        return bool(getattr(self.writer, "side_streams", 0))
+
+    def write_side(self, packet) -> None:
+        """A side stream's packet, where the output carries them (:attr:`carries_side_streams`)."""
+        _named(self.target, self.writer.write_side, packet)
         if self.flush is not None:
             _named(self.target, self.flush)
 

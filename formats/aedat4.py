@@ -22,6 +22,7 @@ import threading
 import time
 import xml.etree.ElementTree as ET
 from collections import deque
+from dataclasses import dataclass
 from concurrent.futures import ThreadPoolExecutor
 from typing import BinaryIO, Iterator
 
@@ -139,7 +140,12 @@ def _parse_streams(description: str, name: str) -> dict[int, dict]:
         attrs = {a.get("key"): a.text for a in node.findall("attr")}
         info = node.find("node[@name='info']")
         info_attrs = {a.get("key"): a.text for a in info.findall("attr")} if info is not None else {}
+        typed = [[a.get("key"), a.get("type") or "string", a.text or ""] for a in node.findall("attr")]
+        typed_info = [[a.get("key"), a.get("type") or "string", a.text or ""]
+                      for a in (info.findall("attr") if info is not None else ())]
         streams[int(node.get("name"))] = {
+            "attributes": typed,  # (key, type, text): what a side stream is written back with
+            "info": typed_info,
             "type": attrs.get("typeIdentifier", ""),
             "name": attrs.get("originalOutputName", ""),
             "width": info_attrs.get("sizeX"),
@@ -247,8 +253,41 @@ def _packet_events(body: bytes, name: str, offset: int) -> np.ndarray:
     return np.frombuffer(body, EVENT_DTYPE, count, events_at)
 
 
+@dataclass(frozen=True, eq=False)
+class SidePacket:
+    """A packet of a side stream, one evtools carries from an AEDAT 4.0 input to an AEDAT 4.0 output without reading
+    it (DV's IMU samples ``IMUS``, triggers ``TRIG``, any other): its decompressed body (a size-prefixed
+    flatbuffer, as it was), the index of its stream in ``info.metadata["side_streams"]``, and the time it belongs at
+    (:attr:`order_us`: its first element's timestamp, else the time of the side packet before it)."""
+
+    stream: int
+    body: bytes
+    order_us: int
+
+
+def _first_element_us(body: bytes) -> int | None:
+    """The timestamp of a DV packet's first element: ``table XPacket { elements: [X] }`` whose element is a table
+    starting with ``timestamp: int64`` (DV's IMU, Trigger); None for an empty or other packet."""
+    buffer = memoryview(body)
+    try:
+        (root,) = struct.unpack_from("<I", buffer, 4)
+        fields = _table_fields(buffer, 4 + root)
+        if not fields or not fields[0]:
+            return None
+        vector = fields[0] + struct.unpack_from("<I", buffer, fields[0])[0]
+        if struct.unpack_from("<I", buffer, vector)[0] == 0:
+            return None
+        element = vector + 4 + struct.unpack_from("<I", buffer, vector + 4)[0]
+        element_fields = _table_fields(buffer, element)
+        return struct.unpack_from("<q", buffer, element_fields[0])[0] if element_fields and element_fields[0] else None
+    except (struct.error, ValueError):
+        return None
+
+
 class Aedat4Reader:
-    """Reads the event stream of an AEDAT 4.0 file or pipe; frames, IMU samples and triggers are skipped."""
+    """Reads the event stream of an AEDAT 4.0 file or pipe, its APS frames (:meth:`EventStream.take_frames`) and,
+    when asked (:meth:`EventStream.carry_side_streams`), its other streams' packets (IMU samples, triggers:
+    :class:`SidePacket`); else those are skipped and counted."""
 
     def __init__(self, source: Source, options: ReadOptions) -> None:
         self.source, self.options, self.name = source, options, source.name
@@ -282,12 +321,19 @@ class Aedat4Reader:
         if from_file is None and options.sensor_size is None:
             raise FormatError(f"{self.name}: the event stream does not state its size; give --sensor-size WxH")
         width, height = formats_io.resolve_sensor_size(source, from_file, options.sensor_size)
-        skipped = sorted(s["name"] or s["type"] for i, s in streams.items()
-                         if i not in (self.stream_id, self.frame_stream_id))
+        side_ids = sorted(i for i in streams if i not in (self.stream_id, self.frame_stream_id))
+        self.side_ids = {stream_id: index for index, stream_id in enumerate(side_ids)}
+        self.carry_side = False  # set by carry_side_streams(): the side streams' packets are queued, not skipped
+        self.side_packets: deque[SidePacket] = deque()  # read, not yet taken (EventStream.take_side_packets)
+        self._side_us = 0  # the time of the last side packet that had one
         self.info = StreamInfo(
             width, height, "aedat4",
-            {"source": events["source"], "compression": COMPRESSION_XML.get(code, str(code)), "skipped_streams": skipped},
+            {"source": events["source"], "compression": COMPRESSION_XML.get(code, str(code)),
+             "skipped_streams": sorted(streams[i]["name"] or streams[i]["type"] for i in side_ids)},
         )
+        if side_ids:  # (an AEDAT 4.0 output declares them and carries their packets: DV's IMU samples, triggers)
+            self.info.metadata["side_streams"] = [
+                {key: streams[i][key] for key in ("type", "name", "attributes", "info")} for i in side_ids]
         if self.frame_stream_id is not None:
             frames = streams[self.frame_stream_id]
             try:
@@ -358,6 +404,9 @@ class Aedat4Reader:
                 if stream_id != self.stream_id:
                     if stream_id == self.frame_stream_id and self.frame_stream_id is not None:
                         self._take_frame(self._read_packet(size, size, offset), offset)
+                        continue
+                    if self.carry_side and stream_id in self.side_ids:
+                        self._take_side(stream_id, self._read_packet(size, size, offset), offset)
                         continue
                     self._skipped_packets += 1
                     self._skip(size, offset)
@@ -437,6 +486,8 @@ class Aedat4Reader:
                     whole = start + 8 + size <= got
                     if whole and stream_id == self.frame_stream_id and self.frame_stream_id is not None:
                         self._take_frame(block[start + 8:start + 8 + size].tobytes(), self.position)
+                    elif whole and self.carry_side and stream_id in self.side_ids:
+                        self._take_side(stream_id, block[start + 8:start + 8 + size].tobytes(), self.position)
                     elif whole and stream_id != self.stream_id and stream_id != self.frame_stream_id:
                         self._skipped_packets += 1
                     else:
@@ -469,6 +520,19 @@ class Aedat4Reader:
         self._last_frame_us = frame.order_us
         self.frames.append(frame)
         self.frames_read += 1
+
+    def _take_side(self, stream_id: int, body: bytes, offset: int) -> None:
+        """A side stream's packet (IMU samples, triggers...), decompressed and queued whole for
+        :meth:`EventStream.take_side_packets`, at the time of its first element (else of the packet before it)."""
+        if self.decompress is not None:
+            try:
+                body = self.decompress(body)
+            except Exception as error:  # lz4 and zstandard raise their own types
+                raise FormatError(f"{self.name}: cannot decompress packet at byte {offset} ({error})") from None
+        first_us = _first_element_us(body)
+        if first_us is not None:
+            self._side_us = first_us
+        self.side_packets.append(SidePacket(self.side_ids[stream_id], body, self._side_us))
 
     def _cut(self) -> None:
         """A stream whose writer promised an end mark ended without it: an error on a pipe or socket (the writer
@@ -604,8 +668,7 @@ aedat, faery) would parse the stream description."""
 def _description(info: StreamInfo, compression: int) -> str:
     """The streams' XML: events (id 0) and, when ``info.metadata["frame_size"]`` says the stream has APS frames,
     frames (id :data:`FRAME_STREAM_ID`)."""
-    source = _NOT_XML.sub("\ufffd", str(info.metadata.get("source") or "evtools"))
-    source = source.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")  # (html.escape's import: 3 ms)
+    source = _xml_text(info.metadata.get("source") or "evtools")
     frame_size = info.metadata.get("frame_size")
     frames = "" if not frame_size else (
         f'        <node name="{FRAME_STREAM_ID}" path="/mainloop/Recorder/outInfo/{FRAME_STREAM_ID}/">\n'
@@ -621,6 +684,8 @@ def _description(info: StreamInfo, compression: int) -> str:
         '            </node>\n'
         '        </node>\n'
     )
+    sides = "".join(_side_node(SIDE_STREAM_FIRST_ID + index, side, compression)
+                    for index, side in enumerate(info.metadata.get("side_streams") or ()))
     return (
         '<dv version="2.0">\n'
         '    <node name="outInfo" path="/mainloop/Recorder/outInfo/">\n'
@@ -637,13 +702,42 @@ def _description(info: StreamInfo, compression: int) -> str:
         f'                <attr key="{END_MARK_KEY}" type="string">true</attr>\n'
         '            </node>\n'
         '        </node>\n'
-        f'{frames}'
+        f'{frames}{sides}'
         '    </node>\n'
         '</dv>\n'
     )
 
 
+def _xml_text(text) -> str:
+    """``text`` safe inside an XML attribute or element (characters XML forbids replaced, markup escaped: not by
+    html.escape, whose import costs 3 ms)."""
+    text = _NOT_XML.sub("\ufffd", str(text))
+    return text.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;").replace('"', "&quot;")
+
+
+def _side_node(stream_id: int, side: dict, compression: int) -> str:
+    """A side stream's node (``info.metadata["side_streams"]``: its attributes as the input stated them) under the
+    id it has in this file, with this file's compression."""
+    path = f"/mainloop/Recorder/outInfo/{stream_id}/"
+
+    def attrs(items, indent: str) -> str:
+        return "".join(f'{indent}<attr key="{_xml_text(key)}" type="{_xml_text(kind)}">{_xml_text(text)}</attr>\n'
+                       for key, kind, text in items)
+
+    own = [item for item in side["attributes"] if item[0] != "compression"]
+    return (f'        <node name="{stream_id}" path="{path}">\n'
+            f'            <attr key="compression" type="string">{COMPRESSION_XML[compression]}</attr>\n'
+            f'{attrs(own, "            ")}'
+            f'            <node name="info" path="{path}info/">\n'
+            f'{attrs(side["info"], "                ")}'
+            '            </node>\n'
+            '        </node>\n')
+
+
 FRAME_STREAM_ID = 1
+SIDE_STREAM_FIRST_ID = 2
+"""The id of the first side stream an evtools file carries (IMU samples, triggers: :class:`SidePacket`), the others
+following in the input's order."""
 """The stream id of the frames the writer declares (DV's recordings number them 1 too)."""
 
 
@@ -712,6 +806,7 @@ class Aedat4Writer:
         self.pool: ThreadPoolExecutor | None = None
         self.frames = bool(info.metadata.get("frame_size"))  # the header declares a frame stream
         self.frames_left_out = 0
+        self.side_streams = len(info.metadata.get("side_streams") or ())  # the side streams the header declares
 
     def write(self, chunk: np.ndarray) -> None:
         while len(chunk):
@@ -757,6 +852,10 @@ class Aedat4Writer:
             self.frames_left_out += 1
             return
         self._packet(FRAME_STREAM_ID, _frame_body(frame))
+
+    def write_side(self, packet: SidePacket) -> None:
+        """A side stream's packet (:class:`SidePacket`), as it came, after the events written before it."""
+        self._packet(SIDE_STREAM_FIRST_ID + packet.stream, packet.body)
 
     def _write_body(self, body, stream_id: int = 0) -> None:
         self.stream.write(struct.pack("<iI", stream_id, memoryview(body).nbytes))

@@ -721,6 +721,8 @@ class WriteBehind:
                 try:
                     if isinstance(chunk, np.ndarray):
                         self.writer.write(chunk)
+                    elif isinstance(chunk, tuple):  # a side stream's packet, in its place among the chunks
+                        self.writer.write_side(chunk[1])
                     else:  # an APS frame, in its place among the chunks
                         self.writer.write_frame(chunk)
                 except BaseException as error:  # raised in the producer's thread
@@ -739,6 +741,15 @@ class WriteBehind:
         """An APS frame (:class:`evtools.frames.Frame`), written after the chunks given before it."""
         self._raise()
         self.queue.put(frame)
+
+    @property
+    def carries_side_streams(self) -> bool:
+        return bool(getattr(self.writer, "carries_side_streams", False))
+
+    def write_side(self, packet) -> None:
+        """A side stream's packet (IMU samples, triggers), written after the chunks given before it."""
+        self._raise()
+        self.queue.put(("side", packet))
 
     def close(self) -> None:
         if self.thread.is_alive():

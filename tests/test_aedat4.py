@@ -662,3 +662,121 @@ def test_a_group_of_compressed_packets_decodes_as_each_packet_alone(data):
         events, last, ratio = reader._decode_group(group)
         assert events.tobytes() == want.tobytes()
         assert last == len(expected[-1]) and ratio >= 1.0
+
+
+# --- side streams (IMU samples, triggers): carried from an AEDAT 4.0 input to an AEDAT 4.0 output ---
+
+
+def _dv_side_streams(path) -> tuple[list, list]:
+    """(IMU samples, triggers) of an AEDAT 4.0 file as dv-processing reads them (each a tuple of its values)."""
+    dv = pytest.importorskip("dv_processing", reason="dv-processing (the test extra) writes and reads side streams")
+    imu, triggers = [], []
+    recording = dv.io.MonoCameraRecording(str(path))
+    if recording.isImuStreamAvailable():
+        while (batch := recording.getNextImuBatch()) is not None:
+            imu += [(s.timestamp, s.temperature, s.accelerometerX, s.accelerometerY, s.accelerometerZ, s.gyroscopeX,
+                     s.gyroscopeY, s.gyroscopeZ) for s in batch]
+    recording = dv.io.MonoCameraRecording(str(path))
+    if recording.isTriggerStreamAvailable():
+        while (batch := recording.getNextTriggerBatch()) is not None:
+            triggers += [(trigger.timestamp, int(trigger.type)) for trigger in batch]
+    return imu, triggers
+
+
+def _write_with_side_streams(path, events, side, compression: str) -> None:
+    """An AEDAT 4.0 file as DV records a camera with an IMU and a trigger input, by dv-processing's writer: the
+    events, and ``side``'s packets (``(kind, sample times, lag_us)``: an IMU or trigger packet stored after the
+    events up to its last sample's time + its lag, as a writer that fills a packet before storing it)."""
+    dv = pytest.importorskip("dv_processing", reason="dv-processing (the test extra) writes side streams")
+    config = dv.io.MonoCameraWriter.Config("test")
+    config.addEventStream((64, 48))
+    config.addImuStream()
+    config.addTriggerStream()
+    config.compression = {"lz4": dv.CompressionType.LZ4, "none": dv.CompressionType.NONE,
+                          "zstd": dv.CompressionType.ZSTD}[compression]
+    writer = dv.io.MonoCameraWriter(str(path), config)
+    written = 0
+    for kind, times, lag_us in sorted(side, key=lambda packet: packet[1][-1] + packet[2]) + [(None, [np.inf], 0)]:
+        upto = int(np.searchsorted(events["t"], times[-1] + lag_us, side="left"))
+        if upto > written:
+            store = dv.EventStore()
+            for event in events[written:upto]:
+                store.push_back(int(event["t"]), int(event["x"]), int(event["y"]), bool(event["p"]))
+            writer.writeEvents(store)
+            written = upto
+        if kind == "imu":
+            packet = dv.IMUPacket()
+            for k, t_us in enumerate(times):
+                packet.elements.append(dv.IMU(int(t_us), 30.0 + k, 0.1 * k, -0.2, 1.0, 0.5 * k, 0.0, -0.5, 0, 0, 0))
+            writer.writeImuPacket(packet)
+        elif kind == "trigger":
+            packet = dv.TriggerPacket()
+            for t_us in times:
+                packet.elements.append(dv.Trigger(int(t_us), dv.TriggerType.EXTERNAL_SIGNAL_RISING_EDGE))
+            writer.writeTriggerPacket(packet)
+    del writer  # (dv-processing completes the file on destruction)
+
+
+@st.composite
+def _side_packets(draw, span_us: int) -> list:
+    """IMU and trigger packets of 1-3 samples each, in time order per stream, each stored up to 5 ms late."""
+    packets = []
+    for kind in ("imu", "trigger"):
+        times, stored_us = sorted(draw(st.lists(st.integers(0, span_us), max_size=12))), 0
+        while times:
+            size = draw(st.integers(1, min(3, len(times))))
+            stored_us = max(stored_us, times[size - 1] + draw(st.integers(0, 5000)))  # (a stream's packets in order)
+            packets.append((kind, times[:size], stored_us - times[size - 1]))
+            times = times[size:]
+    return packets
+
+
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(n=st.integers(1, 3000), seed=st.integers(0, 2**31), data=st.data(),
+       compressions=st.tuples(st.sampled_from(["lz4", "none", "zstd"]), st.sampled_from(["lz4", "none", "zstd"])),
+       chunk_events=st.sampled_from([1, 7, 300, 1 << 20]), end=st.none() | st.floats(0, 1.2))
+def test_imu_samples_and_triggers_are_carried_to_an_aedat4_output(tmp_path, n, seed, data, compressions,
+                                                                  chunk_events, end):
+    """A DV recording's IMU samples and triggers were dropped by every command that wrote AEDAT 4.0 (the input lost,
+    said in a warning). They now go on as they were, read back by dv-processing sample for sample, whatever the
+    compressions, the chunks, and a time slice (``--end``: the packets that begin before it, even those stored
+    after later events), and the events are unchanged."""
+    from evtools.cli.convert import convert_one
+    from evtools.formats.registry import ReadOptions
+    from evtools.transform import Time
+
+    events = random_events(n, 64, 48, seed=seed, t0_us=1_000)
+    side = data.draw(_side_packets(int(events["t"][-1]) + 100))
+    source = tmp_path / f"in_{seed}_{n}.aedat4"
+    _write_with_side_streams(source, events, side, compressions[0])
+    imu_in, triggers_in = _dv_side_streams(source)
+    assert len(imu_in) + len(triggers_in) == sum(len(times) for _, times, _ in side)
+    out = tmp_path / f"out_{seed}_{n}.aedat4"
+    end_us = None if end is None else int(end * (events["t"][-1] - events["t"][0]))
+    convert_one(source, out, reading=ReadOptions(chunk_events=chunk_events), output_format=None,
+                compression=compressions[1], slicing=None if end_us is None else {"end": Time(end_us)})
+    limit = np.inf if end_us is None else int(events["t"][0]) + end_us
+    kept = {kind: sorted(t for packet_kind, times, _ in side if packet_kind == kind and times[0] < limit
+                         for t in times) for kind in ("imu", "trigger")}
+    imu_out, triggers_out = _dv_side_streams(out)
+    assert [sample[0] for sample in imu_out] == kept["imu"]
+    assert [trigger[0] for trigger in triggers_out] == kept["trigger"]
+    assert all(sample in imu_in for sample in imu_out) and all(trigger in triggers_in for trigger in triggers_out)
+    assert_same_events(read_all(out)[1], events[events["t"] < limit])
+
+
+def test_a_recordings_imu_and_triggers_go_through_bafilter_and_are_said_where_they_cannot(tmp_path):
+    """The real DAVIS346 recording (IMU, triggers, frames) through ``bafilter``: dv-processing reads the same IMU
+    samples and triggers from the output as from the recording; to HDF5, which has no place for them, a warning
+    says they are not in the output."""
+    from tests.helpers import run
+
+    recording = data_file("davis346_lab_frames.aedat4")
+    imu, triggers = _dv_side_streams(recording)
+    assert len(imu) == 130 and len(triggers) == 15
+    filtered = tmp_path / "filtered.aedat4"
+    result = run("bafilter", recording, "--method", "baf", "-o", filtered)
+    assert b"not in the output" not in result.stderr
+    assert _dv_side_streams(filtered) == (imu, triggers)
+    to_hdf5 = run("convert", recording, "-o", tmp_path / "out.h5")
+    assert b"24 packets of its imu, triggers streams are not in the output" in to_hdf5.stderr
