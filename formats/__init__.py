@@ -69,8 +69,9 @@ class EventStream:
     @property
     def was_cut(self) -> bool:
         """Whether the stream, read to its end, turned out cut (a file whose writer promised an end mark and that
-        ends without it: read with a warning); a command's output of it is then left without the end mark too."""
-        return bool(getattr(self.reader, "cut_file", False))
+        ends without it, or cut inside a packet: read with a warning; a network stream cut or garbled: its error
+        raised on closing); a command's output of it is then marked cut too (AEDAT 4.0: no end mark)."""
+        return bool(getattr(self.reader, "cut_file", False)) or self.cut is not None
 
     def __iter__(self) -> Iterator[np.ndarray]:
         """The chunks, once: a second pass raises :class:`StreamReadAgain` (it would have read on from where the

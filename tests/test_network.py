@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 import evtools
+from evtools.events import concatenate
 from tests.helpers import assert_same_events
 
 dv = pytest.importorskip("dv_processing", reason="dv-processing (the test extra) is the reference peer")
@@ -255,7 +256,13 @@ def test_bad_servers_give_one_line_errors_naming_the_address(tmp_path):
     cut = run("convert", f"tcp://127.0.0.1:{cut_port}", "-o", str(out))
     assert cut.returncode == 1 and "truncated" in cut.stderr and f"tcp://127.0.0.1:{cut_port}" in cut.stderr
     first_packet = struct.unpack("<I", packets[0][8 + 28:8 + 32])[0]  # the EVTS vector's length
-    assert_same_events(evtools.read(out)[0], events[:first_packet])
+    with evtools.open(out) as written:  # marked cut (it was complete: half a stream passed as whole, a QA sweep)
+        assert_same_events(concatenate(written), events[:first_packet])
+        assert written.was_cut
+    cut_h5 = run("convert", f"tcp://127.0.0.1:{_serve_once(header + packets[0])}", "-o", str(tmp_path / "o.h5"))
+    assert cut_h5.returncode == 1 and "without the end mark" in cut_h5.stderr  # (cut at a packet boundary)
+    with evtools.open(tmp_path / "o.h5") as written:
+        assert written.was_cut
     # a whole stream that ends at a packet boundary is a normal end
     whole_port = _serve_once(header + b"".join(packets))
     whole = subprocess.run([*EVTOOLS, "convert", f"tcp://127.0.0.1:{whole_port}", "-o", str(tmp_path / "whole.aedat4")],
