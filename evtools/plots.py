@@ -296,9 +296,13 @@ def rate_figure(counter: RateCounter, title: str = ""):
     positive = rates[rates > 0]
     high = float(np.percentile(positive, 98)) if len(positive) else 1.0
     low = max(float(positive.min()) if len(positive) else 0.1, high / 1e4, 1e-3)
-    cmap = plt.get_cmap("magma").with_extremes(under="black")
-    image = bottom.imshow(np.maximum(rates, low * 0.999), cmap=cmap, norm=LogNorm(vmin=low, vmax=max(high, low * 1.01)),
-                          interpolation="nearest")
+    # magma without its black end, so that black is only "no event" (the slowest pixels were drawn black too, and
+    # those below the scale's floor: a QA sweep); a pixel that fired is never below the lowest colour
+    from matplotlib.colors import ListedColormap
+
+    cmap = ListedColormap(plt.get_cmap("magma")(np.linspace(0.2, 1.0, 256))).with_extremes(under="black")
+    shown = np.where(rates > 0, np.maximum(rates, low), low * 0.5)
+    image = bottom.imshow(shown, cmap=cmap, norm=LogNorm(vmin=low, vmax=max(high, low * 1.01)), interpolation="nearest")
     bottom.set_title(f"events/s per pixel over {span_s:.3g} s")
     _pixel_axes(bottom, counter.width, counter.height)
     bar = figure.colorbar(image, ax=bottom, shrink=0.85, extend="both")

@@ -25,6 +25,8 @@ def read_hot_pixels(path: str, width: int, height: int) -> np.ndarray:
             lines = file.read().splitlines()
     except OSError as error:
         raise HotPixelsError(f"{path}: {error.strerror}") from None
+    except UnicodeDecodeError:  # (an event file given by mistake)
+        raise HotPixelsError(f"{path}: not a hot-pixel list (not text: a CSV with the header `x,y`)") from None
     if not lines or lines[0].strip().lower() != "x,y":
         raise HotPixelsError(f"{path}: not a hot-pixel list (first line must be `x,y`)")
     for number, line in enumerate(lines[1:], start=2):

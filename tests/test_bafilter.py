@@ -340,6 +340,9 @@ def test_cli_bad_parameters(tmp_path):
     assert_clean_error(run("bafilter", path, "--method", "hotpixel", "--hot-pixels", wrong, "-o", out, check=False),
                        "hot.csv")
     assert not out.exists()
+    # an event file given as the list (it was a traceback: a QA sweep)
+    assert_clean_error(run("bafilter", path, "--method", "hotpixel", "--hot-pixels", path, "-o", out, check=False),
+                       "dvs128_walk.aedat", "not a hot-pixel list")
 
 
 def test_save_hot_pixels_never_replaces_the_input_goes_to_stdout_and_fails_whole(tmp_path):

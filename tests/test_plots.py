@@ -180,3 +180,29 @@ def test_the_reconstruction_figure_is_what_its_name_says(tmp_path, suffix, magic
     if suffix == ".svg":
         text = data.decode()  # (text as <text>, not outlines)
         assert "log intensity" in text and ">990 ms<" in text and ">RMSE " in text and ">x, px<" in text
+
+
+@settings(max_examples=10, deadline=None)
+@given(seed=st.integers(0, 2**31), spread=st.integers(0, 6))
+def test_the_rate_map_draws_black_only_where_no_event_came(seed, spread):
+    """The slowest pixels were drawn black (magma's lowest colour), as were those below the scale's floor, beside a
+    label saying "black: no event" (a QA sweep): a pixel that fired is never black, one that did not always is."""
+    from evtools.events import make_events
+    from evtools.plots import RateCounter, rate_figure
+
+    rng = np.random.default_rng(seed)
+    width, height = 12, 9
+    counts = np.round(10 ** rng.uniform(0, spread, width * height)).astype(np.int64)
+    counts[rng.random(width * height) < 0.2] = 0
+    pixel = np.repeat(np.arange(width * height), counts)
+    t = np.sort(rng.integers(0, 1_000_000, len(pixel)))
+    counter = RateCounter(width, height)
+    counter.add(make_events(t, pixel % width, pixel // width, np.ones(len(pixel), bool)))
+    figure = rate_figure(counter)
+    image = figure.axes[1].images[0]
+    rgba = image.to_rgba(image.get_array()).reshape(height, width, 4)
+    black = np.all(rgba[..., :3] < 0.05, axis=-1)
+    assert np.array_equal(black.ravel(), counts == 0)
+    import matplotlib.pyplot as plt
+
+    plt.close(figure)
