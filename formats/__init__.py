@@ -25,7 +25,7 @@ from evtools.formats.io import (
     read_ahead,
     same_file,
 )
-from evtools.formats.registry import (FORMATS, NOT_READ, PIPE_FORMAT, ReadOptions, WriteOptions, by_name, detect,
+from evtools.formats.registry import (FORMATS, NOT_READ, PIPE_FORMAT, TEXT_FORMATS, ReadOptions, WriteOptions, by_name, detect,
                                       from_extension)
 
 COMPRESSED_RATIO_BOUND = 3
@@ -403,7 +403,8 @@ def create_events(
     check_compression(fmt, compression, target)
     options = WriteOptions(compression=compression, aedat2_layout=aedat2_layout)
     writer_class = fmt.writer_class()
-    with output_stream(path, binary_name=fmt.description, needs_seek=fmt.writer_needs_seek) as stream:
+    with output_stream(path, binary_name=fmt.description, needs_seek=fmt.writer_needs_seek,
+                       text=fmt.name in TEXT_FORMATS) as stream:
         live = getattr(stream, "network", False) or is_live(stream)
         with interrupt.deferred():  # a writer half made (HDF5's file, its datasets) cannot be released cleanly
             writer = WriteBehind(_NamedWriter(target, _named(target, writer_class, stream, info, options), stream,

@@ -20,7 +20,7 @@ import numpy as np
 
 from evtools import interrupt
 from evtools.events import EVENT_DTYPE
-from evtools.formats.errors import FormatError
+from evtools.formats.errors import FormatError, OutputCannotTakeFormat
 from evtools.inputs import input_named_by, note_input
 
 HEAD_BYTES = 4096
@@ -404,14 +404,15 @@ def same_file(a: str, b: str) -> bool:
 
 
 @contextlib.contextmanager
-def output_stream(path: str | os.PathLike | None, *, binary_name: str, needs_seek: bool = False) -> Iterator[BinaryIO]:
+def output_stream(path: str | os.PathLike | None, *, binary_name: str, needs_seek: bool = False,
+                  text: bool = False) -> Iterator[BinaryIO]:
     """Open an output for binary writing: a file written atomically, or stdout for ``-``/None.
 
     A file is written to a temporary name beside the target and renamed only when the block ends without an
     error, so an interrupted run never leaves a half-written file under the real name; a symbolic link keeps
     pointing where it did (its target is replaced). A FIFO, a socket or a device (``/dev/null``, a terminal) is
-    written directly, never renamed over. A binary stream is never written to a terminal. ``needs_seek`` formats
-    (HDF5) cannot go to stdout or to a FIFO.
+    written directly, never renamed over. A binary stream is never written to a terminal (``text``: CSV and text
+    may be, to look at). ``needs_seek`` formats (HDF5) cannot go to stdout or to a FIFO.
     """
     path = STDIO if path is None else os.fspath(path)
     if path.startswith(TCP_PREFIX):
@@ -422,7 +423,7 @@ def output_stream(path: str | os.PathLike | None, *, binary_name: str, needs_see
             server.close()
         return
     if path == STDIO:
-        _check_stream_target(None, "a pipe", binary_name, needs_seek)
+        _check_stream_target(None, "a pipe", binary_name, needs_seek, text)
         sys.stdout.flush()
         if isinstance(sys.stdout.buffer, io.BufferedWriter) or not _has_descriptor(sys.stdout):
             yield sys.stdout.buffer  # (or a test runner's or notebook's stdout: no descriptor to write whole)
@@ -450,7 +451,7 @@ def output_stream(path: str | os.PathLike | None, *, binary_name: str, needs_see
         except OSError as error:
             raise FormatError(f"{path}: cannot open for writing ({error.strerror})") from None
         try:
-            _check_stream_target(stream, path, binary_name, needs_seek)
+            _check_stream_target(stream, path, binary_name, needs_seek, text)
             yield stream
         except BaseException:
             with contextlib.suppress(OSError):  # (the body's error is the one to report)
@@ -486,14 +487,14 @@ def _has_descriptor(stream) -> bool:
     return True
 
 
-def _check_stream_target(stream, name: str, binary_name: str, needs_seek: bool) -> None:
-    """Refuse binary on a terminal, and a format that seeks on stdout (``stream`` None) or on anything live."""
-    if (sys.stdout if stream is None else stream).isatty():
-        raise FormatError(
-            f"refusing to write binary {binary_name} to a terminal: give -o FILE or pipe into another command"
-        )
+def _check_stream_target(stream, name: str, binary_name: str, needs_seek: bool, text: bool = False) -> None:
+    """Refuse binary on a terminal, and a format that seeks on stdout (``stream`` None) or on anything live; on
+    stdout these are choices of the command line (exit 2)."""
+    error = OutputCannotTakeFormat if stream is None else FormatError
+    if not text and (sys.stdout if stream is None else stream).isatty():
+        raise error(f"refusing to write binary {binary_name} to a terminal: give -o FILE or pipe into another command")
     if needs_seek and (stream is None or is_live(stream)):
-        raise FormatError(f"{binary_name} cannot be written to {name} (it needs a seekable file): give -o FILE")
+        raise error(f"{binary_name} cannot be written to {name} (it needs a seekable file): give -o FILE")
 
 
 @contextlib.contextmanager

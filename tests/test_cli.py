@@ -99,7 +99,32 @@ def test_closing_the_pipe_early_ends_quietly(sample):
 
 def test_hdf5_to_stdout_is_refused(sample):
     path, _ = sample
-    assert_clean_error(run("convert", path, "--format", "hdf5", check=False), "pipe", "-o FILE")
+    refused = run("convert", path, "--format", "hdf5", check=False)  # (a choice of the command line: exit 2)
+    assert refused.returncode == 2 and b"pipe" in refused.stderr and b"-o FILE" in refused.stderr
+    assert refused.stderr.count(b"\n") == 1 and refused.stdout == b""
+
+
+def test_text_goes_to_a_terminal_and_binary_does_not(sample, tmp_path):
+    """CSV and text on a terminal, to look at a few events (they were refused as binary: a QA sweep); AEDAT 4.0 on
+    a terminal is refused, exit 2."""
+    import os
+    import pty
+
+    path, events = sample
+    for output_format, expected in (("csv", 0), ("txt", 0), ("aedat4", 2)):
+        controller, terminal = pty.openpty()
+        try:
+            done = subprocess.run([EVTOOLS, "-q", "convert", path, "--format", output_format, "--end", "1ms"],
+                                  stdout=terminal, stderr=subprocess.PIPE, timeout=120)
+            shown = os.read(controller, 1 << 16).decode(errors="replace") if expected == 0 else ""
+        finally:
+            os.close(terminal)
+            os.close(controller)
+        assert done.returncode == expected, done.stderr
+        if expected == 0:
+            assert f"{events['x'][0]}" in shown and shown.count("\n") >= 2
+        else:
+            assert b"refusing to write binary" in done.stderr
 
 
 # --- bad inputs: one line naming the file and the problem, exit 1, no output file left behind ---
