@@ -300,7 +300,9 @@ class ThresholdCorrector:
         self._status = np.zeros(n, dtype=np.int8)
         # pixels already at the target need no work (and their events stay bit for bit what they were)
         at_target = (on == np.float32(self.target_on)) & (off == np.float32(self.target_off))
-        self._use = ~at_target.reshape(-1) if self._series is None else np.ones(n, dtype=bool)
+        # (a series' pixel usable in some map may change thresholds at any map; one never usable stays at the
+        # target in every map: passed on bit for bit, as a single map's, not re-sampled at its own threshold)
+        self._use = ~at_target.reshape(-1) if self._series is None else self._series.ever.reshape(-1).copy()
         self._any_use = bool(self._use.any())
         self.usable = usable
         self.window_us = self.max_gap_us if mode == "foh" else min(self.max_gap_us, self.hold_us)
@@ -713,8 +715,8 @@ class SeriesMaps:
                 self._medians = tuple(float(np.median(values[usable] if usable.any() else start))
                                       for values, start in zip((on, off), self._start))
             else:
-                stale = (np.zeros(usable.shape, bool) if self.stale is None
-                         else np.asarray(self.stale[self._k], bool))
+                stale = (np.zeros(usable.shape, bool) if self.stale is None  # (a pixel never usable stays as it is)
+                         else np.asarray(self.stale[self._k], bool) & self.ever)
                 if usable.any():
                     self._medians = (float(np.median(on[usable])), float(np.median(off[usable])))
                 filled = tuple(np.where(usable, values, np.where(stale, median, before)).astype(np.float32)

@@ -320,7 +320,7 @@ def carried_naive(values, usable, stale, never=None):
     before its first usable value a pixel takes that value (never usable: ``never``, or without it the median of
     the usable values of the last map that has any); then it keeps its latest usable value, except where a later map marks it stale: there
     it takes the median of the usable values of the latest map up to that one that has any (none yet: the median
-    of map 0 as filled)."""
+    of map 0 as filled). A pixel never usable has no estimate to drop: stale leaves it as it is."""
     maps, height, width = values.shape
     with_usable = [k for k in range(maps) if usable[k].any()]
     last_median = np.median(values[with_usable[-1]][usable[with_usable[-1]]]) if never is None else np.float32(never)
@@ -338,7 +338,7 @@ def carried_naive(values, usable, stale, never=None):
             for x in range(width):
                 if usable[k, y, x]:
                     filled[k, y, x] = values[k, y, x]
-                elif stale[k, y, x]:
+                elif stale[k, y, x] and usable[:, y, x].any():
                     filled[k, y, x] = median
                 else:
                     filled[k, y, x] = filled[k - 1, y, x]
