@@ -341,8 +341,9 @@ def estimate_one(input, output, *, reading, parameters, slicing=None
                                           "(attribute partial)")
             else:
                 attributes = {**result.attributes, "input": stream.name}
-                if "disagreement" in attributes:
-                    log.warning(f"{stream.name}: {attributes['disagreement']}")
+                for said in ("disagreement", "brightness_dependence"):
+                    if said in attributes:
+                        log.warning(f"{stream.name}: {attributes[said]}")
                 if getattr(stream, "transform", None) is not None and stream.transform.moves_pixels:
                     attributes["sliced"] = ("the map is the camera's; estimated on its events cut and turned "
                                             f"({' '.join(_slicing_argv(slicing))}): other pixels are not valid")

@@ -103,6 +103,20 @@ weight is still the old thresholds' frames. Copied at full weight they held the 
 the step (with 36-203 pixels valid) and 2-4 % off two seconds later; aged, the first map has almost no pixel valid (its
 pixels have too few frames' worth) and the later ones come back nearer (0.2-3.3 % two seconds after a x1.3 or /1.3 step
 against 0.6-4.4 %, 8 seeds, the independent generator; the README gives the setup)."""
+BRIGHTNESS_SLOPE_DN = 4.0
+"""Across the pixels, the log of a pixel's thresholds (ON and OFF's geometric mean) regressed on its frames' mean
+``1 / signal`` has a slope near 0 when the frames' DN of no light is right (the thresholds do not depend on how
+bright a pixel was); a black level ``d`` DN too low makes it about ``-d``, one too high positive, and pixels' own
+offsets spread by several DN make it positive too (the brighter-reading pixels' thresholds come out smaller).
+Measured on the independent generator (64 x 48, 5 s, 15 ms exposures, signals about 80 DN, 2 seeds): right 2.1 +-
+0.7 and 2.6 +- 1.0 DN (1 DN offsets), 8 DN too low -5.1 / -5.4, 20 DN too low -18 / -20, 8 DN too high +6.5 /
++7.6, offsets spread 4 DN +10 / +16, 8 DN +22 / +29; but right on darker scenes too +12 (the tests' 5 ms setup) and
++18 (evtools' simulator): a positive slope is ambiguous (the model's own bias at low signal), kept in the attributes
+only. A negative one beyond this (and :data:`BRIGHTNESS_SLOPE_SE` of its standard errors), a black level too low
+(frames not black-subtracted, read with the default 0), is said, and each pixel's fit takes the bias it implies
+(slope times its mean ``1 / signal``): there 65-100 % of the valid pixels were more than 10 % off, the fit unaware."""
+BRIGHTNESS_SLOPE_SE = 3.0
+"""How many standard errors the brightness slope must exceed to be more than chance (see :data:`BRIGHTNESS_SLOPE_DN`)."""
 BLACK_LEVEL_SAMPLE = 4
 """Every this many pixels take part in the black level's test (its sums, twice per candidate, for a quarter of the
 sensor)."""
@@ -510,7 +524,7 @@ class FrameThresholdEstimator:
             if np.isfinite(a) and np.isfinite(b) and a > 0 >= b:
                 share = a / (a - b)
                 mixed = {key: (1 - share) * fits[k][key] + share * fits[k + 1][key]
-                         for key in ("on", "off", "rms", "expected_rms", "fit", "n")}
+                         for key in ("on", "off", "rms", "expected_rms", "fit", "n", "mean_inverse")}
                 mixed["solved"] = fits[k]["solved"] & fits[k + 1]["solved"]
                 return mixed, float((1 - share) * self.candidates[k] + share * self.candidates[k + 1])
         finite = np.where(np.isfinite(slopes), np.abs(slopes), np.inf)
@@ -550,6 +564,10 @@ class FrameThresholdEstimator:
     def _solve(self, fits: list[dict]) -> ThresholdEstimate:
         """The maps from the sums so far (``fits``: :meth:`_fit_all`)."""
         fit, black_level = self._black_level(fits)
+        slope = _brightness_slope(fit)
+        depends = slope is not None and -slope[0] > max(BRIGHTNESS_SLOPE_DN, BRIGHTNESS_SLOPE_SE * slope[1])
+        if depends:  # each pixel's fit takes the bias the measured dependence implies for it
+            fit = {**fit, "fit": np.sqrt(fit["fit"] ** 2 + (slope[0] * fit["mean_inverse"]) ** 2)}
         self.black_level_index = int(np.argmin(np.abs(self.candidates - black_level)))
         on, off = fit["on"], fit["off"]
         n_events = self.counts[:, FRAMES_ON] + self.counts[:, FRAMES_OFF]
@@ -583,7 +601,13 @@ class FrameThresholdEstimator:
             **({"steps_seen": len(self.steps_us)} if self.short is not None else {}),
             **({"steps_us": np.array(self.steps_us, np.int64)} if self.steps_us else {}),
             **{f"invalid_{name}": int(mask.sum()) for name, mask in reasons.items()},
+            **({} if slope is None else {"brightness_slope_dn": slope[0], "brightness_slope_se_dn": slope[1]}),
         }
+        if depends:
+            attributes["brightness_dependence"] = (
+                f"the thresholds come out smaller the darker a pixel's frames (a slope of {slope[0]:+.1f} DN: the "
+                f"frames' DN of no light looks about {-slope[0]:.0f} DN above the {black_level:g} used); the fits "
+                f"include it (valid: {valid.mean():.0%} of the pixels); give --black-level B or fit")
         solved = fit["solved"] & (fit["expected_rms"] > 0) & (fit["n"] >= MIN_FRAMES)
         if solved.sum() >= MIN_SCALE_PIXELS:
             ratio = float(np.median(fit["rms"][solved] / fit["expected_rms"][solved]))
@@ -616,8 +640,9 @@ class FrameThresholdEstimator:
         """Why no pixel of an estimate (its ``attributes``) is valid, in one line: the events and the frames
         disagreeing when they do, else the reason most pixels have (the command line's error when no map has a valid
         pixel, as every method's; the estimate itself keeps every reason in its ``invalid_*`` attributes)."""
-        if "disagreement" in attributes:
-            return f"no pixel could be estimated by frames: {attributes['disagreement']}"
+        for said in ("disagreement", "brightness_dependence"):
+            if said in attributes:
+                return f"no pixel could be estimated by frames: {attributes[said]}"
         reasons = {
             "no_frames": "saw no frame", "few_frames": f"have fewer than {MIN_FRAMES} frames to fit",
             "saturated": "are saturated in most frames", "few_events": f"have fewer than {self.min_events} events",
@@ -698,6 +723,29 @@ class FrameThresholdEstimator:
                               memory["inverse_sums"][index] * to_true)
 
 
+def _brightness_slope(fit: dict) -> tuple[float, float] | None:
+    """Across the pixels the fit solved, the slope (DN) of the log of their thresholds' geometric mean against their
+    frames' mean ``1 / signal``, and its standard error (least squares, once more without the pixels beyond 4
+    robust deviations); None with fewer than 50 such pixels (see :data:`BRIGHTNESS_SLOPE_DN`)."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        use = fit["solved"] & (fit["n"] >= MIN_FRAMES) & (fit["on"] > 0) & (fit["off"] > 0) & \
+            (fit["mean_inverse"] > 0) & np.isfinite(fit["on"]) & np.isfinite(fit["off"])
+    if use.sum() < 50:
+        return None
+    g, m = np.log(fit["on"][use] * fit["off"][use]) / 2, fit["mean_inverse"][use]
+    for _ in range(2):
+        design = np.stack([np.ones(len(m)), m], axis=1)
+        coefficients, *_ = np.linalg.lstsq(design, g, rcond=None)
+        residuals = g - design @ coefficients
+        spread = 1.4826 * np.median(np.abs(residuals - np.median(residuals)))
+        keep = np.abs(residuals) <= 4 * spread if spread > 0 else np.ones(len(m), bool)
+        if keep.all() or keep.sum() < 50:
+            break
+        g, m = g[keep], m[keep]
+    covariance = residuals.var() * np.linalg.pinv(design.T @ design)
+    return float(coefficients[1]), float(np.sqrt(max(covariance[1, 1], 0.0)))
+
+
 def _cofactors(s: np.ndarray) -> tuple:
     """The normal equations' symmetric 3 x 3 matrix [[a, b, c], [b, d, e], [c, e, f]] of the sums ``s``
     (:data:`N_SUMS` rows), per pixel at once: its cofactors (c11, c12, c13, c22, c23, c33), whether it is solvable,
@@ -760,7 +808,7 @@ def _least_squares(s: np.ndarray, new_counts: np.ndarray, inverse_sums: np.ndarr
         expected_rms = np.sqrt(band**2 / 12 + (READ_NOISE_DN * mean_inverse) ** 2)
     fit = np.where(solved, fit, np.nan)
     return {"on": np.where(solved, on, np.nan), "off": np.where(solved, off, np.nan), "n": n.copy(), "solved": solved,
-            "rms": np.sqrt(variance), "expected_rms": expected_rms, "fit": fit}
+            "rms": np.sqrt(variance), "expected_rms": expected_rms, "fit": fit, "mean_inverse": mean_inverse}
 
 
 class FrameScaledEstimator:

@@ -17,7 +17,7 @@ import evtools
 from evtools._kernels.estimate import (FRAMES_OFF, FRAMES_ON, FRAMES_ROW, TIME_SUMS, count_times, exposure_counts,
                                        fold_runs, frame_sums, log_levels, polarity_counts)
 from evtools.estimation import EstimationError, estimate_thresholds
-from evtools.estimation_frames import FrameThresholdEstimator, _lags, _least_squares
+from evtools.estimation_frames import BRIGHTNESS_SLOPE_DN, FrameThresholdEstimator, _lags, _least_squares
 from evtools.formats.thresholds import read_thresholds
 from tests.helpers import assert_clean_error, cut, random_events, run, unread_bytes, wait_until
 from tests.naive.davis import davis_recording, write_with_dv
@@ -653,3 +653,32 @@ def test_an_online_frames_run_ends_with_its_summary(tmp_path):
     written = read_thresholds(str(out), series=True)
     assert b"%d maps over time" % len(written.t_us) in done.stderr and "partial" not in written.attributes
     assert written.attributes["maps"] == len(written.t_us)
+
+
+@settings(max_examples=2, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), too_low_dn=st.floats(8, 24), exposure_ms=st.integers(10, 20))
+def test_a_black_level_too_low_is_said_and_no_pixel_left_valid_by_it(seed, too_low_dn, exposure_ms):
+    """Frames not black-subtracted read with the default black level 0 (here: the recording's black 20 + d DN, the
+    estimator told 20): 65-100 % of the valid pixels were more than 10 % off, their fits unaware (a QA sweep). The
+    thresholds' dependence on brightness across the pixels now says it, and the fits take its bias: no valid pixel
+    more than 10 % off; with the black level right, nothing is said."""
+    from tests.naive.davis import davis_recording
+
+    width, height = 64, 48  # (the slope's standard error needs a few thousand pixels)
+    rng = np.random.default_rng(seed % 1000)
+    on, off = (np.clip(0.2 + 0.03 * rng.standard_normal((height, width)), 0.08, None) for _ in range(2))
+    for error_dn in (too_low_dn, 0.0):
+        events, frames = davis_recording(width, height, 5_000_000, seed=seed, theta_on=on, theta_off=off,
+                                         black_level=20.0 + error_dn, exposure_us=exposure_ms * 1000,
+                                         pan_px_s=(30.0, -8.0), wobble_px=6.0)
+        estimator = FrameThresholdEstimator(width, height, black_level=20.0)
+        estimator.process(evtools.make_events(events["t"], events["x"], events["y"], events["p"]))
+        estimator.add_frames([evtools.Frame(image, (b + e) // 2, b, e) for b, e, image in frames])
+        result = estimator.result()
+        worst = np.maximum(np.abs(result.on / on - 1), np.abs(result.off / off - 1))
+        assert ("brightness_dependence" in result.attributes) == (error_dn > 0), result.attributes
+        if error_dn > 0:
+            assert (worst[result.valid] > 0.10).sum() <= 0.05 * max(result.valid.sum(), 1)
+            assert result.attributes["brightness_slope_dn"] < -BRIGHTNESS_SLOPE_DN
+        else:
+            assert result.valid.mean() > 0.3 and (worst[result.valid] > 0.10).mean() < 0.05
