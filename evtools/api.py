@@ -152,6 +152,9 @@ def writer(path: str | os.PathLike | None, info: StreamInfo, **options) -> Itera
     from evtools.formats import create_events
 
     info = _stream_info(info)
+    if "side_streams" in info.metadata:  # (a recording's IMU and trigger streams: their packets go by the command
+        # line's pipeline only, so a file written here does not declare them empty)
+        info = dataclasses.replace(info, metadata={k: v for k, v in info.metadata.items() if k != "side_streams"})
     with create_events(path, info, **options) as sink:
         yield _CheckedSink(sink, info)
 

@@ -780,3 +780,7 @@ def test_a_recordings_imu_and_triggers_go_through_bafilter_and_are_said_where_th
     assert _dv_side_streams(filtered) == (imu, triggers)
     to_hdf5 = run("convert", recording, "-o", tmp_path / "out.h5")
     assert b"24 packets of its imu, triggers streams are not in the output" in to_hdf5.stderr
+    events, info = evtools.read(recording)  # from Python: the events alone, no stream declared empty
+    evtools.write(tmp_path / "api.aedat4", events, info)
+    dv = pytest.importorskip("dv_processing")
+    assert not dv.io.MonoCameraRecording(str(tmp_path / "api.aedat4")).isImuStreamAvailable()
