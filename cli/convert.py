@@ -88,7 +88,8 @@ def convert_one(input, output, *, reading, output_format, compression, speed=Non
             frames.release(None)
             if transform and not stopped:
                 transform.said_at_end(stream.name)
-            writer.cut = getattr(stream, "was_cut", False)  # a cut input's output ends without the end mark too
+            # a cut input's output ends without the end mark too (unless the cut lies after the slice's end)
+            writer.cut = getattr(stream, "was_cut", False) and not (transform and transform.done)
     read = f"{events_in:,} events read (then --end: the rest not read)" if stopped else f"{events_in:,} events in"
     log.info(f"convert: {read}, {events_out:,} out")
     return Outcome(events_in, events_out, {"read_to_the_end": not stopped}, "stopped at --end" if stopped else "")

@@ -60,7 +60,7 @@ def read(path: str | os.PathLike, *, frames: bool = False, **options) -> tuple:
     events : ndarray of EVENT_DTYPE
     info : StreamInfo, (width, height) or "WxH"
         Sensor size, format and what the file said about itself (``metadata``; ``frame_size`` when it has APS
-        frames).
+        frames; ``cut``: True when the file turned out cut, then :func:`write` marks its output cut too).
     frames : list of evtools.Frame
         Only with ``frames=True``: the APS frames (a DAVIS camera's intensity images) in the file's order, each
         with its image and five times (:class:`evtools.Frame`); empty where the file has none.
@@ -77,6 +77,8 @@ def read(path: str | os.PathLike, *, frames: bool = False, **options) -> tuple:
     """
     with open(path, **options) as stream:
         events = stream.read_all()
+        if stream.was_cut:  # (said in a warning; evtools.write of this info marks its output cut in turn)
+            stream.info.metadata["cut"] = True
         if frames:
             return events, stream.info, stream.take_frames()
         return events, stream.info
@@ -157,6 +159,7 @@ def writer(path: str | os.PathLike | None, info: StreamInfo, **options) -> Itera
         info = dataclasses.replace(info, metadata={k: v for k, v in info.metadata.items() if k != "side_streams"})
     with create_events(path, info, **options) as sink:
         yield _CheckedSink(sink, info)
+        sink.cut = bool(info.metadata.get("cut"))  # (a cut input's events: the output says so, or is refused)
 
 
 def _stream_info(info) -> StreamInfo:

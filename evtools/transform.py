@@ -194,6 +194,12 @@ class SlicedStream:
         frames = (self.transform.frame(frame) for frame in self._stream.take_frames())
         return [frame for frame in frames if frame is not None]
 
+    @property
+    def was_cut(self) -> bool:
+        """Whether the stream turned out cut within what the slice keeps: a cut after the slice's end leaves the
+        slice whole."""
+        return bool(getattr(self._stream, "was_cut", False)) and not self.transform.done
+
     def take_side_packets(self) -> list:
         """The stream's side packets (IMU samples, triggers) read since the last call, within the time slice (they
         are the camera's: crops, flips and transposes leave them as they are)."""

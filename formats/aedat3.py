@@ -110,7 +110,8 @@ class Aedat3Reader:
         if frame_size is not None:
             self.info.metadata["frame_size"] = frame_size
 
-    def _packets(self, stream: BinaryIO, offset: int, skipped: dict[int, int], frames=None) -> Iterator[np.ndarray]:
+    def _packets(self, stream: BinaryIO, offset: int, skipped: dict[int, int], frames=None,
+                 scanning: bool = False) -> Iterator[np.ndarray]:
         """(events, invalid count) of each polarity packet from ``offset`` (where ``stream`` is) to the end; the
         frames of frame packets into ``frames`` (None: skipped)."""
         while True:
@@ -118,8 +119,9 @@ class Aedat3Reader:
             if not head:
                 return
             if len(head) < PACKET_HEADER.size:
-                ends_cut(self, f"truncated AEDAT 3.1 packet header at byte offset {offset:,} ({len(head)} of "
-                               f"{PACKET_HEADER.size} bytes)")
+                if not scanning:  # (the size scan leaves it to the read proper: said once)
+                    ends_cut(self, f"truncated AEDAT 3.1 packet header at byte offset {offset:,} ({len(head)} of "
+                                   f"{PACKET_HEADER.size} bytes)")
                 return
             kind, _, size, ts_offset, overflow, capacity, number, _ = PACKET_HEADER.unpack(head)
             if size <= 0 or capacity < 0 or not 0 <= number <= capacity:
@@ -129,8 +131,9 @@ class Aedat3Reader:
                 )
             body = read_at_most(stream, size * capacity, self.source.seekable)
             if len(body) < size * capacity:
-                ends_cut(self, f"truncated AEDAT 3.1 packet at byte offset {offset:,} ({len(body):,} of "
-                               f"{size * capacity:,} body bytes)")
+                if not scanning:
+                    ends_cut(self, f"truncated AEDAT 3.1 packet at byte offset {offset:,} ({len(body):,} of "
+                                   f"{size * capacity:,} body bytes)")
                 return
             packet_offset, offset = offset, offset + PACKET_HEADER.size + size * capacity
             if kind == FRAME_EVENT and frames is not None:
@@ -214,7 +217,7 @@ class Aedat3Reader:
         stream = self.source.stream
         position = stream.tell()
         width = height = 0
-        for events, _ in self._packets(stream, self.header_bytes, {}):
+        for events, _ in self._packets(stream, self.header_bytes, {}, scanning=True):
             if len(events):
                 width = max(width, int(events["x"].max()) + 1)
                 height = max(height, int(events["y"].max()) + 1)

@@ -396,6 +396,10 @@ class Aedat4Reader:
                 if size > MAX_PACKET_BYTES:
                     raise FormatError(f"{self.name}: damaged AEDAT 4.0 packet header at byte {offset:,} (its size "
                                       f"field says {size:,} bytes, more than a packet holds)")
+                if 0 <= self.data_position <= file_bytes and offset + 8 + size > self.data_position:
+                    raise FormatError(f"{self.name}: damaged AEDAT 4.0 packet header at byte {offset:,} (its size "
+                                      f"field says {size:,} bytes, past the data table the file reaches at byte "
+                                      f"{self.data_position:,})")
                 if offset + 8 + size > file_bytes:
                     ends_cut(self, f"truncated AEDAT 4.0 packet at byte {offset:,} (its size field says {size:,} "
                                    f"bytes, {file_bytes - offset - 8:,} follow)")
@@ -408,6 +412,9 @@ class Aedat4Reader:
                     if self.carry_side and stream_id in self.side_ids:
                         self._take_side(stream_id, self._read_packet(size, size, offset), offset)
                         continue
+                    if stream_id not in self.side_ids:  # (a stream id the header never declared: damage)
+                        raise FormatError(f"{self.name}: damaged AEDAT 4.0 packet header at byte {offset:,} (stream "
+                                          f"id {stream_id}, which the header does not declare)")
                     self._skipped_packets += 1
                     self._skip(size, offset)
                     continue
@@ -488,7 +495,7 @@ class Aedat4Reader:
                         self._take_frame(block[start + 8:start + 8 + size].tobytes(), self.position)
                     elif whole and self.carry_side and stream_id in self.side_ids:
                         self._take_side(stream_id, block[start + 8:start + 8 + size].tobytes(), self.position)
-                    elif whole and stream_id != self.stream_id and stream_id != self.frame_stream_id:
+                    elif whole and stream_id in self.side_ids:
                         self._skipped_packets += 1
                     else:
                         break

@@ -388,6 +388,8 @@ def ends_cut(reader, problem: str) -> None:
     stream is marked cut (``reader.cut_file``: its outputs say so, DESIGN.md), so no input is lost and no cut stream
     passes as whole. A live input cut so (its writer stopped mid-write) is an error, as a live input ending without
     its end mark is."""
+    if getattr(reader, "scanning", False):  # (a scan for the sensor size: the read proper says it, once)
+        return
     if reader.source.live:
         raise FormatError(f"{reader.name}: {problem}")
     logging.getLogger("evtools").warning(f"{reader.name}: {problem}: the file was cut (or damaged there); the events "
@@ -423,7 +425,7 @@ def output_stream(path: str | os.PathLike | None, *, binary_name: str, needs_see
             server.close()
         return
     if path == STDIO:
-        _check_stream_target(None, "a pipe", binary_name, needs_seek, text)
+        _check_stream_target(None, "stdout", binary_name, needs_seek, text)
         sys.stdout.flush()
         if isinstance(sys.stdout.buffer, io.BufferedWriter) or not _has_descriptor(sys.stdout):
             yield sys.stdout.buffer  # (or a test runner's or notebook's stdout: no descriptor to write whole)
@@ -488,13 +490,15 @@ def _has_descriptor(stream) -> bool:
 
 
 def _check_stream_target(stream, name: str, binary_name: str, needs_seek: bool, text: bool = False) -> None:
-    """Refuse binary on a terminal, and a format that seeks on stdout (``stream`` None) or on anything live; on
-    stdout these are choices of the command line (exit 2)."""
-    error = OutputCannotTakeFormat if stream is None else FormatError
+    """Refuse binary on a terminal, and a format that seeks on stdout (``stream`` None) or on anything live: choices
+    of the command line (exit 2)."""
     if not text and (sys.stdout if stream is None else stream).isatty():
-        raise error(f"refusing to write binary {binary_name} to a terminal: give -o FILE or pipe into another command")
+        raise OutputCannotTakeFormat(f"refusing to write binary {binary_name} to a terminal"
+                                     f"{'' if stream is None else f' ({name})'}: give -o FILE or pipe into another "
+                                     "command")
     if needs_seek and (stream is None or is_live(stream)):
-        raise error(f"{binary_name} cannot be written to {name} (it needs a seekable file): give -o FILE")
+        raise OutputCannotTakeFormat(f"{binary_name} cannot be written to {name} (it needs a seekable file): give "
+                                     "-o FILE")
 
 
 @contextlib.contextmanager

@@ -268,10 +268,14 @@ class PropheseeRawReader:
         stream = self.source.stream
         position = stream.tell()
         width = height = 0
-        for events in self._events({"dropped_events": 0, "triggers": 0, "other_words": 0}):
-            if len(events):
-                width = max(width, int(events["x"].max()) + 1)
-                height = max(height, int(events["y"].max()) + 1)
+        self.scanning = True
+        try:
+            for events in self._events({"dropped_events": 0, "triggers": 0, "other_words": 0}):
+                if len(events):
+                    width = max(width, int(events["x"].max()) + 1)
+                    height = max(height, int(events["y"].max()) + 1)
+        finally:
+            self.scanning = False
         stream.seek(position)
         return width, height
 
@@ -417,9 +421,13 @@ class PropheseeDatReader:
         stream = self.source.stream
         position = stream.tell()
         width = height = 0
-        for events in self._events():
-            width = max(width, int(events["x"].max()) + 1)
-            height = max(height, int(events["y"].max()) + 1)
+        self.scanning = True
+        try:
+            for events in self._events():
+                width = max(width, int(events["x"].max()) + 1)
+                height = max(height, int(events["y"].max()) + 1)
+        finally:
+            self.scanning = False
         stream.seek(position)
         return width, height
 

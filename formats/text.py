@@ -70,6 +70,10 @@ def _microseconds(mantissas: np.ndarray, decimals: np.ndarray) -> np.ndarray:
     up = (2 * rest > divisor) | ((2 * rest == divisor) & (whole % 2 == 1))
     return np.sign(mantissas) * (whole + up) * scale
 
+LONE_SIGN = re.compile(rb"(?:^|[\s,;])[-+](?=[\s,;]|$)")
+"""A field that is a sign alone: not a number."""
+
+
 class TextReader:
     """Reads CSV or rpg text, block by block: CSV (t in microseconds) when the file was opened as CSV or its first
     data line has commas, else text (t in seconds); see the module's notes for the separators.
@@ -304,6 +308,8 @@ class TextReader:
         return self._events(values, rows, line_no)
 
     def _numbers(self, block: bytes, expected: int, line_no: int) -> np.ndarray | None:
+        if LONE_SIGN.search(block):  # (numpy reads a lone "-" or "+" as 0: "-1" cut to "-" passed as OFF)
+            return None
         text = block.replace(b",", b" ") if self.csv else block
         attempts = (np.float64,) if self.seconds else (np.int64, np.float64)
         for dtype in attempts:

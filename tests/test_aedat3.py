@@ -79,6 +79,9 @@ def test_truncated_packet_names_the_file_and_the_packets_before_it_are_read(tmp_
     path.write_bytes(HEADER + packet + packet[:10])
     assert len(read_all(path, sensor_size=(346, 260))[1]) == 2
     assert re.search(r"cut\.aedat3.*truncated AEDAT 3\.1 packet header.*file was cut", caplog.text)
+    caplog.clear()
+    assert len(read_all(path)[1]) == 2  # its size scanned first: the cut said once
+    assert caplog.text.count("file was cut") == 1
     piped = run("info", "-", "--sensor-size", "346x260", input=path.read_bytes(), check=False)  # its writer stopped
     assert_clean_error(piped, "<stdin>", "truncated AEDAT 3.1 packet header")
 

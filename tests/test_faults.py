@@ -485,3 +485,63 @@ def test_a_file_cut_inside_a_packet_goes_through_a_command_marked_cut(tmp_path):
     damaged[second + 4:second + 8] = (1 << 31).to_bytes(4, "little")  # a size field no packet has, inside the file
     (tmp_path / "damaged.aedat4").write_bytes(damaged)
     assert_clean_error(run("info", tmp_path / "damaged.aedat4", check=False), "damaged.aedat4", "damaged")
+
+
+def test_cut_files_are_said_the_same_through_python_and_slices_and_damage_is_not_a_cut(tmp_path, caplog):
+    """(A QA sweep of the cut files' salvage.) evtools.read of a cut file gives info.metadata["cut"], and
+    evtools.write of it marks its output cut (AEDAT 2.0: refused); a slice that ends before the cut is whole; a
+    last CSV field cut from "-1" to "-" is the cut, not an OFF event; a packet of a stream id the header never
+    declared, and one that runs past the data table of a DV file that reaches it, are damage (errors), not cuts;
+    an AEDAT 3.1 file cut short is said once even when its size is scanned."""
+    from tests.helpers import aedat4_packets, random_events
+
+    events = random_events(100_000, 64, 48, seed=4)
+    whole = tmp_path / "whole.aedat4"
+    evtools.write(whole, events, evtools.StreamInfo(64, 48))
+    data = whole.read_bytes()
+    packets = aedat4_packets(data)
+    broken = tmp_path / "broken.aedat4"
+    broken.write_bytes(data[:packets[2] + 100])
+    read, info = evtools.read(broken)
+    assert info.metadata["cut"] is True
+    evtools.write(tmp_path / "again.h5", read, info)
+    with evtools.open(tmp_path / "again.h5") as again:
+        assert again.was_cut
+    with pytest.raises(evtools.EvtoolsError, match="nowhere to say so"):
+        evtools.write(tmp_path / "again.aedat", read, info)
+    assert not (tmp_path / "again.aedat").exists()
+    end_us = int(events["t"][1000] - events["t"][0])  # (inside the first packet: the slice is whole)
+    run("convert", broken, "--end", f"{end_us}us", "-o", tmp_path / "slice.aedat4")
+    with evtools.open(tmp_path / "slice.aedat4") as sliced:
+        assert len(concatenate(sliced)) == 1000 and not sliced.was_cut
+    signs = tmp_path / "signs.csv"
+    signs.write_text("t,x,y,p\n1,2,3,1\n2,3,4,-")
+    with evtools.open(signs, sensor_size=(8, 8)) as stream:
+        assert len(concatenate(stream)) == 1 and stream.was_cut
+    undeclared = bytearray(data)
+    undeclared[packets[1]:packets[1] + 4] = (77).to_bytes(4, "little")
+    (tmp_path / "undeclared.aedat4").write_bytes(undeclared)
+    assert_clean_error(run("info", tmp_path / "undeclared.aedat4", check=False), "undeclared.aedat4",
+                       "stream id 77")
+
+
+def test_a_dv_file_whose_packet_runs_past_its_data_table_is_damaged_not_cut(tmp_path):
+    dv = pytest.importorskip("dv_processing", reason="dv-processing (the test extra) writes a file with its table")
+    from tests.helpers import random_events
+
+    events = random_events(20_000, 64, 48, seed=6)
+    config = dv.io.MonoCameraWriter.Config("test")
+    config.addEventStream((64, 48))
+    writer = dv.io.MonoCameraWriter(str(tmp_path / "dv.aedat4"), config)
+    for start in range(0, len(events), 5000):
+        store = dv.EventStore()
+        for event in events[start:start + 5000]:
+            store.push_back(int(event["t"]), int(event["x"]), int(event["y"]), bool(event["p"]))
+        writer.writeEvents(store)
+    del writer
+    data = bytearray((tmp_path / "dv.aedat4").read_bytes())
+    first = len(b"#!AER-DAT4.0\r\n") + 4 + int.from_bytes(data[14:18], "little")
+    size = int.from_bytes(data[first + 4:first + 8], "little")
+    data[first + 4:first + 8] = (size + 40_000).to_bytes(4, "little")  # within the file, past its data table
+    (tmp_path / "damaged.aedat4").write_bytes(data)
+    assert_clean_error(run("info", tmp_path / "damaged.aedat4", check=False), "damaged.aedat4", "data table")
