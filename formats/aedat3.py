@@ -19,6 +19,7 @@ iniVation, AEDAT 3.1 file format; libcaer ``include/libcaer/events/common.h``, `
 
 from __future__ import annotations
 
+import os
 import re
 import struct
 from collections import deque
@@ -195,16 +196,20 @@ class Aedat3Reader:
         """The size of the first frame (a file: its packet headers scanned, the stream put back), or None."""
         stream = self.source.stream
         position, offset = stream.tell(), self.header_bytes
+        file_bytes = os.fstat(stream.fileno()).st_size if hasattr(stream, "fileno") else float("inf")
         try:
             while True:
                 head = stream.read(PACKET_HEADER.size)
                 if len(head) < PACKET_HEADER.size:
                     return None
                 kind, _, size, _, _, capacity, number, _ = PACKET_HEADER.unpack(head)
-                if size <= 0 or capacity < 0:
-                    return None  # damaged: the read proper says so
+                if size <= 0 or capacity < 0 or offset + PACKET_HEADER.size + size * capacity > file_bytes:
+                    return None  # damaged or cut: the read proper says so
                 if kind == FRAME_EVENT and number > 0 and size >= FRAME_HEADER.size:
-                    fields = FRAME_HEADER.unpack(stream.read(FRAME_HEADER.size))
+                    header = stream.read(FRAME_HEADER.size)
+                    if len(header) < FRAME_HEADER.size:
+                        return None
+                    fields = FRAME_HEADER.unpack(header)
                     return (fields[5] + fields[7], fields[6] + fields[8]) if fields[5] > 0 and fields[6] > 0 \
                         else None
                 stream.seek(size * capacity, 1)

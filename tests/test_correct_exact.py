@@ -123,6 +123,9 @@ def test_log_linear_waves_with_exact_thresholds_give_the_ideal_stream(pixels, mo
 
         raw, mine, theirs = of_pixel(mismatched), of_pixel(out), of_pixel(ideal)
         start, end = determined_span(corners, raw)
+        # (the ideal stream ends at end_us: a corrected event within the matching tolerance of it has no ideal one
+        # to meet beyond it - CI drew a wave whose level the corrected pixel reached at exactly end_us)
+        end = min(end, end_us - 21)
         for polarity in (True, False):
             a = mine["t"][(mine["p"] == polarity) & (mine["t"] >= start) & (mine["t"] <= end)]
             b_wide = theirs["t"][(theirs["p"] == polarity) & (theirs["t"] >= start - 20) & (theirs["t"] <= end + 20)]
