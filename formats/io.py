@@ -515,7 +515,7 @@ def atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[str]:
     path = os.path.realpath(named)
     if os.path.exists(path) and not os.path.isfile(path):
         kind = "a folder" if os.path.isdir(path) else "not a regular file (a FIFO, a device)"
-        raise FormatError(f"{named}: is {kind}; this output is written as a file: give -o FILE")
+        raise OutputCannotTakeFormat(f"{named}: is {kind}; this output is written as a file: give -o FILE")
     directory = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(directory):
         raise FormatError(f"{named}: directory {directory} does not exist")
