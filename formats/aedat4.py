@@ -22,8 +22,8 @@ import threading
 import time
 import xml.etree.ElementTree as ET
 from collections import deque
-from dataclasses import dataclass
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 from typing import BinaryIO, Iterator
 
 import numpy as np
@@ -267,8 +267,12 @@ class SidePacket:
 
 def _first_element_us(body: bytes) -> int | None:
     """The timestamp of a DV packet's first element: ``table XPacket { elements: [X] }`` whose element is a table
-    starting with ``timestamp: int64`` (DV's IMU, Trigger); None for an empty or other packet."""
+    starting with ``timestamp: int64`` (DV's IMU ``IMUS``, Trigger ``TRIG``) or a struct that does (an event
+    ``EVTS`` of a second event stream); None for an empty packet or another type."""
     buffer = memoryview(body)
+    kind = bytes(buffer[8:12])
+    if kind not in (b"IMUS", b"TRIG", b"EVTS"):
+        return None
     try:
         (root,) = struct.unpack_from("<I", buffer, 4)
         fields = _table_fields(buffer, 4 + root)
@@ -277,6 +281,8 @@ def _first_element_us(body: bytes) -> int | None:
         vector = fields[0] + struct.unpack_from("<I", buffer, fields[0])[0]
         if struct.unpack_from("<I", buffer, vector)[0] == 0:
             return None
+        if kind == b"EVTS":  # (a vector of structs: the first event's time is its first field)
+            return struct.unpack_from("<q", buffer, vector + 4)[0]
         element = vector + 4 + struct.unpack_from("<I", buffer, vector + 4)[0]
         element_fields = _table_fields(buffer, element)
         return struct.unpack_from("<q", buffer, element_fields[0])[0] if element_fields and element_fields[0] else None
@@ -673,8 +679,9 @@ aedat, faery) would parse the stream description."""
 
 
 def _description(info: StreamInfo, compression: int) -> str:
-    """The streams' XML: events (id 0) and, when ``info.metadata["frame_size"]`` says the stream has APS frames,
-    frames (id :data:`FRAME_STREAM_ID`)."""
+    """The streams' XML: events (id 0), when ``info.metadata["frame_size"]`` says the stream has APS frames, frames
+    (id :data:`FRAME_STREAM_ID`), and the side streams ``info.metadata["side_streams"]`` lists (from
+    :data:`SIDE_STREAM_FIRST_ID` on)."""
     source = _xml_text(info.metadata.get("source") or "evtools")
     frame_size = info.metadata.get("frame_size")
     frames = "" if not frame_size else (

@@ -784,3 +784,16 @@ def test_a_recordings_imu_and_triggers_go_through_bafilter_and_are_said_where_th
     evtools.write(tmp_path / "api.aedat4", events, info)
     dv = pytest.importorskip("dv_processing")
     assert not dv.io.MonoCameraRecording(str(tmp_path / "api.aedat4")).isImuStreamAvailable()
+
+
+def test_a_side_packets_time_is_its_first_elements():
+    """A second event stream carried as a side stream is placed by its first event's time (its elements are structs,
+    not tables: read as a table's offset its time was garbage); an unknown packet type has none (it then takes the
+    time of the side packet before it)."""
+    from evtools.formats.aedat4 import _first_element_us, _packet_prefix
+
+    events = make_events([123, 456], [1, 2], [3, 4], [True, False])
+    body = _packet_prefix(2) + events.tobytes()
+    assert _first_element_us(body) == 123
+    assert _first_element_us(_packet_prefix(0)) is None
+    assert _first_element_us(body[:8] + b"XXXX" + body[12:]) is None
