@@ -70,6 +70,7 @@ def _microseconds(mantissas: np.ndarray, decimals: np.ndarray) -> np.ndarray:
     up = (2 * rest > divisor) | ((2 * rest == divisor) & (whole % 2 == 1))
     return np.sign(mantissas) * (whole + up) * scale
 
+
 LONE_SIGN = re.compile(rb"(?:^|[\s,;])[-+](?=[\s,;]|$)")
 """A field that is a sign alone: not a number."""
 
