@@ -71,7 +71,8 @@ def convert_one(input, output, *, reading, output_format, compression, speed=Non
             aedat2_layout=reading.aedat2_layout, inputs=(input,),
         ) as writer:
             chunks = stream if speed is None else paced(stream, speed)
-            frames = FrameRelay(SlicedStream(stream, transform) if transform else stream, writer)
+            relayed = SlicedStream(stream, transform) if transform else stream  # (its frames, side packets, cut)
+            frames = FrameRelay(relayed, writer)
             for chunk in with_progress(chunks, stream, f"converting {stream.name}"):
                 events_in += len(chunk)
                 last_us = int(chunk["t"][-1])
@@ -88,8 +89,7 @@ def convert_one(input, output, *, reading, output_format, compression, speed=Non
             frames.release(None)
             if transform and not stopped:
                 transform.said_at_end(stream.name)
-            # a cut input's output ends without the end mark too (unless the cut lies after the slice's end)
-            writer.cut = getattr(stream, "was_cut", False) and not (transform and transform.done)
+            writer.cut = relayed.was_cut  # a cut input's output is marked cut too (a slice ended before it: whole)
     read = f"{events_in:,} events read (then --end: the rest not read)" if stopped else f"{events_in:,} events in"
     log.info(f"convert: {read}, {events_out:,} out")
     return Outcome(events_in, events_out, {"read_to_the_end": not stopped}, "stopped at --end" if stopped else "")

@@ -86,10 +86,7 @@ class EventStream:
         """The APS frames (:class:`evtools.frames.Frame`) read since the last call, in the order of the input (the
         reader reads ahead of the chunks given out, so these may lie beyond the last chunk); all of them once the
         stream has been read to its end."""
-        frames = getattr(self.reader, "frames", None)
-        taken = []
-        while frames:
-            taken.append(frames.popleft())
+        taken = _drained(getattr(self.reader, "frames", None))
         colour = next((frame.metadata["converted_from"] for frame in taken if frame.metadata.get("converted_from")),
                       None)
         if colour and not self._said_colour:
@@ -114,11 +111,7 @@ class EventStream:
 
     def take_side_packets(self) -> list:
         """The side streams' packets read since the last call (after :meth:`carry_side_streams`), in file order."""
-        packets = getattr(self.reader, "side_packets", None)
-        taken = []
-        while packets:
-            taken.append(packets.popleft())
-        return taken
+        return _drained(getattr(self.reader, "side_packets", None))
 
     def not_carried(self) -> str | None:
         """What of the input a command that writes events and APS frames leaves out (the streams and words the
@@ -359,6 +352,15 @@ def output_format(path: str | os.PathLike | None, format: str | None):
     if fmt.writer is None:
         raise FormatError(f"{fmt.description} cannot be written (read-only format)")
     return fmt
+
+
+def _drained(queue) -> list:
+    """What a reader's queue (a deque, or None) holds, taken from it in order (popleft: the reader's thread may
+    append meanwhile)."""
+    taken = []
+    while queue:
+        taken.append(queue.popleft())
+    return taken
 
 
 def _any_live(inputs: tuple[str, ...]) -> bool:

@@ -30,7 +30,7 @@ import numpy as np
 from evtools.events import EVENT_DTYPE, StreamInfo
 from evtools.frames import Frame, gray
 from evtools.formats.errors import FormatError
-from evtools.formats.io import Source, ends_cut, read_at_most, resolve_sensor_size
+from evtools.formats.io import Source, ends_cut, read_at_most, resolve_sensor_size, size_scan
 from evtools.formats.registry import ReadOptions
 
 MAGIC = b"#!AER-DAT3.1\r\n"
@@ -111,8 +111,7 @@ class Aedat3Reader:
         if frame_size is not None:
             self.info.metadata["frame_size"] = frame_size
 
-    def _packets(self, stream: BinaryIO, offset: int, skipped: dict[int, int], frames=None,
-                 scanning: bool = False) -> Iterator[np.ndarray]:
+    def _packets(self, stream: BinaryIO, offset: int, skipped: dict[int, int], frames=None) -> Iterator[np.ndarray]:
         """(events, invalid count) of each polarity packet from ``offset`` (where ``stream`` is) to the end; the
         frames of frame packets into ``frames`` (None: skipped)."""
         while True:
@@ -120,9 +119,8 @@ class Aedat3Reader:
             if not head:
                 return
             if len(head) < PACKET_HEADER.size:
-                if not scanning:  # (the size scan leaves it to the read proper: said once)
-                    ends_cut(self, f"truncated AEDAT 3.1 packet header at byte offset {offset:,} ({len(head)} of "
-                                   f"{PACKET_HEADER.size} bytes)")
+                ends_cut(self, f"truncated AEDAT 3.1 packet header at byte offset {offset:,} ({len(head)} of "
+                               f"{PACKET_HEADER.size} bytes)")
                 return
             kind, _, size, ts_offset, overflow, capacity, number, _ = PACKET_HEADER.unpack(head)
             if size <= 0 or capacity < 0 or not 0 <= number <= capacity:
@@ -132,9 +130,8 @@ class Aedat3Reader:
                 )
             body = read_at_most(stream, size * capacity, self.source.seekable)
             if len(body) < size * capacity:
-                if not scanning:
-                    ends_cut(self, f"truncated AEDAT 3.1 packet at byte offset {offset:,} ({len(body):,} of "
-                                   f"{size * capacity:,} body bytes)")
+                ends_cut(self, f"truncated AEDAT 3.1 packet at byte offset {offset:,} ({len(body):,} of "
+                               f"{size * capacity:,} body bytes)")
                 return
             packet_offset, offset = offset, offset + PACKET_HEADER.size + size * capacity
             if kind == FRAME_EVENT and frames is not None:
@@ -222,10 +219,11 @@ class Aedat3Reader:
         stream = self.source.stream
         position = stream.tell()
         width = height = 0
-        for events, _ in self._packets(stream, self.header_bytes, {}, scanning=True):
-            if len(events):
-                width = max(width, int(events["x"].max()) + 1)
-                height = max(height, int(events["y"].max()) + 1)
+        with size_scan(self):
+            for events, _ in self._packets(stream, self.header_bytes, {}):
+                if len(events):
+                    width = max(width, int(events["x"].max()) + 1)
+                    height = max(height, int(events["y"].max()) + 1)
         stream.seek(position)
         return width, height
 

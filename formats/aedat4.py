@@ -513,14 +513,18 @@ class Aedat4Reader:
             if status != COPIED or start == 0:  # a packet for the per-packet path (or one larger than a block)
                 return
 
+    def _decompressed(self, body: bytes, offset: int) -> bytes:
+        """A packet's body as written (decompressed where the file is compressed), or an error naming its offset."""
+        if self.decompress is None:
+            return body
+        try:
+            return self.decompress(body)
+        except Exception as error:  # lz4 and zstandard raise their own types
+            raise FormatError(f"{self.name}: cannot decompress packet at byte {offset} ({error})") from None
+
     def _take_frame(self, body: bytes, offset: int) -> None:
         """A frame packet: decoded (at once: frames are few) and queued for :meth:`EventStream.take_frames`."""
-        if self.decompress is not None:
-            try:
-                body = self.decompress(body)
-            except Exception as error:  # lz4 and zstandard raise their own types
-                raise FormatError(f"{self.name}: cannot decompress packet at byte {offset} ({error})") from None
-        frame = _parse_frame(body, self.name, offset)
+        frame = _parse_frame(self._decompressed(body, offset), self.name, offset)
         size_stated = self.info.metadata["frame_size"]
         if frame.offset_x < 0 or frame.offset_y < 0 or frame.offset_x + frame.width > size_stated[0] or \
                 frame.offset_y + frame.height > size_stated[1]:
@@ -537,11 +541,7 @@ class Aedat4Reader:
     def _take_side(self, stream_id: int, body: bytes, offset: int) -> None:
         """A side stream's packet (IMU samples, triggers...), decompressed and queued whole for
         :meth:`EventStream.take_side_packets`, at the time of its first element (else of the packet before it)."""
-        if self.decompress is not None:
-            try:
-                body = self.decompress(body)
-            except Exception as error:  # lz4 and zstandard raise their own types
-                raise FormatError(f"{self.name}: cannot decompress packet at byte {offset} ({error})") from None
+        body = self._decompressed(body, offset)
         first_us = _first_element_us(body)
         if first_us is not None:
             self._side_us = first_us
@@ -585,10 +585,7 @@ class Aedat4Reader:
         bounds = np.empty(len(group) + 1, np.int64)  # packet k: staging[bounds[k]:bounds[k + 1]]
         at = 0
         for k, (body, offset) in enumerate(group):
-            try:
-                packet = self.decompress(body)
-            except Exception as error:  # lz4 and zstandard raise their own types
-                raise FormatError(f"{self.name}: cannot decompress packet at byte {offset} ({error})") from None
+            packet = self._decompressed(body, offset)
             end = at + len(packet)
             if staging is None or end > len(staging):
                 grown = np.empty(max(2 * (0 if staging is None else len(staging)), end, 1 << 20), np.uint8)

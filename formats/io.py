@@ -388,13 +388,24 @@ def ends_cut(reader, problem: str) -> None:
     stream is marked cut (``reader.cut_file``: its outputs say so, DESIGN.md), so no input is lost and no cut stream
     passes as whole. A live input cut so (its writer stopped mid-write) is an error, as a live input ending without
     its end mark is."""
-    if getattr(reader, "scanning", False):  # (a scan for the sensor size: the read proper says it, once)
+    if getattr(reader, "scanning", False):  # (a scan for the sensor size, :func:`size_scan`: the read says it)
         return
     if reader.source.live:
         raise FormatError(f"{reader.name}: {problem}")
     logging.getLogger("evtools").warning(f"{reader.name}: {problem}: the file was cut (or damaged there); the events "
                                          "before it are read, the rest is lost, and the stream is marked cut")
     reader.cut_file = True
+
+
+@contextlib.contextmanager
+def size_scan(reader) -> Iterator[None]:
+    """A reader's scan of its whole file for the sensor size: a cut it meets is left to the read proper
+    (:func:`ends_cut`), which says it once."""
+    reader.scanning = True
+    try:
+        yield
+    finally:
+        reader.scanning = False
 
 
 def same_file(a: str, b: str) -> bool:

@@ -41,7 +41,7 @@ from evtools._kernels.prophesee import (DROPPED_NO_TIME, DROPPED_NO_Y, EVT2_DROP
                                         decode_evt3, decode_evt21, encode_evt2, new_evt2_state, new_evt3_state)
 from evtools.events import MAX_TIME_US, StreamInfo, record_words, second_words
 from evtools.formats.errors import FormatError
-from evtools.formats.io import Recycled, Source, ends_cut, resolve_sensor_size
+from evtools.formats.io import Recycled, Source, ends_cut, resolve_sensor_size, size_scan
 from evtools.formats.registry import ReadOptions, WriteOptions
 
 GENERATION_SIZES = (("genx320", (320, 320)), ("imx636", (1280, 720)), ("gen4", (1280, 720)), ("gen3", (640, 480)))
@@ -268,14 +268,11 @@ class PropheseeRawReader:
         stream = self.source.stream
         position = stream.tell()
         width = height = 0
-        self.scanning = True
-        try:
+        with size_scan(self):
             for events in self._events({"dropped_events": 0, "triggers": 0, "other_words": 0}):
                 if len(events):
                     width = max(width, int(events["x"].max()) + 1)
                     height = max(height, int(events["y"].max()) + 1)
-        finally:
-            self.scanning = False
         stream.seek(position)
         return width, height
 
@@ -421,13 +418,10 @@ class PropheseeDatReader:
         stream = self.source.stream
         position = stream.tell()
         width = height = 0
-        self.scanning = True
-        try:
+        with size_scan(self):
             for events in self._events():
                 width = max(width, int(events["x"].max()) + 1)
                 height = max(height, int(events["y"].max()) + 1)
-        finally:
-            self.scanning = False
         stream.seek(position)
         return width, height
 

@@ -26,7 +26,7 @@ import numpy as np
 from evtools._kernels.text import PARSED, WRONG_COUNT, parse_text
 from evtools.events import EVENT_DTYPE, MAX_SENSOR_SIDE, MAX_TIME_US, StreamInfo
 from evtools.formats.errors import FormatError
-from evtools.formats.io import Source, ends_cut, resolve_sensor_size
+from evtools.formats.io import Source, ends_cut, resolve_sensor_size, size_scan
 from evtools.formats.registry import ReadOptions, WriteOptions
 
 _POWERS_OF_TEN_FLOAT = 10.0 ** np.arange(23)
@@ -381,16 +381,17 @@ class TextReader:
     def _scan_size(self) -> tuple[int, int]:
         position = self.stream.tell()
         width = height = 0
-        for events in self._parsed(scanning=True):
-            if len(events):
-                width = max(width, int(events["x"].max()) + 1)
-                height = max(height, int(events["y"].max()) + 1)
+        with size_scan(self):
+            for events in self._parsed():
+                if len(events):
+                    width = max(width, int(events["x"].max()) + 1)
+                    height = max(height, int(events["y"].max()) + 1)
         self.stream.seek(position)
         return width, height
 
-    def _parsed(self, scanning: bool = False) -> Iterator[np.ndarray]:
+    def _parsed(self) -> Iterator[np.ndarray]:
         """The events of each block. A last line without its newline that does not read as an event is left out:
-        the file was cut inside it (a writer stopped mid-line), said when read (not when scanned for the size)."""
+        the file was cut inside it (a writer stopped mid-line: :func:`ends_cut`)."""
         self._last_line = None
         for block, line_no in self._blocks():
             try:
@@ -398,9 +399,8 @@ class TextReader:
             except FormatError as error:
                 if line_no != self._last_line:
                     raise
-                if not scanning:
-                    ends_cut(self, f"line {line_no}, the last, ends without its newline and does not read as an "
-                                   f"event ({str(error).removeprefix(f'{self.name}: line {line_no}: ')})")
+                ends_cut(self, f"line {line_no}, the last, ends without its newline and does not read as an "
+                               f"event ({str(error).removeprefix(f'{self.name}: line {line_no}: ')})")
                 return
             yield events
 
