@@ -186,7 +186,7 @@ class EvtoolsGroup(LazyGroup):
             click.echo(f"evtools: stopped by {signal.Signals(interrupt.received()).name}; the outputs hold every "
                        "event processed until then", err=True)
             ctx.exit(interrupt.exit_code())
-        return result
+        return None  # (not the command's value: main() takes a number from the group as its exit code)
 
 
 @click.group(cls=EvtoolsGroup, lazy_commands=COMMANDS, context_settings={"help_option_names": ["-h", "--help"]})
@@ -225,20 +225,27 @@ def main() -> None:
     except ValueError as error:
         sys.stderr.write(f"evtools: usage: {error}\n")
         sys.exit(EXIT_USAGE)
-    interrupt.install()  # Ctrl-C / SIGTERM end the input stream: outputs complete, exit 130 / 143
     try:
-        cli(prog_name="evtools")
+        interrupt.install()  # Ctrl-C / SIGTERM end the input stream: outputs complete, exit 130 / 143
+        # click's standalone mode would turn a stop that lands outside the group's own handling (between the
+        # handlers' installation and the parsing, or before the command is invoked: a busy machine descheduled
+        # the process there in CI) into "Aborted!" and exit 1; here every stop ends as the others do
+        code = cli.main(prog_name="evtools", standalone_mode=False)
+    except click.Abort as stop:  # (click's word for a KeyboardInterrupt, or an EOFError, that reached it)
+        if isinstance(stop.__cause__, EOFError):
+            click.echo("evtools: error: unexpected end of input", err=True)
+            code = EXIT_ERROR
+        else:
+            click.echo("evtools: interrupted", err=True)
+            code = interrupt.exit_code()
+    except KeyboardInterrupt:
+        click.echo("evtools: interrupted", err=True)
+        code = interrupt.exit_code()
+    except click.ClickException as error:  # (no arguments: the help)
+        error.show()
+        code = error.exit_code
     except SystemExit as done:
-        if done.code not in (None, 0):
-            # A failed run has closed its outputs and removed its temporaries (context managers) and said why; it
-            # ends here, without the interpreter's finalisation: h5py crashes (SIGSEGV) freeing the objects of a
-            # file whose write failed (a full disk), which would turn exit 1 into a crash
-            with contextlib.suppress(Exception):
-                sys.stdout.flush()
-            with contextlib.suppress(Exception):
-                sys.stderr.flush()
-            os._exit(done.code if isinstance(done.code, int) else 1)
-        raise
+        code = done.code
     finally:
         if threading.current_thread() is threading.main_thread():  # the work is done (its outputs committed): a
             signal.signal(signal.SIGINT, signal.SIG_IGN)  # stop now changes nothing; the interpreter's own ending
@@ -247,3 +254,12 @@ def main() -> None:
         # collections walk every object it created (~0.2 s per process, measured with `time`); frozen objects are
         # skipped. Files are closed and flushed as usual.
         gc.freeze()
+    if code not in (None, 0):
+        # A failed run has closed its outputs and removed its temporaries (context managers) and said why; it ends
+        # here, without the interpreter's finalisation: h5py crashes (SIGSEGV) freeing the objects of a file whose
+        # write failed (a full disk), which would turn exit 1 into a crash
+        with contextlib.suppress(Exception):
+            sys.stdout.flush()
+        with contextlib.suppress(Exception):
+            sys.stderr.flush()
+        os._exit(code if isinstance(code, int) else EXIT_ERROR)
