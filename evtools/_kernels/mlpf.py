@@ -68,9 +68,10 @@ def with_zero_row(w1: np.ndarray) -> np.ndarray:
 
 
 def scratch(patch: int) -> tuple[np.ndarray, np.ndarray]:
-    """The two int64 lists :func:`mlpf` fills per event (active cells, their ages): all inputs, plus padding."""
+    """The two lists :func:`mlpf` fills per event (active cells, uint64; their ages, int64): all inputs, plus
+    padding."""
     size = 2 * patch * patch + 1 + 4
-    return np.zeros(size, np.int64), np.zeros(size, np.int64)
+    return np.zeros(size, np.uint64), np.zeros(size, np.int64)
 
 
 @kernel
@@ -79,59 +80,59 @@ def mlpf(words, maps, radius, clock, scale, tau_us, w1, b1, w2, b2, logit_thresh
     (the probability threshold's logit); the time constant from ``clock``, ``scale`` and ``tau_us``
     (:func:`time_constant`); ``w1`` is :func:`with_zero_row` of the (inputs, hidden) weights, ``cells`` and
     ``ages`` the lists of :func:`scratch`, ``hidden`` scratch of the hidden size."""
-    size = 2 * radius + 1
+    u = np.uint64  # every index unsigned: numba then adds no negative-index fix-up (one a cell and a unit)
+    size = u(2 * radius + 1)
     plane = size * size
-    zero_row = 2 * plane + 1
-    width = maps.shape[2]
+    zero_row = u(2) * plane + u(1)
+    width = u(maps.shape[2])
     flat = maps.ravel()
-    map_cells = maps.shape[1] * width
-    units = b1.shape[0]
-    one = np.uint64(1)
+    map_cells = u(maps.shape[1]) * width
+    units = u(b1.shape[0])
+    one = u(1)
     n = 0
     end = words.shape[0]
     for i in range(end):
         if i + AHEAD < end:  # the patch rows of a later event: cache misses on large sensors
             ahead = words[i + AHEAD, 1]
-            corner = ((ahead >> 16) & 0xFFFF) * width + (ahead & 0xFFFF)
-            for c in range(2):
+            corner = u(((ahead >> 16) & 0xFFFF) * maps.shape[2] + (ahead & 0xFFFF))
+            for c in range(u(2)):
                 for dy in range(size):
                     prefetch(flat, c * map_cells + corner + dy * width)
-                    prefetch(flat, c * map_cells + corner + dy * width + size - 1)
+                    prefetch(flat, c * map_cells + corner + dy * width + size - one)
         t = words[i, 0]
         x, y, p = unpack(words[i, 1])
         tau = time_constant(clock, t, scale, tau_us)
         inverse_tau = 1.0 / tau
-        # the scan: every cell written, the count advanced by 1 where active (an unsigned count: numba then
-        # indexes without its negative-index fix-up)
-        active = np.uint64(0)
-        for c in range(2):
+        # the scan: every cell written, the count advanced by 1 where active
+        active = u(0)
+        for c in range(u(2)):
             for dy in range(size):
-                row = flat[c * map_cells + (y + dy) * width + x:]
+                row = c * map_cells + (u(y) + dy) * width + u(x)
                 first = c * plane + dy * size
                 for dx in range(size):
-                    age = t - row[dx]
+                    age = t - flat[row + dx]
                     cells[active] = first + dx
                     ages[active] = age
-                    active += np.uint64((age - tau) >> 63) & one  # age < tau
+                    active += u((age - tau) >> 63) & one  # age < tau
         if p:
-            cells[active] = 2 * plane  # the polarity input: 1, as a cell of age 0
+            cells[active] = u(2) * plane  # the polarity input: 1, as a cell of age 0
             ages[active] = 0
             active += one
-        for q in range(4):
-            cells[active + np.uint64(q)] = zero_row
-            ages[active + np.uint64(q)] = 0
+        for q in range(u(4)):
+            cells[active + q] = zero_row
+            ages[active + q] = 0
         for j in range(units):
             hidden[j] = b1[j]
-        for m in range(0, active, 4):
-            wa, wb, wc, wd = w1[cells[m]], w1[cells[m + 1]], w1[cells[m + 2]], w1[cells[m + 3]]
-            fa, fb = 1.0 - ages[m] * inverse_tau, 1.0 - ages[m + 1] * inverse_tau
-            fc, fd = 1.0 - ages[m + 2] * inverse_tau, 1.0 - ages[m + 3] * inverse_tau
+        for m in range(u(0), active, u(4)):
+            ra, rb, rc, rd = cells[m], cells[m + u(1)], cells[m + u(2)], cells[m + u(3)]
+            fa, fb = 1.0 - ages[m] * inverse_tau, 1.0 - ages[m + u(1)] * inverse_tau
+            fc, fd = 1.0 - ages[m + u(2)] * inverse_tau, 1.0 - ages[m + u(3)] * inverse_tau
             for j in range(units):
-                hidden[j] += (fa * wa[j] + fb * wb[j]) + (fc * wc[j] + fd * wd[j])
+                hidden[j] += (fa * w1[ra, j] + fb * w1[rb, j]) + (fc * w1[rc, j] + fd * w1[rd, j])
         z = b2
         for j in range(units):
             z += max(hidden[j], 0.0) * w2[j]
-        flat[(0 if p else map_cells) + (y + radius) * width + x + radius] = t
+        flat[(u(0) if p else map_cells) + (u(y) + u(radius)) * width + u(x) + u(radius)] = t
         n = _keep(words, i, out, n, z > logit_threshold)
     return n
 
