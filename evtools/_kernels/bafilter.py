@@ -56,19 +56,20 @@ def baf(words, time_map, dt_us, first_rejected, out):
     ``time_map`` is padded by 1 and gets every event's time, kept or not. ``first_rejected`` (jAER's
     letFirstEventThrough = false): an event at a pixel that never fired is rejected without a look around.
     """
-    width = time_map.shape[1]
+    width = np.uint64(time_map.shape[1])  # (unsigned indices: numba adds no negative-index fix-up)
     flat = time_map.ravel()
+    one = np.uint64(1)
     n = 0
     for i in range(words.shape[0]):
         ti = words[i, 0]
         x, y, _ = unpack(words[i, 1])
-        c = (y + 1) * width + x + 1
+        c = (np.uint64(y) + one) * width + np.uint64(x) + one
         if first_rejected and flat[c] == NEVER:
             flat[c] = ti
             continue
-        above = max(max(flat[c - width - 1], flat[c - width]), flat[c - width + 1])
-        below = max(max(flat[c + width - 1], flat[c + width]), flat[c + width + 1])
-        latest = max(max(above, below), max(flat[c - 1], flat[c + 1]))
+        above = max(max(flat[c - width - one], flat[c - width]), flat[c - width + one])
+        below = max(max(flat[c + width - one], flat[c + width]), flat[c + width + one])
+        latest = max(max(above, below), max(flat[c - one], flat[c + one]))
         flat[c] = ti
         n = _keep(words, i, out, n, ti - latest < dt_us)
     return n
@@ -112,14 +113,15 @@ def stcf(words, time_map, dt_us, radius, k, use_polarity, first_rejected, jaer_w
             dx1 = min(radius, sensor_width - 1 - radius - x)
             dy1 = min(radius, sensor_height - 1 - radius - y)
         count = 0  # branch-free: polarities are random, so a branch per neighbour would mispredict
+        columns = np.uint64(radius + dx1 + 1)  # (unsigned indices: numba adds no negative-index fix-up)
         for dy in range(-radius, dy1 + 1):
-            row = c + dy * width
+            row = np.uint64(c + dy * width - radius)
             if use_polarity:
-                for dx in range(-radius, dx1 + 1):
+                for dx in range(columns):
                     v = flat[row + dx]
                     count += (v > bound) & ((v & 1) == pi)
             else:
-                for dx in range(-radius, dx1 + 1):
+                for dx in range(columns):
                     count += flat[row + dx] > bound
         if dx1 >= 0 and dy1 >= 0 and not count_self:  # the window holds the pixel itself: take it out
             v = flat[c]
@@ -144,8 +146,8 @@ def stcf_polarity_maps(words, maps, dt_us, radius, k, out):
         c = (0 if pi else cells) + (y + radius) * width + x + radius
         count = 0
         for dy in range(-radius, radius + 1):
-            row = c + dy * width
-            for dx in range(-radius, radius + 1):
+            row = np.uint64(c + dy * width - radius)  # (unsigned: no negative-index fix-up)
+            for dx in range(np.uint64(2 * radius + 1)):
                 count += ti - flat[row + dx] < dt_us
         count -= ti - flat[c] < dt_us
         flat[c] = ti
