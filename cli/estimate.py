@@ -275,6 +275,19 @@ class _MapsToFile:
                           "width": self.file.datasets["on"].shape[2], "height": self.file.datasets["on"].shape[1]})
 
 
+def _part_of_the_stream(stream, estimator) -> dict:
+    """The attributes of a map made from part of its stream: a stop signal ended the stream (``partial``,
+    ``stopped_by``, ``stopped_at_us``, as a stopped online run's maps), or its file was cut (``cut``); readers of
+    the map say so (:func:`evtools.formats.thresholds.open_thresholds`)."""
+    said = {}
+    if interrupt.received() is not None:
+        said = {"partial": True, "stopped_by": f"stopped by {signal.Signals(interrupt.received()).name}",
+                "stopped_at_us": int(estimator.t_last_us or 0)}
+    if stream.was_cut:
+        said["cut"] = "estimated from a recording that was cut (its events up to the cut)"
+    return said
+
+
 def _on_camera(transform, *maps):
     """``maps`` (of the stream's sensor: sliced by ``transform``, or None) on the camera's whole sensor: not valid
     (False, NaN) outside the crop (:meth:`evtools.transform.Transform.camera_pixels`); None stays None."""
@@ -332,6 +345,10 @@ def estimate_one(input, output, *, reading, parameters, slicing=None
             except EvtoolsError as error:
                 if online and maps_file.failed:
                     raise  # (the file could not be written: its own error, no partial file)
+                if interrupt.received() is not None and not (online and maps_file.count):
+                    # a stop ended the stream before it held enough to estimate from: the stop's word, not the
+                    # data's ("no events", "too few events a pixel")
+                    raise interrupt.StopReading from None
                 message = str(error) if str(error).startswith(stream.name) else f"{stream.name}: {error}"
                 if not online or maps_file.count == 0 or sink.estimator is None:
                     raise type(error)(message) from None
@@ -340,7 +357,7 @@ def estimate_one(input, output, *, reading, parameters, slicing=None
                                           f"made up to {maps_file.last_t_us:,} us are written to {output} "
                                           "(attribute partial)")
             else:
-                attributes = {**result.attributes, "input": stream.name}
+                attributes = {**result.attributes, "input": stream.name, **_part_of_the_stream(stream, estimator)}
                 for said in ("disagreement", "brightness_dependence"):
                     if said in attributes:
                         log.warning(f"{stream.name}: {attributes[said]}")

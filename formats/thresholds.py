@@ -8,6 +8,7 @@ the method and its parameters as attributes of the file.
 
 from __future__ import annotations
 
+import logging
 import os
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
@@ -209,6 +210,9 @@ def open_thresholds(path: str):
         if valid is None:
             valid = np.ones(on.shape, dtype=bool) if t_us is None else on.through(_all_valid)
         attributes.setdefault("units", units)
+        if attributes.get("partial"):  # (an estimate stopped midway: its maps are of part of the stream)
+            stopped = f"{attributes.get('stopped_by', 'stopped')} at {int(attributes.get('stopped_at_us', 0)):,} us"
+            logging.getLogger("evtools").warning(f"{path}: estimated from part of its stream ({stopped})")
         yield ThresholdMap(on, off, valid, attributes, fit, phase_us, None if t_us is None else t_us.astype(np.int64))
 
 

@@ -1346,3 +1346,75 @@ def test_a_stream_of_one_polarity_is_named_as_such(tmp_path, method):
     run("simulate", "scene:flicker", "--size", "8x6", "--duration", "2s", "-o", stream)
     done = run("estimate", stream, "--method", method, "--polarity", "on", "-o", tmp_path / "t.h5", check=False)
     assert_clean_error(done, "events are all ON", "--polarity")
+
+
+def _stop_after(monkeypatch, chunks: int, chunk_events: int) -> None:
+    """A SIGINT as if received once the estimator has taken ``chunks`` chunks of ``chunk_events`` (the reader then
+    ends the stream)."""
+    import dataclasses
+    import signal
+
+    import evtools.cli.estimate as estimate_command
+    from evtools import interrupt
+
+    opening = estimate_command.open_events
+    monkeypatch.setattr(estimate_command, "open_events", lambda path, reading: opening(
+        path, dataclasses.replace(reading, chunk_events=chunk_events)))
+
+    taken = []
+    process = ThresholdEstimator.process
+
+    def processing(self, chunk):
+        taken.append(len(chunk))
+        if len(taken) == chunks:
+            monkeypatch.setattr(interrupt, "_received", signal.SIGINT)
+        return process(self, chunk)
+
+    monkeypatch.setattr(ThresholdEstimator, "process", processing)
+    monkeypatch.setattr(interrupt, "_received", None)
+
+
+def test_an_offline_map_of_a_stopped_run_is_marked_partial_and_its_readers_say_so(tmp_path, monkeypatch, caplog):
+    """A QA sweep: `estimate` stopped by Ctrl-C midway wrote a map of the first half of the stream under its final
+    name with no mark (only exit 130 said it), and `correct` then used it without a word. The map now carries
+    partial, stopped_by and stopped_at_us (as a stopped online run's maps), and every reader of it warns."""
+    from click.testing import CliRunner
+
+    from evtools.cli.main import cli
+
+    stream = tmp_path / "long.csv"
+    events, _ = evtools.simulate("texture", size=(32, 24), duration_us=3_000_000, seed=3)
+    evtools.write(stream, events, StreamInfo(32, 24))
+    out = tmp_path / "map.h5"
+    _stop_after(monkeypatch, chunks=2, chunk_events=len(events) // 3)
+    done = CliRunner().invoke(cli, ["estimate", str(stream), "--max-fit", "inf", "-o", str(out)])
+    assert done.exit_code == 130, done.output
+    written = read_thresholds(out)
+    assert written.attributes["partial"] and written.attributes["stopped_by"] == "stopped by SIGINT"
+    assert written.attributes["events"] < len(events)
+    assert 0 < written.attributes["stopped_at_us"] < int(events["t"][-1])
+    monkeypatch.undo()
+    import logging
+
+    monkeypatch.setattr(logging.getLogger("evtools"), "handlers", [caplog.handler])
+    caplog.clear()
+    read_thresholds(out)
+    assert any("estimated from part of its stream (stopped by SIGINT" in r.getMessage() for r in caplog.records)
+
+
+def test_a_stop_before_the_stream_held_enough_exits_130_not_an_error_about_the_data(tmp_path, monkeypatch):
+    """A stop after one small chunk left too few events to estimate from: the run said the recording had no
+    events or was too short (exit 1), never the stop. Now exit 130 and "interrupted", and no map."""
+    from click.testing import CliRunner
+
+    from evtools.cli.main import cli
+
+    stream = tmp_path / "long.csv"
+    events, _ = evtools.simulate("texture", size=(32, 24), duration_us=3_000_000, seed=3)
+    evtools.write(stream, events, StreamInfo(32, 24))
+    out = tmp_path / "map.h5"
+    _stop_after(monkeypatch, chunks=1, chunk_events=50)
+    done = CliRunner().invoke(cli, ["estimate", str(stream), "--method", "natural", "-o", str(out)])
+    assert done.exit_code == 130, done.output
+    assert "interrupted" in done.output and "events" not in done.output, done.output
+    assert not out.exists()
