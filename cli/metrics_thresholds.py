@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 import json
+import logging
 
 import click
 
 from evtools.cli.options import figure_path, json_option, wants_json
 from evtools.metrics.thresholds import FIT_IS_ERROR, ThresholdMetricsError, fit_calibration, threshold_errors
 from evtools.formats.thresholds import read_thresholds
+
+log = logging.getLogger("evtools")
 
 @click.command()
 @click.argument("estimate_path", metavar="EST.h5", type=click.Path(dir_okay=False))
@@ -32,14 +35,18 @@ def thresholds(estimate_path, truth_path, plot_path, as_json):
             f"{truth.width}x{truth.height}; compare the estimate with the truth of the same sensor"
         )
     figure_path(plot_path, "--plot", (estimate_path, truth_path))
+    if not truth.valid.all():  # another estimate as the truth: its invalid pixels hold a placeholder
+        log.warning(f"{truth_path}: {int((~truth.valid).sum()):,} of {truth.valid.size:,} pixels hold no valid "
+                    "value (dead pixels, or another estimate's invalid ones): left out of every figure")
     try:
-        result = threshold_errors(estimate.on, estimate.off, estimate.valid, truth.on, truth.off)
+        result = threshold_errors(estimate.on, estimate.off, estimate.valid, truth.on, truth.off, truth.valid)
     except ThresholdMetricsError as error:
         raise ThresholdMetricsError(f"{estimate_path}: {error}") from None
     method = estimate.attributes.get("method")
     result = {"estimate": estimate_path, "truth": truth_path, "method": method, **result}
     if estimate.fit is not None and method in FIT_IS_ERROR:  # how well the fit map predicts the error
-        result["fit"] = fit_calibration(estimate.on, estimate.off, estimate.valid, estimate.fit, truth.on, truth.off)
+        result["fit"] = fit_calibration(estimate.on, estimate.off, estimate.valid & truth.valid, estimate.fit,
+                                        truth.on, truth.off)
     if "rejected_by_fit" in estimate.attributes:  # pixels with enough events whose events did not fit the model
         result["rejected_by_fit"] = int(estimate.attributes["rejected_by_fit"])
     if "unchecked" in estimate.attributes:  # offE: estimates its fit could not check (not valid)
@@ -51,7 +58,8 @@ def thresholds(estimate_path, truth_path, plot_path, as_json):
         from evtools.formats.figures import save_figure
         from evtools.plots import thresholds_figure
 
-        save_figure(thresholds_figure(estimate.on, estimate.off, estimate.valid, truth.on, truth.off), plot_path)
+        save_figure(thresholds_figure(estimate.on, estimate.off, estimate.valid & truth.valid, truth.on, truth.off),
+                    plot_path)
     if wants_json(as_json):
         click.echo(json.dumps(result, indent=2))
     else:
@@ -74,6 +82,8 @@ def _print_table(result: dict) -> None:
                             ("pixels", "pixels", str)):
         table.add_row(label, fmt(result["on"][key]), fmt(result["off"][key]))
     table.add_row("invalid pixels", f"{100 * result['invalid_fraction']:.2f} %", "")
+    if result.get("truth_invalid_pixels"):
+        table.add_row("left out (no valid truth)", f"{result['truth_invalid_pixels']:,} pixels", "")
     table.add_row("valid pixels > 10 % off", percent(result["off_by_10_percent"]), "")
     if result.get("fit"):
         fit = result["fit"]

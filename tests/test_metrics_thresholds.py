@@ -7,6 +7,8 @@ import json
 import cv2
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from evtools.metrics.thresholds import ThresholdMetricsError, fit_calibration, threshold_errors
 from evtools.formats.thresholds import ThresholdMap, write_thresholds
@@ -103,3 +105,43 @@ def test_an_events_only_estimate_says_its_scale_is_relative_and_what_it_cannot_s
         if method == "offe":
             assert report["fit"]["pixels"] > 0 and report["fit"]["error_over_fit_rms"] > 0
         assert ("absolute scale" in report.get("not_observable", "")) == (scale == "relative")
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**31), shape=st.tuples(st.integers(1, 9), st.integers(1, 9)),
+       valid_share=st.floats(0, 1), truth_share=st.floats(0, 1))
+def test_pixels_the_truth_does_not_hold_are_left_out(seed, shape, valid_share, truth_share):
+    """A QA sweep: a "truth" that is another estimate (two halves of a recording compared) holds a placeholder at
+    its invalid pixels, and the figures counted them. Every figure is now the one computed on the pixels valid in
+    the truth alone; the invalid fraction is of those; how many were left out is said."""
+    rng = np.random.default_rng(seed)
+    true_on, true_off = maps(seed, shape)
+    est_on, est_off = maps(seed + 1, shape)
+    valid = rng.random(shape) < valid_share
+    truth_valid = rng.random(shape) < truth_share
+    result = threshold_errors(est_on, est_off, valid, true_on, true_off, truth_valid)
+    kept = [a[truth_valid] for a in (est_on, est_off, valid, true_on, true_off)]
+    alone = threshold_errors(*[a.reshape(1, -1) for a in kept]) if truth_valid.any() else None
+    assert result.get("truth_invalid_pixels", 0) == int((~truth_valid).sum())
+    assert result["pixels"] == int(truth_valid.sum())
+    if alone is None:
+        assert result["valid_pixels"] == 0
+        return
+    for key in ("valid_pixels", "invalid_fraction", "off_by_10_percent", "on", "off"):
+        assert result[key] == alone[key], key
+
+
+def test_the_cli_leaves_out_what_the_truth_does_not_hold_and_says_so(tmp_path):
+    true_on, true_off = maps(3, (10, 12))
+    holds = np.ones(true_on.shape, bool)
+    holds[:, :6] = False
+    placeholder_on, placeholder_off = true_on.copy(), true_off.copy()
+    placeholder_on[~holds], placeholder_off[~holds] = 5.0, 5.0  # (absurd: counted, they would dominate every figure)
+    write_thresholds(tmp_path / "truth.h5", ThresholdMap(placeholder_on, placeholder_off, holds, {"method": "offe"}))
+    write_thresholds(tmp_path / "est.h5", ThresholdMap(true_on * 1.05, true_off, np.ones(true_on.shape, bool),
+                                                       {"method": "offe"}))
+    done = run("metrics", "thresholds", tmp_path / "est.h5", "--truth", tmp_path / "truth.h5", "--json")
+    result = json.loads(done.stdout)
+    assert result["truth_invalid_pixels"] == 60 and result["valid_pixels"] == 60
+    assert result["on"]["rel_rmse"] == pytest.approx(0.05, rel=1e-4) and result["off"]["rel_rmse"] < 1e-6
+    assert "60 of 120 pixels hold no valid value" in done.stderr.decode()

@@ -32,7 +32,7 @@ def _check(estimated_on, estimated_off, valid, true_on, true_off):
     return arrays
 
 
-def threshold_errors(estimated_on, estimated_off, valid, true_on, true_off) -> dict:
+def threshold_errors(estimated_on, estimated_off, valid, true_on, true_off, true_valid=None) -> dict:
     """Relative RMSE, bias and correlation of ON and OFF over valid pixels, and the invalid fraction.
 
     Parameters
@@ -43,19 +43,27 @@ def threshold_errors(estimated_on, estimated_off, valid, true_on, true_off) -> d
         Pixels whose estimate counts; pixels with a non-finite or non-positive estimate or truth are left out too.
     true_on, true_off : ndarray (height, width)
         The true thresholds (``simulate --truth``).
+    true_valid : ndarray of bool (height, width), optional
+        Where the truth holds a value (a "truth" that is another estimate: its invalid pixels hold a placeholder);
+        the other pixels are left out of every figure, the invalid fraction included.
 
     Returns
     -------
     dict
         ``on`` and ``off``: ``{"rel_rmse", "bias", "correlation", "mae_rel", "pixels"}`` (relative values as
-        fractions, correlation None when a map is constant); ``invalid_fraction``, ``pixels``.
+        fractions, correlation None when a map is constant); ``invalid_fraction`` and ``pixels`` (of the pixels
+        the truth holds), ``truth_invalid_pixels`` (those it does not, when there are any).
     """
     est_on, est_off, valid, true_on, true_off = _check(estimated_on, estimated_off, valid, true_on, true_off)
+    compared = np.ones(valid.shape, bool) if true_valid is None else _check(*[true_valid] * 5)[0].astype(bool)
     with np.errstate(invalid="ignore"):
-        usable = valid.astype(bool) & np.isfinite(est_on) & np.isfinite(est_off)
+        usable = valid.astype(bool) & compared & np.isfinite(est_on) & np.isfinite(est_off)
         usable &= np.isfinite(true_on) & np.isfinite(true_off) & (true_on > 0) & (true_off > 0)
-    result = {"pixels": int(valid.size), "valid_pixels": int(usable.sum()),
-              "invalid_fraction": float(1.0 - usable.sum() / valid.size)}
+    pixels = int(compared.sum())
+    result = {"pixels": pixels, "valid_pixels": int(usable.sum()),
+              "invalid_fraction": float(1.0 - usable.sum() / pixels) if pixels else 1.0}
+    if pixels < compared.size:
+        result["truth_invalid_pixels"] = int(compared.size - pixels)
     for name, est, true in (("on", est_on, true_on), ("off", est_off, true_off)):
         e = est[usable].astype(np.float64)
         t = true[usable].astype(np.float64)
