@@ -162,6 +162,11 @@ SCENE_MAX_LAG_PX = 8
 MIN_NEIGHBOURS = 3
 """natural: a pixel with fewer countable neighbours than this has no reference and is invalid (a corner pixel
 has 3 at radius 1)."""
+MAX_RELATIVE = 4.0
+"""natural: a pixel whose threshold would be more than this factor from its neighbours' (either polarity) is not
+valid: thresholds spread by 25 % (more than chips show) are that far only 3 standard deviations below the mean, but
+a hot or flickering pixel among quiet neighbours is 10-100 times off (the DVXplorer
+recording with --min-events 1: five pixels valid at 1/13 to 1/130 of the nominal, fits 0.17-0.24, a QA sweep)."""
 MAX_TABLE_US = 1 << 21
 """stimulus: a flicker whose period is a whole number of microseconds up to this (2.1 s, a 16 MB table) is
 tabulated at 1 us over one period; longer periods compute L per event (the same values, slower)."""
@@ -790,9 +795,10 @@ class ThresholdEstimator:
         if not valid.any() and self.method == "natural":
             raise EstimationError(
                 f"no pixel could be estimated by natural: none has {self.min_events} events of each polarity, "
-                f"{MIN_NEIGHBOURS} or more neighbours that do, and a fit within {self.max_fit:g} "
+                f"{MIN_NEIGHBOURS} or more neighbours that do, a threshold within {MAX_RELATIVE:g} times theirs and "
+                f"a fit within {self.max_fit:g} "
                 f"({self.events / (self.width * self.height):.1f} events per pixel on average); give a longer "
-                "recording (hundreds of events per pixel) or lower --min-events"
+                f"recording (hundreds of events per pixel){' or lower --min-events' if self.min_events > 1 else ''}"
             )
         if not valid.any() and extra.get("unchecked"):
             raise EstimationError(
@@ -803,7 +809,8 @@ class ThresholdEstimator:
         if not valid.any():
             raise EstimationError(
                 f"no pixel could be estimated by {self.method} (fewer than {self.min_events} events or no usable "
-                "pair of events everywhere): give a longer calibration stream or lower --min-events"
+                "pair of events everywhere): give a longer calibration stream"
+                f"{' or lower --min-events' if self.min_events > 1 else ''}"
             )
         if self.method in ("offe", "natural") and math.isfinite(self.max_fit):  # (max_fit inf: unchecked)
             self._check_scene()  # (after the methods' own refusals: too few events is said as such)
@@ -925,9 +932,12 @@ class ThresholdEstimator:
             fit = np.maximum(np.maximum(halves_error, counting), scene)
             fit = np.where(np.isnan(gradient), fit, np.maximum(fit, gradient))  # (a NaN fit stays NaN)
         fit = np.where(enough & (neighbours >= MIN_NEIGHBOURS), fit, np.nan)
-        valid = np.isfinite(fit) & (fit <= max_fit)
+        with np.errstate(invalid="ignore"):  # (a pixel its neighbours fire a tenth as often as: a hot or flickering
+            plausible = np.all((relative >= 1 / MAX_RELATIVE) & (relative <= MAX_RELATIVE), axis=-1)  # pixel)
+        valid = np.isfinite(fit) & (fit <= max_fit) & plausible
         extra = {"scene_error": scene, "rejected_by_neighbours": int((enough & (neighbours < MIN_NEIGHBOURS)).sum()),
-                 "rejected_by_fit": int((np.isfinite(fit) & ~valid).sum())}
+                 "rejected_by_fit": int((np.isfinite(fit) & (fit > max_fit)).sum()),
+                 "rejected_as_implausible": int((np.isfinite(fit) & (fit <= max_fit) & ~plausible).sum())}
         on = np.where(valid, self.nominal * relative[..., 0], 0.0)
         off = np.where(valid, self.nominal * relative[..., 1], 0.0)
         return on.ravel(), off.ravel(), valid.ravel(), fit.ravel(), extra
