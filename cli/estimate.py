@@ -189,8 +189,8 @@ def estimate(inputs, reading, output, jobs, scheduler, as_json,
     evtools estimate drifting.aedat4 -o series.h5 --method stimulus --online --interval 1s   # maps over time
     """
     if output is None or output == "-":
-        raise EstimationError("the thresholds file is HDF5 and cannot go to stdout: give -o THRESHOLDS.h5 (or -o "
-                              "FOLDER for several inputs)")
+        raise click.UsageError("the thresholds file is HDF5 and cannot go to stdout: give -o THRESHOLDS.h5 (or -o "
+                               "FOLDER for several inputs)")
     if not online and (interval is not None or forget is not None):
         raise click.UsageError("--interval and --forget apply to --online estimation")
     scaled_by_frames = nominal == "frames"

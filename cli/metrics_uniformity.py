@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 
 import click
 
@@ -64,6 +65,10 @@ def uniformity(input, reading, edges_at, reference, plot, before, plot_edge,
     except UniformityError as error:
         raise UniformityError(f"{name}: {error}") from None
     result = {"file": name, **result}
+    if not edges:  # (an empty table and exit 0 said nothing)
+        logging.getLogger("evtools").warning(
+            f"{name}: no stimulus edge found (a step or flicker every pixel sees at once): nothing to measure; give "
+            "--edges-at T1,T2,... where the edges are")
     if plot:
         _plot(plot, events, info, edges, plot_edge, before, reading)
     if wants_json(as_json):

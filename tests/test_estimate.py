@@ -1439,3 +1439,13 @@ def test_a_busy_pixel_among_quiet_neighbours_is_not_a_valid_natural_estimate(see
     assert estimate.valid.sum() > width * height // 2  # (the quiet pixels are estimated)
     assert not estimate.valid[4, 5]
     assert estimate.attributes["rejected_as_implausible"] >= 1
+
+
+@pytest.mark.parametrize("output", [None, "-"])
+def test_a_thresholds_file_to_stdout_is_a_usage_error(tmp_path, output):
+    """The map is HDF5 and cannot go to stdout: a mistake in the command line (exit 2), not in the data (it was 1)."""
+    stream = tmp_path / "s.aedat4"
+    evtools.write(stream, random_events(500, 8, 6, seed=1), StreamInfo(8, 6))
+    done = run("estimate", stream, *([] if output is None else ["-o", output]), check=False)
+    stderr = done.stderr.decode()
+    assert done.returncode == 2 and stderr.count("\n") == 1 and "cannot go to stdout" in stderr, stderr

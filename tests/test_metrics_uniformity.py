@@ -71,3 +71,19 @@ def test_a_before_stream_of_another_sensor_is_refused(tmp_path):
     assert_clean_error(run("metrics", "uniformity", after, "--plot", tmp_path / "p.png", "--before", before,
                            check=False), "before.aedat4: --before is 5x1 but the stream is 4x1")
     assert not (tmp_path / "p.png").exists()
+
+
+def test_a_stream_without_edges_is_said_not_an_empty_table_alone(tmp_path):
+    """A QA sweep: a scene with no stimulus edge (a walk) printed an empty table and exit 0, not a word."""
+    import evtools
+    from evtools.events import StreamInfo, make_events
+    from tests.helpers import run
+
+    stream = tmp_path / "walk.aedat4"
+    rng = np.random.default_rng(4)  # (steady activity: an event every 0.5 ms, no burst after a quiet spell)
+    t = np.arange(0, 3_000_000, 500)
+    evtools.write(stream, make_events(t, rng.integers(0, 16, len(t)), rng.integers(0, 12, len(t)),
+                                      rng.integers(0, 2, len(t))), StreamInfo(16, 12))
+    done = run("metrics", "uniformity", stream, "--json")
+    assert json.loads(done.stdout)["edges"] == []
+    assert "no stimulus edge found" in done.stderr.decode() and "--edges-at" in done.stderr.decode()
