@@ -6,6 +6,7 @@ import json
 import logging
 
 import click
+import numpy as np
 
 from evtools.cli.options import figure_path, json_option, wants_json
 from evtools.metrics.thresholds import FIT_IS_ERROR, ThresholdMetricsError, fit_calibration, threshold_errors
@@ -38,10 +39,21 @@ def thresholds(estimate_path, truth_path, plot_path, as_json):
     if not truth.valid.all():  # another estimate as the truth: its invalid pixels hold a placeholder
         log.warning(f"{truth_path}: {int((~truth.valid).sum()):,} of {truth.valid.size:,} pixels hold no valid "
                     "value (dead pixels, or another estimate's invalid ones): left out of every figure")
+    compared = truth.valid
+    outside = None
+    if "sliced" in estimate.attributes:  # estimated on a crop: the pixels outside it (NaN) were never estimated
+        with np.errstate(invalid="ignore"):
+            outside = ~estimate.valid & ~(np.isfinite(estimate.on) & np.isfinite(estimate.off))
+        compared = truth.valid & ~outside
     try:
-        result = threshold_errors(estimate.on, estimate.off, estimate.valid, truth.on, truth.off, truth.valid)
+        result = threshold_errors(estimate.on, estimate.off, estimate.valid, truth.on, truth.off, compared)
     except ThresholdMetricsError as error:
         raise ThresholdMetricsError(f"{estimate_path}: {error}") from None
+    if outside is not None and outside.any():  # (not counted as the truth's: said apart)
+        result["outside_crop_pixels"] = int(outside.sum())
+        result.pop("truth_invalid_pixels", None)
+        if (~truth.valid & ~outside).any():
+            result["truth_invalid_pixels"] = int((~truth.valid & ~outside).sum())
     method = estimate.attributes.get("method")
     result = {"estimate": estimate_path, "truth": truth_path, "method": method, **result}
     if estimate.fit is not None and method in FIT_IS_ERROR:  # how well the fit map predicts the error
@@ -82,6 +94,8 @@ def _print_table(result: dict) -> None:
                             ("pixels", "pixels", str)):
         table.add_row(label, fmt(result["on"][key]), fmt(result["off"][key]))
     table.add_row("invalid pixels", f"{100 * result['invalid_fraction']:.2f} %", "")
+    if result.get("outside_crop_pixels"):
+        table.add_row("left out (outside the crop estimated)", f"{result['outside_crop_pixels']:,} pixels", "")
     if result.get("truth_invalid_pixels"):
         table.add_row("left out (no valid truth)", f"{result['truth_invalid_pixels']:,} pixels", "")
     table.add_row("valid pixels > 10 % off", percent(result["off_by_10_percent"]), "")

@@ -145,3 +145,16 @@ def test_the_cli_leaves_out_what_the_truth_does_not_hold_and_says_so(tmp_path):
     assert result["truth_invalid_pixels"] == 60 and result["valid_pixels"] == 60
     assert result["on"]["rel_rmse"] == pytest.approx(0.05, rel=1e-4) and result["off"]["rel_rmse"] < 1e-6
     assert "60 of 120 pixels hold no valid value" in done.stderr.decode()
+
+
+def test_a_map_estimated_on_a_crop_is_measured_on_the_crop(tmp_path):
+    """A QA sweep: estimated on a crop (the map is the camera's, NaN outside), the same map said "6.1 % valid" in
+    estimate and "95.7 % invalid" in metrics (of the whole camera). The pixels outside the crop are left out and
+    counted apart (outside_crop_pixels)."""
+    stream, truth, estimate = tmp_path / "flicker.aedat4", tmp_path / "truth.h5", tmp_path / "half.h5"
+    run("simulate", "scene:flicker", "--size", "32x24", "--duration", "2s", "--seed", "5", "--truth", truth,
+        "-o", stream)
+    run("estimate", stream, "-o", estimate, "--method", "stimulus", "--crop", "0,0,16,24")
+    result = json.loads(run("metrics", "thresholds", estimate, "--truth", truth, "--json").stdout)
+    assert result["outside_crop_pixels"] == 16 * 24 and result["pixels"] == 16 * 24
+    assert result["invalid_fraction"] < 0.1 and "truth_invalid_pixels" not in result
