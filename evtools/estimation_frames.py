@@ -79,7 +79,8 @@ FRAMES_FLOOR_DN = 8.0
 """The black level not said (``--black-level`` not given): a first frame whose darkest 0.1 % of pixels read this
 many DN or more may hold the camera's black level (frames not black-subtracted: jAER, libcaer; DV's read 0 in the
 dark), so it is fitted. Left at 0, a black level of 16 DN made 99.7 % of the valid pixels more than 10 % off (bias
--17 %) with fits under 3.5 %, silently (evtools' own simulator, a QA sweep); fitted, 2.4 %."""
+-17 %) with fits under 3.5 %, silently (evtools' own simulator, a QA sweep); fitted, it is found at 18.3 DN and said,
+and the fits take the fit's error (:data:`FITTED_BLACK_DN`)."""
 FITTED_BLACK_DN = 3.0
 """The black level not said but fitted (:data:`FRAMES_FLOOR_DN`): its error (DN, typical; the fit is within 2-5 DN on
 textures), which each pixel's fit takes times the mean of ``1 / signal`` over its frames."""
