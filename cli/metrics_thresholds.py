@@ -106,9 +106,9 @@ def _print_table(result: dict) -> None:
         table.add_row("off by more than 2 fits", percent(fit["beyond_two_fits"]), "")
         table.add_row("fit-error rank correlation", rank, "")
     if "rejected_by_fit" in result:
-        table.add_row("of which rejected by fit", str(result["rejected_by_fit"]), "")
+        table.add_row("rejected by fit (the estimate's, all pixels)", str(result["rejected_by_fit"]), "")
     if "unchecked" in result:
-        table.add_row("of which unchecked", str(result["unchecked"]), "")
+        table.add_row("unchecked (the estimate's, all pixels)", str(result["unchecked"]), "")
     if "scale" in result:
         table.add_row("scale", result["scale"], "")
     Console().print(table)

@@ -794,7 +794,8 @@ class ThresholdEstimator:
                 "thresholds are estimated from both polarities (was --polarity given?)")
         if not valid.any() and self.method == "natural":
             raise EstimationError(
-                f"no pixel could be estimated by natural: none has {self.min_events} events of each polarity, "
+                f"no pixel could be estimated by natural: none has {self.min_events} "
+                f"event{'s' if self.min_events != 1 else ''} of each polarity, "
                 f"{MIN_NEIGHBOURS} or more neighbours that do, a threshold within {MAX_RELATIVE:g} times theirs and "
                 f"a fit within {self.max_fit:g} "
                 f"({self.events / (self.width * self.height):.1f} events per pixel on average); give a longer "

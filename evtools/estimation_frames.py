@@ -79,11 +79,8 @@ FRAMES_FLOOR_DN = 8.0
 """The black level not said (``--black-level`` not given): a first frame whose darkest 0.1 % of pixels read this
 many DN or more may hold the camera's black level (frames not black-subtracted: jAER, libcaer; DV's read 0 in the
 dark), so it is fitted. Left at 0, a black level of 16 DN made 99.7 % of the valid pixels more than 10 % off (bias
--17 %) with fits under 3.5 %, silently (evtools' own simulator, a QA sweep); fitted, it is found at 18.3 DN and said,
-and the fits take the fit's error (:data:`FITTED_BLACK_DN`)."""
-FITTED_BLACK_DN = 3.0
-"""The black level not said but fitted (:data:`FRAMES_FLOOR_DN`): its error (DN, typical; the fit is within 2-5 DN on
-textures), which each pixel's fit takes times the mean of ``1 / signal`` over its frames."""
+-17 %) with fits under 3.5 %, silently (evtools' own simulator, a QA sweep); fitted, it is found at 18.3 DN and said
+(54 % valid, bias +2.4 %, 4 % of them 10 % off: the fit is approximate, as ``--black-level fit``)."""
 AUTO_FIT_MIN_DN = 6.0
 """The black level fitted because it was not said (:data:`FRAMES_FLOOR_DN`) replaces the default 0 only from this
 many DN: the fit is approximate (2-5 DN), and a bright scene's frames have a floor with no black level in it."""
@@ -324,11 +321,8 @@ class FrameThresholdEstimator:
 
     @property
     def parameters(self) -> dict[str, Any]:
-        if self.black_level_auto:
-            black_level = "fitted (not given)" if len(self.candidates) > 1 else "0 (not given)"
-        else:
-            black_level = float(self.candidates[0]) if self.black_level_given else "fitted"
-        return {"method": "frames", "black_level": black_level,
+        black_level = float(self.candidates[0]) if self.black_level_given else "fitted"
+        return {"method": "frames", "black_level": black_level, "black_level_given": not self.black_level_auto,
                 "min_events": self.min_events, "max_fit": self.max_fit,
                 **({"interval_us": self.interval_us, "forget_us": self.forget_us} if self.interval_us else {})}
 
@@ -610,16 +604,15 @@ class FrameThresholdEstimator:
         fit, black_level = self._black_level(fits)
         said = {}
         if self.black_level_auto and len(fits) > 1:  # (not said, and the frames' floor was high: fitted)
+            said["black_level_fitted_dn"] = black_level
             if black_level < AUTO_FIT_MIN_DN:
                 fit, black_level, self.black_level_unsure = fits[0], 0.0, False
             else:
                 said["black_level_fitted"] = (
                     f"the frames never read below {self.frames_floor_dn:g} DN and their black level is fitted at "
                     f"{black_level:.1f} DN (frames not black-subtracted, as jAER and libcaer give them): used in "
-                    "place of 0, known to a few DN only (each pixel's fit takes that); give --black-level B when the "
-                    "camera's is known")
-                # (seed 0, 12 DN found at 6.9: 5.8 % of the valid pixels were 10 % off, their fits unaware)
-                fit = {**fit, "fit": np.sqrt(fit["fit"] ** 2 + (FITTED_BLACK_DN * fit["mean_inverse"]) ** 2)}
+                    "place of 0, as --black-level fit would (approximate: within a few DN); give --black-level B "
+                    "when the camera's is known")
         slope = _brightness_slope(fit)
         depends = slope is not None and -slope[0] > max(BRIGHTNESS_SLOPE_DN, BRIGHTNESS_SLOPE_SE * slope[1])
         if depends:  # each pixel's fit takes the bias the measured dependence implies for it

@@ -213,6 +213,8 @@ def open_thresholds(path: str):
         if attributes.get("partial"):  # (an estimate stopped midway: its maps are of part of the stream)
             stopped = f"{attributes.get('stopped_by', 'stopped')} at {int(attributes.get('stopped_at_us', 0)):,} us"
             logging.getLogger("evtools").warning(f"{path}: estimated from part of its stream ({stopped})")
+        if attributes.get("cut"):  # (estimated from a recording whose file was cut: said as a cut stream is)
+            logging.getLogger("evtools").warning(f"{path}: {attributes['cut']}")
         yield ThresholdMap(on, off, valid, attributes, fit, phase_us, None if t_us is None else t_us.astype(np.int64))
 
 

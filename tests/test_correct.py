@@ -992,7 +992,7 @@ def test_a_target_away_from_the_estimates_while_pixels_pass_on_is_said(seed, sca
                                                                          caplog):
     """A QA sweep: a camera at 0.3 calibrated on half its sensor and corrected to 0.2 came out less uniform than it
     went in (the estimated half moved to 0.2, the other half passed on at 0.3), with no word. A warning now says so
-    exactly when pixels pass on and the estimated ones' median is more than 10 % from the target."""
+    exactly when pixels pass on and the estimated ones' median is more than 15 % from the target."""
     import logging
 
     monkeypatch.setattr(logging.getLogger("evtools"), "handlers", [caplog.handler])
@@ -1006,4 +1006,4 @@ def test_a_target_away_from_the_estimates_while_pixels_pass_on_is_said(seed, sca
     ThresholdCorrector(8, 6, on, off, valid, target=target)
     away = max(abs(np.median(on[valid]) / np.float32(target) - 1), abs(np.median(off[valid]) / np.float32(target) - 1))
     said = any("the output mixes two scales" in record.getMessage() for record in caplog.records)
-    assert said == bool((~valid).any() and away > 0.1)
+    assert said == bool((~valid).any() and away > 0.15)
