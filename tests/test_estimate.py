@@ -1450,3 +1450,16 @@ def test_a_thresholds_file_to_stdout_is_a_usage_error(tmp_path, output):
     done = run("estimate", stream, *([] if output is None else ["-o", output]), check=False)
     stderr = done.stderr.decode()
     assert done.returncode == 2 and stderr.count("\n") == 1 and "cannot go to stdout" in stderr, stderr
+
+
+@pytest.mark.parametrize("on_off", [(0.2, 0.2), (0.1, 0.3), (0.3, 0.12)])
+def test_an_events_only_map_says_when_its_on_off_balance_is_far_from_even(on_off):
+    """A QA sweep: natural on the DAVIS346 lab recording gave ON 0.070 against OFF 0.29 with fits near 0.2 and no
+    word; events alone cannot tell the pixels' balance from a scene that ends brighter or darker. Beyond a factor
+    2 the map says so (polarity_balance); a balanced camera's does not."""
+    events, _ = evtools.simulate("texture", size=(32, 24), duration_us=6_000_000, pos_thres=on_off[0],
+                                 neg_thres=on_off[1], leak_rate_hz=0.0, seed=8)
+    estimate = estimate_thresholds(events, 32, 24, "natural", max_fit=math.inf)
+    ratio = estimate.attributes["on_median"] / estimate.attributes["off_median"]
+    assert ("polarity_balance" in estimate.attributes) == (not 0.5 <= ratio <= 2.0)
+    assert ("polarity_balance" in estimate.attributes) == (max(on_off) / min(on_off) > 2)
