@@ -275,13 +275,18 @@ class _MapsToFile:
                           "width": self.file.datasets["on"].shape[2], "height": self.file.datasets["on"].shape[1]})
 
 
+def _stopped_by() -> str:
+    """The ``stopped_by`` attribute of a map made when a stop signal ended the run."""
+    return f"stopped by {signal.Signals(interrupt.received()).name}"
+
+
 def _part_of_the_stream(stream, estimator) -> dict:
     """The attributes of a map made from part of its stream: a stop signal ended the stream (``partial``,
     ``stopped_by``, ``stopped_at_us``, as a stopped online run's maps), or its file was cut (``cut``); readers of
     the map say so (:func:`evtools.formats.thresholds.open_thresholds`)."""
     said = {}
     if interrupt.received() is not None:
-        said = {"partial": True, "stopped_by": f"stopped by {signal.Signals(interrupt.received()).name}",
+        said = {"partial": True, "stopped_by": _stopped_by(),
                 "stopped_at_us": int(estimator.t_last_us or 0)}
     if stream.was_cut:
         said["cut"] = "estimated from a recording that was cut (its events up to the cut)"
@@ -339,7 +344,7 @@ def estimate_one(input, output, *, reading, parameters, slicing=None
             except _Stopped:
                 if maps_file.count == 0:
                     raise interrupt.StopReading from None  # (no map: no file)
-                sink.finish_partial(f"stopped by {signal.Signals(interrupt.received()).name}")
+                sink.finish_partial(_stopped_by())
                 return Outcome(estimator.events, None, {"maps": maps_file.count, "partial": True},
                                f"{maps_file.count} maps (stopped)")
             except EvtoolsError as error:

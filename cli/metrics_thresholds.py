@@ -57,7 +57,7 @@ def thresholds(estimate_path, truth_path, plot_path, as_json):
     method = estimate.attributes.get("method")
     result = {"estimate": estimate_path, "truth": truth_path, "method": method, **result}
     if estimate.fit is not None and method in FIT_IS_ERROR:  # how well the fit map predicts the error
-        result["fit"] = fit_calibration(estimate.on, estimate.off, estimate.valid & truth.valid, estimate.fit,
+        result["fit"] = fit_calibration(estimate.on, estimate.off, estimate.valid & compared, estimate.fit,
                                         truth.on, truth.off)
     if "rejected_by_fit" in estimate.attributes:  # pixels with enough events whose events did not fit the model
         result["rejected_by_fit"] = int(estimate.attributes["rejected_by_fit"])
@@ -70,7 +70,7 @@ def thresholds(estimate_path, truth_path, plot_path, as_json):
         from evtools.formats.figures import save_figure
         from evtools.plots import thresholds_figure
 
-        save_figure(thresholds_figure(estimate.on, estimate.off, estimate.valid & truth.valid, truth.on, truth.off),
+        save_figure(thresholds_figure(estimate.on, estimate.off, estimate.valid & compared, truth.on, truth.off),
                     plot_path)
     if wants_json(as_json):
         click.echo(json.dumps(result, indent=2))

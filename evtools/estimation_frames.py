@@ -249,7 +249,6 @@ class FrameThresholdEstimator:
         self.marks = np.zeros((pixels, 2), np.int32)  # the latest exposure with events, and how many in it
         self.marks[:, 0] = -1
         self.exposures = 0  # exposures opened so far (the stamp of the latest)
-        self.log_tables: dict = {}  # (candidate, DN levels): log(DN - black) per DN, NaN where dark or saturated
         self._checker = StreamChecker(StreamInfo(width, height)) if check else None
         self.pending: deque = deque()  # frames whose exposure the counts have not passed yet
         self.held: deque = deque()  # event chunks not counted yet
@@ -290,7 +289,7 @@ class FrameThresholdEstimator:
         self.sample_step = BLACK_LEVEL_SAMPLE if fitted else 0
         self.sample = np.arange(0, pixels, BLACK_LEVEL_SAMPLE) if fitted else np.zeros(0, np.int64)
         self.half_sums = np.zeros((candidates, 2, N_SUMS, len(self.sample)), np.float64)
-        self.log_tables = {}
+        self.log_tables: dict = {}  # (candidate, DN levels): log(DN - black) per DN, NaN where dark or saturated
         self.black_level_index = candidates // 2  # the candidate nearest the black level last used
 
     def _set_online_candidates(self) -> None:
@@ -690,7 +689,7 @@ class FrameThresholdEstimator:
         """Why no pixel of an estimate (its ``attributes``) is valid, in one line: the events and the frames
         disagreeing when they do, else the reason most pixels have (the command line's error when no map has a valid
         pixel, as every method's; the estimate itself keeps every reason in its ``invalid_*`` attributes)."""
-        for said in ("disagreement", "brightness_dependence", "black_level_fitted"):
+        for said in ("disagreement", "brightness_dependence"):
             if said in attributes:
                 return f"no pixel could be estimated by frames: {attributes[said]}"
         reasons = {

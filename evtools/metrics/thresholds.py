@@ -55,7 +55,8 @@ def threshold_errors(estimated_on, estimated_off, valid, true_on, true_off, true
         the truth holds), ``truth_invalid_pixels`` (those it does not, when there are any).
     """
     est_on, est_off, valid, true_on, true_off = _check(estimated_on, estimated_off, valid, true_on, true_off)
-    compared = np.ones(valid.shape, bool) if true_valid is None else _check(*[true_valid] * 5)[0].astype(bool)
+    compared = np.ones(valid.shape, bool) if true_valid is None else \
+        _check(est_on, est_off, true_valid, true_on, true_off)[2].astype(bool)
     with np.errstate(invalid="ignore"):
         usable = valid.astype(bool) & compared & np.isfinite(est_on) & np.isfinite(est_off)
         usable &= np.isfinite(true_on) & np.isfinite(true_off) & (true_on > 0) & (true_off > 0)
