@@ -162,9 +162,14 @@ def read_outcome(path: Path) -> tuple[str, str | None]:
 def fuzz(name: str, examples: int) -> dict:
     """Read ``examples`` mutants of format ``name``; raises (through hypothesis, with the smallest mutant found)
     at the first outcome that is not clean."""
+    with tempfile.TemporaryDirectory(prefix=f"evtools-fuzz-{name}-") as folder:
+        return _fuzz_in(name, examples, Path(folder))
+
+
+def _fuzz_in(name: str, examples: int, folder: Path) -> dict:
+    """:func:`fuzz` with its seed and mutants in ``folder`` (removed afterwards)."""
     from hypothesis import HealthCheck, given, settings
 
-    folder = Path(tempfile.mkdtemp(prefix=f"evtools-fuzz-{name}-"))
     original = seed(name, folder)
     data = original.read_bytes()
     assert read_outcome(original)[0] == "read", f"the {name} seed itself does not read"
