@@ -4,12 +4,11 @@ predict their own APS frames (issue 38 item 4)."""
 from __future__ import annotations
 
 import json
-import math
 
 import click
 import numpy as np
 
-from evtools.cli.options import FINITE, FiniteRange, figure_path, json_option, wants_json
+from evtools.cli.options import FiniteRange, figure_path, json_option, wants_json
 from evtools.cli.progress import consume
 from evtools.metrics.reconstruction import HighPassReconstructor, ReconstructionError, reconstruction_errors
 from evtools.formats import open_events
@@ -46,9 +45,9 @@ def read_true_frames(path: str) -> tuple[np.ndarray, np.ndarray]:
               help="Without --truth: the APS frames' value of no light (DV's frames: 0).")
 @click.option("--thresholds", "thresholds_path", default=None, metavar="TH.h5", type=click.Path(dir_okay=False),
               help="Each pixel's contrast per event (`estimate`'s output or a truth file); default --contrast.")
-@click.option("--contrast", default=0.2, show_default=True, type=FINITE,
+@click.option("--contrast", default=0.2, show_default=True, type=FiniteRange(min=0, min_open=True),
               help="What one event adds (log units) when no --thresholds: e.g. correct's --target.")
-@click.option("--cutoff-hz", default=DEFAULT_CUTOFF_HZ, show_default=True, type=FINITE,
+@click.option("--cutoff-hz", default=DEFAULT_CUTOFF_HZ, show_default=True, type=FiniteRange(min=0),
               help="High-pass cut-off (alpha / 2 pi); 0: pure integration.")
 @click.option("--plot", "plot_path", default=None, metavar="FIG.png", type=click.Path(dir_okay=False),
               help="Also draw true (top) and reconstructed (bottom) log intensity at five frames.")
@@ -67,8 +66,6 @@ def reconstruction(events_path, truth_path, black_level, thresholds_path, contra
     evtools metrics reconstruction davis.aedat4 --thresholds frames.h5       # real frames, an estimated map
     """
     figure_path(plot_path, "--plot", (events_path, truth_path, thresholds_path))
-    if not math.isfinite(contrast) or contrast <= 0:
-        raise ReconstructionError(f"--contrast must be a positive number of log units, got {contrast}")
     if truth_path is None:
         if plot_path is not None or cutoff_hz != DEFAULT_CUTOFF_HZ:
             raise click.UsageError("--plot and --cutoff-hz apply with --truth (against the APS frames each frame is "

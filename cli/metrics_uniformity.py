@@ -42,8 +42,10 @@ def uniformity(input, reading, edges_at, reference, plot, before, plot_edge,
     """Per stimulus edge of IN: std across pixels of the first and last event times, count CV, errors vs IDEAL.
 
     Edges (auto): 1 ms bins, a bin active with >= max(2, 2% of the responding pixels) events; a new edge starts
-    at an active bin after 200 ms without one, or whose net polarity turns against the current edge's. Only the
-    events of an edge's polarity count.
+    at an active bin after 200 ms without one, or whose net polarity turns against the current edge's; an edge
+    is a stimulus edge when half the responding pixels fire in it and 80% of its events have its polarity (a
+    moving scene has none). Only the events of an edge's polarity count; an edge the stream's end cuts is shown
+    but left out of the means.
 
     \b
     evtools metrics uniformity corrected.aedat4 --reference ideal.aedat4
@@ -109,10 +111,11 @@ def _print_table(result: dict) -> None:
         return "-" if value is None else f"{value:.4g}"
 
     for k, row in enumerate(result["edges"]):
-        table.add_row(str(k), f"{row['start_ms']:.1f}", row["polarity"], str(row["pixels"]),
+        table.add_row(f"{k} (cut)" if row["cut"] else str(k), f"{row['start_ms']:.1f}", row["polarity"], str(row["pixels"]),
                       *(cell(row.get(key)) for key, _ in keys))
     summary = result["summary"]
-    table.add_row("mean", "", "", "", *(cell(summary.get(key)) for key, _ in keys))
+    cut = any(row["cut"] for row in result["edges"]) and not all(row["cut"] for row in result["edges"])
+    table.add_row("mean, cut left out" if cut else "mean", "", "", "", *(cell(summary.get(key)) for key, _ in keys))
     console = Console()
     console.print(table)
     console.print(f"polarity balance (ON-OFF)/(ON+OFF) per pixel: mean {result['polarity_balance_mean']:.3f}, "

@@ -722,7 +722,8 @@ def bars_scene(
 
     def frame(t):
         shifted = edges - speed_px_s * t * 1e-6
-        profile = (min_level + (max_level - min_level) * np.diff(covered(shifted))).astype(np.float32)
+        covered_fraction = np.clip(np.diff(covered(shifted)), 0.0, 1.0)  # (rounding: max level 0 went below 0)
+        profile = (min_level + (max_level - min_level) * covered_fraction).astype(np.float32)
         if orientation == "vertical":
             return _broadcast_rows(profile, height)
         return np.ascontiguousarray(np.broadcast_to(profile[:, None], (height, width)))

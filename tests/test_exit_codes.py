@@ -139,6 +139,15 @@ def test_unknown_options_missing_inputs_and_help(tmp_path, name):
     (["convert", "{S}", "-o", "{T}/c.aedat4", "--realtime", "--speed", "1e-300"], "--speed"),
     (["simulate", "scene:bars", "--size", "8x8", "--frame-rate", "0", "-o", "{T}/s.aedat4"], "--frame-rate"),
     (["simulate", "scene:bars", "--size", "8x8", "--frame-rate", "1e9", "-o", "{T}/s.aedat4"], "--frame-rate"),
+    # (each of these exited 1 as bad data, the last two naming the wrong option or none: a sweep of 0 and -1 over
+    # every numeric option)
+    (["simulate", "scene:bars", "--size", "8x8", "--fps", "0", "-o", "{T}/s.aedat4"], "--fps"),
+    (["simulate", "scene:bars", "--size", "8x8", "--bar-width", "0", "-o", "{T}/s.aedat4"], "--bar-width"),
+    (["simulate", "scene:bars", "--size", "8x8", "--min-level", "-1", "-o", "{T}/s.aedat4"], "--min-level"),
+    (["simulate", "scene:static", "--size", "8x8", "--level", "-1", "-o", "{T}/s.aedat4"], "--level"),
+    (["metrics", "reconstruction", str(STEP), "--truth", str(TRUTH), "--contrast", "0"], "--contrast"),
+    (["metrics", "reconstruction", str(STEP), "--truth", str(TRUTH), "--cutoff-hz", "-1"], "--cutoff-hz"),
+    (["metrics", "train-denoiser", str(STEP), "--truth", str(TRUTH), "--seed", "-1", "-o", "{T}/w.npz"], "--seed"),
 ])
 def test_values_beyond_what_the_kernels_hold_are_usage_errors(tmp_path, args, option):
     """A number beyond int64 reached the numba kernels (a traceback), 2^63 - 1 us overflowed a window (every event

@@ -115,7 +115,7 @@ def _valid_and_error(folder: Path, estimate: str, truth: str) -> tuple[float, fl
     return result["valid_pixels"] / result["pixels"], result["on"]["rel_rmse"]
 
 
-def _quickstart(folder, run):  # "~7 % error, 96 % valid"; "count CV 0.19 -> 0.12, count error 0.89 -> 0.57"
+def _quickstart(folder, run):  # "~7 % error, 95 % valid"; "count CV 0.19 -> 0.12, count error 0.91 -> 0.58"
     import json
 
     valid, error = _valid_and_error(folder, "thresholds.h5", "truth.h5")

@@ -697,3 +697,14 @@ def test_a_long_duration_costs_no_memory_up_front(scene):
     assert all(np.array_equal(a, b) for (_, a), (_, b) in zip(first, short))
     with pytest.raises(SimulationError, match="whole number of microseconds"):
         scene_frames(scene, 8, 6, 100_000.5)
+
+
+@pytest.mark.parametrize("min_level, max_level", [(50.0, 0.0), (0.0, 200.0), (255.0, 0.0)])
+def test_bars_reaching_level_0_never_go_below_it(min_level, max_level):
+    """`simulate scene:bars --max-level 0` failed: "frame 0 has intensity -1.4e-14" (the covered fraction of a
+    pixel, rounded above 1, took the level below 0)."""
+    from evtools.simulation import bars_scene
+
+    frames = [frame for _, frame in bars_scene(8, 6, 20_000, min_level=min_level, max_level=max_level)]
+    low, high = min(min_level, max_level), max(min_level, max_level)
+    assert min(float(f.min()) for f in frames) >= low and max(float(f.max()) for f in frames) <= high

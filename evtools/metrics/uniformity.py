@@ -29,6 +29,15 @@ QUIET_US = 200_000
 """A burst of activity that follows at least this much quiet starts a new edge."""
 ACTIVE_FRACTION = 0.02
 """A bin is active when it holds at least this fraction of the responding pixels' count (and at least 2 events)."""
+EDGE_PIXEL_FRACTION = 0.5
+"""A detected edge is a stimulus edge when at least this fraction of the stream's responding pixels fire in it
+with its polarity, and at least :data:`EDGE_PURITY` of its events have its polarity: a step or a flicker reaches
+every pixel one way (the simulated step and flicker scenes: 100 % of the pixels, 97-100 % of the events), a
+moving scene's bursts few pixels both ways (a moving texture: median 3 % of the pixels, 54 % of the events;
+moving bars 6 %, 68 %; the texture's longer bursts reach every pixel but stay near 50 %), and would give
+uniformity figures of nothing (count CV 4-6)."""
+EDGE_PURITY = 0.8
+"""See :data:`EDGE_PIXEL_FRACTION`."""
 
 
 class UniformityError(EvtoolsError, ValueError):
@@ -42,6 +51,13 @@ class Edge:
     start_us: int
     end_us: int
     polarity: bool
+    cut: bool = False
+    """The stream ends while the edge is still active (:func:`detect_edges`): its counts are partial."""
+
+
+def _pixel_count(events: np.ndarray) -> int:
+    """How many pixels the events come from."""
+    return len(np.unique(events["y"].astype(np.int64) * 65536 + events["x"]))
 
 
 def _net_polarity(events: np.ndarray) -> int:
@@ -49,14 +65,21 @@ def _net_polarity(events: np.ndarray) -> int:
 
 
 def detect_edges(events: np.ndarray, bin_us: int = BIN_US, quiet_us: int = QUIET_US,
-                 active_fraction: float = ACTIVE_FRACTION) -> list[Edge]:
+                 active_fraction: float = ACTIVE_FRACTION,
+                 pixel_fraction: float = EDGE_PIXEL_FRACTION) -> list[Edge]:
     """Edges of a global stimulus, from bursts of activity across pixels.
 
     The stream is cut into ``bin_us`` bins; a bin is active when it holds at least ``max(2, active_fraction *
     responding pixels)`` events. A new edge starts at an active bin that follows ``quiet_us`` or more without an
     active bin (a step), or whose net polarity is opposite to the current edge's (a ramp turning, as in the
     flicker scene). An edge ends where the next one starts (the last at the end of the stream); its polarity is
-    the sign of its first active bins' net polarity.
+    the sign of its first active bins' net polarity; the last is ``cut`` when the stream's last two bins are
+    active (it ends with the edge still under way: the README's 3 s step stream ends 1.2 ms after its sixth step).
+    A candidate in which fewer than ``pixel_fraction`` of the
+    responding pixels fire with its polarity, or less than :data:`EDGE_PURITY` of whose events have it, is no
+    stimulus edge (:data:`EDGE_PIXEL_FRACTION`): its span goes to the edge before it (a stray burst of the other
+    polarity inside an edge, the stream's last events), or is left out when there is none (a moving scene has no
+    edge at all); so does the candidate after such a stray burst when it turns back to that edge's polarity.
     """
     if len(events) == 0:
         raise UniformityError("the stream has no events: no edge to measure")
@@ -66,25 +89,36 @@ def detect_edges(events: np.ndarray, bin_us: int = BIN_US, quiet_us: int = QUIET
     n_bins = int(index[-1]) + 1
     counts = np.bincount(index, minlength=n_bins)
     net = np.bincount(index, weights=np.where(events["p"], 1.0, -1.0), minlength=n_bins)
-    pixels = len(np.unique(events["y"].astype(np.int64) * 65536 + events["x"]))
+    pixels = _pixel_count(events)
     active = counts >= max(2.0, active_fraction * pixels)
-    starts: list[tuple[int, bool]] = []
+    starts: list[tuple[int, bool, bool]] = []  # (bin, polarity, after a quiet spell)
     last_active = None
     polarity = None
     for b in np.flatnonzero(active):
         sign = None if net[b] == 0 else bool(net[b] > 0)
         quiet = last_active is None or (b - last_active) * bin_us > quiet_us
         if quiet or (sign is not None and polarity is not None and sign != polarity and abs(net[b]) >= 2):
-            starts.append((int(b), sign))
+            starts.append((int(b), sign, quiet))
             polarity = sign
         elif polarity is None:
             polarity = sign
-            starts[-1] = (starts[-1][0], sign)
+            starts[-1] = (starts[-1][0], sign, starts[-1][2])
         last_active = b
-    edges = []
-    for k, (b, sign) in enumerate(starts):
+    edges: list[Edge] = []
+    for k, (b, sign, quiet) in enumerate(starts):
         end = t0 + starts[k + 1][0] * bin_us if k + 1 < len(starts) else int(t[-1]) + 1
-        edges.append(Edge(t0 + b * bin_us, end, bool(sign) if sign is not None else True))
+        edge = Edge(t0 + b * bin_us, end, bool(sign) if sign is not None else True)
+        span = events[np.searchsorted(t, edge.start_us): np.searchsorted(t, edge.end_us)]
+        same = span[span["p"] == edge.polarity]
+        kept = _pixel_count(same) >= pixel_fraction * pixels and len(same) >= EDGE_PURITY * len(span)
+        resumed = not quiet and edges and edges[-1].polarity == edge.polarity  # (a stray burst went to it)
+        if kept and not resumed:
+            edges.append(edge)
+        elif edges:  # (the edges so far end where this one starts)
+            edges[-1].end_us = end
+            kept = kept or bool(resumed)
+    if starts and kept and active[-2:].any():  # the stream's last 1-2 ms active: its last edge goes on past it
+        edges[-1].cut = True
     return edges
 
 
@@ -120,15 +154,16 @@ def _per_pixel(window: np.ndarray, width: int) -> dict[int, np.ndarray]:
 def edge_uniformity(events: np.ndarray, width: int, edges: list[Edge], reference: np.ndarray | None = None) -> dict:
     """Per-edge uniformity statistics of ``events`` (and their distance to ``reference``); see the module doc.
 
-    Returns a dict with ``edges`` (one dict per edge: times in ms) and ``summary`` (means over the edges) and the
-    stream's per-pixel polarity balance ``(ON - OFF) / (ON + OFF)`` (mean and std over responding pixels).
+    Returns a dict with ``edges`` (one dict per edge: times in ms; ``cut`` for an edge the stream's end cuts) and
+    ``summary`` (means over the edges, those cut left out unless every edge is) and the stream's per-pixel polarity balance ``(ON - OFF) / (ON + OFF)`` (mean and std over responding pixels).
     """
     responding = np.unique(events["y"].astype(np.int64) * width + events["x"]) if len(events) else np.empty(0, int)
     if len(responding) == 0:
         raise UniformityError("the stream has no events: nothing to measure")
     rows = []
     for edge in edges:
-        row = {"start_ms": edge.start_us / 1e3, "end_ms": edge.end_us / 1e3, "polarity": "ON" if edge.polarity else "OFF"}
+        row = {"start_ms": edge.start_us / 1e3, "end_ms": edge.end_us / 1e3, "polarity": "ON" if edge.polarity else "OFF",
+               "cut": edge.cut}
         window = _window(events, edge)
         groups = _per_pixel(window, width)
         counts = np.array([len(groups.get(int(i), ())) for i in responding], dtype=float)
@@ -154,8 +189,9 @@ def edge_uniformity(events: np.ndarray, width: int, edges: list[Edge], reference
             row["timing_error_ms"] = float(np.mean(timing) / 1e3) if timing else None
         rows.append(row)
     summary = {}
+    whole = [r for r in rows if not r["cut"]] or rows
     for key in ("first_std_ms", "last_std_ms", "count_cv", "count_error", "timing_error_ms"):
-        values = [r[key] for r in rows if r.get(key) is not None]
+        values = [r[key] for r in whole if r.get(key) is not None]
         if values:
             summary[key] = float(np.mean(values))
     pixel = events["y"].astype(np.int64) * width + events["x"]
