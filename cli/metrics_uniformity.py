@@ -111,12 +111,14 @@ def _print_table(result: dict) -> None:
         return "-" if value is None else f"{value:.4g}"
 
     for k, row in enumerate(result["edges"]):
-        table.add_row(f"{k} (cut)" if row["cut"] else str(k), f"{row['start_ms']:.1f}", row["polarity"], str(row["pixels"]),
-                      *(cell(row.get(key)) for key, _ in keys))
+        table.add_row(f"{k} (cut)" if row["cut"] else str(k), f"{row['start_ms']:.1f}", row["polarity"],
+                      str(row["pixels"]), *(cell(row.get(key)) for key, _ in keys))
     summary = result["summary"]
-    cut = any(row["cut"] for row in result["edges"]) and not all(row["cut"] for row in result["edges"])
-    table.add_row("mean, cut left out" if cut else "mean", "", "", "", *(cell(summary.get(key)) for key, _ in keys))
+    cut = [k for k, row in enumerate(result["edges"]) if row["cut"]]
+    table.add_row("mean", "", "", "", *(cell(summary.get(key)) for key, _ in keys))
     console = Console()
     console.print(table)
+    if cut and len(cut) < len(result["edges"]):
+        console.print(f"edge {cut[0]} (cut) is left out of the means: the stream ends while it is still active")
     console.print(f"polarity balance (ON-OFF)/(ON+OFF) per pixel: mean {result['polarity_balance_mean']:.3f}, "
                   f"std {result['polarity_balance_std']:.3f} over {result['responding_pixels']} pixels")

@@ -232,10 +232,13 @@ def _float_option(name: str, help: str, low: float | None = 0.0, high: float | N
 @click.option("--image", type=click.Path(dir_okay=False), default=None, metavar="FILE",
               help="texture: any image file (PNG, JPEG, ...) as the texture, in place of the built-in one.")
 @click.option("--wavelength", type=FINITE, default=None, help="gradient: rise-and-fall length, pixels (default 64).")
-@click.option("--bar-width", type=FiniteRange(min=0, min_open=True), default=None, help="bars: bar width, pixels (default 8).")
+@click.option("--bar-width", type=FiniteRange(min=0, min_open=True), default=None,
+              help="bars: bar width, pixels (default 8).")
 @click.option("--orientation", type=click.Choice(["vertical", "horizontal"]), default=None, help="bars: direction.")
-@click.option("--min-level", type=FiniteRange(0, 255), default=None, help="Scene's darkest intensity, 0-255 (default 50).")
-@click.option("--max-level", type=FiniteRange(0, 255), default=None, help="Scene's brightest intensity, 0-255 (default 200).")
+@click.option("--min-level", type=FiniteRange(0, 255), default=None,
+              help="Scene's darkest intensity, 0-255 (default 50).")
+@click.option("--max-level", type=FiniteRange(0, 255), default=None,
+              help="Scene's brightest intensity, 0-255 (default 200).")
 @click.option("--level", type=FiniteRange(0, 255), default=None, help="static: intensity, 0-255 (default 128).")
 @compression_option
 @click.option("--aps-rate", "aps_rate_hz", type=FiniteRange(min=0, min_open=True), default=None, metavar="HZ",

@@ -75,11 +75,11 @@ def detect_edges(events: np.ndarray, bin_us: int = BIN_US, quiet_us: int = QUIET
     flicker scene). An edge ends where the next one starts (the last at the end of the stream); its polarity is
     the sign of its first active bins' net polarity; the last is ``cut`` when the stream's last two bins are
     active (it ends with the edge still under way: the README's 3 s step stream ends 1.2 ms after its sixth step).
-    A candidate in which fewer than ``pixel_fraction`` of the
-    responding pixels fire with its polarity, or less than :data:`EDGE_PURITY` of whose events have it, is no
-    stimulus edge (:data:`EDGE_PIXEL_FRACTION`): its span goes to the edge before it (a stray burst of the other
-    polarity inside an edge, the stream's last events), or is left out when there is none (a moving scene has no
-    edge at all); so does the candidate after such a stray burst when it turns back to that edge's polarity.
+    A candidate in which fewer than ``pixel_fraction`` of the responding pixels fire with its polarity, or less
+    than :data:`EDGE_PURITY` of whose events have it, is no stimulus edge (:data:`EDGE_PIXEL_FRACTION`): its span
+    goes to the edge before it (a stray burst of the other polarity inside an edge, the stream's last events), or
+    is left out when there is none (a moving scene has no edge at all); so does the candidate after such a stray
+    burst when it turns back to that edge's polarity.
     """
     if len(events) == 0:
         raise UniformityError("the stream has no events: no edge to measure")
@@ -154,16 +154,17 @@ def _per_pixel(window: np.ndarray, width: int) -> dict[int, np.ndarray]:
 def edge_uniformity(events: np.ndarray, width: int, edges: list[Edge], reference: np.ndarray | None = None) -> dict:
     """Per-edge uniformity statistics of ``events`` (and their distance to ``reference``); see the module doc.
 
-    Returns a dict with ``edges`` (one dict per edge: times in ms; ``cut`` for an edge the stream's end cuts) and
-    ``summary`` (means over the edges, those cut left out unless every edge is) and the stream's per-pixel polarity balance ``(ON - OFF) / (ON + OFF)`` (mean and std over responding pixels).
+    Returns a dict with ``edges`` (one dict per edge: times in ms; ``cut`` for an edge the stream's end cuts),
+    ``summary`` (means over the edges, those cut left out unless every edge is) and the stream's per-pixel
+    polarity balance ``(ON - OFF) / (ON + OFF)`` (mean and std over responding pixels).
     """
     responding = np.unique(events["y"].astype(np.int64) * width + events["x"]) if len(events) else np.empty(0, int)
     if len(responding) == 0:
         raise UniformityError("the stream has no events: nothing to measure")
     rows = []
     for edge in edges:
-        row = {"start_ms": edge.start_us / 1e3, "end_ms": edge.end_us / 1e3, "polarity": "ON" if edge.polarity else "OFF",
-               "cut": edge.cut}
+        row = {"start_ms": edge.start_us / 1e3, "end_ms": edge.end_us / 1e3,
+               "polarity": "ON" if edge.polarity else "OFF", "cut": edge.cut}
         window = _window(events, edge)
         groups = _per_pixel(window, width)
         counts = np.array([len(groups.get(int(i), ())) for i in responding], dtype=float)
