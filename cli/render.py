@@ -11,6 +11,7 @@ from collections import deque
 import click
 import numpy as np
 
+from evtools import interrupt
 from evtools.cli.options import (FINITE, MICROSECONDS, FiniteRange, TimeBound, figure_path, merged_alias,
                                  read_options)
 from evtools.cli.progress import with_progress
@@ -217,8 +218,12 @@ def _render_rate(input: str, output: str, reading) -> None:
 
 
 def _frames(chunks, framer: EventFramer, backdrop=None):
+    """Every window's frame; a stop signal ends them at the next frame (a chunk of a sparse stream drawn with a
+    short window holds millions: the reader's own stop, at its next chunk, came minutes later)."""
     for chunk in chunks:
         for window_start_us, frame in framer.process(chunk):
+            if interrupt.received() is not None:
+                return
             yield window_start_us, frame if backdrop is None else backdrop.under(window_start_us, frame)
     for window_start_us, frame in framer.flush():
         yield window_start_us, frame if backdrop is None else backdrop.under(window_start_us, frame)

@@ -551,3 +551,26 @@ def test_a_dv_file_whose_packet_runs_past_its_data_table_is_damaged_not_cut(tmp_
     data[first + 4:first + 8] = (size + 40_000).to_bytes(4, "little")  # within the file, past its data table
     (tmp_path / "damaged.aedat4").write_bytes(data)
     assert_clean_error(run("info", tmp_path / "damaged.aedat4", check=False), "damaged.aedat4", "data table")
+
+
+@pytest.mark.parametrize("signal_number", [2, 15])
+def test_render_stops_between_frames(tmp_path, signal_number):
+    """A QA sweep: `render walk.aedat --window-us 1` went on drawing the first chunk's millions of windows for
+    minutes after SIGINT or SIGTERM (the reader's stop waits for the next chunk). Now it stops at the next frame:
+    exit 128 + signal, the frames drawn so far a readable video."""
+    import cv2
+
+    stream = tmp_path / "sparse.aedat4"
+    t = np.arange(0, 60_000_000, 50_000)  # an event every 50 ms for a minute: 60 M windows of 1 us
+    evtools.write(stream, evtools.make_events(t, t % 8, t % 6, t % 2), evtools.StreamInfo(8, 6))
+    output = tmp_path / "frames.avi"
+    process = subprocess.Popen([EVTOOLS, "render", str(stream), "-o", str(output), "--window-us", "1"],
+                               stderr=subprocess.PIPE)
+    wait_until(lambda: any(p.name.startswith(".") for p in tmp_path.iterdir()), "the video under way")
+    time.sleep(0.5)
+    process.send_signal(signal_number)
+    assert process.wait(timeout=60) == 128 + signal_number  # (a hang guard: the old code drew on for minutes)
+    process.stderr.close()
+    video = cv2.VideoCapture(str(output))
+    assert video.get(cv2.CAP_PROP_FRAME_COUNT) > 0
+    video.release()
