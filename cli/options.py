@@ -149,7 +149,10 @@ def _rectangle(ctx, param, value):
     parts = value.split(",")
     if len(parts) != 4 or not all(part.strip().isdigit() for part in parts):
         raise click.BadParameter(f"{value!r}: give X,Y,W,H (whole pixels, e.g. 10,20,64,48)")
-    return tuple(int(part) for part in parts)
+    rectangle = tuple(int(part) for part in parts)
+    if rectangle[2] < 1 or rectangle[3] < 1:  # (no sensor holds an empty rectangle: it exited 1 as bad data)
+        raise click.BadParameter(f"{value!r}: the width W and height H must be at least 1")
+    return rectangle
 
 
 SLICING_NAMES = ("start", "end", "polarity", "crop", "flip_x", "flip_y", "transpose")
@@ -162,6 +165,10 @@ def slicing_options(command):
     @functools.wraps(command)
     def with_slicing(*args, **kwargs):
         slicing = {name: kwargs.pop(name) for name in SLICING_NAMES}
+        start, end = slicing["start"], slicing["end"]
+        if start is not None and end is not None and start.absolute == end.absolute and end.us <= start.us:
+            raise click.BadParameter(f"the end ({end.us} us) is not after the start ({start.us} us)",
+                                     param_hint="--end")  # (any stream: it exited 1 as bad data; render's said 2)
         return command(*args, slicing=slicing if any(slicing.values()) else None, **kwargs)
 
     options = [

@@ -167,6 +167,10 @@ def test_values_beyond_what_the_kernels_hold_are_usage_errors(tmp_path, args, op
       "--stimulus-phase", "given", "--crop", "2,0,30,48", "-o", "{T}/t.h5"], "use --stimulus-phase fit"),
     (["estimate", "{S}", "--method", "stimulus", "--stimulus-profile", "log", "--stimulus-levels", "50,200", "-o",
       "{T}/t.h5"], "did you mean --stimulus-amplitude 1.386"),
+    # (exited 1 as bad data, where render said 2: a QA sweep)
+    (["convert", "{S}", "-o", "{T}/c.aedat4", "--start", "50ms", "--end", "50ms"], "is not after the start"),
+    (["bafilter", "{S}", "-o", "{T}/b.aedat4", "--start", "@2s", "--end", "@1s"], "is not after the start"),
+    (["convert", "{S}", "-o", "{T}/c.aedat4", "--crop", "0,0,0,10"], "W and height H must be at least 1"),
 ])
 def test_option_values_out_of_their_range_exit_2(tmp_path, args, words):
     """Values out of range that the filters or the renderer checked once the run began exited 1, as for bad data
