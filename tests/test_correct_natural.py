@@ -36,16 +36,16 @@ EVENTS_PER_PIXEL = 10
 decided by where its first event and its end fall (one event in two), not by the correction."""
 
 
-def run(draw, sigma, error, seed):
+def run(draw, sigma, error, seed, duration_us=2_000_000, min_events_per_pixel=EVENTS_PER_PIXEL, step_us=250):
     """(ideal, input, corrected) event arrays of one drawn scene and threshold maps."""
-    times, levels = texture_signal(WIDTH, HEIGHT, 2_000_000, seed=draw["seed"], contrast=draw["contrast"],
+    times, levels = texture_signal(WIDTH, HEIGHT, duration_us, seed=draw["seed"], contrast=draw["contrast"],
                                    pan_px_s=(draw["pan_x"], draw["pan_y"]), wobble_px=draw["wobble_px"],
-                                   wobble_hz=draw["wobble_hz"])
+                                   wobble_hz=draw["wobble_hz"], step_us=step_us)
     rng = np.random.default_rng(seed)
     on = np.clip(rng.normal(TARGET, sigma, (HEIGHT, WIDTH)), 0.05, None).astype(np.float32)
     off = np.clip(rng.normal(TARGET, sigma, (HEIGHT, WIDTH)), 0.05, None).astype(np.float32)
     ideal = crossings(times, levels, np.float32(TARGET), np.float32(TARGET))
-    assume(len(ideal) >= EVENTS_PER_PIXEL * WIDTH * HEIGHT)
+    assume(len(ideal) >= min_events_per_pixel * WIDTH * HEIGHT)
     given_ = crossings(times, levels, on, off)
     events = make_events(given_["t"], given_["x"], given_["y"], given_["p"])
     known_on = (on * (1 + rng.normal(0, error, on.shape))).astype(np.float32)
@@ -96,3 +96,31 @@ def test_five_percent_estimation_error_is_never_worse_than_no_correction(draw, s
     ideal, given_, out = run(draw, 0.03, 0.05, seed)
     before, after = errors(ideal, given_, out)
     assert after <= before, (before, after)
+
+
+LONG_SCENE = st.fixed_dictionaries({
+    "seed": st.integers(0, 2**31),
+    "contrast": st.floats(0.7, 1.2),
+    "pan_x": st.floats(-8.0, 8.0),
+    "pan_y": st.floats(-4.0, 4.0),
+    "wobble_px": st.floats(3.0, 6.0),
+    "wobble_hz": st.floats(1.0, 3.0),
+    "mode": st.sampled_from(["exponential", "turns"]),
+})
+"""Scenes that make 100 events a pixel in 8 s (most draws)."""
+
+
+@settings(max_examples=5, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much],
+          phases=[Phase.explicit, Phase.reuse, Phase.generate, Phase.shrink])
+@given(draw=LONG_SCENE, seed=st.integers(0, 1000))
+def test_a_third_of_the_inputs_error_once_pixels_fire_a_hundred_events(draw, seed):
+    """Issue 36's "a third of the input's count error": the corrected error adds up over the turns as a random walk
+    (each turn's extremum is unknown within a threshold) while the input's grows with every event, so the share
+    falls with the events a pixel fires (the README: a pan 0.51 / 0.43 / 0.32 / 0.24 at 3 / 6 / 12 / 24 s). With
+    100 or more events a pixel it is within a third and the total within 2 % of the ideal's (30 drawn scenes of 16 x
+    12, 4-16 s: 0.09-0.30 in the 19 with 100 or more, totals within 0.5 %, but 1.9 % in turns mode at contrast
+    0.58, below the contrasts drawn here; 0.23-0.50 with fewer)."""
+    ideal, given_, out = run(draw, 0.03, 0.0, seed, duration_us=8_000_000, min_events_per_pixel=100, step_us=500)
+    before, after = errors(ideal, given_, out)
+    assert after <= before / 3, (before, after)
+    assert abs(len(out) - len(ideal)) <= 0.02 * len(ideal), (len(out), len(ideal))
