@@ -20,15 +20,20 @@ from tests.naive.texture import count_error, crossings, texture_signal
 TARGET = 0.2
 WIDTH, HEIGHT = 16, 12
 
-scene = st.fixed_dictionaries({
-    "seed": st.integers(0, 2**31),
-    "contrast": st.floats(0.5, 1.2),
-    "pan_x": st.floats(-8.0, 8.0),
-    "pan_y": st.floats(-4.0, 4.0),
-    "wobble_px": st.floats(1.0, 6.0),
-    "wobble_hz": st.floats(0.5, 3.0),
-    "mode": st.sampled_from(["exponential", "turns"]),
-})
+def scenes(min_contrast=0.5, min_wobble_px=1.0, min_wobble_hz=0.5):
+    """Drawn scenes: the texture's seed and contrast, its pan and wobble, and the correction's mode."""
+    return st.fixed_dictionaries({
+        "seed": st.integers(0, 2**31),
+        "contrast": st.floats(min_contrast, 1.2),
+        "pan_x": st.floats(-8.0, 8.0),
+        "pan_y": st.floats(-4.0, 4.0),
+        "wobble_px": st.floats(min_wobble_px, 6.0),
+        "wobble_hz": st.floats(min_wobble_hz, 3.0),
+        "mode": st.sampled_from(["exponential", "turns"]),
+    })
+
+
+scene = scenes()
 
 
 EVENTS_PER_PIXEL = 10
@@ -98,15 +103,7 @@ def test_five_percent_estimation_error_is_never_worse_than_no_correction(draw, s
     assert after <= before, (before, after)
 
 
-LONG_SCENE = st.fixed_dictionaries({
-    "seed": st.integers(0, 2**31),
-    "contrast": st.floats(0.7, 1.2),
-    "pan_x": st.floats(-8.0, 8.0),
-    "pan_y": st.floats(-4.0, 4.0),
-    "wobble_px": st.floats(3.0, 6.0),
-    "wobble_hz": st.floats(1.0, 3.0),
-    "mode": st.sampled_from(["exponential", "turns"]),
-})
+LONG_SCENE = scenes(min_contrast=0.7, min_wobble_px=3.0, min_wobble_hz=1.0)
 """Scenes that make 100 events a pixel in 8 s (most draws)."""
 
 
