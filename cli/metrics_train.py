@@ -138,7 +138,8 @@ def _epochs_shown(epochs: int):
 @click.option("--tau", "tau_us", type=Duration(), default=None,
               help="A fixed time constant instead of --tau-scale (a neighbour's event counts 1 - age / tau, 0 from "
                    "tau on).")
-@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Sampling, noise, initial weights, batch order.")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Sampling, noise, initial weights, batch order.")
 @click.option("--max-events", type=click.IntRange(min=100), default=400_000, show_default=True,
               help="Labelled events sampled, shared equally by the recordings (each event of a recording alike "
                    "likely); of each recording's, the commoner kind (signal or noise) is then thinned to as many "
