@@ -107,7 +107,7 @@ LONG_SCENE = scenes(min_contrast=0.7, min_wobble_px=3.0, min_wobble_hz=1.0)
 """Scenes that make 100 events a pixel in 8 s (most draws)."""
 
 
-@settings(max_examples=5, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much],
+@settings(max_examples=3, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much],
           phases=[Phase.explicit, Phase.reuse, Phase.generate, Phase.shrink])
 @given(draw=LONG_SCENE, seed=st.integers(0, 1000))
 def test_a_third_of_the_inputs_error_once_pixels_fire_a_hundred_events(draw, seed):
