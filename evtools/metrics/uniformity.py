@@ -105,19 +105,21 @@ def detect_edges(events: np.ndarray, bin_us: int = BIN_US, quiet_us: int = QUIET
             starts[-1] = (starts[-1][0], sign, starts[-1][2])
         last_active = b
     edges: list[Edge] = []
+    ongoing = False  # whether the latest candidate is (part of) the last edge
     for k, (b, sign, quiet) in enumerate(starts):
         end = t0 + starts[k + 1][0] * bin_us if k + 1 < len(starts) else int(t[-1]) + 1
         edge = Edge(t0 + b * bin_us, end, bool(sign) if sign is not None else True)
         span = events[np.searchsorted(t, edge.start_us): np.searchsorted(t, edge.end_us)]
         same = span[span["p"] == edge.polarity]
-        kept = _pixel_count(same) >= pixel_fraction * pixels and len(same) >= EDGE_PURITY * len(span)
-        resumed = not quiet and edges and edges[-1].polarity == edge.polarity  # (a stray burst went to it)
-        if kept and not resumed:
+        stimulus = _pixel_count(same) >= pixel_fraction * pixels and len(same) >= EDGE_PURITY * len(span)
+        resumed = bool(not quiet and edges and edges[-1].polarity == edge.polarity)  # (a stray burst went to it)
+        if stimulus and not resumed:
             edges.append(edge)
-        elif edges:  # (the edges so far end where this one starts)
+            ongoing = True
+        elif edges:  # the edges so far end where this one starts: the last takes its span
             edges[-1].end_us = end
-            kept = kept or bool(resumed)
-    if starts and kept and active[-2:].any():  # the stream's last 1-2 ms active: its last edge goes on past it
+            ongoing = resumed
+    if ongoing and active[-2:].any():  # the stream's last 1-2 ms active: its last edge goes on past it
         edges[-1].cut = True
     return edges
 
