@@ -19,6 +19,8 @@ import threading
 
 _received: int | None = None  # the first stop signal, once one came
 _streams = 0  # how many streams are being consumed (a stop then ends them rather than aborting)
+_begun = 0  # how many streams began to be consumed
+_whole = 0  # how many of them were read to their end before any stop (see read_whole)
 _waiting = False  # the main thread waits for input: a stop ends the wait
 _deferring = 0  # how many outputs are being committed (a stop then waits until they are)
 
@@ -55,8 +57,9 @@ def _unraisable(unraisable) -> None:
 
 def install() -> None:
     """Handle SIGINT and SIGTERM as described above (from the main thread)."""
-    global _received
+    global _received, _begun, _whole
     _received = None
+    _begun = _whole = 0
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, _handle)
         signal.signal(signal.SIGTERM, _handle)
@@ -76,12 +79,27 @@ def exit_code() -> int:
 @contextlib.contextmanager
 def consuming():
     """While a stream is consumed, a first stop signal ends it instead of aborting."""
-    global _streams
+    global _streams, _begun
     _streams += 1
+    _begun += 1
     try:
         yield
     finally:
         _streams -= 1
+
+
+def read_whole() -> None:
+    """A stream consumed under :func:`consuming` was read to its end with no stop seen before: a stop that comes
+    after it (the work done, the outputs being closed) did not cut it."""
+    global _whole
+    _whole += 1
+
+
+def every_stream_whole() -> bool:
+    """Whether every stream consumed so far was read to its end before any stop (and there was one): a stop then
+    left the outputs complete. A stream that ends on a stop, or whose reader stopped when the signal came, is not
+    whole, so an output is never taken as complete when it may not be."""
+    return _begun > 0 and _whole == _begun
 
 
 @contextlib.contextmanager

@@ -414,7 +414,8 @@ def create_events(
         try:
             yield writer
             stop = interrupt.received()
-            writer.stopped = stop is not None and not _any_live(inputs)  # (a live input's stop is its end)
+            # (a live input's stop is its end; a stop after every input was read to its end cut nothing)
+            writer.stopped = stop is not None and not _any_live(inputs) and not interrupt.every_stream_whole()
             if writer.cut or writer.stopped:  # the input turned out cut, or a stop (Ctrl-C) ended a file's reading
                 with interrupt.deferred():    # early: the output says so (or is refused where it cannot say a cut)
                     writer.mark_cut(CUT_NOTE if writer.cut else STOPPED_NOTE.format(signal.Signals(stop).name),

@@ -13,7 +13,7 @@ import sys
 import termios
 import threading
 import time
-from queue import Full, Queue
+from queue import Empty, Full, Queue
 from typing import BinaryIO, Iterable, Iterator
 
 import numpy as np
@@ -632,6 +632,15 @@ def resolve_sensor_size(source: Source, from_file, sensor_size, scan=None) -> tu
 _DONE = object()
 
 
+def _nothing_but_the_end(queue: Queue) -> bool:
+    """Whether ``queue`` (of :func:`read_ahead`) holds no item the consumer has not had: empty, or the end next."""
+    try:
+        item, _ = queue.get_nowait()
+    except Empty:
+        return True
+    return item is _DONE
+
+
 def read_ahead(items: Iterable, depth: int = 2) -> Iterator:
     """The items of ``items``, produced by a background thread up to ``depth`` ahead of the consumer.
 
@@ -652,11 +661,15 @@ def read_ahead(items: Iterable, depth: int = 2) -> Iterator:
                 continue
         return False
 
+    whole = threading.Event()  # the items ended with no stop seen before (a reader may end early on one)
+
     def produce() -> None:
         try:
             for item in items:
                 if not put((item, None)):
                     return
+            if interrupt.received() is None:
+                whole.set()
             put((_DONE, None))
         except BaseException as error:  # handed to the consumer, raised there
             put((_DONE, error))
@@ -670,13 +683,15 @@ def read_ahead(items: Iterable, depth: int = 2) -> Iterator:
                     with interrupt.waiting_for_input():
                         item, error = queue.get()
                 except interrupt.StopReading:
-                    return
+                    break
                 if error is not None:
                     raise error
                 if item is _DONE:
                     thread.join()
-                    return
+                    break
                 yield item
+            if whole.is_set() and _nothing_but_the_end(queue):  # read to its end before any stop: a stop after
+                interrupt.read_whole()  # the last event leaves the outputs whole (they were marked cut: a QA sweep)
     finally:
         stop.set()
 

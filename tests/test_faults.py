@@ -574,3 +574,32 @@ def test_render_stops_between_frames(tmp_path, signal_number):
     video = cv2.VideoCapture(str(output))
     assert video.get(cv2.CAP_PROP_FRAME_COUNT) > 0
     video.release()
+
+
+@pytest.mark.parametrize("stop_at", ["after the last event", "after the first chunk"])
+def test_a_stop_cuts_an_output_only_when_it_cut_the_reading(tmp_path, monkeypatch, stop_at):
+    """A QA sweep: SIGINT landing once every event was read (the work done, the output being closed) marked a
+    complete output as cut. The stop is set where the signal's handler would set it."""
+    import signal
+
+    from evtools import interrupt
+    from evtools.formats import create_events, open_events
+
+    for name, value in (("_received", None), ("_begun", 0), ("_whole", 0)):
+        monkeypatch.setattr(interrupt, name, value, raising=False)
+    source = tmp_path / "in.aedat4"
+    t = np.arange(0, 10_000_000, 100)
+    evtools.write(source, evtools.make_events(t, t % 32, t % 24, t % 3 == 0), evtools.StreamInfo(32, 24))
+    output = tmp_path / "out.aedat4"
+    with open_events(str(source), chunk_events=10_000) as stream, \
+            create_events(str(output), stream.info, inputs=(str(source),)) as writer:
+        for chunk in stream:
+            writer.write(chunk)
+            if stop_at == "after the first chunk":
+                interrupt._received = signal.SIGINT
+        interrupt._received = signal.SIGINT
+    monkeypatch.setattr(interrupt, "_received", None)
+    with evtools.open(output) as copy:
+        events = sum(len(chunk) for chunk in copy)
+        assert copy.was_cut == (stop_at == "after the first chunk")
+    assert (events == len(t)) == (stop_at == "after the last event")
