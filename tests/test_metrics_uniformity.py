@@ -6,6 +6,8 @@ import json
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from evtools.events import make_events
 from evtools.metrics.uniformity import UniformityError, detect_edges, edge_uniformity, edges_from_starts
@@ -103,9 +105,6 @@ def _steps(rng, pixels, steps, period_us, tail_us):
                 p.append(polarity if rng.random() > 0.05 else not polarity)
     order = np.argsort(t, kind="stable")
     return make_events(np.array(t)[order], np.array(x)[order] % 64, np.array(x)[order] // 64, np.array(p)[order])
-
-
-from hypothesis import given, settings, strategies as st  # noqa: E402
 
 
 @settings(max_examples=25, deadline=None)
