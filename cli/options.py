@@ -155,6 +155,13 @@ def _rectangle(ctx, param, value):
     return rectangle
 
 
+def check_time_span(start, end) -> None:
+    """--start and --end (:class:`TimeBound`, either None) as a usage error when the end is not after the start
+    (both from the first event, or both absolute: no stream holds events between them)."""
+    if start is not None and end is not None and start.absolute == end.absolute and end.us <= start.us:
+        raise click.BadParameter(f"the end ({end.us} us) is not after the start ({start.us} us)", param_hint="--end")
+
+
 SLICING_NAMES = ("start", "end", "polarity", "crop", "flip_x", "flip_y", "transpose")
 
 
@@ -165,10 +172,7 @@ def slicing_options(command):
     @functools.wraps(command)
     def with_slicing(*args, **kwargs):
         slicing = {name: kwargs.pop(name) for name in SLICING_NAMES}
-        start, end = slicing["start"], slicing["end"]
-        if start is not None and end is not None and start.absolute == end.absolute and end.us <= start.us:
-            raise click.BadParameter(f"the end ({end.us} us) is not after the start ({start.us} us)",
-                                     param_hint="--end")  # (any stream: it exited 1 as bad data; render's said 2)
+        check_time_span(slicing["start"], slicing["end"])  # (any stream: it exited 1 as bad data; render's said 2)
         return command(*args, slicing=slicing if any(slicing.values()) else None, **kwargs)
 
     options = [

@@ -12,8 +12,8 @@ import click
 import numpy as np
 
 from evtools import interrupt
-from evtools.cli.options import (FINITE, MICROSECONDS, FiniteRange, TimeBound, figure_path, merged_alias,
-                                 read_options)
+from evtools.cli.options import (FINITE, MICROSECONDS, FiniteRange, TimeBound, check_time_span, figure_path,
+                                 merged_alias, read_options)
 from evtools.cli.progress import with_progress
 from evtools.render import (
     BACKGROUNDS,
@@ -168,8 +168,7 @@ def render(ctx, input, reading, output, window_us, start, end, scale, fps,
     if colormap is not None and mode == "accumulate":
         raise click.UsageError("--colormap colours --mode decay and time-surface (and --map); accumulate frames use "
                                "the ON/OFF colours of --background")
-    if start is not None and end is not None and start.absolute == end.absolute and end.us <= start.us:
-        raise click.BadParameter(f"the end ({end.us} us) is not after the start ({start.us} us)", param_hint="--end")
+    check_time_span(start, end)
     if extension in IMAGE_EXTENSIONS:
         _refuse(ctx, {"fps": "--frame-rate"}, "applies to video outputs (.mp4, .avi) only")
     if input != STDIO and same_file(output, input):

@@ -84,6 +84,7 @@ __all__ = [
 ]
 
 METHODS = ("offe", "stimulus", "natural")
+"""The estimation methods, by name."""
 
 REACQUIRE_SHARE = 0.5
 """stimulus, online: a polarity of a pixel whose accepted changes are fewer than this share of its recent ones (the
@@ -110,7 +111,6 @@ POLARITY_BALANCE = 2.0
 """An events-only map whose ON and OFF medians differ by more than this factor says so (``polarity_balance``): the
 balance is not observable (:data:`NOT_OBSERVABLE`) and a camera's ON / OFF asymmetry is rarely that large (the
 DAVIS346 lab recording with natural: 0.070 against 0.29, a QA sweep; the DVS128 walk 0.18 against 0.20)."""
-"""The estimation methods, by name."""
 PHASES = ("fit", "given")
 """stimulus: each pixel's phase fitted to its own events, or given by the stimulus (low end at t = 0)."""
 
