@@ -508,6 +508,7 @@ def test_wrong_stimulus_levels_are_refused_not_called_valid(seed, low, high, wro
 @settings(max_examples=10, deadline=None)
 @given(seed=st.integers(0, 10**6), wrong=st.sampled_from([0.97, 0.98, 0.99, 1.01, 1.02, 1.03]),
        log=st.booleans())
+@example(seed=151, wrong=1.02, log=True)  # (median deviation 0.0097: taken under the old floor of 0.01, 3.07 % off)
 def test_a_wrong_stimulus_period_is_refused_not_called_valid(seed, wrong, log):
     """A period 2 % off (490 ms for 500 ms) called every pixel valid at 8.6 % error (a QA sweep): 1-3 % off, on
     ideal pixels under a triangle in intensity or in log intensity (phases per pixel, fitted), the estimate is
@@ -524,7 +525,7 @@ def test_a_wrong_stimulus_period_is_refused_not_called_valid(seed, wrong, log):
     assert right.valid.mean() > 0.9 and np.abs(right.on / on - 1)[right.valid].max() < 0.01
     wrong_stimulus = replace(stimulus, period_us=period_us * wrong)
     if log:  # a triangle linear in log: a period p off rescales the thresholds by about p, as an amplitude would,
-        try:  # and the changes stay uniform: refused, or every valid pixel within p + 1 % (2 % off: 2.5 % measured)
+        try:  # and the changes stay uniform: refused, or every valid pixel within p + 1 % (1 % off: 1.75 %, 80 seeds)
             close = estimate_thresholds(events, 8, 6, "stimulus", stimulus=wrong_stimulus)
         except EstimationError:
             pass
