@@ -344,6 +344,8 @@ def simulate(source, output, output_format, truth, truth_frame_rate, input_forma
                 _run(simulator, frames, writer, truth_writer, counts,
                      _LogFrames(truth_writer, frames, rate_hz) if rate_hz else None,
                      _Aps(sensor, truth_writer) if sensor else None)
+                if simulator.drift_origin_us is not None:  # (the truth's maps are the thresholds at this time)
+                    truth_writer.write_attributes({"thres_drift_origin_us": simulator.drift_origin_us})
     _report(source, output, counts, as_json)
 
 

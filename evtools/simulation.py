@@ -502,6 +502,12 @@ class DvsSimulator:
         """``(flush(), no labels)``."""
         return empty_events(), np.empty(0, dtype=np.uint8)
 
+    @property
+    def drift_origin_us(self) -> int | None:
+        """The first frame's time, where ``thres_drift_per_s`` starts (``on_thres``, ``off_thres`` hold then);
+        None before it."""
+        return self._t0_us
+
     def _start(self, t_us: int, frame: np.ndarray) -> None:
         self._t0_us = t_us
         lin_log_frame(frame, self._lp_log)

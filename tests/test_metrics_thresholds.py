@@ -158,3 +158,52 @@ def test_a_map_estimated_on_a_crop_is_measured_on_the_crop(tmp_path):
     result = json.loads(run("metrics", "thresholds", estimate, "--truth", truth, "--json").stdout)
     assert result["outside_crop_pixels"] == 16 * 24 and result["pixels"] == 16 * 24
     assert result["invalid_fraction"] < 0.1 and "truth_invalid_pixels" not in result
+
+
+@settings(max_examples=10, deadline=None)
+@given(seed=st.integers(0, 2**31), drift=st.floats(-0.04, 0.05).filter(lambda d: abs(d) > 1e-3),
+       origin_us=st.integers(0, 10**7), maps_count=st.integers(1, 5))
+def test_a_drifting_truth_is_taken_at_the_estimates_time(tmp_path_factory, seed, drift, origin_us, maps_count):
+    """A truth drifting linearly (simulate --thres-drift) against estimates that follow it exactly: a series' map
+    compared at its own time and a single map at the middle of its stream show no error (the last map was once
+    compared with the truth at the start: +31 % after 16 s at 2 %/s)."""
+    tmp_path = tmp_path_factory.mktemp("drift")
+    on, off = maps(seed)
+    truth = ThresholdMap(on, off, np.ones(on.shape, bool),
+                         {"thres_drift_per_s": drift, "thres_drift_origin_us": origin_us})
+    write_thresholds(str(tmp_path / "truth.h5"), truth)
+    t_us = origin_us + 1_000_000 * np.arange(1, maps_count + 1)
+    factors = (1 + drift * (t_us - origin_us) * 1e-6).astype(np.float32)[:, None, None]
+    series = ThresholdMap(on * factors, off * factors, np.ones((maps_count, *on.shape), bool), {"method": "stimulus"},
+                          t_us=t_us)
+    write_thresholds(str(tmp_path / "series.h5"), series)
+    for k in range(maps_count):
+        figures = json.loads(run("metrics", "thresholds", tmp_path / "series.h5", "--truth", tmp_path / "truth.h5",
+                                 "--map", str(k), "--json").stdout)
+        assert figures["truth_at_us"] == t_us[k] and figures["map"] == {"index": k, "t_us": int(t_us[k]),
+                                                                          "maps": maps_count}
+        assert figures["on"]["rel_rmse"] < 1e-5 and figures["off"]["rel_rmse"] < 1e-5
+    first, last = origin_us, int(t_us[-1])  # a single map estimated over [first, last]: the truth at the middle
+    middle = 1 + drift * ((first + last) // 2 - origin_us) * 1e-6
+    single = ThresholdMap(on * np.float32(middle), off * np.float32(middle), np.ones(on.shape, bool),
+                          {"method": "natural", "t_first_us": first, "t_last_us": last})
+    write_thresholds(str(tmp_path / "single.h5"), single)
+    figures = json.loads(run("metrics", "thresholds", tmp_path / "single.h5", "--truth", tmp_path / "truth.h5",
+                             "--json").stdout)
+    assert figures["on"]["rel_rmse"] < 1e-5 and figures["truth_at_us"] == (first + last) // 2
+
+
+def test_thresholds_marked_valid_but_not_positive_count_as_invalid(tmp_path):
+    """A pixel marked valid that holds 0, a negative value or NaN is no estimate (correct takes none of them):
+    counted invalid, with a warning, not scored as a value."""
+    on, off = maps(3)
+    estimate_on = on.copy()
+    estimate_on[0, 0], estimate_on[1, 2], estimate_on[2, 3] = -0.2, 0.0, np.nan
+    write_thresholds(str(tmp_path / "est.h5"), ThresholdMap(estimate_on, off, np.ones(on.shape, bool)))
+    write_thresholds(str(tmp_path / "truth.h5"), ThresholdMap(on, off, np.ones(on.shape, bool)))
+    result = run("metrics", "thresholds", tmp_path / "est.h5", "--truth", tmp_path / "truth.h5", "--json")
+    figures = json.loads(result.stdout)
+    assert figures["valid_pixels"] == on.size - 3 and figures["on"]["rel_rmse"] < 1e-6
+    assert "3 pixels marked valid hold a threshold that is not finite and positive" in result.stderr.decode()
+    direct = threshold_errors(estimate_on, off, np.ones(on.shape, bool), on, off)
+    assert direct["valid_pixels"] == on.size - 3

@@ -58,7 +58,8 @@ def threshold_errors(estimated_on, estimated_off, valid, true_on, true_off, true
     compared = np.ones(valid.shape, bool) if true_valid is None else \
         _check(est_on, est_off, true_valid, true_on, true_off)[2].astype(bool)
     with np.errstate(invalid="ignore"):
-        usable = valid.astype(bool) & compared & np.isfinite(est_on) & np.isfinite(est_off)
+        usable = valid.astype(bool) & compared & np.isfinite(est_on) & np.isfinite(est_off) & (est_on > 0)
+        usable &= est_off > 0  # (a threshold at or below 0 is no estimate: correct takes none of them either)
         usable &= np.isfinite(true_on) & np.isfinite(true_off) & (true_on > 0) & (true_off > 0)
     pixels = int(compared.sum())
     result = {"pixels": pixels, "valid_pixels": int(usable.sum()),
