@@ -24,6 +24,7 @@ from evtools.estimation import (
     DEFAULT_SEGMENT_US,
     METHODS,
     PHASES,
+    DescriptionError,
     EstimationError,
     Stimulus,
     ThresholdEstimator,
@@ -355,8 +356,8 @@ def estimate_one(input, output, *, reading, parameters, slicing=None
                     # data's ("no events", "too few events a pixel")
                     raise interrupt.StopReading from None
                 message = str(error) if str(error).startswith(stream.name) else f"{stream.name}: {error}"
-                if not online or maps_file.count == 0 or sink.estimator is None:
-                    raise type(error)(message) from None
+                if not online or maps_file.count == 0 or sink.estimator is None or isinstance(error, DescriptionError):
+                    raise type(error)(message) from None  # (maps made with a refused description: none kept)
                 sink.finish_partial(message)
                 failure = EstimationError(f"{message} (at {estimator.t_last_us:,} us); the {maps_file.count} maps "
                                           f"made up to {maps_file.last_t_us:,} us are written to {output} "

@@ -189,6 +189,10 @@ DESCRIPTION_MIN_DEVIATION = 0.003
 the thresholds). Ideal pixels under the true description deviate by < 1e-4; with a log triangle's period 2-3 %
 off by 0.006-0.017 (80 seeds), every threshold then 2-5 % off: a floor of 0.01 took 0.0097 and called such
 pixels valid."""
+DESCRIPTION_CHECK_PERIODS = 4
+"""Online, the description check runs once, at the first map after this many periods of the stream (a wrong
+description offline was refused, online it gave every map at half the true thresholds: a QA sweep); a stream
+shorter than that is checked at its end, as offline."""
 PERIOD_FACTORS = (0.96, 0.98, 0.99, 1.01, 1.02, 1.04)
 """stimulus: the description check estimates the stream again with the period times each of these."""
 DESCRIPTION_BETTER = 1 / math.sqrt(2.0)
@@ -215,6 +219,11 @@ SCENE_Z = 3.0
 
 class EstimationError(EvtoolsError, ValueError):
     """Threshold estimation cannot run on these parameters or this stream."""
+
+
+class DescriptionError(EstimationError):
+    """The events contradict the stimulus described (its levels or period): every estimate made with it is wrong,
+    an online run's earlier maps too."""
 
 
 def lin_log(intensity: float) -> float:
@@ -521,7 +530,7 @@ class ThresholdEstimator:
         # periods (:meth:`_check_description`)
         self._probe_rows = 0
         self._probes: dict[tuple[str, float], ThresholdEstimator] = {}  # ("levels", log ratio scale) or ("period", x)
-        if method == "stimulus" and interval_us is None and math.isfinite(self.max_fit):
+        if method == "stimulus" and math.isfinite(self.max_fit):  # (online: until DESCRIPTION_CHECK_PERIODS)
             self._probe_rows = max(1, math.ceil(width * height / DESCRIPTION_CHECK_PIXELS))
             rows = math.ceil(height / self._probe_rows)
 
@@ -707,7 +716,7 @@ class ThresholdEstimator:
         if problems:
             timing = ("--stimulus-speed, --stimulus-wavelength (the period: wavelength / speed)" if s.wavelength_px
                       else "--stimulus-period")
-            raise EstimationError(
+            raise DescriptionError(
                 f"the events do not fit the described stimulus (levels {s.low:g}, {s.high:g}, period "
                 f"{s.period_us / 1e3:.4g} ms: median deviation {math.sqrt(given_square):.3f}); "
                 f"{'; '.join(problems)}: check --stimulus-levels, {timing}, or give --max-fit inf to take the "
@@ -718,6 +727,10 @@ class ThresholdEstimator:
         by ``exp(-interval / forget)`` and the stimulus's acceptance windows re-centre on the current means (so
         a threshold may drift beyond the window of its first changes). Before the maps, a stimulus pixel whose
         threshold stepped out of its window is dropped and acquired anew (:meth:`_reacquire`): stale in this map."""
+        if self._probes and self.events and (t_us - self.t_first_us
+                                             >= DESCRIPTION_CHECK_PERIODS * self.stimulus.period_us):
+            self._check_description()  # (online: once, on the stream's first periods; an error stops the series)
+            self._probes = {}
         if self.events and self.method == "stimulus":
             self._reacquire()
         if self.events:

@@ -1250,6 +1250,28 @@ def test_an_online_run_stopped_midway_keeps_its_maps(tmp_path, monkeypatch):
     assert series.attributes["partial"] and 2 <= len(series.t_us) <= 3 and series.valid[-1].mean() > 0.9
 
 
+def test_online_checks_the_stimulus_description_as_offline(tmp_path):
+    """A description the events refuse offline is refused online too (it ran unchecked: every map at half the true
+    thresholds, exit 0, a QA sweep), once the stream holds four periods or at its end, and no map made with it is
+    kept; the right description runs as before."""
+    stream = tmp_path / "f.aedat4"
+    run("simulate", "scene:flicker", "--size", "32x24", "--duration", "6s", "--seed", "7", "-o", stream)
+    for wrong in (["--stimulus-levels", "100,200"], ["--stimulus-period", "490ms"]):
+        for extra in ([], ["--online", "--interval", "500ms"]):
+            out = tmp_path / "x.h5"
+            result = run("estimate", stream, "--method", "stimulus", *wrong, *extra, "-o", out, check=False)
+            assert_clean_error(result, "do not fit the described stimulus")
+            assert not out.exists()
+    run("estimate", stream, "--method", "stimulus", "--online", "--interval", "500ms", "-o", tmp_path / "right.h5")
+    assert read_thresholds(str(tmp_path / "right.h5"), series=True).valid[-1].mean() > 0.9
+    estimator = ThresholdEstimator(32, 24, "stimulus", stimulus=Stimulus(100.0, 200.0, 500_000),
+                                   interval_us=500_000)
+    events = read_all(stream)[1]
+    with pytest.raises(EstimationError, match="do not fit the described stimulus"):
+        estimator.process(events[events["t"] < events["t"][0] + 2_600_000])  # (the check: at the map at 2 s)
+    assert estimator._maps.count == 3  # (the maps before it, held by the library: its caller's to drop)
+
+
 @settings(max_examples=30, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), width=st.integers(1, 12), height=st.integers(1, 12),
        bounds=st.lists(st.integers(-15, 15), min_size=4, max_size=4))
