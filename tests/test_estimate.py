@@ -1250,6 +1250,50 @@ def test_an_online_run_stopped_midway_keeps_its_maps(tmp_path, monkeypatch):
     assert series.attributes["partial"] and 2 <= len(series.t_us) <= 3 and series.valid[-1].mean() > 0.9
 
 
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), k=st.integers(4, 60), pixels=st.integers(1, 20))
+def test_offe_sampling_error_is_the_line_fits_standard_errors(seed, k, pixels):
+    """offE's sampling error from its sums against numpy's least squares (polyfit's covariance, scaled as the
+    unbiased residual variance): the slope's standard error over 1 - |m|, floored by the residual's own
+    sampling error 1 / sqrt(2 (k - 2))."""
+    from evtools._kernels.estimate import SUM_E, SUM_EE, SUM_EP, SUM_P, SUM_PP
+    from evtools.estimation import _offe_sampling_error, offe_fit
+
+    rng = np.random.default_rng(seed)
+    e = rng.integers(0, 40, (pixels, k))
+    p = np.round(rng.uniform(-0.5, 0.5, (pixels, 1)) * e + rng.normal(0, 3, (pixels, k))).astype(np.int64)
+    sums = np.zeros((5, pixels), np.int64)
+    sums[SUM_E], sums[SUM_P], sums[SUM_EE] = e.sum(1), p.sum(1), (e * e).sum(1)
+    sums[SUM_EP], sums[SUM_PP] = (e * p).sum(1), (p * p).sum(1)
+    m, r, fitted = offe_fit(sums, k)
+    error = _offe_sampling_error(sums, k, m, r)
+    for i in range(pixels):
+        if not fitted[i] or np.ptp(e[i]) == 0:
+            continue
+        (slope, _), covariance = np.polyfit(e[i], p[i], 1, cov="unscaled")
+        residual = p[i] - np.polyval([slope, _], e[i])
+        se = math.sqrt(covariance[0, 0] * (residual @ residual) / (k - 2))
+        expected = max(1 / math.sqrt(2 * (k - 2)), se / max(1 - abs(slope), 1e-3))
+        assert error[i] == pytest.approx(expected, rel=1e-6, abs=1e-9)
+
+
+@pytest.mark.parametrize("segment_us", [666_666, 400_000])
+def test_offe_through_a_few_segments_is_refused_not_called_valid(tmp_path, segment_us):
+    """A QA sweep: offE's line through 3-5 long segments of a 2 s flicker called 84-95 % of the pixels valid with
+    97-100 % of them more than 10 % off (ON +16 %, OFF -14 %). Its sampling error (0.71 and 0.41 there) is now part
+    of its fit: refused, naming the segments; the default 10 ms segments stay valid and within 10 %."""
+    stream = tmp_path / "flicker.aedat4"
+    run("simulate", "scene:flicker", "--size", "64x48", "--sigma-thres", "0.03", "--seed", "7", "--duration", "2s",
+        "--truth", tmp_path / "truth.h5", "-o", stream)
+    result = run("estimate", stream, "--segment-us", str(segment_us), "-o", tmp_path / "few.h5", check=False)
+    assert_clean_error(result, "segments alone leaves a median error")
+    assert not (tmp_path / "few.h5").exists()
+    run("estimate", stream, "-o", tmp_path / "many.h5")
+    errors = json.loads(run("metrics", "thresholds", tmp_path / "many.h5", "--truth", tmp_path / "truth.h5",
+                            "--json").stdout)
+    assert errors["invalid_fraction"] < 0.05 and errors["off_by_10_percent"] < 0.01
+
+
 def test_online_checks_the_stimulus_description_as_offline(tmp_path):
     """A description the events refuse offline is refused online too (it ran unchecked: every map at half the true
     thresholds, exit 0, a QA sweep), once the stream holds four periods or at its end, and no map made with it is
