@@ -113,6 +113,11 @@ class CorrectionError(EvtoolsError, ValueError):
     """Bad parameters or thresholds for the correction."""
 
 
+CLOCK_GAP_US = 1_000_000
+"""A stream that starts more than this (or more than the series' own span) after a thresholds series' last map is
+said to be of another clock (a Unix-time stream with a series on a relative clock was corrected silently, and
+worse than not at all: a QA sweep)."""
+
 MAX_WINDOW_US = 2**31 - 1
 """The longest hold and gap (35 min): a pixel's pending segment length is stored in 32 bits."""
 
@@ -502,6 +507,14 @@ class ThresholdCorrector:
                 f"the stream ({self._first_us:,} .. {self._last_us:,} us) ends before the thresholds series' first "
                 f"map ({int(self._series.t_us[0]):,} us): every event took that map; is the series of another "
                 "recording or clock?")
+        if self._series is not None and self._started:
+            times = self._series.t_us
+            after_us = self._first_us - int(times[-1])
+            if after_us > max(int(times[-1] - times[0]), CLOCK_GAP_US):  # (the other way round: as silent before)
+                logging.getLogger("evtools").warning(
+                    f"the stream ({self._first_us:,} .. {self._last_us:,} us) starts {after_us / 1e6:,.6g} s after "
+                    f"the thresholds series' last map ({int(times[-1]):,} us), more than the series spans: every "
+                    "event took that map; is the series of another recording or clock?")
         for lane in self._lanes:
             lane.hold(lane.settle_all(self))
         yield from (part for part in self._release(NO_EVENT_US, False) if len(part))

@@ -975,14 +975,23 @@ def test_a_short_max_gap_is_a_rest_and_loses_no_events(tmp_path, mode):  # whate
 def test_a_series_on_another_clock_is_said(caplog):
     """A series whose first map comes after the stream's last event (estimated on another recording's Unix clock:
     maps at 1.7e15 us, a stream of 0-2 s) was used without a word (a QA sweep): a warning says every event took its
-    first map; a series within the stream says nothing."""
+    first map; the other way round (a Unix-time stream, a series on a relative clock: every event took the last
+    map, silently, and the result was worse than no correction) too, when the stream starts more than the series'
+    span (and 1 s) after its last map; a series within the stream, or whose last map the stream soon follows,
+    says nothing."""
     events = random_events(2000, W, H, seed=4)
+    first = int(events["t"][0])
     on = np.full((2, H, W), 0.25, np.float32)
-    for times, said in (([1_700_000_000_000_000, 1_700_000_001_000_000], True), ([0, 20_000], False)):
+    for times, before, after in (([1_700_000_000_000_000, 1_700_000_001_000_000], True, False),
+                                 ([0, 20_000], False, False),
+                                 ([first - 1_700_000_000_000_000, first - 1_699_999_999_000_000], False, True),
+                                 ([first - 3_000_000, first - 2_000_000], False, True),
+                                 ([first - 1_500_000, first - 500_000], False, False)):
         caplog.clear()
         with caplog.at_level("WARNING", logger="evtools"):
             correct_thresholds(events, W, H, on, on, t_us=np.array(times), target=0.2)
-        assert ("ends before the thresholds series' first map" in caplog.text) == said, caplog.text
+        assert ("ends before the thresholds series' first map" in caplog.text) == before, caplog.text
+        assert ("after the thresholds series' last map" in caplog.text) == after, (times, caplog.text)
 
 
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
