@@ -35,6 +35,7 @@ Also here: :class:`SharedTrend` (onEI's maps freed of their lag behind a drift s
 
 from __future__ import annotations
 
+import logging
 import math
 from collections import deque
 from typing import Any
@@ -315,6 +316,10 @@ class FrameThresholdEstimator:
         k = min(flat.size // 1000, flat.size - 1)
         self.frames_floor_dn = float(np.partition(flat, k)[k])
         if self.frames_floor_dn >= FRAMES_FLOOR_DN:
+            logging.getLogger("evtools").info(
+                f"the first frame never reads below {self.frames_floor_dn:g} DN (frames not black-subtracted, or a "
+                f"bright scene): the black level is fitted over {len(BLACK_LEVELS)} candidates, which costs the "
+                "frame pass several times; --black-level DN (the camera's, 0 for DV's frames) skips it")
             self._set_candidates(BLACK_LEVELS)
             self._set_online_candidates()
 

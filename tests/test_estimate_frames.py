@@ -5,6 +5,7 @@ against plain Python, chunk and frame-arrival invariance, accuracy on an indepen
 from __future__ import annotations
 
 import json
+import logging
 import math
 
 import h5py
@@ -707,13 +708,26 @@ def test_a_black_level_not_given_is_fitted_when_the_frames_floor_says_so(seed, b
                                      black_level=black_dn, exposure_us=exposure_ms * 1000, pan_px_s=(30.0, -8.0),
                                      wobble_px=6.0)
     results = {}
-    for said in (None, 0.0):
-        estimator = FrameThresholdEstimator(width, height, black_level=said)
-        estimator.process(evtools.make_events(events["t"], events["x"], events["y"], events["p"]))
-        estimator.add_frames([evtools.Frame(image, (b + e) // 2, b, e) for b, e, image in frames])
-        results[said] = estimator.result()
+    said_lines = []
+    handler = logging.Handler()
+    handler.emit = lambda record: said_lines.append(record.getMessage())
+    logger = logging.getLogger("evtools")
+    logger.addHandler(handler)
+    level = logger.level
+    logger.setLevel(logging.INFO)
+    try:
+        for said in (None, 0.0):
+            estimator = FrameThresholdEstimator(width, height, black_level=said)
+            estimator.process(evtools.make_events(events["t"], events["x"], events["y"], events["p"]))
+            estimator.add_frames([evtools.Frame(image, (b + e) // 2, b, e) for b, e, image in frames])
+            results[said] = estimator.result()
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(level)
     auto = results[None]
     assert auto.attributes["frames_floor_dn"] >= black_dn - 5  # (read noise and offsets below the black level)
+    fitting_said = [line for line in said_lines if "the black level is fitted over" in line]
+    assert len(fitting_said) == (auto.attributes["frames_floor_dn"] >= 8)  # (its cost said, once, only then)
     if "black_level_fitted" in auto.attributes:
         assert auto.attributes["black_level_used"] >= 6.0
         worst = np.maximum(np.abs(auto.on / on - 1), np.abs(auto.off / off - 1))[auto.valid]
