@@ -812,13 +812,21 @@ class ThresholdEstimator:
                 f"the stream's {self.events:,} events are all {'OFF' if self.on_events == 0 else 'ON'}: the "
                 "thresholds are estimated from both polarities (was --polarity given?)")
         if not valid.any() and self.method == "natural":
+            per_pixel = self.events / (self.width * self.height)
+            span_us = max(self.t_last_us - self.t_first_us, 1)
+            if self.interval_us is not None and self.forget_us < span_us:  # online: what the sums remember
+                remembered = per_pixel * self.forget_us / span_us
+                advice = (f"online, the sums forget over {self.forget_us / 1e6:.3g} s, which holds about "
+                          f"{remembered:.1f} of them: give a longer --forget (or --interval: it is 3 intervals by "
+                          "default)")
+            else:
+                advice = (f"give a longer recording (hundreds of events per pixel)"
+                          f"{' or lower --min-events' if self.min_events > 1 else ''}")
             raise EstimationError(
                 f"no pixel could be estimated by natural: none has {self.min_events} "
                 f"event{'s' if self.min_events != 1 else ''} of each polarity, "
                 f"{MIN_NEIGHBOURS} or more neighbours that do, a threshold within {MAX_RELATIVE:g} times theirs and "
-                f"a fit within {self.max_fit:g} "
-                f"({self.events / (self.width * self.height):.1f} events per pixel on average); give a longer "
-                f"recording (hundreds of events per pixel){' or lower --min-events' if self.min_events > 1 else ''}"
+                f"a fit within {self.max_fit:g} ({per_pixel:.1f} events per pixel on average); {advice}"
             )
         if not valid.any() and self.method == "offe" and extra.get("rejected_by_fit"):
             raise EstimationError(

@@ -1294,6 +1294,18 @@ def test_offe_through_a_few_segments_is_refused_not_called_valid(tmp_path, segme
     assert errors["invalid_fraction"] < 0.05 and errors["off_by_10_percent"] < 0.01
 
 
+def test_online_natural_that_remembers_too_few_events_says_so(tmp_path):
+    """Online, natural's sums forget over 3 intervals: a short interval leaves a few events a pixel remembered
+    although the recording holds plenty; the error named the recording's length (a QA sweep), now the forgetting."""
+    stream = tmp_path / "tex.aedat4"
+    run("simulate", "scene:texture", "--size", "48x36", "--duration", "3s", "--seed", "2", "-o", stream)
+    run("estimate", stream, "--method", "natural", "-o", tmp_path / "whole.h5")  # (the recording is enough)
+    result = run("estimate", stream, "--method", "natural", "--online", "--interval", "20ms", "-o",
+                 tmp_path / "short.h5", check=False)
+    assert_clean_error(result, "the sums forget over 0.06 s")
+    assert "give a longer --forget" in result.stderr.decode() and "longer recording" not in result.stderr.decode()
+
+
 def test_online_checks_the_stimulus_description_as_offline(tmp_path):
     """A description the events refuse offline is refused online too (it ran unchecked: every map at half the true
     thresholds, exit 0, a QA sweep), once the stream holds four periods or at its end, and no map made with it is
