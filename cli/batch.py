@@ -12,7 +12,6 @@ any file failed.
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 import sys
@@ -198,9 +197,11 @@ def run(one: Callable[..., Outcome], pairs: list[tuple[str, str]], options: dict
 
 def _echo_json(summary: dict, pairs: list[tuple[str, str]]) -> None:
     """One JSON object with the command's name first: on stdout unless the events went there, else on stderr."""
+    from evtools.cli.options import echo_json
+
     name = click.get_current_context().command.name
     to_stderr = any(output in (None, STDIO) for _, output in pairs)
-    click.echo(json.dumps({"command": name, **summary}), err=to_stderr)
+    echo_json({"command": name, **summary}, err=to_stderr)
 
 
 def run_one(one: Callable[..., Outcome], input: str, output: str, options: dict[str, Any]) -> tuple:

@@ -37,7 +37,7 @@ def _target(ctx, param, value):
 @click.command()
 @batch_options
 @click.option("--thresholds", "thresholds_path", required=True, metavar="FILE.h5",
-              type=click.Path(dir_okay=False),
+              type=click.Path(),
               help="Per-pixel thresholds: from `evtools estimate` or the truth file of `evtools simulate`.")
 @click.option("--target", default=str(CORRECT_DEFAULTS["target"]), show_default=True, callback=_target,
               metavar="THETA|median",

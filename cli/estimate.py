@@ -29,7 +29,7 @@ from evtools.estimation import (
     Stimulus,
     ThresholdEstimator,
 )
-from evtools.estimation_frames import FrameScaledEstimator, FrameThresholdEstimator
+from evtools.estimation_frames import DEFAULT_MAX_FRAME_FIT, FrameScaledEstimator, FrameThresholdEstimator
 from evtools.events import MAX_SENSOR_SIDE, MAX_THRESHOLD
 from evtools.formats import open_events
 from evtools.formats.io import STDIO, same_file
@@ -131,8 +131,8 @@ _black_level = _number_or("fit", "a DN (a number from 0)", positive=False)
               metavar="PX",
               help="natural: each pixel is compared with the pixels within PX of it.")
 @click.option("--online", is_flag=True,
-              help="stimulus, natural: also write a map every --interval, each from the events so far with "
-                   "exponential forgetting (a time series: on, off, valid with a leading time axis, and t_us); "
+              help="stimulus, natural, frames: also write a map every --interval, each from the events so far "
+                   "with exponential forgetting (a time series: on, off, valid with a leading time axis, and t_us); "
                    "`correct --thresholds` then uses, at each event, the latest map estimated before it.")
 @click.option("--interval", type=Duration(), default=None, metavar="TIME",
               help="--online: time between maps, with its unit (default 1s).")
@@ -143,8 +143,10 @@ _black_level = _number_or("fit", "a DN (a number from 0)", positive=False)
 @click.option("--max-fit", type=FiniteRange(min=0, min_open=True, infinite=True), default=None, metavar="F",
               help=f"Pixels that fit worse are invalid (the fit map). stimulus: the RMS deviation of their level "
                    f"changes, in thresholds (default {DEFAULT_MAX_FIT}); natural: the relative disagreement of two "
-                   f"halves of the stream; offe: the relative disagreement with the natural estimate, or natural's "
-                   f"own fit where larger (default {DEFAULT_MAX_ERROR}; inf: offE's reference exactly).")
+                   f"halves of the stream (and the other error terms: see the README); offe: the relative "
+                   f"disagreement with the natural estimate, or natural's own fit or its own sampling error where "
+                   f"larger (default {DEFAULT_MAX_ERROR}; inf: offE's reference exactly); frames: the predicted "
+                   f"relative error of its thresholds (default {DEFAULT_MAX_FRAME_FIT}).")
 @click.option("--stimulus-amplitude", type=FiniteRange(min=0, min_open=True), default=None, metavar="A",
               help="stimulus: a triangle linear in log intensity, A log units peak to peak (the same as "
                    "--stimulus-profile log --stimulus-levels 0,A; the base level does not matter).")

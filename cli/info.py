@@ -2,11 +2,10 @@
 
 from __future__ import annotations
 
-import json
 
 import click
 
-from evtools.cli.options import input_options, json_option, wants_json
+from evtools.cli.options import echo_json, input_options, json_option, wants_json
 from evtools.cli.progress import with_progress
 from evtools.errors import EvtoolsError
 from evtools.summary import StreamSummary
@@ -37,7 +36,7 @@ def info(inputs, reading, as_json):
             rows.append({"file": path, "error": str(error)})
             failed += 1
     if wants_json(as_json):
-        click.echo(json.dumps(rows if len(rows) > 1 else rows[0], indent=2, default=str))
+        echo_json(rows if len(rows) > 1 else rows[0], indent=2, default=str)
     elif len(rows) > failed:
         _print_table([row for row in rows if "error" not in row])
     if failed:

@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 import contextlib
-import json
 import math
 
 import click
 import numpy as np
 
-from evtools.cli.options import MICROSECONDS, figure_path, json_option, read_options, wants_json
+from evtools.cli.options import MICROSECONDS, echo_json, figure_path, json_option, read_options, wants_json
 from evtools.cli.progress import with_progress
 from evtools.filters import METHODS, BAFilter, BAFilterError, check_preset, not_applying, parse_methods
 from evtools.filters.registry import parameters
@@ -109,7 +108,7 @@ def denoise(filtered, truth, noisy, as_json):
         score = matcher.finish()
     result = {"file": output.name, "input": noisy, **score.as_dict()}
     if wants_json(as_json):
-        click.echo(json.dumps(_clean(result), indent=2))
+        echo_json(_clean(result), indent=2)
         return
     rows = [[name, f"{result['labels'][name]['kept']:,}", f"{result['labels'][name]['total']:,}"]
             for name in LABEL_NAMES]
@@ -221,7 +220,7 @@ def roc(noisy, truth, methods, sweep, preset, weights, polarity_maps, settings, 
         save_figure(roc_figure([{"label": result["method"], "parameter": result["parameter"],
                                  "points": result["points"], "auc": result["auc"]} for result in results]), plot)
     if wants_json(as_json):
-        click.echo(json.dumps(_clean({"file": noisy, "preset": preset, "methods": results}), indent=2))
+        echo_json(_clean({"file": noisy, "preset": preset, "methods": results}), indent=2)
         return
     rows = []
     for result in results:
@@ -248,7 +247,7 @@ def esr(input, reading, slice_events, as_json):
             meter.add(chunk)
         result = {"file": stream.name, **meter.finish()}
     if wants_json(as_json):
-        click.echo(json.dumps(_clean(result), indent=2))
+        echo_json(_clean(result), indent=2)
         return
     _table(f"{result['file']}: MESR {_fmt(result['mesr'])}", ["slices", "slice events", "MESR"],
            [[str(result["slices"]), f"{slice_events:,}", _fmt(result["mesr"])]])

@@ -3,12 +3,12 @@ predict their own APS frames (issue 38 item 4)."""
 
 from __future__ import annotations
 
-import json
+import os
 
 import click
 import numpy as np
 
-from evtools.cli.options import FiniteRange, figure_path, json_option, wants_json
+from evtools.cli.options import FiniteRange, echo_json, figure_path, json_option, wants_json
 from evtools.cli.progress import consume
 from evtools.metrics.reconstruction import HighPassReconstructor, ReconstructionError, reconstruction_errors
 from evtools.formats import open_events
@@ -24,6 +24,8 @@ def read_true_frames(path: str) -> tuple[np.ndarray, np.ndarray]:
     """(times us, log frames) of a truth file, or a one-line error saying how to make them."""
     import h5py
 
+    if os.path.isdir(path):
+        raise ReconstructionError(f"{path}: a folder, not a truth file")
     note_input(path)
     try:
         with h5py.File(path, "r") as h5:
@@ -33,17 +35,18 @@ def read_true_frames(path: str) -> tuple[np.ndarray, np.ndarray]:
                     f"--truth-frame-rate 100` (frame sources only)")
             return h5["log_frame_t_us"][:].astype(np.int64), h5["log_frames"][:].astype(np.float64)
     except OSError as error:
-        raise ReconstructionError(f"{path}: not a readable HDF5 truth file ({error})") from None
+        raise ReconstructionError(f"{path}: not a readable HDF5 truth file ({' '.join(str(error).split())})") \
+            from None
 
 
 @click.command()
 @click.argument("events_path", metavar="EVENTS")
-@click.option("--truth", "truth_path", default=None, metavar="TRUTH.h5", type=click.Path(dir_okay=False),
+@click.option("--truth", "truth_path", default=None, metavar="TRUTH.h5", type=click.Path(),
               help="`evtools simulate ... --truth TRUTH.h5` (with its true log frames, `--truth-frame-rate`); "
                    "without it, EVENTS' own APS frames: each predicted from the one before and the events between.")
 @click.option("--black-level", default=0.0, show_default=True, type=FiniteRange(min=0), metavar="DN",
               help="Without --truth: the APS frames' value of no light (DV's frames: 0).")
-@click.option("--thresholds", "thresholds_path", default=None, metavar="TH.h5", type=click.Path(dir_okay=False),
+@click.option("--thresholds", "thresholds_path", default=None, metavar="TH.h5", type=click.Path(),
               help="Each pixel's contrast per event (`estimate`'s output or a truth file); default --contrast.")
 @click.option("--contrast", default=0.2, show_default=True, type=FiniteRange(min=0, min_open=True),
               help="What one event adds (log units) when no --thresholds: e.g. correct's --target.")
@@ -96,7 +99,7 @@ def reconstruction(events_path, truth_path, black_level, thresholds_path, contra
     if plot_path is not None:
         _plot(plot_path, truth, estimated, times)
     if wants_json(as_json):
-        click.echo(json.dumps(result, indent=2))
+        echo_json(result, indent=2)
     else:
         from rich.console import Console
 
@@ -127,7 +130,7 @@ def _against_frames(events_path, thresholds_path, contrast, black_level, as_json
     except ReconstructionError as error:
         raise ReconstructionError(f"{events_path}: {error}") from None
     if wants_json(as_json):
-        click.echo(json.dumps(result, indent=2))
+        echo_json(result, indent=2)
     else:
         from rich.console import Console
 

@@ -2,21 +2,20 @@
 
 from __future__ import annotations
 
-import json
 import logging
 
 import click
 import numpy as np
 
-from evtools.cli.options import figure_path, json_option, wants_json
+from evtools.cli.options import echo_json, figure_path, json_option, wants_json
 from evtools.metrics.thresholds import FIT_IS_ERROR, ThresholdMetricsError, fit_calibration, threshold_errors
 from evtools.formats.thresholds import ThresholdMap, open_thresholds, read_thresholds
 
 log = logging.getLogger("evtools")
 
 @click.command()
-@click.argument("estimate_path", metavar="EST.h5", type=click.Path(dir_okay=False))
-@click.option("--truth", "truth_path", required=True, metavar="TRUTH.h5", type=click.Path(dir_okay=False),
+@click.argument("estimate_path", metavar="EST.h5", type=click.Path())
+@click.option("--truth", "truth_path", required=True, metavar="TRUTH.h5", type=click.Path(),
               help="The true thresholds (`evtools simulate ... --truth TRUTH.h5`).")
 @click.option("--plot", "plot_path", default=None, metavar="FIG.png", type=click.Path(dir_okay=False),
               help="Also draw the estimated map, the true map and the relative error side by side.")
@@ -88,7 +87,7 @@ def thresholds(estimate_path, truth_path, plot_path, map_index, as_json):
         save_figure(thresholds_figure(estimate.on, estimate.off, estimate.valid & compared, truth.on, truth.off),
                     plot_path)
     if wants_json(as_json):
-        click.echo(json.dumps(result, indent=2))
+        echo_json(result, indent=2)
     else:
         _print_table(result)
 

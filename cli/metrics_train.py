@@ -3,7 +3,6 @@ with no labels at all (the DND21 recipe, automated: :class:`evtools.mlpf.SelfLab
 
 from __future__ import annotations
 
-import json
 import os
 import sys
 from contextlib import contextmanager
@@ -11,7 +10,7 @@ from contextlib import contextmanager
 import click
 import numpy as np
 
-from evtools.cli.options import Duration, FiniteRange, json_option, wants_json
+from evtools.cli.options import Duration, FiniteRange, echo_json, json_option, wants_json
 from evtools.cli.progress import with_progress
 from evtools.formats import open_events
 from evtools.formats.io import atomic_path, same_file
@@ -213,7 +212,7 @@ def train_denoiser(recordings, truths, noise_rate_hz, leak_rate_hz, output, patc
               "signal_fraction": report.signal_fraction, "epochs": report.epochs, "train_loss": report.train_loss,
               "held_out_loss": report.validation_loss, "held_out_auc": report.validation_auc}
     if wants_json(as_json):
-        click.echo(json.dumps(result, indent=2))
+        echo_json(result, indent=2)
         return
     for row in measured:
         click.echo(f"{row['recording']}: noise injected: shot {row['shot_rate_hz']:.3g} Hz, leak "

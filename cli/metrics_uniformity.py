@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import json
 import logging
 
 import click
 
-from evtools.cli.options import TimeBound, figure_path, json_option, read_options, wants_json
+from evtools.cli.options import TimeBound, echo_json, figure_path, json_option, read_options, wants_json
 from evtools.events import concatenate
 from evtools.metrics.uniformity import UniformityError, detect_edges, edge_uniformity, edges_from_starts, pixel_levels
 from evtools.formats import open_events
@@ -74,7 +73,7 @@ def uniformity(input, reading, edges_at, reference, plot, before, plot_edge,
     if plot:
         _plot(plot, events, info, edges, plot_edge, before, reading)
     if wants_json(as_json):
-        click.echo(json.dumps(result, indent=2))
+        echo_json(result, indent=2)
     else:
         _print_table(result)
 

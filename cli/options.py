@@ -290,6 +290,19 @@ def wants_json(as_json: bool) -> bool:
     return as_json or not sys.stdout.isatty()
 
 
+def echo_json(value, err: bool = False, **dumps) -> None:
+    """``value`` as JSON on stdout (stderr with ``err``); a full disk or a failing device is one line naming it
+    (it said "No space left on device" alone: a QA sweep). A closed pipe stays the caller's (exit 141)."""
+    import json
+
+    try:
+        click.echo(json.dumps(value, **dumps), err=err)
+    except BrokenPipeError:
+        raise
+    except OSError as error:
+        raise EvtoolsError(f"<{'stderr' if err else 'stdout'}>: cannot write ({error.strerror or error})") from None
+
+
 def _compression_help() -> str:
     described = [f"{fmt.name}: {', '.join(fmt.compressions)} (default {fmt.compressions[0]})"
                  for fmt in BY_NAME.values() if fmt.compressions]

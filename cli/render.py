@@ -105,7 +105,7 @@ def _refuse(ctx: click.Context, names: dict[str, str], why: str) -> None:
               help="The same as --frame-rate (kept for older scripts).")
 @click.option("--background", type=click.Choice(sorted(BACKGROUNDS)), default="dark", show_default=True,
               help="Event frames: ON orange and OFF blue on dark, or vermillion and blue on white.")
-@click.option("--map", "map_path", type=click.Path(dir_okay=False), default=None, metavar="THRESHOLDS.h5",
+@click.option("--map", "map_path", type=click.Path(), default=None, metavar="THRESHOLDS.h5",
               help="Draw the thresholds map of this HDF5 file (datasets on, off; optional valid) instead of events.")
 @click.option("--range", "value_range", type=FINITE, nargs=2, default=None, metavar="LOW HIGH",
               help="--map: values at the ends of the colour scale (default: the maps' range without outliers).")

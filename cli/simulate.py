@@ -4,7 +4,6 @@ labelled noise added to an event stream."""
 from __future__ import annotations
 
 import inspect
-import json
 import logging
 import math
 import os
@@ -17,7 +16,7 @@ import numpy as np
 
 from evtools import interrupt
 from evtools.aps import APS_DEFAULTS, ApsSensor
-from evtools.cli.options import (FINITE, Duration, FiniteRange, Microseconds, aedat2_layout_option,
+from evtools.cli.options import (FINITE, Duration, FiniteRange, Microseconds, aedat2_layout_option, echo_json,
                                  merged_alias, serve_early,
                                  check_compression, compression_option, input_format_option, reading_options)
 from evtools.cli.progress import with_progress
@@ -478,7 +477,7 @@ def _report(source: str, output: str | None, counts: np.ndarray, as_json: bool) 
     summary = {"command": "simulate", "source": source, "output": output or STDIO, "events": int(counts.sum()),
                **per_label}
     if as_json:
-        click.echo(json.dumps(summary), err=output in (None, STDIO))
+        echo_json(summary, err=output in (None, STDIO))
         return
     log.info(f"simulate: {summary['events']:,} events ("
              + ", ".join(f"{count:,} {name}" for name, count in per_label.items()) + ")")

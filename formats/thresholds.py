@@ -71,6 +71,8 @@ class ThresholdMap:
 def _open_h5(path: str):
     import h5py
 
+    if path == "-":  # (stdin carries the events; HDF5 is read by seeking anyway)
+        raise FormatError("-: a thresholds or truth file is HDF5, read from a path, not from stdin: give its path")
     if not os.path.exists(path):
         raise FormatError(f"{path}: no such file")
     if os.path.isdir(path):

@@ -220,6 +220,19 @@ def test_a_picture_too_large_and_a_full_device_are_named(tmp_path):
                        "/dev/full: cannot write (No space left on device)")
 
 
+def test_a_report_on_a_full_stdout_names_it(tmp_path):
+    """A command's JSON report to a full device said "No space left on device" alone (a QA sweep): it names
+    stdout now, exit 1."""
+    stream = data_file("dvxplorer_sample.aedat4")
+    with open("/dev/full", "wb") as full:
+        for args in (["info", stream], ["metrics", "uniformity", stream]):
+            result = subprocess.run([str(Path(sys.executable).parent / "evtools"), "-q", *map(str, args)],
+                                    stdout=full, stderr=subprocess.PIPE, timeout=300)
+            stderr = result.stderr.decode()
+            assert result.returncode == 1 and "Traceback" not in stderr, stderr
+            assert stderr == "evtools: error: <stdout>: cannot write (No space left on device)\n", stderr
+
+
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
 def test_a_stop_while_the_command_line_is_imported_is_one_line(signum):
     """Issue 37 item 7: SIGINT in the first ~0.1 s (imports) printed a KeyboardInterrupt traceback and SIGTERM
@@ -381,3 +394,19 @@ def test_a_stop_that_escapes_the_reader_ends_in_one_line(monkeypatch, tmp_path):
     monkeypatch.setattr(info_module, "open_events", stopped)
     result = CliRunner().invoke(cli, ["info", str(tmp_path / "x.aedat4")])
     assert result.exit_code == 130 and result.stderr == "evtools: interrupted\n", (result.exit_code, result.stderr)
+
+
+def test_a_thresholds_path_that_is_no_file_is_one_line_exit_1(tmp_path):
+    """A folder given for a thresholds or truth file was click's usage error (exit 2) where a missing file was a
+    data error (exit 1); `-` said "no such file" (a QA sweep). Every such input is now exit 1, named."""
+    from tests.helpers import assert_clean_error
+
+    stream = data_file("dvxplorer_sample.aedat4")
+    for args, needle in ((["correct", stream, "--thresholds", "-"], "-: a thresholds or truth file is HDF5"),
+                         (["correct", stream, "--thresholds", tmp_path], "a folder, not a thresholds file"),
+                         (["correct", stream, "--thresholds", tmp_path / "none.h5"], "no such file"),
+                         (["metrics", "thresholds", tmp_path, "--truth", tmp_path], "a folder, not a thresholds"),
+                         (["metrics", "reconstruction", stream, "--truth", tmp_path], "a folder, not a truth file"),
+                         (["render", "--map", tmp_path, "-o", tmp_path / "m.png"], "a folder, not a thresholds")):
+        assert_clean_error(run(*args, check=False), needle)
+    assert list(tmp_path.iterdir()) == []
