@@ -65,6 +65,9 @@ class ThresholdMap:
             raise FormatError(
                 f"{name}: thresholds are {self.width}x{self.height} but the stream is {width}x{height}; "
                 "give the thresholds of this sensor"
+                + (f" (a stream that stores no size, as CSV or text, is as large as its events: give --sensor-size "
+                   f"{self.width}x{self.height} if the thresholds are its sensor's)"
+                   if width <= self.width and height <= self.height else "")
             )
 
 

@@ -21,7 +21,7 @@ from evtools.cli.metrics import metrics
 from evtools.cli.options import Duration, Microseconds, TimeBound
 from evtools.formats.thresholds import ThresholdMap, write_thresholds
 from tests.conftest import data_file
-from tests.helpers import run
+from tests.helpers import read_all, run
 
 SAMPLES = Path(__file__).resolve().parents[1] / "samples"
 STEP, TRUTH = SAMPLES / "step.aedat4", SAMPLES / "step.truth.h5"
@@ -410,3 +410,22 @@ def test_a_thresholds_path_that_is_no_file_is_one_line_exit_1(tmp_path):
                          (["render", "--map", tmp_path, "-o", tmp_path / "m.png"], "a folder, not a thresholds")):
         assert_clean_error(run(*args, check=False), needle)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_stream_whose_size_was_inferred_smaller_than_the_map_is_told_how_to_set_it(tmp_path):
+    """A CSV stores no sensor size: inferred from its events it is smaller than the thresholds' sensor, and the
+    error now names the --sensor-size that makes them match (a QA sweep); given, the correction runs."""
+    from tests.helpers import assert_clean_error
+
+    run("simulate", "scene:flicker", "--size", "64x48", "--duration", "1s", "--seed", "1", "--truth",
+        tmp_path / "truth.h5", "-o", tmp_path / "f.aedat4")
+    _, events = read_all(tmp_path / "f.aedat4")
+    part = events[(events["x"] < 40) & (events["y"] < 30)]
+    np.savetxt(tmp_path / "f.csv", np.c_[part["t"], part["x"], part["y"], part["p"].astype(int)], fmt="%d",
+               delimiter=",")
+    result = run("-q", "correct", tmp_path / "f.csv", "--thresholds", tmp_path / "truth.h5", "-o",
+                 tmp_path / "c.aedat4", check=False)
+    assert_clean_error(result, "thresholds are 64x48 but the stream is 40x30", "give --sensor-size 64x48")
+    run("-q", "correct", tmp_path / "f.csv", "--sensor-size", "64x48", "--thresholds", tmp_path / "truth.h5", "-o",
+        tmp_path / "c.aedat4")
+    assert len(read_all(tmp_path / "c.aedat4")[1]) > 0
