@@ -1,4 +1,4 @@
-"""``evtools metrics denoise | roc | esr``: how well a background-activity filter works (ALGORITHMS.md section 3)."""
+"""``evtools metrics denoise | roc | esr``: how well a background-activity filter works (docs/algorithms.md section 3)."""
 
 from __future__ import annotations
 
@@ -16,13 +16,21 @@ from evtools.metrics.denoise import LABEL_NAMES, DenoiseMatcher, DenoiseMetricsE
 from evtools.errors import EvtoolsError
 from evtools.formats import open_events
 from evtools.formats.thresholds import read_labels
+from evtools.formats.truth import Fingerprint, check_labelled
 
 
-def _labels_for(truth: str, n_events: int, name: str) -> np.ndarray:
-    labels = read_labels(truth)
+def _labels_for(truth: str, name: str) -> np.ndarray:
+    """The labels of the stream ``name``, read once to check they are its own (count and fingerprint)."""
+    labels, fingerprint = read_labels(truth)
+    seen = Fingerprint()
+    with open_events(name) as stream:
+        for chunk in stream:
+            seen.add(chunk)
+    n_events = seen.sums[0]
     if len(labels) != n_events:
         raise DenoiseMetricsError(f"{truth}: {len(labels):,} labels but {name} has {n_events:,} events (give the "
                                   "truth file written with that stream)")
+    check_labelled(truth, fingerprint, seen, name)
     return labels
 
 
@@ -33,11 +41,6 @@ def _naming(filtered: str, noisy: str):
         yield
     except DenoiseMetricsError as error:
         raise DenoiseMetricsError(f"{filtered} against {noisy}: {error}") from None
-
-
-def _count_events(path: str) -> int:
-    with open_events(path) as stream:
-        return sum(len(chunk) for chunk in stream)
 
 
 def _feed_input(matcher: DenoiseMatcher, chunk: np.ndarray, labels: np.ndarray, name: str, truth: str) -> None:
@@ -88,7 +91,7 @@ def denoise(filtered, truth, noisy, as_json):
     evtools simulate rec.aedat4 --shot-noise-rate-hz 5 --truth t.h5 -o noisy.aedat4
     evtools bafilter noisy.aedat4 --method stcf | evtools metrics denoise - --truth t.h5 --input noisy.aedat4
     """
-    labels = _labels_for(truth, _count_events(noisy), noisy)
+    labels = _labels_for(truth, noisy)
     matcher = DenoiseMatcher()
     with open_events(noisy) as source, open_events(filtered) as output, _naming(output.name, noisy):
         inputs = iter(source)
@@ -199,7 +202,7 @@ def roc(noisy, truth, methods, sweep, preset, weights, polarity_maps, settings, 
             raise click.UsageError(f"{', '.join(n.replace('_', '-') for n in unused)} do(es) not apply to --method "
                                    f"{chain} (--preset {preset})")
     figure_path(plot, "--plot", (noisy, truth, weights))
-    labels = _labels_for(truth, _count_events(noisy), noisy)
+    labels = _labels_for(truth, noisy)
     results, curves = [], []
     for chain in methods:
         points, rows = [], []

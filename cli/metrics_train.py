@@ -15,6 +15,7 @@ from evtools.cli.progress import with_progress
 from evtools.formats import open_events
 from evtools.formats.io import atomic_path, same_file
 from evtools.formats.thresholds import read_labels
+from evtools.formats.truth import Fingerprint, check_labelled
 from evtools.mlpf import FeatureMaker, MlpfError, NoiseMeter, NoiseRates, SelfLabeller, train
 
 
@@ -42,8 +43,9 @@ class Sample:
 
 def _from_truth(noisy: str, truth: str, features_of, budget: int, rng, held_out: float):
     """Rows of a stream labelled by its truth file; ``features_of(width, height)``: its :class:`FeatureMaker`."""
-    labels = read_labels(truth)
+    labels, fingerprint = read_labels(truth)
     seen = 0
+    read = Fingerprint()
     with open_events(noisy) as stream:
         sample = Sample(features_of(stream.info.width, stream.info.height), min(1.0, budget / max(len(labels), 1)),
                         rng)
@@ -52,10 +54,12 @@ def _from_truth(noisy: str, truth: str, features_of, budget: int, rng, held_out:
                 raise MlpfError(f"{truth}: {len(labels):,} labels but {noisy} has more events (give the truth file "
                                 "written with that stream)")
             sample.add(chunk, labels[seen:seen + len(chunk)])
+            read.add(chunk)
             seen += len(chunk)
     if seen != len(labels):
         raise MlpfError(f"{truth}: {len(labels):,} labels but {noisy} has {seen:,} events (give the truth file "
                         "written with that stream)")
+    check_labelled(truth, fingerprint, read, noisy)
     return sample.result(held_out)
 
 

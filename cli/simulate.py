@@ -390,9 +390,10 @@ class _LabelledSink:
     def write(self) -> None:
         if not self.held:
             return
-        self.writer.write(join(self.pending) if len(self.pending) > 1 else self.pending[0])
+        events = join(self.pending) if len(self.pending) > 1 else self.pending[0]
+        self.writer.write(events)
         if self.truth is not None:
-            self.truth.append_labels(np.concatenate(self.pending_labels))
+            self.truth.append_labels(np.concatenate(self.pending_labels), events)
         self.pending, self.pending_labels, self.held = [], [], 0
 
 

@@ -44,7 +44,7 @@ NOISE_DEFAULTS: dict[str, Any] = {
     "hot_pixel_rate_hz": 100.0,
 }
 """The frame simulator's noise defaults (v2e: leak 0.1 Hz, no shot noise, no hot pixels), with the per-pixel leak
-rates spread over 0.5 decade, as in DND21 (ALGORITHMS.md section 3)."""
+rates spread over 0.5 decade, as in DND21 (docs/algorithms.md section 3)."""
 
 _NO_EVENT_US = np.iinfo(np.int64).max
 _EMPTY_LABELS = np.empty(0, dtype=np.uint8)

@@ -34,6 +34,7 @@ class TruthWriter:
     def __init__(self, h5) -> None:
         self._h5 = h5
         self._labels = self._log_frames = self._aps = None
+        self._fingerprint = Fingerprint()
 
     def write_maps(self, maps: dict[str, np.ndarray]) -> None:
         """Per-pixel maps (height x width) as datasets (``on`` and ``off`` with their units), then the labels'."""
@@ -48,11 +49,14 @@ class TruthWriter:
         for key, value in attributes.items():
             self._h5.attrs[key] = _attribute(value)
 
-    def append_labels(self, labels: np.ndarray) -> None:
-        """The labels of the next output events, in output order."""
+    def append_labels(self, labels: np.ndarray, events: np.ndarray) -> None:
+        """The labels of the next output ``events``, in output order; the events go into the file's
+        fingerprint (attribute ``events_fingerprint``: the labels are of these events, see :class:`Fingerprint`)."""
         start = self._labels.shape[0]
         self._labels.resize((start + len(labels),))
         self._labels[start:] = labels
+        self._fingerprint.add(events)
+        self._h5.attrs["events_fingerprint"] = self._fingerprint.value()
 
     def start_log_frames(self, width: int, height: int, rate_hz: float) -> None:
         """``log_frames`` and ``log_frame_t_us``, appended by :meth:`append_log_frame`."""
@@ -94,6 +98,34 @@ class TruthWriter:
         for name, dataset in self._aps.items():
             dataset.resize((n + 1, *dataset.shape[1:]))
             dataset[n] = values[name]
+
+
+class Fingerprint:
+    """A fingerprint of an event stream, whatever its chunks: the count and the sums (modulo 2^64) of t, x, y
+    and p. A truth file keeps its events' (``events_fingerprint``), so that labels are never read against another
+    stream of the same length: another seed's noise over the same recording has the same count (3 of 30 seeds on
+    a small clip, a QA sweep) and scored TPR 0.68 / FPR 0.63 for 0.86 / 0.27, silently."""
+
+    def __init__(self) -> None:
+        self.sums = [0] * 5  # (Python integers, taken modulo 2^64)
+
+    def add(self, events: np.ndarray) -> None:
+        self.sums[0] += len(events)
+        for k, name in enumerate(("t", "x", "y", "p"), start=1):  # (numpy's reduction wraps modulo 2^64)
+            self.sums[k] = (self.sums[k] + int(np.sum(events[name].astype(np.uint64), dtype=np.uint64))) % 2**64
+
+    def value(self) -> str:
+        return ":".join(map(str, self.sums))
+
+
+def check_labelled(truth_path: str, fingerprint: str | None, stream: Fingerprint, name: str) -> None:
+    """An error when the truth file's events (``fingerprint``, its ``events_fingerprint``; None in older files:
+    not checked) are not the stream ``name`` read (``stream``)."""
+    if fingerprint is not None and fingerprint != stream.value():
+        same_count = fingerprint.split(":")[0] == str(stream.sums[0])
+        raise FormatError(f"{truth_path}: its labels are of another stream than {name} (the events differ"
+                          f"{', though their count is the same' if same_count else ''}): give the truth file written "
+                          "with that stream")
 
 
 @contextlib.contextmanager

@@ -137,6 +137,78 @@ def mlpf(words, maps, radius, clock, scale, tau_us, w1, b1, w2, b2, logit_thresh
     return n
 
 
+ROWS_AT_ONCE = 8
+"""Rows of ``w1`` :func:`mlpf_dense` adds to the hidden units at a time (their products summed as a tree first)."""
+
+
+def padded_weights(w1: np.ndarray, b1: np.ndarray, w2: np.ndarray):
+    """``w1`` (inputs, hidden), ``b1``, ``w2`` padded with zeros: the rows up to a multiple of
+    :data:`ROWS_AT_ONCE`, the hidden units up to a multiple of 4 (a padded unit is 0 and weighs 0: the logit is
+    the same). :func:`mlpf_dense` then runs whole vectors, no remainder."""
+    rows = -(-w1.shape[0] // ROWS_AT_ONCE) * ROWS_AT_ONCE
+    units = -(-w1.shape[1] // 4) * 4
+    padded = np.zeros((rows, units))
+    padded[:w1.shape[0], :w1.shape[1]] = w1
+    return padded, np.pad(np.asarray(b1, np.float64), (0, units - len(b1))), \
+        np.pad(np.asarray(w2, np.float64), (0, units - len(w2)))
+
+
+@kernel
+def mlpf_dense(words, maps, radius, clock, scale, tau_us, w1, b1, w2, b2, logit_threshold, features, hidden, out):
+    """:func:`mlpf` with every input computed (0 where inactive: no list to build, whose every entry waited for
+    the count before it) and the hidden units summed over all of them, :data:`ROWS_AT_ONCE` rows of ``w1`` at a
+    time (``w1``, ``b1``, ``w2`` from :func:`padded_weights`); ``features`` is scratch of ``w1``'s rows."""
+    u = np.uint64
+    size = u(2 * radius + 1)
+    plane = size * size
+    width = u(maps.shape[2])
+    flat = maps.ravel()
+    map_cells = u(maps.shape[1]) * width
+    units = u(b1.shape[0])
+    rows = u(w1.shape[0])
+    one = u(1)
+    for k in range(u(2) * plane + one, rows):
+        features[k] = 0.0
+    n = 0
+    end = words.shape[0]
+    for i in range(end):
+        if i + AHEAD < end:  # the patch rows of a later event: cache misses on large sensors
+            ahead = words[i + AHEAD, 1]
+            corner = u(((ahead >> 16) & 0xFFFF) * maps.shape[2] + (ahead & 0xFFFF))
+            for c in range(u(2)):
+                for dy in range(size):
+                    prefetch(flat, c * map_cells + corner + dy * width)
+                    prefetch(flat, c * map_cells + corner + dy * width + size - one)
+        t = words[i, 0]
+        x, y, p = unpack(words[i, 1])
+        tau = time_constant(clock, t, scale, tau_us)
+        inverse_tau = 1.0 / tau
+        for c in range(u(2)):
+            for dy in range(size):
+                row = c * map_cells + (u(y) + dy) * width + u(x)
+                first = c * plane + dy * size
+                for dx in range(size):
+                    age = t - flat[row + dx]
+                    value = 1.0 - age * inverse_tau
+                    features[first + dx] = value if age < tau else 0.0
+        features[u(2) * plane] = 1.0 if p else 0.0
+        for j in range(units):
+            hidden[j] = b1[j]
+        for m in range(u(0), rows, u(8)):
+            f0, f1, f2, f3 = features[m], features[m + one], features[m + u(2)], features[m + u(3)]
+            f4, f5, f6, f7 = features[m + u(4)], features[m + u(5)], features[m + u(6)], features[m + u(7)]
+            for j in range(units):
+                hidden[j] += (((f0 * w1[m, j] + f1 * w1[m + one, j]) + (f2 * w1[m + u(2), j] + f3 * w1[m + u(3), j]))
+                              + ((f4 * w1[m + u(4), j] + f5 * w1[m + u(5), j])
+                                 + (f6 * w1[m + u(6), j] + f7 * w1[m + u(7), j])))
+        z = b2
+        for j in range(units):
+            z += max(hidden[j], 0.0) * w2[j]
+        flat[(u(0) if p else map_cells) + (u(y) + u(radius)) * width + u(x) + u(radius)] = t
+        n = _keep(words, i, out, n, z > logit_threshold)
+    return n
+
+
 @kernel
 def mlpf_features(words, maps, radius, clock, scale, tau_us, take, features):
     """The features (see the module) of the events where ``take`` is true, in order, into the rows of

@@ -110,7 +110,7 @@ def naive_lin_log(intensity: float) -> float:
 
 
 class NaiveDvsSensor:
-    """The pixel model of ALGORITHMS.md section 1, one pixel and one event at a time.
+    """The pixel model of docs/algorithms.md section 1, one pixel and one event at a time.
 
     Built from the per-pixel maps a :class:`evtools.simulation.DvsSimulator` drew (so both see the same sensor).
     For each frame interval, each pixel (raster order) lists its candidate next events - the threshold crossing

@@ -1,7 +1,7 @@
 """Slow references of the background-activity filters (evtools/_kernels/bafilter.py), one event at a time.
 
 Each takes a list of ``(t, x, y, p)`` tuples and returns the list of booleans "kept", written from the method's
-description (ALGORITHMS.md section 2) with dictionaries for the state: a missing key is a pixel that never fired.
+description (docs/algorithms.md section 2) with dictionaries for the state: a missing key is a pixel that never fired.
 """
 
 from __future__ import annotations
