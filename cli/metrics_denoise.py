@@ -1,4 +1,5 @@
-"""``evtools metrics denoise | roc | esr``: how well a background-activity filter works (docs/algorithms.md section 3)."""
+"""``evtools metrics denoise | roc | esr``: how well a background-activity filter works (docs/algorithms.md
+section 3)."""
 
 from __future__ import annotations
 
