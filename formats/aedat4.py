@@ -28,6 +28,8 @@ from typing import BinaryIO, Iterator
 
 import numpy as np
 
+from evtools import interrupt
+
 from evtools._kernels.aedat4 import PAYLOAD_MASK  # (a kernel module imports no numba until a kernel compiles)
 from evtools.events import EVENT_DTYPE, StreamInfo
 from evtools.frames import FORMAT_BGR, FORMAT_BGRA, FORMAT_GRAY, FORMAT_GRAY16, Frame, gray
@@ -549,10 +551,11 @@ class Aedat4Reader:
 
     def _cut(self) -> None:
         """A stream whose writer promised an end mark ended without it: an error on a pipe or socket (the writer
-        was stopped), a warning on a file."""
+        was stopped), a warning on a file, or on a pipe when this command was stopped too (a pipeline's Ctrl-C: its
+        outputs are then marked cut)."""
         message = (f"{self.name}: the stream ends without the end mark its writer (evtools) puts after the last "
                    "packet: it was cut (the writer killed or the copy broken off), events may be missing")
-        if self.source.live:
+        if self.source.live and interrupt.received() is None:  # (stopped too: the outputs are marked cut instead)
             raise FormatError(message)
         logging.getLogger("evtools").warning(message)
         self.cut_file = True  # (a stage's output then ends without the end mark too: see EventStream.was_cut)

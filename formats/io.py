@@ -387,13 +387,15 @@ def ends_cut(reader, problem: str) -> None:
     a copy broken off. The whole records before it have been read and go on; a warning says what was lost and the
     stream is marked cut (``reader.cut_file``: its outputs say so, DESIGN.md), so no input is lost and no cut stream
     passes as whole. A live input cut so (its writer stopped mid-write) is an error, as a live input ending without
-    its end mark is."""
+    its end mark is, unless this command was stopped too (a pipeline's Ctrl-C: the stream is read on to its
+    writer's end, :data:`STOP_DRAIN_S`): then it is marked cut as a file is."""
     if getattr(reader, "scanning", False):  # (a scan for the sensor size, :func:`size_scan`: the read says it)
         return
-    if reader.source.live:
+    if reader.source.live and interrupt.received() is None:
         raise FormatError(f"{reader.name}: {problem}")
-    logging.getLogger("evtools").warning(f"{reader.name}: {problem}: the file was cut (or damaged there); the events "
-                                         "before it are read, the rest is lost, and the stream is marked cut")
+    logging.getLogger("evtools").warning(f"{reader.name}: {problem}: the {'stream' if reader.source.live else 'file'} "
+                                         "was cut (or damaged there); the events before it are read, the rest is "
+                                         "lost, and the stream is marked cut")
     reader.cut_file = True
 
 
@@ -641,13 +643,22 @@ def _nothing_but_the_end(queue: Queue) -> bool:
     return item is _DONE
 
 
-def read_ahead(items: Iterable, depth: int = 2) -> Iterator:
+STOP_DRAIN_S = 1.0
+"""After a stop, how long a live evtools stream (one that promised an end mark) is read on for its writer's end:
+a terminal's Ctrl-C stops every stage of a pipeline, and the stage upstream ends its output at once, with the end
+mark when what it read was whole (a live input's stop is its end), without it when it was reading a file: the
+outputs are then marked cut. Taking the stop as the end at once had marked an output whole that held 14 M of a
+file's 35 M events (a QA sweep). A writer still sending after this was not stopped: the stop is the end."""
+
+
+def read_ahead(items: Iterable, depth: int = 2, drain_s: float = 0.0) -> Iterator:
     """The items of ``items``, produced by a background thread up to ``depth`` ahead of the consumer.
 
     Reading and decoding then overlap the consumer's work on a second core (file reads, decompression and the
     numba kernels release the GIL). An exception of the producer is raised in the consumer at its place in the
     sequence; when the consumer stops early, the producer stops at its next item. A stop requested on the command
-    line (:mod:`evtools.interrupt`: Ctrl-C, SIGTERM) ends the sequence, at once when the consumer waits.
+    line (:mod:`evtools.interrupt`: Ctrl-C, SIGTERM) ends the sequence, at once when the consumer waits; with
+    ``drain_s`` the items go on for up to that long after it, until their end (:data:`STOP_DRAIN_S`).
     """
     queue: Queue = Queue(maxsize=depth)
     stop = threading.Event()
@@ -678,6 +689,7 @@ def read_ahead(items: Iterable, depth: int = 2) -> Iterator:
     thread.start()
     try:
         with interrupt.consuming():
+            ended = False
             while interrupt.received() is None:  # a stop (Ctrl-C) ends the stream like its end
                 try:
                     with interrupt.waiting_for_input():
@@ -688,8 +700,25 @@ def read_ahead(items: Iterable, depth: int = 2) -> Iterator:
                     raise error
                 if item is _DONE:
                     thread.join()
+                    ended = True
                     break
                 yield item
+            if not ended and drain_s and interrupt.received() is not None:  # on to the writer's own end
+                deadline = time.monotonic() + drain_s
+                while True:
+                    left = deadline - time.monotonic()
+                    if left <= 0:
+                        break
+                    try:
+                        item, error = queue.get(timeout=min(left, 0.05))
+                    except Empty:
+                        continue
+                    if error is not None:
+                        raise error
+                    if item is _DONE:
+                        thread.join()
+                        break
+                    yield item
             if whole.is_set() and _nothing_but_the_end(queue):  # read to its end before any stop: a stop after
                 interrupt.read_whole()  # the last event leaves the outputs whole (they were marked cut: a QA sweep)
     finally:

@@ -4,6 +4,7 @@ symbolic link) are written through, never replaced (issue 19)."""
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -231,7 +232,9 @@ def test_a_stop_signal_ends_a_waiting_stage_with_its_output_complete(recording, 
 
 def test_ctrl_c_on_a_live_pipeline_leaves_its_file_complete(recording, tmp_path):
     """Ctrl-C reaches every stage of `feed | convert | bafilter -o FILE` (one process group, as a terminal sends
-    it): the last stage's file is complete and readable, and every evtools stage exits 130."""
+    it): the last stage's file is readable and holds a prefix of the stream, and every evtools stage exits 130.
+    The feed, an evtools stream killed inside a packet, was cut: each stage reads on to its writer's end
+    (STOP_DRAIN_S) and passes the cut on (it once took its own stop for the stream's end: marked whole)."""
     env = _environment()
     expected = tmp_path / "expected.aedat4"
     subprocess.run([*EVTOOLS, "bafilter", str(recording), "-o", str(expected)], check=True, env=env, cwd=ROOT)
@@ -256,6 +259,8 @@ def test_ctrl_c_on_a_live_pipeline_leaves_its_file_complete(recording, tmp_path)
     for process in (convert, bafilter):
         assert "Traceback" not in process.stderr.read()
     _prefix_of(evtools.read(out)[0], evtools.read(expected)[0])
+    assert json.loads(subprocess.run([*EVTOOLS, "info", str(out), "--json"], capture_output=True, env=env,
+                                     cwd=ROOT).stdout)["cut"]
 
 
 def _written_bytes(folder: Path, out: Path) -> int:
