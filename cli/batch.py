@@ -12,6 +12,7 @@ any file failed.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import sys
@@ -168,9 +169,12 @@ def run(one: Callable[..., Outcome], pairs: list[tuple[str, str]], options: dict
         with ProcessPoolExecutor(max_workers=min(jobs, len(pairs)), initializer=_quiet_worker) as pool:
             futures = {pool.submit(run_one, one, i, o, options): i for i, o in pairs}
             with _Display([name for name, _ in pairs]) as display:
-                for future in as_completed(futures):
-                    results[futures[future]] = future.result()
-                    display.done(futures[future], results[futures[future]])
+                try:
+                    for future in as_completed(futures):
+                        results[futures[future]] = future.result()
+                        display.done(futures[future], results[futures[future]])
+                except KeyboardInterrupt:  # a stop (the command's own handler: no stream read here)
+                    results.update(_stopped(futures, results))
     else:
         with _Display([name for name, _ in pairs]) as display:
             for name, result in _run_on_dask(one, pairs, options, jobs, scheduler):
@@ -178,10 +182,7 @@ def run(one: Callable[..., Outcome], pairs: list[tuple[str, str]], options: dict
                 display.done(name, result)
     rows = [(name, results[name]) for name, _ in pairs]
     if as_json:
-        files = [{"input": name, "output": output, **result[1].as_json(),
-                  "seconds": round(result[2], 6)} if result[0] == "ok" else
-                 {"input": name, "output": output, "error": result[1]} for (name, output), (_, result) in
-                 zip(pairs, rows)]
+        files = [_file_json(name, output, result) for (name, output), (_, result) in zip(pairs, rows)]
         _echo_json({"files": files, "failed": sum("error" in f for f in files),
                     "seconds": round(time.perf_counter() - started, 6)}, pairs)
     elif log.getEffectiveLevel() <= logging.INFO:  # not with -q: the table is information, the errors are not
@@ -195,6 +196,18 @@ def run(one: Callable[..., Outcome], pairs: list[tuple[str, str]], options: dict
         raise BatchError(f"{len(failed)} of {len(pairs)} files failed: {', '.join(failed)}")
 
 
+def _file_json(name: str, output: str, result: tuple) -> dict:
+    """One file's entry in a batch's ``--json``: its counts (with ``"cut": true`` when a stop ended its reading),
+    ``"stopped": true`` (never started: no output) or its error."""
+    status = result[0]
+    if status in ("ok", "cut"):
+        return {"input": name, "output": output, **result[1].as_json(), **({"cut": True} if status == "cut" else {}),
+                "seconds": round(result[2], 6)}
+    if status == "stopped":
+        return {"input": name, "output": None, "stopped": True}
+    return {"input": name, "output": output, "error": result[1]}
+
+
 def _echo_json(summary: dict, pairs: list[tuple[str, str]]) -> None:
     """One JSON object with the command's name first: on stdout unless the events went there, else on stderr."""
     from evtools.cli.options import echo_json
@@ -204,12 +217,38 @@ def _echo_json(summary: dict, pairs: list[tuple[str, str]]) -> None:
     echo_json({"command": name, **summary}, err=to_stderr)
 
 
+def _stopped(futures: dict, results: dict) -> dict:
+    """A stop came while the batch ran: the files not started are cancelled, the signal goes on to the workers (a
+    stop sent to the command alone, ``kill PID``, once left them running every file), whose files under way end as
+    a stopped command's do (marked cut); returns the results of the files not done yet, ``("stopped", None, 0)``
+    for those never started (no output is made for them)."""
+    import multiprocessing
+    import signal
+
+    from evtools import interrupt
+
+    for future in futures:
+        future.cancel()
+    for child in multiprocessing.active_children():
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(child.pid, interrupt.received() or signal.SIGINT)
+    return {name: ("stopped", None, 0.0) if future.cancelled() else future.result()
+            for future, name in futures.items() if name not in results}
+
+
 def run_one(one: Callable[..., Outcome], input: str, output: str, options: dict[str, Any]) -> tuple:
-    """``("ok", Outcome, seconds)`` or ``("error", message, seconds)``: a worker never raises for a bad file (the
-    batch goes on)."""
+    """``("ok", Outcome, seconds)``, ``("cut", Outcome, seconds)`` (a stop ended the file's reading: its output
+    is marked cut), ``("stopped", None, 0)`` (a stop came before the file was started: no output) or ``("error",
+    message, seconds)``: a worker never raises for a bad file (the batch goes on)."""
+    from evtools import interrupt
+
+    if interrupt.received() is not None:
+        return "stopped", None, 0.0
     start = time.perf_counter()
     try:
-        return "ok", one(input, output, **options), time.perf_counter() - start
+        outcome = one(input, output, **options)
+        stopped = interrupt.received() is not None and not interrupt.every_stream_whole()
+        return "cut" if stopped else "ok", outcome, time.perf_counter() - start
     except EvtoolsError as error:
         return "error", str(error), time.perf_counter() - start
     except click.ClickException as error:
@@ -222,7 +261,11 @@ def run_one(one: Callable[..., Outcome], input: str, output: str, options: dict[
 
 
 def _quiet_worker() -> None:
-    """Workers report through the summary, not line by line: warnings and errors only."""
+    """Workers report through the summary, not line by line: warnings and errors only; a stop signal ends the file
+    under way and starts no other (:func:`evtools.interrupt.install_in_worker`)."""
+    from evtools import interrupt
+
+    interrupt.install_in_worker()
     logger = logging.getLogger("evtools")
     if not logger.handlers:
         handler = logging.StreamHandler(sys.stderr)
@@ -281,7 +324,7 @@ class _Display:
 
     def done(self, name: str, result: tuple) -> None:
         if self.progress is not None:
-            mark = "done" if result[0] == "ok" else "FAILED"
+            mark = {"ok": "done", "cut": "stopped (cut)", "stopped": "not started"}.get(result[0], "FAILED")
             self.progress.update(self.tasks[name], completed=1, description=f"{name}: {mark}")
 
     def __exit__(self, *exc) -> None:
@@ -295,23 +338,28 @@ def _summary(rows: list[tuple[str, tuple]], seconds: float) -> None:
     from rich.table import Table
 
     table = Table(title=f"{len(rows)} files in {seconds:.1f} s", title_justify="left")
-    writes_events = any(result[0] == "ok" and result[1].events_out is not None for _, result in rows)
+    writes_events = any(result[0] in ("ok", "cut") and result[1].events_out is not None for _, result in rows)
     columns = [("file", "left"), ("events in", "right")] + ([("events out", "right")] if writes_events else [])
     for column, justify in columns + [("result", "left"), ("s", "right"), ("", "left")]:
         table.add_column(column, justify=justify)
     total_in = total_out = 0
     for name, result in rows:
-        if result[0] == "ok":
+        if result[0] in ("ok", "cut"):
             outcome = result[1]
             total_in += outcome.events_in
             total_out += outcome.events_out or 0
             out = [f"{outcome.events_out:,}"] if writes_events else []
-            table.add_row(name, f"{outcome.events_in:,}", *out, outcome.note, f"{result[2]:.2f}", "ok")
+            table.add_row(name, f"{outcome.events_in:,}", *out, outcome.note, f"{result[2]:.2f}",
+                          "ok" if result[0] == "ok" else "stopped: cut")
+        elif result[0] == "stopped":
+            table.add_row(name, "", *([""] if writes_events else []), "", "", "not started: no output")
         else:
             table.add_row(name, "", *([""] if writes_events else []), "", f"{result[2]:.2f}", "failed")
     failed = sum(result[0] == "error" for _, result in rows)
+    stopped = sum(result[0] in ("cut", "stopped") for _, result in rows)
+    verdict = ", ".join(([f"{failed} failed"] if failed else []) + ([f"{stopped} stopped"] if stopped else [])) or "ok"
     table.add_row("all", f"{total_in:,}", *([f"{total_out:,}"] if writes_events else []), "", f"{seconds:.2f}",
-                  f"{failed} failed" if failed else "ok", style="bold")
+                  verdict, style="bold")
     console = Console(stderr=True, width=None if sys.stderr.isatty() else 120)
     console.print(table)
     for name, result in rows:

@@ -66,6 +66,26 @@ def install() -> None:
         sys.unraisablehook = _unraisable
 
 
+def install_in_worker() -> None:
+    """A batch's worker process (forked from the command): a stop signal is recorded and ends the stream being
+    read, as in the command, but never raised while the worker waits for its next file (it would break the pool);
+    the worker then starts no new file (:func:`received`). The command forwards its own signal to its workers, so
+    a stop sent to it alone (``kill PID``, a supervisor) stops the batch too."""
+    global _received, _begun, _whole
+    _received = None
+    _begun = _whole = 0
+    signal.signal(signal.SIGINT, _handle_in_worker)
+    signal.signal(signal.SIGTERM, _handle_in_worker)
+
+
+def _handle_in_worker(signum, frame) -> None:
+    global _received
+    if _received is None:
+        _received = signum
+    if _streams and _waiting and not _deferring:
+        raise StopReading
+
+
 def received() -> int | None:
     """The signal that asked to stop (``signal.SIGINT``, ``signal.SIGTERM``) or None."""
     return _received

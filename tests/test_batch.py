@@ -6,9 +6,11 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 import evtools
-from tests.helpers import assert_clean_error, run
+from tests.conftest import data_file
+from tests.helpers import assert_clean_error, run, wait_until
 
 
 def _recordings(folder, count=20, corrupt=None):
@@ -133,3 +135,56 @@ def test_summaries_and_json_report_each_commands_measure_of_success(tmp_path):
     assert whole["read_to_the_end"] is True and whole["events_in"] == n
     said = run("convert", long, "-o", tmp_path / "part2.aedat4", "--end", "100ms").stderr.decode()
     assert "events read (then --end: the rest not read)" in said
+
+
+@pytest.mark.parametrize("to_group", [False, True])
+def test_a_stop_ends_the_batch_where_it_is_and_says_what_each_file_got(tmp_path, to_group):
+    """A QA sweep: SIGTERM to the command alone (`kill PID`, a supervisor) left its workers running every file,
+    then exit 143; a terminal's Ctrl-C (the whole group) left an empty output marked cut under the final name of
+    every file not yet started, and no table. Now the command forwards its signal to its workers, files not
+    started get no output (`"stopped": true`), files under way end marked cut (`"cut": true`), the finished ones
+    are whole; exit 128 + signal."""
+    import json
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    recording, info = evtools.read(data_file("dvs128_walk.aedat"))
+    span = int(recording["t"][-1] - recording["t"][0]) + 1
+    tiled = np.concatenate([recording] + [_shifted(recording, k * span) for k in range(1, 4)])
+    source = tmp_path / "source.aedat4"
+    evtools.write(source, tiled, info)
+    folder = tmp_path / "in"
+    folder.mkdir()
+    for k in range(40):
+        (folder / f"c{k:02d}.aedat4").symlink_to(source)
+    out = tmp_path / "out"
+    process = subprocess.Popen([str(Path(sys.executable).parent / "evtools"), "bafilter", *sorted(map(str,
+                               folder.iterdir())), "-o", str(out), "--jobs", "2", "--json"],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=to_group)
+    try:
+        wait_until(lambda: out.exists() and any(p.suffix == ".aedat4" for p in out.iterdir()), "a first output")
+        if to_group:
+            os.killpg(process.pid, signal.SIGINT)
+        else:
+            process.send_signal(signal.SIGTERM)
+        stdout, stderr = process.communicate(timeout=120)
+    finally:
+        process.kill()
+    assert process.returncode == (130 if to_group else 143), stderr
+    assert b"Traceback" not in stderr
+    files = json.loads(stdout)["files"]
+    states = {f["input"]: "stopped" if f.get("stopped") else "cut" if f.get("cut") else "ok" for f in files}
+    assert "stopped" in states.values() and "ok" in states.values(), states
+    for name, state in states.items():
+        output = out / Path(name).name
+        assert output.exists() == (state != "stopped"), (name, state)
+        if state != "stopped":
+            assert json.loads(run("info", output, "--json").stdout)["cut"] == (state == "cut"), (name, state)
+
+
+def _shifted(events, by_us):
+    shifted = events.copy()
+    shifted["t"] += by_us
+    return shifted
