@@ -179,4 +179,5 @@ def filter_one(input, output, *, reading, methods, preset, params=None,
     log.info(f"bafilter {','.join(methods)}: {ba.events_in:,} in, {ba.events_out:,} kept, {removed:,} removed "
              f"({100 * share:.1f} %)")
     kept = 1 - share if ba.events_in else 0.0
-    return Outcome(ba.events_in, ba.events_out, {"kept_fraction": round(kept, 6)}, f"{100 * kept:.1f} % kept")
+    return Outcome(ba.events_in, ba.events_out, {"kept_fraction": round(kept, 6)}, f"{100 * kept:.1f} % kept",
+                   stream.was_cut)

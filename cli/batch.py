@@ -36,12 +36,15 @@ class Outcome(NamedTuple):
     events_out: int | None
     measures: dict | None = None
     note: str = ""
+    input_cut: bool = False
+    """The input turned out cut (a file without its end mark, or cut inside a packet): the output is marked cut."""
 
     def as_json(self) -> dict:
         counts = {"events_in": self.events_in}
         if self.events_out is not None:
             counts["events_out"] = self.events_out
-        return {**counts, **(self.measures or {}), **({"note": self.note} if self.note else {})}
+        return {**counts, **(self.measures or {}), **({"note": self.note} if self.note else {}),
+                **({"cut": True, "input_cut": True} if self.input_cut else {})}
 
 
 class BatchError(EvtoolsError):
@@ -350,7 +353,8 @@ def _summary(rows: list[tuple[str, tuple]], seconds: float) -> None:
             total_out += outcome.events_out or 0
             out = [f"{outcome.events_out:,}"] if writes_events else []
             table.add_row(name, f"{outcome.events_in:,}", *out, outcome.note, f"{result[2]:.2f}",
-                          "ok" if result[0] == "ok" else "stopped: cut")
+                          "stopped: cut" if result[0] == "cut" else "input cut: output cut" if outcome.input_cut
+                          else "ok")
         elif result[0] == "stopped":
             table.add_row(name, "", *([""] if writes_events else []), "", "", "not started: no output")
         else:

@@ -391,4 +391,5 @@ def estimate_one(input, output, *, reading, parameters, slicing=None
     valid = int(usable.sum())
     return Outcome(result.attributes["events"], None,
                    {"valid_pixels": valid, "pixels": int(usable.size), "valid_fraction": round(valid / usable.size, 6)},
-                   f"{valid:,} of {usable.size:,} pixels valid ({100 * valid / usable.size:.1f} %)")
+                   f"{valid:,} of {usable.size:,} pixels valid ({100 * valid / usable.size:.1f} %)",
+                   "cut" in attributes)

@@ -94,8 +94,8 @@ def thresholds(estimate_path, truth_path, plot_path, map_index, as_json):
 
 def _estimate_map(path: str, index: int):
     """The estimate to compare (a series' map ``index``, its ``t_us`` kept as a one-element array) and its time:
-    (the map's time, the index, the number of maps) for a series; the middle of ``t_first_us``, ``t_last_us`` for a single map (the
-    mean of a linear drift over the stream); None when the file says neither."""
+    (the map's time, the index, the number of maps) for a series; the middle of ``t_first_us``, ``t_last_us`` for
+    a single map (the mean of a linear drift over the stream); None when the file says neither."""
     with open_thresholds(path) as maps:
         if maps.t_us is None:
             first, last = maps.attributes.get("t_first_us"), maps.attributes.get("t_last_us")

@@ -188,3 +188,21 @@ def _shifted(events, by_us):
     shifted = events.copy()
     shifted["t"] += by_us
     return shifted
+
+
+def test_a_cut_input_is_said_in_the_json_and_the_table(tmp_path):
+    """A QA sweep: a truncated input's run reported `read_to_the_end: true` and "ok", the cut said only in a
+    warning. Its counts now carry `"cut": true` (single run and batch), and the table says the output is cut."""
+    import json
+
+    files = _recordings(tmp_path / "in", count=2)
+    data = files[0].read_bytes()
+    files[0].write_bytes(data[:len(data) * 2 // 3])  # cut inside a packet
+    single = json.loads(run("-q", "bafilter", files[0], "-o", tmp_path / "one.aedat4", "--json").stdout)
+    assert single["cut"] is True and single["input_cut"] is True
+    whole = json.loads(run("-q", "bafilter", files[1], "-o", tmp_path / "two.aedat4", "--json").stdout)
+    assert "cut" not in whole
+    batch = json.loads(run("-q", "convert", *files, "-o", tmp_path / "out", "--json").stdout)
+    assert [f.get("cut", False) for f in batch["files"]] == [True, False]
+    table = run("bafilter", *files, "-o", tmp_path / "out2").stderr.decode()
+    assert "input cut: output cut" in table

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 import evtools
@@ -435,6 +435,7 @@ def _read_cut(path: Path) -> tuple[np.ndarray, bool]:
 @settings(max_examples=40, deadline=None)
 @given(kind=st.sampled_from(sorted(CUT_KINDS)), n=st.integers(1, 2000), seed=st.integers(0, 2**31),
        chunks=st.lists(st.integers(0, 2000), max_size=6), at=st.floats(0, 1, exclude_max=True))
+@example(kind="aedat", n=667, seed=1, chunks=[], at=0.5)  # (its first event's first byte is '#': not written)
 def test_a_file_cut_anywhere_keeps_every_whole_record_before_the_cut(tmp_path_factory, kind, n, seed, chunks, at):
     """A recording whose copy broke off (or whose camera crashed) inside a record or packet was refused whole: every
     event lost. Now the whole records/packets before the cut are read (the same events as a cut at the start of the
@@ -458,8 +459,9 @@ def test_a_file_cut_anywhere_keeps_every_whole_record_before_the_cut(tmp_path_fa
     clean.write_bytes(data[:max(end for end in ends if end <= position)])
     got, was_cut = _read_cut(broken)
     expected, _ = _read_cut(clean)
+    written, _ = _read_cut(whole)  # (AEDAT 2.0 drops a leading event whose first byte reads as a header's '#')
     assert_same_events(got, expected)
-    assert_same_events(got, events[:len(got)])
+    assert_same_events(got, written[:len(got)])
     assert was_cut == (inside or suffix == "aedat4")  # (AEDAT 4.0 of evtools: its end mark is missing too)
 
 
