@@ -293,10 +293,21 @@ def wants_json(as_json: bool) -> bool:
 def echo_json(value, err: bool = False, **dumps) -> None:
     """``value`` as JSON on stdout (stderr with ``err``); a full disk or a failing device is one line naming it
     (it said "No space left on device" alone: a QA sweep). A closed pipe stays the caller's (exit 141)."""
+    import io
     import json
 
+    text = json.dumps(value, **dumps) + "\n"
+    stream = sys.stderr if err else sys.stdout
     try:
-        click.echo(json.dumps(value, **dumps), err=err)
+        try:
+            fd = stream.fileno()
+        except (AttributeError, ValueError, io.UnsupportedOperation):  # (a notebook's or a test's capture)
+            click.echo(text, err=err, nl=False)
+            return
+        stream.flush()
+        data = memoryview(text.encode())
+        while data:  # (Python's buffered write lost the rest of a large report when the pipe's reader left
+            data = data[os.write(fd, data):]  # after a partial write, and exited 0: a QA sweep)
     except BrokenPipeError:
         raise
     except OSError as error:

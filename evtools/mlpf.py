@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 import os
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -83,6 +84,8 @@ def load_weights(path: str | os.PathLike | None = None) -> Weights:
     note_input(path)
     try:
         with np.load(path, allow_pickle=False) as data:
+            if "patch" in data and not float(data["patch"]).is_integer():  # (5.5 was taken as 5)
+                raise MlpfError(f"{path}: the patch size must be a whole number of pixels, not {float(data['patch'])}")
             weights = Weights(np.asarray(data["w1"], np.float64), np.asarray(data["b1"], np.float64).reshape(-1),
                               np.asarray(data["w2"], np.float64).reshape(-1), float(data["b2"]), int(data["patch"]),
                               int(data["tau_us"]), float(data["tau_scale"]) if "tau_scale" in data else 0.0,
@@ -94,8 +97,9 @@ def load_weights(path: str | os.PathLike | None = None) -> Weights:
     except KeyError as error:  # (numpy's message: "w1 is not a file in the archive")
         missing = str(error.args[0]).split(" ")[0] if error.args else "?"
         raise MlpfError(f"{path}: not MLPF weights (no {missing!r} array; train-denoiser writes them)") from None
-    except (OSError, ValueError, EOFError):
-        raise MlpfError(f"{path}: not an MLPF weights file (an .npz archive as train-denoiser writes)") from None
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile):  # (a damaged copy: a traceback, a QA sweep)
+        raise MlpfError(f"{path}: not an MLPF weights file (an .npz archive as train-denoiser writes), or a "
+                        "damaged one") from None
     return weights.check(str(path))
 
 

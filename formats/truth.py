@@ -23,7 +23,10 @@ LOG_UNITS = "log intensity"
 
 
 def _attribute(value):
-    """An attribute value HDF5 stores (None as the empty text)."""
+    """An attribute value HDF5 stores (None as the empty text; a whole number beyond 64 bits, a seed of 2^64 or
+    more, as its digits: HDF5 has no type for it, and it was a traceback)."""
+    if isinstance(value, int) and not isinstance(value, bool) and not -2**63 <= value < 2**64:
+        return str(value)
     return "" if value is None else value
 
 
