@@ -301,6 +301,18 @@ def test_values_that_would_exhaust_memory_are_refused_in_bounded_memory(tmp_path
     assert not out.exists()
 
 
+def test_uniformity_over_a_huge_time_gap_runs_in_bounded_memory(tmp_path):
+    """A QA sweep: four events 4e15 us apart ran `metrics uniformity` out of memory (a histogram of every ms of the
+    span; 1 GB for a 1e12 us gap). Its bins are now the ones that hold events: under a 1 GB address space the
+    command runs and finds no edge (a warning), exit 0."""
+    gap = tmp_path / "gap.csv"
+    gap.write_text("t,x,y,p\n0,1,1,1\n1000,1,1,1\n4000000000000000,2,2,0\n4000000000001000,2,2,1\n")
+    done = subprocess.run(["prlimit", "--as=1000000000", EVTOOLS, "metrics", "uniformity", str(gap), "--sensor-size",
+                           "10x10", "--json"], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and "Traceback" not in done.stderr, done.stderr
+    assert json.loads(done.stdout)["edges"] == [] and "no stimulus edge found" in done.stderr
+
+
 def test_an_inferred_sensor_larger_than_any_camera_is_refused(tmp_path):
     """Issue 37 item 8: a 3-line CSV reaching x = 8191 inferred an 8192 x 8192 sensor and took 2-3 GiB in estimate,
     bafilter and render; an inferred side beyond 2048 is refused, --sensor-size still sets any size."""

@@ -86,18 +86,21 @@ def detect_edges(events: np.ndarray, bin_us: int = BIN_US, quiet_us: int = QUIET
     t = events["t"]
     t0 = int(t[0])
     index = (t - t0) // bin_us
-    n_bins = int(index[-1]) + 1
-    counts = np.bincount(index, minlength=n_bins)
-    net = np.bincount(index, weights=np.where(events["p"], 1.0, -1.0), minlength=n_bins)
+    last_bin = int(index[-1])
+    # the bins that hold events only (a dense histogram of the span took 1 GB for 4 events 11 days apart, and ran
+    # out of memory beyond: a QA sweep)
+    bins, where, counts = np.unique(index, return_inverse=True, return_counts=True)
+    nets = np.bincount(where, weights=np.where(events["p"], 1.0, -1.0), minlength=len(bins))
     pixels = _pixel_count(events)
-    active = counts >= max(2.0, active_fraction * pixels)
+    busy = counts >= max(2.0, active_fraction * pixels)
+    active_bins, active_nets = bins[busy], nets[busy]
     starts: list[tuple[int, bool, bool]] = []  # (bin, polarity, after a quiet spell)
     last_active = None
     polarity = None
-    for b in np.flatnonzero(active):
-        sign = None if net[b] == 0 else bool(net[b] > 0)
+    for b, net_b in zip(active_bins.tolist(), active_nets.tolist()):
+        sign = None if net_b == 0 else bool(net_b > 0)
         quiet = last_active is None or (b - last_active) * bin_us > quiet_us
-        if quiet or (sign is not None and polarity is not None and sign != polarity and abs(net[b]) >= 2):
+        if quiet or (sign is not None and polarity is not None and sign != polarity and abs(net_b) >= 2):
             starts.append((int(b), sign, quiet))
             polarity = sign
         elif polarity is None:
@@ -119,8 +122,8 @@ def detect_edges(events: np.ndarray, bin_us: int = BIN_US, quiet_us: int = QUIET
         elif edges:  # the edges so far end where this one starts: the last takes its span
             edges[-1].end_us = end
             ongoing = resumed
-    if ongoing and active[-2:].any():  # the stream's last 1-2 ms active: its last edge goes on past it
-        edges[-1].cut = True
+    if ongoing and len(active_bins) and active_bins[-1] >= last_bin - 1:  # the stream's last 1-2 ms active:
+        edges[-1].cut = True  # its last edge goes on past it
     return edges
 
 
