@@ -216,6 +216,20 @@ def _render_rate(input: str, output: str, reading) -> None:
     save_figure(rate_figure(counter, f"event rate of {os.path.basename(stream.name)}"), output)
 
 
+def _within_frames(chunks, window_us: int, output: str):
+    """``chunks``, refused as soon as the time they span asks for more than :data:`MAX_FRAMES` frames (a gap of
+    hours between two events once drew empty frames for minutes before the count reached the bound: a QA sweep)."""
+    first_us = None
+    for chunk in chunks:
+        if len(chunk):
+            first_us = int(chunk["t"][0]) if first_us is None else first_us
+            frames = (int(chunk["t"][-1]) - first_us) // window_us + 1
+            if frames > MAX_FRAMES:
+                raise RenderError(f"{output}: the events span {frames:,} frames of --window-us {window_us} us: "
+                                  f"more than {MAX_FRAMES:,} frames; give a larger --window-us (or --start / --end)")
+        yield chunk
+
+
 def _frames(chunks, framer: EventFramer, backdrop=None):
     """Every window's frame; a stop signal ends them at the next frame (a chunk of a sparse stream drawn with a
     short window holds millions: the reader's own stop, at its next chunk, came minutes later)."""
@@ -369,7 +383,8 @@ def _render_video(chunks, stream, framer: EventFramer, output: str, extension: s
         try:
             count = 0
             folder = os.path.dirname(os.path.abspath(temporary))
-            for window_start_us, frame in _frames(with_progress(chunks, stream, f"rendering {stream.name}"), framer,
+            bounded = _within_frames(chunks, framer.window_us, output)
+            for window_start_us, frame in _frames(with_progress(bounded, stream, f"rendering {stream.name}"), framer,
                                                   backdrop):
                 image = upscale(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR), scale)
                 if caption:

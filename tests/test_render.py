@@ -506,3 +506,13 @@ def test_a_video_of_more_frames_than_the_limit_is_refused(tmp_path, monkeypatch)
     result = CliRunner().invoke(cli, ["render", str(source), "-o", str(tmp_path / "x.mp4"), "--window-us", "1000"])
     assert result.exit_code == 1 and "more than 50 frames" in result.output, result.output
     assert not (tmp_path / "x.mp4").exists() and [p.name for p in tmp_path.iterdir()] == ["s.aedat4"]
+
+
+def test_a_video_over_a_huge_time_gap_is_refused_before_it_is_drawn(tmp_path):
+    """A QA sweep: four events 4e15 us apart asked for 1.2e11 frames; the video grew for minutes (empty frames)
+    before the frame bound was reached. The span of what was read is checked as it comes: refused at once."""
+    gap = tmp_path / "gap.csv"
+    gap.write_text("t,x,y,p\n0,1,1,1\n1000,1,1,1\n4000000000000000,2,2,0\n4000000000001000,2,2,1\n")
+    result = run("render", gap, "--sensor-size", "10x10", "-o", tmp_path / "g.mp4", check=False)
+    assert_clean_error(result, "g.mp4: the events span 120,001,200,013 frames", "give a larger --window-us")
+    assert not (tmp_path / "g.mp4").exists()
