@@ -10,6 +10,8 @@ from contextlib import contextmanager
 import click
 import numpy as np
 
+from evtools import interrupt
+
 from evtools.cli.options import Duration, FiniteRange, echo_json, json_option, wants_json
 from evtools.cli.progress import with_progress
 from evtools.formats import open_events
@@ -56,6 +58,8 @@ def _from_truth(noisy: str, truth: str, features_of, budget: int, rng, held_out:
             sample.add(chunk, labels[seen:seen + len(chunk)])
             read.add(chunk)
             seen += len(chunk)
+    if interrupt.received() is not None:  # (stopped: fewer events than labels, and no model is made)
+        raise interrupt.StopReading
     if seen != len(labels):
         raise MlpfError(f"{truth}: {len(labels):,} labels but {noisy} has {seen:,} events (give the truth file "
                         "written with that stream)")
@@ -201,6 +205,8 @@ def train_denoiser(recordings, truths, noise_rate_hz, leak_rate_hz, output, patc
                          "measured_on": noise.source, "pixels": noise.pixels})
         parts.append(_balanced(_self_labelled(recording, noise, features_of, budget, rng, held_out, seed + index),
                                rng))
+    if interrupt.received() is not None:  # (a model of part of the recordings, unmarked, once went out as whole; an
+        raise interrupt.StopReading  # early stop said "too few labelled events", exit 1: a QA sweep): no weights
     features, signal, check = (np.concatenate([part[i] for part in parts]) for i in range(3))
     with _epochs_shown(epochs) as shown:
         weights, report = train(features, signal.astype(np.float64), check, patch=patch, tau_us=tau_us or 0,

@@ -418,3 +418,37 @@ def test_each_stream_trains_on_as_much_noise_as_signal(seed, signal, noise):
     assert kept_signal.sum() == (~kept_signal).sum() == min(signal, noise)
     assert (np.diff(index) > 0).all()
     assert (labels[index] == kept_signal).all() and (check[index] == kept_check).all()
+
+
+@pytest.mark.parametrize("labelled", [False, True])
+def test_training_stopped_while_reading_makes_no_weights(tmp_path, labelled):
+    """A QA sweep: Ctrl-C while train-denoiser read its recording either said "too few labelled events" (exit 1) or
+    wrote weights trained on a fifth of the sample under the final name, unmarked. A stop while reading now
+    makes no weights file and exits 130."""
+    import signal
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from tests.helpers import run, wait_until
+
+    recording, truth = tmp_path / "big.aedat4", tmp_path / "t.h5"
+    run("simulate", "scene:bars", "--size", "346x260", "--duration", "3s", "--seed", "1", "--shot-noise-rate-hz",
+        "5", "--truth", truth, "-o", recording)
+    out = tmp_path / "w.npz"
+    process = subprocess.Popen([str(Path(sys.executable).parent / "evtools"), "metrics", "train-denoiser",
+                                str(recording), *(["--truth", str(truth)] if labelled else []), "-o", str(out)],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+
+    def read_some() -> bool:  # (the process has read into its recording: a state, not a time)
+        with open(f"/proc/{process.pid}/io") as io:
+            return int(next(line for line in io if line.startswith("rchar")).split()[1]) > 4_000_000
+
+    try:
+        wait_until(read_some, "train-denoiser reading its recording")
+        process.send_signal(signal.SIGINT)
+        _, stderr = process.communicate(timeout=120)
+    finally:
+        process.kill()
+    assert process.returncode == 130 and b"Traceback" not in stderr, stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["big.aedat4", "t.h5"]  # (no weights, no temporary)
