@@ -4,7 +4,9 @@ section 3)."""
 from __future__ import annotations
 
 import contextlib
+import logging
 import math
+import signal
 
 import click
 import numpy as np
@@ -14,10 +16,13 @@ from evtools.cli.progress import with_progress
 from evtools.filters import METHODS, BAFilter, BAFilterError, check_preset, not_applying, parse_methods
 from evtools.filters.registry import parameters
 from evtools.metrics.denoise import LABEL_NAMES, DenoiseMatcher, DenoiseMetricsError, EsrMeter, roc_auc
+from evtools import interrupt
 from evtools.errors import EvtoolsError
 from evtools.formats import open_events
 from evtools.formats.thresholds import read_labels
 from evtools.formats.truth import Fingerprint, check_labelled
+
+log = logging.getLogger("evtools")
 
 
 def _labels_for(truth: str, name: str) -> np.ndarray:
@@ -205,6 +210,7 @@ def roc(noisy, truth, methods, sweep, preset, weights, polarity_maps, settings, 
     figure_path(plot, "--plot", (noisy, truth, weights))
     labels = _labels_for(truth, noisy)
     results, curves = [], []
+    stopped = None  # a stop (Ctrl-C) ends the sweep: the point under way read part of the stream and is dropped
     for chain in methods:
         points, rows = [], []
         for value in values:
@@ -212,26 +218,38 @@ def roc(noisy, truth, methods, sweep, preset, weights, polarity_maps, settings, 
             params = {**settings, name: value, **({"weights": weights} if weights and "mlpf" in stages else {}),
                       **({"polarity_maps": True} if polarity_maps and "stcf" in stages else {})}
             score = _score_filter(noisy, labels, chain, preset, params)
+            if interrupt.received() is not None:
+                stopped = (f"stopped by {signal.Signals(interrupt.received()).name} at {chain} {name}={value}: "
+                           "the curves after it are missing, this one's AUC is not given")
+                break
             rows.append({"value": value, **score.as_dict()})
             points.append((score.fpr, score.tpr))
-        curve, area = roc_auc(points)
-        results.append({"method": chain, "parameter": name, "held": settings, "points": rows, "auc": area})
-        curves.append((chain, curve, area))
+        if rows:
+            curve, area = roc_auc(points)
+            results.append({"method": chain, "parameter": name, "held": settings, "points": rows,
+                            "auc": None if stopped else area, **({"complete": False} if stopped else {})})
+            curves.append((chain, curve, area))
+        if stopped:
+            break
     if plot:
         from evtools.formats.figures import save_figure
         from evtools.plots import roc_figure
 
         save_figure(roc_figure([{"label": result["method"], "parameter": result["parameter"],
-                                 "points": result["points"], "auc": result["auc"]} for result in results]), plot)
+                                 "points": result["points"], "auc": result["auc"]} for result in results
+                                if result["auc"] is not None]), plot)
+    if stopped:
+        log.warning(f"{noisy}: {stopped}")
     if wants_json(as_json):
-        echo_json(_clean({"file": noisy, "preset": preset, "methods": results}), indent=2)
+        echo_json(_clean({"file": noisy, "preset": preset, "methods": results,
+                          **({"stopped": stopped} if stopped else {})}), indent=2)
         return
     rows = []
     for result in results:
         for point in result["points"]:
             rows.append([result["method"], str(point["value"]), _fmt(point["tpr"]), _fmt(point["fpr"]),
                          _fmt(point["precision"]), _fmt(point["f1"]), ""])
-        rows.append([result["method"], "", "", "", "", "", f"{result['auc']:.4f}"])
+        rows.append([result["method"], "", "", "", "", "", _fmt(result["auc"])])
     _table(f"ROC of {noisy}", ["method", name, "TPR", "FPR", "precision", "F1", "AUC"], rows)
 
 

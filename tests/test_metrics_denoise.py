@@ -202,3 +202,35 @@ def test_labels_that_are_not_one_class_per_event_are_refused(noisy, tmp_path, la
                  ["roc", path, "--truth", bad, "--method", "stcf", "--sweep", "dt-us=1000"],
                  ["train-denoiser", path, "--truth", bad, "-o", tmp_path / "w.npz", "--max-events", "5000"]):
         assert_clean_error(run("metrics", *args, check=False), str(bad), "label")
+
+
+def test_a_stopped_roc_sweep_says_so_and_gives_no_auc_for_a_curve_it_did_not_finish(noisy, monkeypatch):
+    """A QA sweep: a roc stopped by Ctrl-C wrote a normal-looking JSON, its last 66 of 300 points empty and the AUC
+    null, with nothing saying it was stopped. The sweep now ends at the stop: the point under way (part of the
+    stream) is dropped, the unfinished curve has no AUC and `complete: false`, and `stopped` says where."""
+    import signal
+
+    from click.testing import CliRunner
+
+    import evtools.cli.metrics_denoise as module
+    from evtools import interrupt
+    from evtools.cli.main import cli
+
+    path, truth = noisy["dvxplorer_sample"]
+    scored = []
+    real = module._score_filter
+
+    def score_then_stop(*args, **kwargs):
+        scored.append(1)
+        if len(scored) == 6:  # (the signal lands while the sixth point, stcf's second, reads the stream)
+            monkeypatch.setattr(interrupt, "_received", signal.SIGINT)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(module, "_score_filter", score_then_stop)
+    result = CliRunner().invoke(cli, ["metrics", "roc", str(path), "--truth", str(truth), "--method", "baf",
+                                      "--method", "stcf", "--sweep", "dt-us=1000,2000,3000,10000", "--json"])
+    report = json.loads(result.stdout)
+    assert report["stopped"].startswith("stopped by SIGINT at stcf dt_us=2000")
+    first, second = report["methods"]
+    assert first["auc"] is not None and len(first["points"]) == 4 and "complete" not in first
+    assert [p["value"] for p in second["points"]] == [1000] and second["auc"] is None and not second["complete"]
