@@ -198,13 +198,15 @@ def _float_option(name: str, help: str, low: float | None = 0.0, high: float | N
 @_float_option("--neg-thres", "Mean OFF threshold, log units (default 0.2).", low=MIN_THRESHOLD)
 @_float_option("--sigma-thres", "Per-pixel threshold standard deviation (default 0.03).")
 @click.option("--thres-drift", "thres_drift", type=FINITE, default=None, metavar="PERCENT_PER_S",
-              help="Every threshold drifts linearly by this percentage of its first value per second (default 0).")
+              help="Every threshold drifts linearly by this percentage of its first value per second (default 0; "
+                   "never below 5 % of that value).")
 @_float_option("--correlated-sigma-thres", "Standard deviation of a spatially smooth threshold field (default 0).")
 @_float_option("--correlated-length-px", "Correlation length of that field, pixels (default 10).")
 @_float_option("--cutoff-hz", "Photoreceptor low-pass cutoff at full intensity; 0 = none (default).")
 @click.option("--fixed-cutoff", is_flag=True, default=None,
               help="A plain single-pole low-pass: --cutoff-hz at every intensity (v2e's falls with intensity).")
-@_float_option("--leak-rate-hz", "Leak (background activity) event rate per pixel (default 0.1).")
+@_float_option("--leak-rate-hz", "Leak (background activity) event rate per pixel (default 0.1; frame sources: "
+               "a shot event resets the reference, so beside shot noise fewer leak events come out).")
 @_float_option("--leak-spread-decades",
                "Per-pixel spread of the leak rate, decades (default 0.1; 0.5 for an event stream).")
 @_float_option("--shot-noise-rate-hz",
