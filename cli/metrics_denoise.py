@@ -110,7 +110,10 @@ def denoise(filtered, truth, noisy, as_json):
                 _feed_input(matcher, part, labels, noisy, truth)
         for part in inputs:
             _feed_input(matcher, part, labels, noisy, truth)
-        if output.was_cut:  # (a part of the filter's output scored against the whole input reads as a better filter)
+        if output.was_cut and source.was_cut:  # (a filter's output of a cut input is marked cut too: a rescued
+            log.warning(f"{output.name} and its input {noisy} are both marked cut: scored as the filter's whole "  # rec.
+                        "run over what the input holds (a filter stopped early would read as removing the rest)")
+        elif output.was_cut:  # (a part of the filter's output scored against the whole input reads as a better filter)
             raise EvtoolsError(f"{output.name} was cut (its filter stopped early or its copy broken off): its score "
                                "against the whole input would count the missing part as removed; filter the whole "
                                "input again")

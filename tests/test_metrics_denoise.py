@@ -234,3 +234,21 @@ def test_a_stopped_roc_sweep_says_so_and_gives_no_auc_for_a_curve_it_did_not_fin
     first, second = report["methods"]
     assert first["auc"] is not None and len(first["points"]) == 4 and "complete" not in first
     assert [p["value"] for p in second["points"]] == [1000] and second["auc"] is None and not second["complete"]
+
+
+def test_a_filter_of_a_cut_recording_is_scored_with_a_warning(tmp_path):
+    """A QA sweep: noise injected into a recording cut by a crash, then filtered whole, was refused by `denoise`
+    ("its filter stopped early"): the cut mark came from the recording and no re-run could help. When the input is
+    marked cut too, the filter's output is scored, with a warning; a cut output of a whole input stays refused
+    (test_cli_denoise_matches_the_library)."""
+    clip = tmp_path / "clip.aedat4"
+    run("simulate", "scene:flicker", "--size", "64x48", "--duration", "2s", "--seed", "3", "-o", clip)
+    data = clip.read_bytes()
+    broken = tmp_path / "broken.aedat4"
+    broken.write_bytes(data[:len(data) // 2])
+    noisy, truth, filtered = tmp_path / "noisy.aedat4", tmp_path / "t.h5", tmp_path / "f.aedat4"
+    run("-q", "simulate", broken, "--shot-noise-rate-hz", "5", "--seed", "4", "--truth", truth, "-o", noisy)
+    run("-q", "bafilter", noisy, "-o", filtered)
+    result = run("metrics", "denoise", filtered, "--truth", truth, "--input", noisy)
+    assert 0 < json.loads(result.stdout)["tpr"] <= 1
+    assert "both marked cut" in result.stderr.decode()
