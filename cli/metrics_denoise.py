@@ -165,6 +165,12 @@ def _settings(ctx, param, values):
     return settings
 
 
+def _point_params(settings: dict, name: str, value, weights, polarity_maps: bool, stages) -> dict:
+    """The filter parameters of one ROC point."""
+    return {**settings, name: value, **({"weights": weights} if weights and "mlpf" in stages else {}),
+            **({"polarity_maps": True} if polarity_maps and "stcf" in stages else {})}
+
+
 def _score_filter(noisy: str, labels: np.ndarray, methods: str, preset: str, params: dict):
     matcher = DenoiseMatcher()
     with open_events(noisy) as stream:
@@ -210,6 +216,20 @@ def roc(noisy, truth, methods, sweep, preset, weights, polarity_maps, settings, 
         if unused:  # (every point would have been the same filter)
             raise click.UsageError(f"{', '.join(n.replace('_', '-') for n in unused)} do(es) not apply to --method "
                                    f"{chain} (--preset {preset})")
+    chains = [parse_methods(chain) for chain in methods]
+    for option, given, stage in (("--weights", weights, "mlpf"), ("--polarity-maps", polarity_maps, "stcf")):
+        if given and not any(stage in stages for stages in chains):  # (silently ignored: a QA sweep)
+            raise click.UsageError(f"{option} applies to --method {stage}, which no --method here runs")
+    with open_events(noisy) as stream:  # every point's filter checked before any is run (exit 2, as bafilter's)
+        width, height = stream.info.width, stream.info.height
+    for chain, stages in zip(methods, chains):
+        for value in values:
+            try:
+                BAFilter(width, height, chain, preset=preset, check=False,
+                         **_point_params(settings, name, value, weights, polarity_maps, stages))
+            except BAFilterError as error:
+                raise click.BadParameter(f"{name.replace('_', '-')}={value}: {error}", param_hint="--sweep") \
+                    from None
     figure_path(plot, "--plot", (noisy, truth, weights))
     labels = _labels_for(truth, noisy)
     results, curves = [], []
@@ -217,9 +237,7 @@ def roc(noisy, truth, methods, sweep, preset, weights, polarity_maps, settings, 
     for chain in methods:
         points, rows = [], []
         for value in values:
-            stages = parse_methods(chain)
-            params = {**settings, name: value, **({"weights": weights} if weights and "mlpf" in stages else {}),
-                      **({"polarity_maps": True} if polarity_maps and "stcf" in stages else {})}
+            params = _point_params(settings, name, value, weights, polarity_maps, parse_methods(chain))
             score = _score_filter(noisy, labels, chain, preset, params)
             if interrupt.received() is not None:
                 stopped = (f"stopped by {signal.Signals(interrupt.received()).name} at {chain} {name}={value}: "

@@ -252,3 +252,17 @@ def test_a_filter_of_a_cut_recording_is_scored_with_a_warning(tmp_path):
     result = run("metrics", "denoise", filtered, "--truth", truth, "--input", noisy)
     assert 0 < json.loads(result.stdout)["tpr"] <= 1
     assert "both marked cut" in result.stderr.decode()
+
+
+def test_roc_checks_every_points_filter_before_any_work(noisy):
+    """A QA sweep: `--sweep k=1,2,100` failed with exit 1 at its third point (bafilter --k 100 is exit 2), and
+    `--weights` with no mlpf method was silently ignored. Both are usage errors now, before any point runs."""
+    path, truth = noisy["dvxplorer_sample"]
+    for args, needle in ((["--method", "stcf", "--sweep", "k=1,2,100"], "k=100: k must be a whole number"),
+                         (["--method", "mlpf", "--sweep", "threshold=0.5,2"], "threshold=2.0"),
+                         (["--method", "stcf", "--weights", str(truth), "--sweep", "k=1,2"],
+                          "--weights applies to --method mlpf"),
+                         (["--method", "baf", "--polarity-maps", "--sweep", "dt-us=1000"],
+                          "--polarity-maps applies to --method stcf")):
+        result = run("metrics", "roc", path, "--truth", truth, *args, check=False)
+        assert result.returncode == 2 and needle in result.stderr.decode(), result.stderr
