@@ -11,7 +11,8 @@ import signal
 import click
 import numpy as np
 
-from evtools.cli.options import MICROSECONDS, echo_json, figure_path, json_option, read_options, wants_json
+from evtools.cli.options import (MICROSECONDS, FileRead, echo_json, figure_path, json_option, read_options,
+                                 wants_json)
 from evtools.cli.progress import with_progress
 from evtools.filters import METHODS, BAFilter, BAFilterError, check_preset, not_applying, parse_methods
 from evtools.filters.registry import parameters
@@ -87,7 +88,7 @@ def _table(title: str, columns: list[str], rows: list[list[str]]) -> None:
 @click.argument("filtered", type=click.Path(dir_okay=False, allow_dash=True))
 @click.option("--truth", required=True, type=click.Path(exists=True, dir_okay=False),
               help="Truth file of the noisy stream (`evtools simulate ... --truth`): one label per event.")
-@click.option("--input", "noisy", required=True, type=click.Path(exists=True, dir_okay=False),
+@click.option("--input", "noisy", required=True, type=FileRead(),
               help="The noisy stream the filter read (FILTERED must be a subsequence of it).")
 @json_option
 def denoise(filtered, truth, noisy, as_json):
@@ -183,7 +184,7 @@ def _score_filter(noisy: str, labels: np.ndarray, methods: str, preset: str, par
 
 
 @click.command()
-@click.argument("noisy", type=click.Path(exists=True, dir_okay=False))
+@click.argument("noisy", type=FileRead())
 @click.option("--truth", required=True, type=click.Path(exists=True, dir_okay=False),
               help="Truth file of NOISY (`evtools simulate ... --truth`).")
 @click.option("-m", "--method", "methods", multiple=True, required=True, metavar="M[,M2...]",

@@ -12,7 +12,7 @@ import numpy as np
 
 from evtools import interrupt
 
-from evtools.cli.options import Duration, FiniteRange, echo_json, json_option, wants_json
+from evtools.cli.options import Duration, FileRead, FiniteRange, echo_json, json_option, wants_json
 from evtools.cli.progress import with_progress
 from evtools.formats import open_events
 from evtools.formats.io import atomic_path, same_file
@@ -125,7 +125,7 @@ def _epochs_shown(epochs: int):
 
 
 @click.command("train-denoiser")
-@click.argument("recordings", nargs=-1, required=True, type=click.Path(exists=True, dir_okay=False))
+@click.argument("recordings", nargs=-1, required=True, type=FileRead())
 @click.option("--truth", "truths", multiple=True, type=click.Path(exists=True, dir_okay=False),
               help="Truth file of each RECORDING, in the same order (`evtools simulate ... --truth`: labels per "
                    "event). Without: each recording labels itself (see above).")

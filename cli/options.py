@@ -286,6 +286,20 @@ def read_options(function):
     return input_argument(input_options(function))
 
 
+class FileRead(click.Path):
+    """An input a command reads more than once (to count, then to match or sample it): a file, never stdin (`-`
+    said "File '-' does not exist", as if the user had mistyped a name: a QA sweep)."""
+
+    def __init__(self) -> None:
+        super().__init__(exists=True, dir_okay=False)
+
+    def convert(self, value, param, ctx):
+        if value == "-":
+            self.fail("- (stdin) cannot be read twice, and this command reads its input twice: give a file",
+                      param, ctx)
+        return super().convert(value, param, ctx)
+
+
 def wants_json(as_json: bool) -> bool:
     return as_json or not sys.stdout.isatty()
 

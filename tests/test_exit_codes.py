@@ -442,3 +442,16 @@ def test_a_large_report_to_a_closed_pipe_exits_141(tmp_path):
     result = subprocess.run(["bash", "-c", f"{command} | head -c 100 > /dev/null; echo ${{PIPESTATUS[0]}}"],
                             capture_output=True, text=True, timeout=300)
     assert result.stdout.strip() == "141", result
+
+
+def test_stdin_where_a_file_is_read_twice_says_so(tmp_path):
+    """A QA sweep: `metrics train-denoiser -` said "File '-' does not exist". Commands that read their input twice
+    (count then match, or sample) say that stdin cannot be, exit 2."""
+    stream = tmp_path / "rec.aedat4"
+    run("simulate", "scene:bars", "--size", "16x12", "--duration", "100ms", "--seed", "1", "-o", stream)
+    for args in (["metrics", "train-denoiser", "-", "-o", tmp_path / "w.npz"],
+                 ["metrics", "roc", "-", "--truth", stream, "--method", "stcf", "--sweep", "k=1"],
+                 ["metrics", "denoise", stream, "--truth", stream, "--input", "-"]):
+        result = subprocess.run([str(Path(sys.executable).parent / "evtools"), *map(str, args)],
+                                stdin=open(stream, "rb"), capture_output=True, timeout=120)
+        assert result.returncode == 2 and b"cannot be read twice" in result.stderr, result.stderr
