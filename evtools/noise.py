@@ -29,7 +29,8 @@ import numpy as np
 from evtools._kernels.pixel import LABEL_HOT, LABEL_LEAK, LABEL_SHOT, LABEL_SIGNAL
 from evtools.events import (CHUNK_EVENTS, EVENT_DTYPE, StreamChecker, StreamInfo, check_sensor_size, empty_events,
                             join, make_events)
-from evtools.simulation import SimulationError, _check_fraction, _check_nonnegative, check_noise_rates
+from evtools.simulation import (MAX_PIXEL_RATE_HZ, SimulationError, _check_fraction, _check_nonnegative,
+                                check_noise_rates)
 
 __all__ = ["BLOCK_US", "NOISE_DEFAULTS", "NoiseInjector", "inject_noise"]
 
@@ -156,7 +157,7 @@ class NoiseInjector:
         leak_rng = np.random.default_rng(leak_seq)
         sigma_ln = p["leak_spread_decades"] * math.log(10.0)
         spread = np.exp(sigma_ln * leak_rng.standard_normal(n) - sigma_ln**2 / 2)  # log-normal, mean 1
-        rates = p["leak_rate_hz"] * spread
+        rates = np.minimum(p["leak_rate_hz"] * spread, MAX_PIXEL_RATE_HZ)  # (one event a microsecond at most)
         self.leak_rate_map_hz = rates.reshape(self.height, self.width)
         phase = leak_rng.random(n)
         leaking = np.flatnonzero(rates > 0)

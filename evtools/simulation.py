@@ -364,8 +364,8 @@ class DvsSimulator:
 
         sigma_ln = p["leak_spread_decades"] * math.log(10.0)
         spread = np.exp(sigma_ln * leak_rng.standard_normal(n) - sigma_ln**2 / 2)  # log-normal, mean 1
-        leak = p["leak_rate_hz"] * spread
-        leak[dead] = 0.0
+        leak = np.minimum(p["leak_rate_hz"] * spread, MAX_PIXEL_RATE_HZ)  # (the spread took pixels of a 1 MHz mean
+        leak[dead] = 0.0  # to 1.43 MHz: two events of a pixel in one microsecond, a QA sweep)
         self._leak_rate_hz = leak
         self.leak_rate_map_hz = leak.reshape(shape)
         self._leak_phase = leak_rng.random(n)  # where each pixel starts in its leak cycle

@@ -268,3 +268,21 @@ def test_cli_bad_inputs_give_one_line_errors(tmp_path):
     layout = run("simulate", "scene:static", "--aedat2-layout", "dvs128", "-o", out, check=False)
     assert layout.returncode == 2 and b"event-stream sources only" in layout.stderr
     assert not out.exists()
+
+
+def test_no_pixel_leaks_more_than_once_a_microsecond():
+    """A QA sweep: a mean leak rate of 1 MHz passed the per-pixel bound, and the log-normal spread took pixels to
+    1.43 MHz: 25,202 pairs of events of one pixel in one microsecond. Each pixel's rate is now capped at 1 MHz, in
+    the pixel model and in the injector."""
+    from evtools.simulation import DvsSimulator, run_simulator, scene_frames
+
+    simulator = DvsSimulator(4, 4, leak_rate_hz=1e6, leak_spread_decades=0.5, shot_noise_rate_hz=0, seed=3)
+    assert simulator.leak_rate_map_hz.max() <= 1e6
+    events, _ = run_simulator(simulator, scene_frames("static", 4, 4, duration_us=20_000))
+    key = events["t"].astype(np.int64) * 16 + events["y"].astype(np.int64) * 4 + events["x"]
+    assert len(events) > 100_000 and len(np.unique(key)) == len(key)
+    stream = make_events(np.arange(0, 20_000, 100), np.zeros(200, int), np.zeros(200, int), np.ones(200, bool))
+    noisy, labels = inject_noise(stream, 4, 4, leak_rate_hz=1e6, leak_spread_decades=0.5, seed=3)
+    leaks = noisy[labels == 1]
+    key = leaks["t"].astype(np.int64) * 16 + leaks["y"].astype(np.int64) * 4 + leaks["x"]
+    assert len(leaks) > 100_000 and len(np.unique(key)) == len(key)
