@@ -24,6 +24,7 @@ import click
 
 from evtools.errors import EvtoolsError
 from evtools.formats.io import STDIO, same_file
+from evtools.formats.registry import from_extension
 
 log = logging.getLogger("evtools")
 
@@ -120,6 +121,9 @@ def plan(inputs: tuple[str, ...], output: str | None, suffix: str,
     folder = Path(output)
     if folder.exists() and not folder.is_dir():
         raise click.UsageError(f"-o {output}: with several inputs -o names a folder, and this is a file")
+    if not folder.exists() and from_extension(str(folder)) is not None:  # (made silently: a QA sweep)
+        log.warning(f"-o {output}: with several inputs -o names a folder, made now with that name; give each "
+                    "input its own run to write one file each (evtools does not merge recordings)")
     pairs, seen = [], {}
     for name in inputs:
         target = folder / (Path(name).stem + suffix)

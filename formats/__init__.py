@@ -344,6 +344,11 @@ def output_format(path: str | os.PathLike | None, format: str | None):
         fmt = by_name(PIPE_FORMAT)
     elif format:
         fmt = by_name(format)
+        named = from_extension(os.fspath(path)) if path is not None and os.fspath(path) != STDIO else None
+        if named is not None and named.name != fmt.name:  # (evtools itself then refused the file: a QA sweep)
+            log.warning(f"{path}: written as {fmt.description} (--format), though its extension says "
+                        f"{named.description}: readers go by the extension first; name it "
+                        f"*{fmt.extensions[0]} to read it back")
     elif path is None or os.fspath(path) == STDIO:
         fmt = by_name(PIPE_FORMAT)
     else:

@@ -206,3 +206,13 @@ def test_a_cut_input_is_said_in_the_json_and_the_table(tmp_path):
     assert [f.get("cut", False) for f in batch["files"]] == [True, False]
     table = run("bafilter", *files, "-o", tmp_path / "out2").stderr.decode()
     assert "input cut: output cut" in table
+
+
+def test_a_batch_folder_named_like_a_recording_is_said(tmp_path):
+    """A QA sweep: `-o merged.aedat4` with several inputs silently made a folder of that name. It still does (as
+    documented), with a warning that evtools does not merge recordings."""
+    files = _recordings(tmp_path / "in", count=2)
+    result = run("bafilter", *files, "-o", tmp_path / "merged.aedat4")
+    assert (tmp_path / "merged.aedat4").is_dir() and "names a folder, made now" in result.stderr.decode()
+    again = run("bafilter", *files, "-o", tmp_path / "merged.aedat4")  # (an existing folder: nothing to say)
+    assert "made now" not in again.stderr.decode()

@@ -455,3 +455,15 @@ def test_stdin_where_a_file_is_read_twice_says_so(tmp_path):
         result = subprocess.run([str(Path(sys.executable).parent / "evtools"), *map(str, args)],
                                 stdin=open(stream, "rb"), capture_output=True, timeout=120)
         assert result.returncode == 2 and b"cannot be read twice" in result.stderr, result.stderr
+
+
+def test_a_format_that_contradicts_the_extension_is_said(tmp_path):
+    """A QA sweep: `convert --format csv -o y.aedat4` wrote CSV under an AEDAT 4.0 name without a word, and evtools
+    then refused to read it back. The write warns; the file is what --format asked for."""
+    stream = tmp_path / "rec.aedat4"
+    run("simulate", "scene:bars", "--size", "16x12", "--duration", "100ms", "--seed", "1", "-o", stream)
+    result = run("convert", stream, "--format", "csv", "-o", tmp_path / "y.aedat4")
+    assert "its extension says AEDAT 4.0" in result.stderr.decode()
+    assert (tmp_path / "y.aedat4").read_bytes().startswith(b"t,x")  # (CSV's header line)
+    quiet = run("convert", stream, "--format", "csv", "-o", tmp_path / "y.csv")
+    assert "extension says" not in quiet.stderr.decode()
