@@ -90,7 +90,7 @@ def convert_one(input, output, *, reading, output_format, compression, speed=Non
             if transform and not stopped:
                 transform.said_at_end(stream.name)
             writer.cut = relayed.was_cut  # a cut input's output is marked cut too (a slice ended before it: whole)
-    read = f"{events_in:,} events read (then --end: the rest not read)" if stopped else f"{events_in:,} events in"
+    read = f"{events_in:,} events read (reading stopped at --end)" if stopped else f"{events_in:,} events in"
     log.info(f"convert: {read}, {events_out:,} out")
     return Outcome(events_in, events_out, {"read_to_the_end": not stopped}, "stopped at --end" if stopped else "",
                    relayed.was_cut)

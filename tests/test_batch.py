@@ -134,7 +134,7 @@ def test_summaries_and_json_report_each_commands_measure_of_success(tmp_path):
     whole = json.loads(run("convert", long, "-o", tmp_path / "whole.aedat4", "--json").stdout)
     assert whole["read_to_the_end"] is True and whole["events_in"] == n
     said = run("convert", long, "-o", tmp_path / "part2.aedat4", "--end", "100ms").stderr.decode()
-    assert "events read (then --end: the rest not read)" in said
+    assert "events read (reading stopped at --end)" in said
 
 
 @pytest.mark.parametrize("to_group", [False, True])
