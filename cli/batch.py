@@ -52,7 +52,14 @@ class BatchError(EvtoolsError):
     """Some files of a batch failed (each listed on stderr)."""
 
 
-inputs_argument = click.argument("inputs", nargs=-1, metavar="[IN]...",
+def _network_names(ctx, param, value):
+    """:func:`evtools.cli.options.network_names` (imported when called: this module is imported before it)."""
+    from evtools.cli.options import network_names
+
+    return network_names(ctx, param, value)
+
+
+inputs_argument = click.argument("inputs", nargs=-1, metavar="[IN]...", callback=_network_names,
                                  type=click.Path(allow_dash=True))  # a folder: the RPG layout
 jobs_option = click.option(
     "--jobs", type=click.IntRange(min=1), default=None, metavar="N",

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import click
 
-from evtools.cli.options import echo_json, input_options, json_option, wants_json
+from evtools.cli.options import echo_json, input_options, json_option, network_names, wants_json
 from evtools.cli.progress import with_progress
 from evtools.errors import EvtoolsError
 from evtools.summary import StreamSummary
@@ -13,7 +13,7 @@ from evtools.formats import open_events
 
 
 @click.command()
-@click.argument("inputs", nargs=-1, metavar="FILE...", type=click.Path(allow_dash=True))
+@click.argument("inputs", nargs=-1, metavar="FILE...", type=click.Path(allow_dash=True), callback=network_names)
 @input_options
 @json_option
 def info(inputs, reading, as_json):

@@ -221,17 +221,33 @@ def figure_path(path: str | None, param_hint: str, inputs=()) -> str | None:
     return path
 
 
-input_argument = click.argument("input", default="-", metavar="[IN]", type=click.Path(dir_okay=False, allow_dash=True))
+def network_names(ctx, param, value):
+    """Inputs named ``tcp://...`` checked as addresses when the command line is read: a malformed one is a usage
+    error (exit 2), as for ``-o``; one that cannot be reached is the environment's (exit 1, when connecting)."""
+    from evtools.formats.io import TCP_PREFIX, tcp_address
+
+    for name in (value if isinstance(value, (tuple, list)) else (value,)):
+        if isinstance(name, str) and name.startswith(TCP_PREFIX):
+            try:
+                tcp_address(name)
+            except EvtoolsError as error:
+                raise click.BadParameter(str(error)) from None
+    return value
+
+
+input_argument = click.argument("input", default="-", metavar="[IN]", callback=network_names,
+                                type=click.Path(dir_okay=False, allow_dash=True))
 def serve_early(ctx, param, value):
     """``-o tcp://HOST:PORT`` listens from the command's start, before the input is opened, so a client that
     connects meanwhile gets the whole stream (it listened only once the first output was ready)."""
     if isinstance(value, str) and value.startswith("tcp://"):
-        from evtools.formats.io import listen_early
+        from evtools.formats.io import listen_early, tcp_address
 
         try:
-            listen_early(value)
-        except EvtoolsError as error:
+            tcp_address(value)
+        except EvtoolsError as error:  # (malformed: usage, exit 2; a port taken: the environment's, exit 1)
             raise click.BadParameter(str(error)) from None
+        listen_early(value)
     return value
 
 

@@ -21,7 +21,7 @@ from evtools.cli.metrics import metrics
 from evtools.cli.options import Duration, Microseconds, TimeBound
 from evtools.formats.thresholds import ThresholdMap, write_thresholds
 from tests.conftest import data_file
-from tests.helpers import read_all, run
+from tests.helpers import assert_clean_error, read_all, run
 
 SAMPLES = Path(__file__).resolve().parents[1] / "samples"
 STEP, TRUTH = SAMPLES / "step.aedat4", SAMPLES / "step.truth.h5"
@@ -467,3 +467,21 @@ def test_a_format_that_contradicts_the_extension_is_said(tmp_path):
     assert (tmp_path / "y.aedat4").read_bytes().startswith(b"t,x")  # (CSV's header line)
     quiet = run("convert", stream, "--format", "csv", "-o", tmp_path / "y.csv")
     assert "extension says" not in quiet.stderr.decode()
+
+
+def test_a_malformed_network_address_is_a_usage_error_and_a_taken_port_is_not():
+    """A QA sweep: `convert tcp://127.0.0.1` (no port) was exit 1 while `-o tcp://...` on a port in use was exit 2.
+    An address that is not one is a usage error wherever it is given (exit 2); a port another process holds is
+    the environment's (exit 1)."""
+    import socket
+
+    for args in (["convert", "tcp://127.0.0.1", "-o", "x.aedat4"], ["info", "tcp://127.0.0.1:99999"],
+                 ["convert", data_file("dvxplorer_sample.aedat4"), "-o", "tcp://127.0.0.1"]):
+        result = run(*args, check=False)
+        assert result.returncode == 2 and "not a network address" in result.stderr.decode(), result.stderr
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        result = run("convert", data_file("dvxplorer_sample.aedat4"), "-o", f"tcp://127.0.0.1:{port}", check=False)
+    assert_clean_error(result, "cannot listen")

@@ -245,8 +245,8 @@ def test_bad_servers_give_one_line_errors_naming_the_address(tmp_path):
     assert refused.returncode == 1 and "cannot connect" in refused.stderr and "tcp://127.0.0.1:" in refused.stderr
     unknown = run("info", "tcp://no-such-host.invalid:7777")
     assert unknown.returncode == 1 and "tcp://no-such-host.invalid:7777: unknown host" in unknown.stderr
-    malformed = run("info", "tcp://127.0.0.1")
-    assert malformed.returncode == 1 and "tcp://HOST:PORT" in malformed.stderr
+    malformed = run("info", "tcp://127.0.0.1")  # (a usage error: the command line is wrong, not the server)
+    assert malformed.returncode == 2 and "tcp://HOST:PORT" in malformed.stderr
     garbage_port = _serve_once(os.urandom(5000))
     garbage = run("info", f"tcp://127.0.0.1:{garbage_port}")
     assert garbage.returncode == 1 and f"tcp://127.0.0.1:{garbage_port}" in garbage.stderr
