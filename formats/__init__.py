@@ -17,7 +17,7 @@ from evtools.events import StreamChecker, StreamInfo, concatenate, parse_sensor_
 from evtools.formats.errors import FormatError, StreamReadAgain, UnknownOutputFormat
 from evtools.formats.io import (
     STDIO,
-    STOP_DRAIN_S,
+    STOP_DRAIN_SECONDS,
     TCP_PREFIX,
     Source,
     WriteBehind,
@@ -83,9 +83,9 @@ class EventStream:
         self._iterated = True
         # a live evtools stream (it promised an end mark) is read on after a stop, for its writer's end: with the
         # mark it was whole, without it cut (the stage upstream was reading a file: the outputs say so); a writer
-        # still going after STOP_DRAIN_S was not stopped, and the stop is the stream's end, as a camera's
+        # still going after STOP_DRAIN_SECONDS was not stopped, and the stop is the stream's end, as a camera's
         drains = self.source.live and getattr(self.reader, "expects_end_mark", False)
-        return read_ahead(self._chunks(), READ_AHEAD, STOP_DRAIN_S if drains else 0.0)
+        return read_ahead(self._chunks(), READ_AHEAD, STOP_DRAIN_SECONDS if drains else 0.0)
 
     def take_frames(self) -> list:
         """The APS frames (:class:`evtools.frames.Frame`) read since the last call, in the order of the input (the

@@ -388,7 +388,7 @@ def ends_cut(reader, problem: str) -> None:
     stream is marked cut (``reader.cut_file``: its outputs say so, DESIGN.md), so no input is lost and no cut stream
     passes as whole. A live input cut so (its writer stopped mid-write) is an error, as a live input ending without
     its end mark is, unless this command was stopped too (a pipeline's Ctrl-C: the stream is read on to its
-    writer's end, :data:`STOP_DRAIN_S`): then it is marked cut as a file is."""
+    writer's end, :data:`STOP_DRAIN_SECONDS`): then it is marked cut as a file is."""
     if getattr(reader, "scanning", False):  # (a scan for the sensor size, :func:`size_scan`: the read says it)
         return
     if reader.source.live and interrupt.received() is None:
@@ -643,7 +643,7 @@ def _nothing_but_the_end(queue: Queue) -> bool:
     return item is _DONE
 
 
-STOP_DRAIN_S = 1.0
+STOP_DRAIN_SECONDS = 1.0
 """After a stop, how long a live evtools stream (one that promised an end mark) is read on for its writer's end:
 a terminal's Ctrl-C stops every stage of a pipeline, and the stage upstream ends its output at once, with the end
 mark when what it read was whole (a live input's stop is its end), without it when it was reading a file: the
@@ -658,7 +658,7 @@ def read_ahead(items: Iterable, depth: int = 2, drain_s: float = 0.0) -> Iterato
     numba kernels release the GIL). An exception of the producer is raised in the consumer at its place in the
     sequence; when the consumer stops early, the producer stops at its next item. A stop requested on the command
     line (:mod:`evtools.interrupt`: Ctrl-C, SIGTERM) ends the sequence, at once when the consumer waits; with
-    ``drain_s`` the items go on for up to that long after it, until their end (:data:`STOP_DRAIN_S`).
+    ``drain_s`` the items go on for up to that long after it, until their end (:data:`STOP_DRAIN_SECONDS`).
     """
     queue: Queue = Queue(maxsize=depth)
     stop = threading.Event()

@@ -234,7 +234,7 @@ def test_ctrl_c_on_a_live_pipeline_leaves_its_file_complete(recording, tmp_path)
     """Ctrl-C reaches every stage of `feed | convert | bafilter -o FILE` (one process group, as a terminal sends
     it): the last stage's file is readable and holds a prefix of the stream, and every evtools stage exits 130.
     The feed, an evtools stream killed inside a packet, was cut: each stage reads on to its writer's end
-    (STOP_DRAIN_S) and passes the cut on (it once took its own stop for the stream's end: marked whole)."""
+    (STOP_DRAIN_SECONDS) and passes the cut on (it once took its own stop for the stream's end: marked whole)."""
     env = _environment()
     expected = tmp_path / "expected.aedat4"
     subprocess.run([*EVTOOLS, "bafilter", str(recording), "-o", str(expected)], check=True, env=env, cwd=ROOT)
