@@ -402,6 +402,10 @@ class Aedat4Reader:
                 stream_id, size = struct.unpack("<iI", head)
                 offset = self.position
                 if size > MAX_PACKET_BYTES:
+                    if head.startswith(b"#!AER-DA"):  # (`cat a.aedat4 b.aedat4 |`: said as damage, a QA sweep)
+                        raise FormatError(f"{self.name}: a second AEDAT file begins at byte {offset:,}, after the "
+                                          "first's packets (files joined end to end?): evtools reads one stream; "
+                                          "give the files as separate inputs")
                     raise FormatError(f"{self.name}: damaged AEDAT 4.0 packet header at byte {offset:,} (its size "
                                       f"field says {size:,} bytes, more than a packet holds)")
                 if 0 <= self.data_position <= file_bytes and offset + 8 + size > self.data_position:

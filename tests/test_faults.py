@@ -657,3 +657,16 @@ def test_a_pipelines_ctrl_c_marks_its_output_cut_when_a_file_was_being_read(tmp_
     assert 0 < len(events)
     info = json.loads(run("info", output, "--json").stdout)
     assert info["cut"] == (upstream == "file"), (info, stderr)
+
+
+def test_two_aedat4_streams_joined_end_to_end_are_said_as_such(tmp_path):
+    """A QA sweep: `cat a.aedat4 b.aedat4 | evtools convert -` said "damaged AEDAT 4.0 packet header" (the second
+    file's first line read as a packet's size). It names what it found: a second AEDAT file, at its byte."""
+    source = data_file("dvxplorer_sample.aedat4")
+    first, second = tmp_path / "a.aedat4", tmp_path / "b.aedat4"
+    run("convert", source, "--end", "300ms", "-o", first)
+    run("convert", source, "--start", "300ms", "-o", second)
+    joined = tmp_path / "ab.aedat4"
+    joined.write_bytes(first.read_bytes() + second.read_bytes())
+    assert_clean_error(run("info", joined, check=False), f"a second AEDAT file begins at byte "
+                       f"{first.stat().st_size:,}", "separate inputs")
