@@ -341,3 +341,19 @@ def test_the_numba_mode_runs_numbas_dispatchers_and_gives_the_same_results(tmp_p
     bad = subprocess.run([str(Path(sys.executable).with_name("evtools")), "info", "--help"], capture_output=True,
                          text=True, env={**os.environ, "EVTOOLS_KERNELS": "fast"})
     assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "EVTOOLS_KERNELS" in bad.stderr
+
+
+@pytest.mark.skipif(jit.MODE != "store", reason="the store is not used under EVTOOLS_KERNELS=numba")
+def test_processes_started_together_on_an_empty_store_compile_a_kernel_once(tmp_path):
+    """A QA sweep: four `correct` started at once on a fresh install each compiled every kernel (1 min 47 s on 2
+    cores). A process that needs a kernel another one is compiling waits for it (a lock in the store) and loads
+    it: of two processes started together on an empty store, one compiles (imports numba), the other does not."""
+    probe = ("import sys, numpy as np; from evtools.filters import BAFilter; from evtools.events import make_events; "
+             "BAFilter(8, 8, 'baf').process(make_events(np.arange(5), np.arange(5), np.arange(5), np.ones(5, bool)));"
+             " print('numba' in sys.modules)")
+    environment = {**os.environ, "XDG_CACHE_HOME": str(tmp_path), "PYTHONPATH": str(ROOT)}
+    processes = [subprocess.Popen([sys.executable, "-c", probe], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                  text=True, cwd=ROOT, env=environment) for _ in range(2)]
+    results = [process.communicate(timeout=600) for process in processes]
+    assert all(process.returncode == 0 for process in processes), results
+    assert sorted(out.strip() for out, _ in results) == ["False", "True"], results
