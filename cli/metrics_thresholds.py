@@ -71,8 +71,8 @@ def thresholds(estimate_path, truth_path, plot_path, map_index, as_json):
     if truth_at_us is not None:
         result["truth_at_us"] = truth_at_us
     if estimate.fit is not None and method in FIT_IS_ERROR:  # how well the fit map predicts the error
-        result["fit"] = fit_calibration(estimate.on, estimate.off, estimate.valid & compared, estimate.fit,
-                                        truth.on, truth.off)
+        result["fit"] = fit_calibration(estimate.on, estimate.off, estimate.valid & ~not_positive & compared,
+                                        estimate.fit, truth.on, truth.off)
     if "rejected_by_fit" in estimate.attributes:  # pixels with enough events whose events did not fit the model
         result["rejected_by_fit"] = int(estimate.attributes["rejected_by_fit"])
     if "unchecked" in estimate.attributes:  # offE: estimates its fit could not check (not valid)
@@ -84,7 +84,8 @@ def thresholds(estimate_path, truth_path, plot_path, map_index, as_json):
         from evtools.formats.figures import save_figure
         from evtools.plots import thresholds_figure
 
-        save_figure(thresholds_figure(estimate.on, estimate.off, estimate.valid & compared, truth.on, truth.off),
+        save_figure(thresholds_figure(estimate.on, estimate.off, estimate.valid & ~not_positive & compared, truth.on,
+                                      truth.off),
                     plot_path)
     if wants_json(as_json):
         echo_json(result, indent=2)
