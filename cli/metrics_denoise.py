@@ -112,7 +112,8 @@ def denoise(filtered, truth, noisy, as_json):
         for part in inputs:
             _feed_input(matcher, part, labels, noisy, truth)
         if output.was_cut and source.was_cut:  # (a filter's output of a cut input is marked cut too: a rescued
-            log.warning(f"{output.name} and its input {noisy} are both marked cut: scored as the filter's whole "  # rec.
+            # recording's filter is scored over what the input holds)
+            log.warning(f"{output.name} and its input {noisy} are both marked cut: scored as the filter's whole "
                         "run over what the input holds (a filter stopped early would read as removing the rest)")
         elif output.was_cut:  # (a part of the filter's output scored against the whole input reads as a better filter)
             raise EvtoolsError(f"{output.name} was cut (its filter stopped early or its copy broken off): its score "
