@@ -11,13 +11,13 @@ import signal
 import click
 import numpy as np
 
+from evtools import interrupt
 from evtools.cli.options import (MICROSECONDS, FileRead, echo_json, figure_path, json_option, read_options,
                                  wants_json)
 from evtools.cli.progress import with_progress
 from evtools.filters import METHODS, BAFilter, BAFilterError, check_preset, not_applying, parse_methods
 from evtools.filters.registry import parameters
 from evtools.metrics.denoise import LABEL_NAMES, DenoiseMatcher, DenoiseMetricsError, EsrMeter, roc_auc
-from evtools import interrupt
 from evtools.errors import EvtoolsError
 from evtools.formats import open_events
 from evtools.formats.thresholds import read_labels

@@ -11,7 +11,6 @@ import click
 import numpy as np
 
 from evtools import interrupt
-
 from evtools.cli.options import Duration, FileRead, FiniteRange, echo_json, json_option, wants_json
 from evtools.cli.progress import with_progress
 from evtools.formats import open_events
