@@ -237,6 +237,8 @@ def network_names(ctx, param, value):
 
 input_argument = click.argument("input", default="-", metavar="[IN]", callback=network_names,
                                 type=click.Path(dir_okay=False, allow_dash=True))
+
+
 def serve_early(ctx, param, value):
     """``-o tcp://HOST:PORT`` listens from the command's start, before the input is opened, so a client that
     connects meanwhile gets the whole stream (it listened only once the first output was ready)."""
