@@ -185,7 +185,7 @@ def run(one: Callable[..., Outcome], pairs: list[tuple[str, str]], options: dict
             with _Display([name for name, _ in pairs]) as display:
                 try:
                     for future in as_completed(futures):
-                        results[futures[future]] = future.result()
+                        results[futures[future]] = _result_of(future, futures[future])
                         display.done(futures[future], results[futures[future]])
                 except KeyboardInterrupt:  # a stop (the command's own handler: no stream read here)
                     results.update(_stopped(futures, results))
@@ -246,8 +246,17 @@ def _stopped(futures: dict, results: dict) -> dict:
     for child in multiprocessing.active_children():
         with contextlib.suppress(ProcessLookupError):
             os.kill(child.pid, interrupt.received() or signal.SIGINT)
-    return {name: ("stopped", None, 0.0) if future.cancelled() else future.result()
+    return {name: ("stopped", None, 0.0) if future.cancelled() else _result_of(future, name)
             for future, name in futures.items() if name not in results}
+
+
+def _result_of(future, name: str) -> tuple:
+    """A file's result, or its error when its worker died (a pool broken by a killed worker) rather than a
+    traceback."""
+    try:
+        return future.result()
+    except Exception as error:  # (concurrent.futures' BrokenProcessPool, a worker's unpicklable error)
+        return "error", f"{name}: its worker failed ({error})", 0.0
 
 
 def run_one(one: Callable[..., Outcome], input: str, output: str, options: dict[str, Any]) -> tuple:

@@ -3,6 +3,7 @@ while the others complete, and no input ever overwritten."""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -216,3 +217,23 @@ def test_a_batch_folder_named_like_a_recording_is_said(tmp_path):
     assert (tmp_path / "merged.aedat4").is_dir() and "names a folder, made now" in result.stderr.decode()
     again = run("bafilter", *files, "-o", tmp_path / "merged.aedat4")  # (an existing folder: nothing to say)
     assert "made now" not in again.stderr.decode()
+
+
+def _dying_one(input, output, **options):
+    """A command's one-file work whose worker dies at rec01 (picklable: module level)."""
+    from evtools.cli.batch import Outcome
+
+    if input.endswith("rec01.aedat4"):
+        os._exit(9)
+    return Outcome(1, 1)
+
+
+def test_a_worker_that_dies_is_a_failed_file_not_a_traceback(tmp_path):
+    """A worker killed (out of memory, a signal the pool cannot survive) broke the pool, and the batch ended in a
+    traceback. Its files are listed as failed (the pool's other files may fail with it), exit 1."""
+    from evtools.cli.batch import BatchError, run as run_batch
+
+    files = _recordings(tmp_path / "in", count=3)
+    with pytest.raises(BatchError) as failed:
+        run_batch(_dying_one, [(str(f), str(tmp_path / f.name)) for f in files], {}, jobs=2)
+    assert "rec01.aedat4" in str(failed.value) and "files failed" in str(failed.value)
