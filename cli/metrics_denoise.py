@@ -236,10 +236,10 @@ def roc(noisy, truth, methods, sweep, preset, weights, polarity_maps, settings, 
     labels = _labels_for(truth, noisy)
     results, curves = [], []
     stopped = None  # a stop (Ctrl-C) ends the sweep: the point under way read part of the stream and is dropped
-    for chain in methods:
+    for chain, stages in zip(methods, chains):
         points, rows = [], []
         for value in values:
-            params = _point_params(settings, name, value, weights, polarity_maps, parse_methods(chain))
+            params = _point_params(settings, name, value, weights, polarity_maps, stages)
             score = _score_filter(noisy, labels, chain, preset, params)
             if interrupt.received() is not None:
                 stopped = (f"stopped by {signal.Signals(interrupt.received()).name} at {chain} {name}={value}: "

@@ -123,10 +123,9 @@ def _truth_at(truth, truth_path: str, estimate_path: str, at) -> int | None:
         log.warning(f"{truth_path}: its thresholds drift ({100 * drift:+g} %/s) but {estimate_path} says not when "
                     "it was estimated: compared with the truth at its start")
         return None
-    from evtools.simulation import MIN_THRESHOLD_FACTOR
+    from evtools.simulation import drift_factor
 
-    origin_us = int(truth.attributes.get("thres_drift_origin_us", 0))
-    factor = max(1.0 + drift * (at_us - origin_us) * 1e-6, MIN_THRESHOLD_FACTOR)
+    factor = drift_factor(drift, at_us - int(truth.attributes.get("thres_drift_origin_us", 0)))
     truth.on, truth.off = truth.on * np.float32(factor), truth.off * np.float32(factor)
     what = f"map {at[1]}'s time" if isinstance(at, tuple) else "the middle of the stream it was estimated from"
     log.info(f"{truth_path}: its thresholds drift {100 * drift:+g} %/s: taken at {at_us:,} us ({what}), "

@@ -21,7 +21,6 @@ Y. Hu, S.-C. Liu, T. Delbruck, "v2e: From Video Frames to Realistic DVS Events",
 
 from __future__ import annotations
 
-import math
 from typing import Any, Iterator
 
 import numpy as np
@@ -29,8 +28,7 @@ import numpy as np
 from evtools._kernels.pixel import LABEL_HOT, LABEL_LEAK, LABEL_SHOT, LABEL_SIGNAL
 from evtools.events import (CHUNK_EVENTS, EVENT_DTYPE, StreamChecker, StreamInfo, check_sensor_size, empty_events,
                             join, make_events)
-from evtools.simulation import (MAX_PIXEL_RATE_HZ, SimulationError, _check_fraction, _check_nonnegative,
-                                check_noise_rates)
+from evtools.simulation import SimulationError, _check_fraction, _check_nonnegative, check_noise_rates, leak_rates
 
 __all__ = ["BLOCK_US", "NOISE_DEFAULTS", "NoiseInjector", "inject_noise"]
 
@@ -155,9 +153,7 @@ class NoiseInjector:
         self._hot_index = np.flatnonzero(hot)
 
         leak_rng = np.random.default_rng(leak_seq)
-        sigma_ln = p["leak_spread_decades"] * math.log(10.0)
-        spread = np.exp(sigma_ln * leak_rng.standard_normal(n) - sigma_ln**2 / 2)  # log-normal, mean 1
-        rates = np.minimum(p["leak_rate_hz"] * spread, MAX_PIXEL_RATE_HZ)  # (one event a microsecond at most)
+        rates = leak_rates(p["leak_rate_hz"], p["leak_spread_decades"], leak_rng, n)
         self.leak_rate_map_hz = rates.reshape(self.height, self.width)
         phase = leak_rng.random(n)
         leaking = np.flatnonzero(rates > 0)

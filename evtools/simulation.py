@@ -117,6 +117,22 @@ def _check_nonnegative(name: str, value: float) -> float:
 
 MAX_PIXEL_RATE_HZ = 1e6
 """A noise rate per pixel (leak, shot, hot) above one event a microsecond (evtools' time resolution) is refused."""
+def leak_rates(mean_hz: float, spread_decades: float, rng: np.random.Generator, n: int) -> np.ndarray:
+    """``n`` pixels' leak rates: log-normal with mean ``mean_hz`` and ``spread_decades`` the standard deviation of
+    their log10, each at most :data:`MAX_PIXEL_RATE_HZ` (the spread took pixels of a 1 MHz mean to 1.43 MHz: two
+    events of a pixel in one microsecond, a QA sweep). The pixel model and the noise injector draw them alike."""
+    sigma_ln = spread_decades * math.log(10.0)
+    spread = np.exp(sigma_ln * rng.standard_normal(n) - sigma_ln**2 / 2)  # log-normal, mean 1
+    return np.minimum(mean_hz * spread, MAX_PIXEL_RATE_HZ)
+
+
+def drift_factor(drift_per_s: float, since_us: float) -> float:
+    """How many times its first value a threshold is ``since_us`` after the drift's origin (``thres_drift_per_s``,
+    linear), never below :data:`MIN_THRESHOLD_FACTOR`; the simulator and ``metrics thresholds`` (a drifting truth
+    taken at an estimate's time) share it."""
+    return max(1.0 + drift_per_s * since_us * 1e-6, MIN_THRESHOLD_FACTOR)
+
+
 MAX_NOISE_RATE_EV_S = 2e9
 """Noise over the whole sensor above 2 Gev/s (twice a Prophesee IMX636's peak event rate) is refused: it would be
 made a block at a time in memory (10^12 Hz a pixel grew past 1.8 GiB with no message)."""
@@ -362,10 +378,8 @@ class DvsSimulator:
         self.hot_pixels = hot.reshape(shape)
         self.dead_pixels = dead.reshape(shape)
 
-        sigma_ln = p["leak_spread_decades"] * math.log(10.0)
-        spread = np.exp(sigma_ln * leak_rng.standard_normal(n) - sigma_ln**2 / 2)  # log-normal, mean 1
-        leak = np.minimum(p["leak_rate_hz"] * spread, MAX_PIXEL_RATE_HZ)  # (the spread took pixels of a 1 MHz mean
-        leak[dead] = 0.0  # to 1.43 MHz: two events of a pixel in one microsecond, a QA sweep)
+        leak = leak_rates(p["leak_rate_hz"], p["leak_spread_decades"], leak_rng, n)
+        leak[dead] = 0.0
         self._leak_rate_hz = leak
         self.leak_rate_map_hz = leak.reshape(shape)
         self._leak_phase = leak_rng.random(n)  # where each pixel starts in its leak cycle
@@ -448,7 +462,7 @@ class DvsSimulator:
                 raise SimulationError(f"frame times must increase: frame at {t1} us after one at {self._t_us} us")
             drift = self.parameters["thres_drift_per_s"]
             if drift != 0.0:  # thresholds at the interval's middle, (1 + drift * t) times those at the start
-                factor = max(1.0 + drift * ((self._t_us + t1) / 2 - self._t0_us) * 1e-6, MIN_THRESHOLD_FACTOR)
+                factor = drift_factor(drift, (self._t_us + t1) / 2 - self._t0_us)
                 np.multiply(self.on_thres.reshape(-1), factor, out=self._on)
                 np.multiply(self.off_thres.reshape(-1), factor, out=self._off)
             if len(self._lanes) == 1:
