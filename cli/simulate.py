@@ -34,7 +34,7 @@ from evtools.simulation import (
     SimulationUsageError,
     scene_maker,
 )
-from evtools.formats import create_events, open_events
+from evtools.formats import create_events, open_events, stop_cut
 from evtools.frames import FrameRelay
 from evtools.formats.io import STDIO, HEAD_BYTES, same_file
 from evtools.formats.registry import FORMATS, detect
@@ -345,6 +345,7 @@ def simulate(source, output, output_format, truth, truth_frame_rate, input_forma
                 _run(simulator, frames, writer, truth_writer, counts,
                      _LogFrames(truth_writer, frames, rate_hz) if rate_hz else None,
                      _Aps(sensor, truth_writer) if sensor else None)
+                _mark_cut(truth_writer, False, inputs)
                 if simulator.drift_origin_us is not None:  # (the truth's maps are the thresholds at this time)
                     truth_writer.write_attributes({"thres_drift_origin_us": simulator.drift_origin_us})
     _report(source, output, counts, as_json)
@@ -455,6 +456,14 @@ def _run(simulator: DvsSimulator, frames: FrameSource, writer, truth: TruthWrite
     sink.write()
 
 
+def _mark_cut(truth: TruthWriter, input_cut: bool, inputs: tuple[str, ...]) -> None:
+    """A truth file whose events file is marked cut (its input was cut, or a stop ended the reading of the input or
+    the simulation early) says so too (attributes ``cut``, ``cut_by``): its labels end where the events do."""
+    stop = stop_cut(inputs)
+    if input_cut or stop is not None:
+        truth.write_attributes({"cut": True, "cut_by": "a cut input" if input_cut else f"stopped by {stop}"})
+
+
 # -- noise on an event stream --------------------------------------------------------------------------------------
 
 
@@ -517,6 +526,7 @@ def _inject_into(source, output, written_as, truth, preset, seed, parameters, re
                 })
                 first, last = _run_injector(injector, stream, writer, truth_writer, counts)
                 writer.cut = getattr(stream, "was_cut", False)
+                _mark_cut(truth_writer, writer.cut, (source,))
                 if first is not None:  # the noise spans the input's events, these two times included
                     truth_writer.write_attributes({"t_first_us": first, "t_last_us": last})
 

@@ -373,6 +373,16 @@ def _drained(queue) -> list:
     return taken
 
 
+def stop_cut(inputs: tuple[str, ...]) -> str | None:
+    """The name of the stop signal (``SIGINT``) when one ended the reading of ``inputs`` early, so that the
+    outputs made from them are cut; else None. A live input's stop is its end, and a stop after every input was
+    read to its end cut nothing."""
+    stop = interrupt.received()
+    if stop is None or _any_live(inputs) or interrupt.every_stream_whole():
+        return None
+    return signal.Signals(stop).name
+
+
 def _any_live(inputs: tuple[str, ...]) -> bool:
     """Whether one of ``inputs`` (paths, ``-``, ``tcp://``) is live: a network stream, a pipe, a FIFO, a device.
     A stop (Ctrl-C) ends a live stream where it is, as a camera's recording ends; a file's reading stopped early
@@ -423,13 +433,11 @@ def create_events(
                                               live, fmt.description))
         try:
             yield writer
-            stop = interrupt.received()
-            # (a live input's stop is its end; a stop after every input was read to its end cut nothing)
-            writer.stopped = stop is not None and not _any_live(inputs) and not interrupt.every_stream_whole()
+            stop = stop_cut(inputs)
+            writer.stopped = stop is not None
             if writer.cut or writer.stopped:  # the input turned out cut, or a stop (Ctrl-C) ended a file's reading
                 with interrupt.deferred():    # early: the output says so (or is refused where it cannot say a cut)
-                    writer.mark_cut(CUT_NOTE if writer.cut else STOPPED_NOTE.format(signal.Signals(stop).name),
-                                    refuse=writer.cut)
+                    writer.mark_cut(CUT_NOTE if writer.cut else STOPPED_NOTE.format(stop), refuse=writer.cut)
         except BaseException:
             # release the writer's hold on the stream (h5py crashes if its file object closes first) without
             # marking the stream's end: what went out to a pipe, a FIFO or a socket reads as cut, not as whole; a

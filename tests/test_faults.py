@@ -132,6 +132,36 @@ def test_a_stopped_simulation_is_marked_cut(tmp_path, suffix):
     assert b"cut" in run("info", tmp_path / "copy.h5").stderr
 
 
+def test_a_stopped_simulations_truth_is_marked_cut_like_its_events(tmp_path):
+    """The truth file of a simulation stopped under way says it was cut (``cut``, ``cut_by``), as its events file
+    does (it looked whole: its labels, APS truth and times end where the events do); a whole run's does not, and
+    noise injected into a cut recording marks its truth cut by the input."""
+    import signal
+
+    import h5py
+
+    output, truth = tmp_path / "long.aedat4", tmp_path / "long.truth.h5"
+    process = subprocess.Popen([EVTOOLS, "simulate", "scene:flicker", "--size", "16x12", "--duration", "1000s",
+                                "--truth", str(truth), "-o", str(output)], stderr=subprocess.PIPE)
+    wait_until(lambda: any(p.name.startswith(".") or p.name.endswith(".part") for p in tmp_path.iterdir()),
+               "the output under way")
+    time.sleep(0.5)
+    process.send_signal(signal.SIGINT)
+    assert process.wait(timeout=60) == 130
+    process.stderr.close()
+    with h5py.File(truth) as h5:
+        assert h5.attrs["cut"] and h5.attrs["cut_by"] == "stopped by SIGINT", dict(h5.attrs)
+    whole = tmp_path / "whole.truth.h5"
+    run("simulate", "scene:flicker", "--size", "16x12", "--duration", "200ms", "--truth", whole,
+        "-o", tmp_path / "whole.aedat4")
+    with h5py.File(whole) as h5:
+        assert "cut" not in h5.attrs
+    noisy_truth = tmp_path / "noisy.truth.h5"
+    run("simulate", output, "--shot-noise-rate-hz", "1", "--truth", noisy_truth, "-o", tmp_path / "noisy.aedat4")
+    with h5py.File(noisy_truth) as h5:
+        assert h5.attrs["cut"] and h5.attrs["cut_by"] == "a cut input", dict(h5.attrs)
+
+
 @pytest.mark.parametrize("name", sorted(STREAM_COMMANDS))
 def test_an_upstream_killed_mid_stream_is_an_error_without_output(tmp_path, stream, name):
     """The writer of the pipe killed (SIGKILL) after 60 % of a stream: the command does not pass the part as whole:
