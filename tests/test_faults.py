@@ -110,22 +110,27 @@ def test_sigterm_while_waiting_on_a_pipe_stops_cleanly(tmp_path, stream, name):
             assert_same_events(events, evtools.read(whole)[0][:len(events)])
 
 
-@pytest.mark.parametrize("suffix", [".aedat4", ".h5", ".csv"])
-def test_a_stopped_simulation_is_marked_cut(tmp_path, suffix):
-    """A run stopped before its input's end (here a simulation of 1,000 s stopped once under way; likewise a file
-    read halfway) writes what it made, readable, and says it was cut (it looked whole: a QA sweep scored a stopped
-    filter's output as a better filter); the next command carries the mark on."""
+def _stopped_simulation(folder, *options) -> None:
+    """A simulation of 1,000 s with ``options``, stopped by SIGINT once its output in ``folder`` is under way."""
     import signal
 
-    output = tmp_path / f"long{suffix}"
     process = subprocess.Popen([EVTOOLS, "simulate", "scene:flicker", "--size", "16x12", "--duration", "1000s",
-                                "-o", str(output)], stderr=subprocess.PIPE)
-    wait_until(lambda: any(p.name.startswith(".") or p.name.endswith(".part") for p in tmp_path.iterdir()),
+                                *map(str, options)], stderr=subprocess.PIPE)
+    wait_until(lambda: any(p.name.startswith(".") or p.name.endswith(".part") for p in folder.iterdir()),
                "the output under way")
     time.sleep(0.5)
     process.send_signal(signal.SIGINT)
     assert process.wait(timeout=60) == 130
     process.stderr.close()
+
+
+@pytest.mark.parametrize("suffix", [".aedat4", ".h5", ".csv"])
+def test_a_stopped_simulation_is_marked_cut(tmp_path, suffix):
+    """A run stopped before its input's end (here a simulation of 1,000 s stopped once under way; likewise a file
+    read halfway) writes what it made, readable, and says it was cut (it looked whole: a QA sweep scored a stopped
+    filter's output as a better filter); the next command carries the mark on."""
+    output = tmp_path / f"long{suffix}"
+    _stopped_simulation(tmp_path, "-o", output)
     said = run("info", output).stderr.decode()
     assert ("without the end mark" if suffix == ".aedat4" else "stopped by SIGINT") in said, said
     run("convert", output, "-o", tmp_path / "copy.h5")
@@ -136,19 +141,10 @@ def test_a_stopped_simulations_truth_is_marked_cut_like_its_events(tmp_path):
     """The truth file of a simulation stopped under way says it was cut (``cut``, ``cut_by``), as its events file
     does (it looked whole: its labels, APS truth and times end where the events do); a whole run's does not, and
     noise injected into a cut recording marks its truth cut by the input."""
-    import signal
-
     import h5py
 
     output, truth = tmp_path / "long.aedat4", tmp_path / "long.truth.h5"
-    process = subprocess.Popen([EVTOOLS, "simulate", "scene:flicker", "--size", "16x12", "--duration", "1000s",
-                                "--truth", str(truth), "-o", str(output)], stderr=subprocess.PIPE)
-    wait_until(lambda: any(p.name.startswith(".") or p.name.endswith(".part") for p in tmp_path.iterdir()),
-               "the output under way")
-    time.sleep(0.5)
-    process.send_signal(signal.SIGINT)
-    assert process.wait(timeout=60) == 130
-    process.stderr.close()
+    _stopped_simulation(tmp_path, "--truth", truth, "-o", output)
     with h5py.File(truth) as h5:
         assert h5.attrs["cut"] and h5.attrs["cut_by"] == "stopped by SIGINT", dict(h5.attrs)
     whole = tmp_path / "whole.truth.h5"
