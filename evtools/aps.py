@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from evtools.errors import EvtoolsError
+from evtools.errors import EvtoolsError, UsageMistake
 from evtools.frames import Frame
 
 APS_DEFAULTS = {
@@ -43,6 +43,10 @@ MAX_APS_RATE_HZ = 10_000.0
 
 class ApsError(EvtoolsError, ValueError):
     """An APS parameter that cannot be used."""
+
+
+class ApsSettingsError(ApsError, UsageMistake):
+    """APS settings that do not go together (an exposure as long as the frame interval): a usage error (exit 2)."""
 
 
 @dataclass
@@ -69,7 +73,7 @@ class ApsSensor:
             raise ApsError(f"the APS frame rate must be above 0 and at most {MAX_APS_RATE_HZ:g} Hz, not {rate_hz:g}")
         self.period_us = 1e6 / rate_hz
         if not 0 < aps_exposure_us < self.period_us:
-            raise ApsError(f"the APS exposure ({aps_exposure_us} us) must be above 0 and shorter than the frame "
+            raise ApsSettingsError(f"the APS exposure ({aps_exposure_us} us) must be above 0 and shorter than the frame "
                            f"interval ({self.period_us:g} us at {rate_hz:g} Hz): a global shutter reads a frame "
                            "before the next exposure")
         for name, value in (("gain", aps_gain), ("black level", aps_black_level), ("read noise", aps_read_noise),

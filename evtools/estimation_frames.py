@@ -257,7 +257,7 @@ class FrameThresholdEstimator:
         self.counted_before_us = -math.inf  # every event earlier than this is counted (and no later one)
         self.last_t_us: int | None = None
         self.events = 0
-        self.frames_used = self.frames_late = self.frames_outside = 0
+        self.frames_used = self.frames_late = self.frames_outside = self.frames_beyond_events = 0
         self.t_frame_us: int | None = None  # the last frame used (online forgetting)
         self.weight = 1.0  # onEI: the weight of a frame added now (see _forget)
         self.next_map_us: int | None = None
@@ -402,6 +402,13 @@ class FrameThresholdEstimator:
             frame = self.pending[0]
             if known_us <= frame.exposure_end_us:  # a later event may still belong to its exposure
                 return
+            if self.last_t_us is None or not (self.origin_us <= frame.exposure_end_us
+                                              and frame.exposure_begin_us <= self.last_t_us):
+                # its exposure outside the events' span: the counts there are not known (events cut at the start
+                # or the end, the frames' stream longer)
+                self.frames_beyond_events += 1
+                self.pending.popleft()
+                continue
             self._count_before(frame.exposure_begin_us)
             if self.exposures == np.iinfo(np.int32).max:  # the marks start again (after 2^31 frames)
                 self.marks[:, 0] = -1
@@ -628,8 +635,10 @@ class FrameThresholdEstimator:
         with np.errstate(invalid="ignore"):  # (NaN where not solved: that pixel has its reason first)
             failing = {  # in this order: each invalid pixel is counted under its first reason
                 "no_frames": frames_seen == 0,
-                "few_frames": fit["n"] < MIN_FRAMES,
+                # (before few_frames: a saturated frame is not used, so those pixels have few frames too, and a
+                # longer recording would not help them)
                 "saturated": (self.saturated * 2 > frames_seen) & (frames_seen > 0),
+                "few_frames": fit["n"] < MIN_FRAMES,
                 "few_events": n_events < self.min_events,
                 "one_polarity": (self.counts[:, FRAMES_ON] < 2) | (self.counts[:, FRAMES_OFF] < 2),
                 "singular": ~fit["solved"],
@@ -650,7 +659,8 @@ class FrameThresholdEstimator:
             **self.parameters, "black_level_used": black_level, "scale": "absolute",
             "black_level_unsure": bool(self.black_level_unsure),
             "events": self.events, "frames": self.frames_used, "frames_late": self.frames_late,
-            "frames_outside": self.frames_outside, "valid_fraction": float(valid.mean()),
+            "frames_outside": self.frames_outside, "frames_beyond_events": self.frames_beyond_events,
+            "valid_fraction": float(valid.mean()),
             **({"steps_seen": len(self.steps_us)} if self.short is not None else {}),
             **({"steps_us": np.array(self.steps_us, np.int64)} if self.steps_us else {}),
             **{f"invalid_{name}": int(mask.sum()) for name, mask in reasons.items()},
@@ -678,6 +688,11 @@ class FrameThresholdEstimator:
         """The maps from everything so far (the stream's end: its held events and frames used); raises
         :class:`EstimationError` when the stream had no frames."""
         self._advance(final=True)
+        if self.frames_used == 0 and self.frames_beyond_events:
+            raise EstimationError(f"none of the {self.frames_beyond_events:,} APS frames lies within the events' time "
+                                  + ("span" if self.last_t_us is None else
+                                     f"span ({self.origin_us:,} to {self.last_t_us:,} us)")
+                                  + ": are the frames on the events' clock, or the events cut?")
         if self.frames_used == 0:
             raise EstimationError("no APS frames: --method frames needs a recording with frames (a DAVIS camera's, "
                                   "or simulate --aps-rate); --method natural estimates from events alone")
@@ -698,8 +713,8 @@ class FrameThresholdEstimator:
             if said in attributes:
                 return f"no pixel could be estimated by frames: {attributes[said]}"
         reasons = {
-            "no_frames": "saw no frame", "few_frames": f"have fewer than {MIN_FRAMES} frames to fit",
-            "saturated": "are saturated in most frames", "few_events": f"have fewer than {self.min_events} events",
+            "no_frames": "saw no frame", "saturated": "are saturated in most frames",
+            "few_frames": f"have fewer than {MIN_FRAMES} frames to fit", "few_events": f"have fewer than {self.min_events} events",
             "one_polarity": "have fewer than 2 events of a polarity",
             "singular": "have frames and events that do not determine the thresholds",
             "out_of_range": "come out beyond 0.01-5 log units", "does_not_fit": "do not fit the model",
@@ -708,6 +723,7 @@ class FrameThresholdEstimator:
         hint = ("give a longer recording with frames" if name in ("no_frames", "few_frames", "few_events",
                                                                    "one_polarity") else
                 "a larger --max-fit takes less certain pixels" if name == "poor_fit" else
+                "the frames are too bright: a shorter exposure or a darker scene" if name == "saturated" else
                 "check the black level (--black-level) and that the frames are this sensor's")
         return (f"no pixel could be estimated by frames ({self.frames_used} frames used): "
                 f"{attributes.get(f'invalid_{name}', 0):,} of {self.width * self.height:,} pixels {reasons[name]}; "
