@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -231,6 +232,32 @@ def _first_packet_of(data: bytes, stream_id: int) -> int:
     while int(np.frombuffer(data, "<i4", 1, position)[0]) != stream_id:
         position += 8 + int(np.frombuffer(data, "<u4", 1, position + 4)[0])
     return position
+
+
+@pytest.mark.parametrize("suffix", [".aedat4", ".h5"])
+def test_write_refuses_frames_its_readers_would_refuse_or_mangle(tmp_path, suffix):
+    """evtools.write checks frames as it checks events: out of time order, colour, float or int64 images and images
+    outside the frame stream are refused naming the frame, no file left (AEDAT 4.0 stored them, and evtools then
+    refused the file; floats within 0-1 were cut to 0 or 1 and large integers wrapped, silently)."""
+    import dataclasses
+
+    events, frames = _recording(tmp_path / "good.aedat4", 3, 3, 200, 16, 12)
+    info, path = evtools.StreamInfo(16, 12), tmp_path / f"bad{suffix}"
+    image = frames[0].image
+    bad = {
+        "before the frame before it": [frames[1], frames[0]],
+        "float32 array": [dataclasses.replace(frames[0], image=(image / 255).astype(np.float32))],
+        "int64 array": [dataclasses.replace(frames[0], image=image.astype(np.int64) * 1000)],
+        "shape (12, 16, 3)": [dataclasses.replace(frames[0], image=np.stack([image] * 3, -1))],
+        "outside the 16 x 12 frame stream": [dataclasses.replace(frames[0], offset_x=1)],
+        "before it begins": [dataclasses.replace(frames[0], exposure_begin_us=frames[0].exposure_end_us + 1)],
+    }
+    for said, given_frames in bad.items():
+        with pytest.raises(evtools.InvalidEventsError, match=re.escape(said)):
+            evtools.write(path, events, info, frames=given_frames)
+        assert list(tmp_path.iterdir()) == [tmp_path / "good.aedat4"], said
+    evtools.write(path, events, info, frames=frames)  # the good ones, in order, as before
+    assert len(evtools.read(path, frames=True)[2]) == len(frames)
 
 
 def test_bad_frames_are_one_line_errors_naming_the_file(tmp_path):
