@@ -424,6 +424,10 @@ class Hdf5Reader:
                                 (values.dtype.kind == "f" and not np.isfinite(values).all())):
                 raise FormatError(f"{self.name}: event {field} coordinates outside 0..32767 between events {start} "
                                   f"and {stop} (a damaged file?)")
+            if values.dtype.kind == "f" and len(values) and np.any(values != np.floor(values)):
+                k = int(np.argmax(values != np.floor(values)))  # (a pixel's coordinate is whole: refused, not cut)
+                raise FormatError(f"{self.name}: event {field} coordinate {values[k].item()!r} (event {start + k}) "
+                                  "is not a whole pixel")
         out = self._recycled.take(stop - start)
         words = record_words(out)  # each record's two words at once: the padding of a reused chunk zeroed
         if self.layout == "event_utils" or t.dtype.kind == "f":

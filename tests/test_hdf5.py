@@ -258,6 +258,26 @@ def test_fractional_times_in_microsecond_layouts_are_refused(tmp_path):
     assert read_all(tmp_path / "whole.h5", sensor_size=(4, 4))[1]["t"].tolist() == [1000, 500000, 1250000]
 
 
+@pytest.mark.parametrize("layout", ["dsec", "event_utils", "v2e"])
+def test_fractional_coordinates_are_refused_not_cut(tmp_path, layout):
+    """Found by a QA sweep: a float x of 2.7 (DSEC) or 1.5 (event_utils, v2e) was read as 2 or 1, exit 0; a pixel's
+    coordinate is whole, so it is refused naming the event (as a fractional time is); whole floats are taken."""
+    import h5py
+
+    for name, x in (("bad.h5", [1.0, 2.7, 3.0]), ("whole.h5", [1.0, 2.0, 3.0])):
+        with h5py.File(tmp_path / name, "w") as f:
+            t, y, p = np.array([0, 5, 10]), np.array([1, 2, 3]), np.array([1, 0, 1], "u1")
+            if layout == "v2e":
+                f["events"] = np.stack([t, x, y, p], axis=1).astype("f8")
+            elif layout == "dsec":
+                f["events/x"], f["events/y"], f["events/t"], f["events/p"] = np.array(x), y.astype("u2"), t, p
+            else:
+                f["events/xs"], f["events/ys"], f["events/ts"], f["events/ps"] = np.array(x, "f4"), y, t * 1e-6, p
+    assert_clean_error(run("info", tmp_path / "bad.h5", "--sensor-size", "4x4", check=False),
+                       "bad.h5: event x coordinate 2.7", "(event 1) is not a whole pixel")
+    assert read_all(tmp_path / "whole.h5", sensor_size=(4, 4))[1]["x"].tolist() == [1, 2, 3]
+
+
 def test_a_damaged_time_chunk_disagrees_with_ms_to_idx_and_is_refused(tmp_path):
     """Issue 37 item 5: a damaged chunk of t decoded as zeros was read as 30,000 events at one time, exit 0. The
     DSEC layout's ms_to_idx says where each millisecond starts: times that disagree are refused naming the file;
