@@ -30,7 +30,7 @@ import numpy as np
 from evtools.events import EVENT_DTYPE, StreamInfo
 from evtools.frames import Frame, gray
 from evtools.formats.errors import FormatError
-from evtools.formats.io import Source, ends_cut, read_at_most, resolve_sensor_size, size_scan
+from evtools.formats.io import MAX_PACKET_BYTES, Source, ends_cut, read_at_most, resolve_sensor_size, size_scan
 from evtools.formats.registry import ReadOptions
 
 MAGIC = b"#!AER-DAT3.1\r\n"
@@ -123,10 +123,11 @@ class Aedat3Reader:
                                f"{PACKET_HEADER.size} bytes)")
                 return
             kind, _, size, ts_offset, overflow, capacity, number, _ = PACKET_HEADER.unpack(head)
-            if size <= 0 or capacity < 0 or not 0 <= number <= capacity:
+            if size <= 0 or capacity < 0 or not 0 <= number <= capacity or size * capacity > MAX_PACKET_BYTES:
                 raise FormatError(
                     f"{self.name}: corrupt AEDAT 3.1 packet header at byte offset {offset} "
-                    f"(eventSize {size}, eventCapacity {capacity}, eventNumber {number})"
+                    f"(eventSize {size}, eventCapacity {capacity}, eventNumber {number}"
+                    + (f": {size * capacity:,} bytes, more than a packet holds)" if size > 0 and capacity > 0 else ")")
                 )
             body = read_at_most(stream, size * capacity, self.source.seekable)
             if len(body) < size * capacity:

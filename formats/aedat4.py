@@ -35,7 +35,7 @@ from evtools.events import EVENT_DTYPE, StreamInfo
 from evtools.frames import FORMAT_BGR, FORMAT_BGRA, FORMAT_GRAY, FORMAT_GRAY16, Frame, gray
 from evtools.formats import io as formats_io
 from evtools.formats.errors import FormatError
-from evtools.formats.io import Source, ends_cut
+from evtools.formats.io import MAX_PACKET_BYTES, Source, ends_cut
 from evtools.formats.registry import ReadOptions, WriteOptions
 
 MAGIC = b"#!AER-DAT4.0\r\n"
@@ -117,9 +117,6 @@ def _parse_ioheader(data: bytes, name: str) -> tuple[int, int, str]:
     return compression, data_position, description
 
 
-MAX_PACKET_BYTES = 1 << 30
-"""A packet larger than this (64 M events) is taken for a damaged size field, not allocated (DV writes packets of
-at most a few megabytes)."""
 
 END_MARK_KEY = "evtoolsEndMark"
 """An evtools writer says (this attribute, true, in the event stream's info node) that it ends its stream with an

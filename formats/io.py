@@ -32,6 +32,11 @@ is longer: its XML alone exceeds it)."""
 STDIO = "-"
 
 
+MAX_PACKET_BYTES = 1 << 30
+"""A packet (AEDAT 4.0, AEDAT 3.1) larger than this (64 M events) is taken for a damaged size field, not allocated
+and not taken for a cut (DV and jAER write packets of at most a few megabytes)."""
+
+
 def is_live(stream) -> bool:
     """True when the file object ``stream`` is not a regular file: a pipe, a socket, a FIFO, a terminal or a device
     (its bytes arrive over time, so a reader passes on what has arrived and a writer flushes what it has); False

@@ -86,6 +86,19 @@ def test_truncated_packet_names_the_file_and_the_packets_before_it_are_read(tmp_
     assert_clean_error(piped, "<stdin>", "truncated AEDAT 3.1 packet header")
 
 
+@pytest.mark.parametrize("capacity", [2**27 + 1, 2**30])
+def test_a_size_no_packet_can_have_is_damage_not_a_cut(tmp_path, capacity):
+    """A QA sweep: a packet header saying 1-8 GiB of body was taken for a file cut inside it (a warning, the output
+    marked cut, exit 0); as for AEDAT 4.0, over 1 GiB is a damaged size field: one line, exit 1."""
+    path = tmp_path / "big.aedat3"
+    good = _packet(1, [(_polarity(1, 2, True), 1)])
+    path.write_bytes(HEADER + good + struct.pack("<hhiiiiii", 1, 1, 8, 4, 0, capacity, 1, 1) + bytes(64))
+    done = run("convert", path, "-o", tmp_path / "out.h5", check=False)
+    assert_clean_error(done, "big.aedat3", f"corrupt AEDAT 3.1 packet header at byte offset {len(HEADER + good)}",
+                       "more than a packet holds")
+    assert not (tmp_path / "out.h5").exists()
+
+
 def test_wrong_magic_and_missing_end_of_header_name_the_file(tmp_path):
     path = tmp_path / "wrong.aedat3"
     path.write_bytes(b"#!AER-DAT2.0\r\n" + bytes(8))
