@@ -395,8 +395,14 @@ class PropheseeDatReader:
             ends_cut(self, f"truncated Prophesee DAT event at the end ({len(pending)} of 8 bytes)")
 
     def _events(self) -> Iterator[np.ndarray]:
-        last, loops, recycled = -1, 0, Recycled()
+        last, loops, recycled, index = -1, 0, Recycled(), 0
         for records in self._records():
+            polarity = records["w"] >> 28
+            if np.any(polarity > 1):  # (the 4-bit field holds 0 or 1: another value is damage, not ON)
+                k = int(np.argmax(polarity > 1))
+                raise FormatError(f"{self.name}: DAT event {index + k:,} has polarity {int(polarity[k])}, not 0 (OFF) "
+                                  "or 1 (ON) (a damaged file?)")
+            index += len(records)
             t = records["t"].astype(np.int64)
             previous = np.concatenate(([t[0] if last < 0 else last], t[:-1]))
             wraps = loops + np.cumsum(previous - t > (1 << 31))
@@ -405,7 +411,7 @@ class PropheseeDatReader:
             out = record_words(chunk)  # each record's two words at once (the padding zero)
             out[:, 0] = t + (wraps << 32) + self.t0_us
             w = records["w"]
-            out[:, 1] = second_words(w & 0x3FFF, (w >> 14) & 0x3FFF, w >> 28 != 0)
+            out[:, 1] = second_words(w & 0x3FFF, (w >> 14) & 0x3FFF, polarity == 1)
             yield chunk
 
     def expected_events(self) -> int | None:

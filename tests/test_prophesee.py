@@ -414,7 +414,9 @@ def test_prophesee_dat_is_read_and_not_taken_for_aedat2(tmp_path):
     path.write_bytes(_dat(records)[:-3])  # cut inside its last record: the three before it read, said, marked cut
     with open_events(path) as stream:
         assert len(np.concatenate(list(stream))) == 3 and stream.was_cut
-    for data, needle in ((_dat(records, version="1"), "version 1"), (_dat(records, size=12), "12 bytes")):
+    damaged = [(10, 5, 7, 1), (20, 6, 7, 2), (30, 6, 7, 15)]  # (a polarity other than 0 or 1 was read as ON)
+    for data, needle in ((_dat(records, version="1"), "version 1"), (_dat(records, size=12), "12 bytes"),
+                         (_dat(damaged), r"rec\.dat: DAT event 1 has polarity 2, not 0 \(OFF\) or 1 \(ON\)")):
         path.write_bytes(data)
         with pytest.raises(FormatError, match=needle):
             with open_events(path) as stream:
