@@ -134,7 +134,10 @@ class EventStream:
         words = {name: count for name, count in (metadata.get("skipped_words") or {}).items() if count}
         if words:  # AEDAT 2.0
             return ", ".join(f"{count:,} {AEDAT2_WORDS.get(name, name)} words" for name, count in words.items())
-        return None
+        raw = [f"{metadata[key]:,} {what}" for key, what in (  # Prophesee RAW
+            ("triggers", "trigger events"), ("dropped_events", "events before the first time base (as OpenEB drops "
+                                             "them)"), ("other_words", "words of other kinds")) if metadata.get(key)]
+        return ", ".join(raw) or None
 
     @property
     def frames_read(self) -> int:

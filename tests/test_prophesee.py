@@ -290,6 +290,9 @@ def test_reads_evt2_with_time_high_and_its_wrap(tmp_path):
         expected_t = [100 << 6 | 3, 100 << 6 | 63, ((1 << 28) - 1) << 6, ((1 << 28) + 4) << 6 | 1]
         assert_same_events(events, make_events(expected_t, [10, 639, 2, 4], [20, 479, 3, 5], [1, 0, 0, 1]))
         assert (info.metadata["dropped_events"], info.metadata["triggers"]) == (1, 1)
+    done = run("convert", path, "-o", tmp_path / "out.csv")  # what is left out is said (a QA sweep: silently)
+    assert "evt2.raw: 1 trigger events, 1 events before the first time base" in done.stderr.decode()
+    assert "are not in the output" in done.stderr.decode()
 
 
 @settings(max_examples=40, deadline=None)
