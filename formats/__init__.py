@@ -61,7 +61,9 @@ class EventStream:
         self.reader = reader
         self.info: StreamInfo = reader.info
         self.info.format = format_name
-        self.checker = StreamChecker(self.info, self.name, " (give the right --sensor-size)") if check else None
+        hint = " (the size the file states: a damaged file?)" if source.size_stated else \
+            " (give the right --sensor-size)"
+        self.checker = StreamChecker(self.info, self.name, hint) if check else None
         self.cut: FormatError | None = None  # a network stream's error, raised on closing (see _chunks)
         self._said_colour = False  # colour frames converted to gray: said once
         self.closed = False

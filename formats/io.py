@@ -124,6 +124,7 @@ class Source:
                  read_timeout_s: float = 60.0) -> None:
         path = STDIO if path is None else os.fspath(path)
         self.live = self.network = False
+        self.size_stated = False  # the sensor size is the one the file states (resolve_sensor_size)
         self._fileno = None
         if path == STDIO:
             self.name, self.path = "<stdin>", None
@@ -615,6 +616,7 @@ def resolve_sensor_size(source: Source, from_file, sensor_size, scan=None) -> tu
                 "%s: file says %dx%d, using --sensor-size %dx%d", source.name, *from_file, *sensor_size
             )
             return tuple(sensor_size)
+        source.size_stated = True  # (an event outside it is then damage, not a size to give)
         return checked(from_file, "the file says the sensor is")
     if sensor_size is not None:
         return tuple(sensor_size)

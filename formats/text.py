@@ -348,8 +348,8 @@ class TextReader:
             self._check(~np.isfinite(t), rows, line_no, "t is not a finite number")
             if not self.seconds:  # (rounding a fraction away would move the event: refused, never guessed)
                 self._check(t != np.floor(t), rows, line_no,
-                            "t is not a whole number of microseconds (CSV times are integer microseconds; times "
-                            "in seconds are rpg text: whitespace-separated 't x y p' in a .txt)")
+                            "t is not a whole number of microseconds (comma-separated, it reads as CSV, whose times "
+                            "are integer microseconds; times in seconds are rpg text: 't x y p' separated by spaces)")
             t = np.rint(t * 1e6 if self.seconds else t)
             self._check((x != np.floor(x)) | (y != np.floor(y)) | ~np.isfinite(p), rows, line_no,
                         "x and y must be integers, p a number")
