@@ -44,8 +44,10 @@ def read_true_frames(path: str) -> tuple[np.ndarray, np.ndarray]:
 @click.option("--truth", "truth_path", default=None, metavar="TRUTH.h5", type=click.Path(),
               help="`evtools simulate ... --truth TRUTH.h5` (with its true log frames, `--truth-frame-rate`); "
                    "without it, EVENTS' own APS frames: each predicted from the one before and the events between.")
-@click.option("--black-level", default=0.0, show_default=True, type=FiniteRange(min=0), metavar="DN",
-              help="Without --truth: the APS frames' value of no light (DV's frames: 0).")
+@click.option("--black-level", default=None, type=FiniteRange(min=0), metavar="DN",
+              help="Without --truth: the APS frames' value of no light [default: the --thresholds map's "
+                   "black_level_used (estimate --method frames), else 0 (DV's frames), with a warning when the "
+                   "frames never read near 0].")
 @click.option("--thresholds", "thresholds_path", default=None, metavar="TH.h5", type=click.Path(),
               help="Each pixel's contrast per event (`estimate`'s output or a truth file); default --contrast.")
 @click.option("--contrast", default=0.2, show_default=True, type=FiniteRange(min=0, min_open=True),
@@ -112,6 +114,7 @@ def _against_frames(events_path, thresholds_path, contrast, black_level, as_json
     :mod:`evtools.metrics.frames`)."""
     from evtools.metrics.frames import FramePrediction
 
+    black_level_from = "--black-level" if black_level is not None else "default"
     with open_events(events_path) as stream:
         width, height = stream.info.width, stream.info.height
         on = off = contrast
@@ -123,10 +126,13 @@ def _against_frames(events_path, thresholds_path, contrast, black_level, as_json
             off = np.where(usable, maps.off if maps.t_us is None else maps.off[-1], np.nan)
             middle = (np.nanmedian(on), np.nanmedian(off)) if usable.any() else (contrast, contrast)
             on, off = np.where(usable, on, middle[0]), np.where(usable, off, middle[1])  # as correct uses a map
+            if black_level is None and "black_level_used" in maps.attributes:  # (the level the map was made at)
+                black_level, black_level_from = float(maps.attributes["black_level_used"]), "thresholds"
         scorer = FramePrediction(width, height, on, off, black_level=black_level, check=False)
         consume(stream, scorer, f"scoring {stream.name}")
     try:
-        result = {"events": events_path, "contrast": thresholds_path or contrast, **scorer.scores()}
+        result = {"events": events_path, "contrast": thresholds_path or contrast, **scorer.scores(),
+                  "black_level_from": black_level_from}
     except ReconstructionError as error:
         raise ReconstructionError(f"{events_path}: {error}") from None
     if wants_json(as_json):

@@ -312,9 +312,7 @@ class FrameThresholdEstimator:
         :data:`FRAMES_FLOOR_DN` looks like frames not black-subtracted, so the black level is fitted (every
         candidate's sums from this first frame on) and the default kept unless the fit finds it away from 0
         (:meth:`_solve`)."""
-        flat = image.ravel()
-        k = min(flat.size // 1000, flat.size - 1)
-        self.frames_floor_dn = float(np.partition(flat, k)[k])
+        self.frames_floor_dn = frames_floor(image)
         if self.frames_floor_dn >= FRAMES_FLOOR_DN:
             logging.getLogger("evtools").info(
                 f"the first frame never reads below {self.frames_floor_dn:g} DN (frames not black-subtracted, or a "
@@ -791,6 +789,13 @@ class FrameThresholdEstimator:
         to_true = 1.0 / memory["weight"]
         return _least_squares(memory["sums"][index] * to_true, memory["new_counts"][index] * to_true,
                               memory["inverse_sums"][index] * to_true)
+
+
+def frames_floor(image: np.ndarray) -> float:
+    """A frame's floor (DN): its darkest 0.1 % of pixels' value (see :data:`FRAMES_FLOOR_DN`)."""
+    flat = image.ravel()
+    k = min(flat.size // 1000, flat.size - 1)
+    return float(np.partition(flat, k)[k])
 
 
 def _brightness_slope(fit: dict) -> tuple[float, float] | None:

@@ -504,6 +504,33 @@ def test_metrics_reconstruction_predicts_the_recordings_own_frames(tmp_path):
     assert done.returncode == 2 and "--truth" in done.stderr.decode()
 
 
+def test_metrics_reconstruction_warns_of_a_black_level_left_in_the_frames(tmp_path):
+    """A QA sweep: frames with a 30 DN black level scored at the default 0 ranked a contrast of 0.12 best for true
+    0.2, silently. A first frame that never reads near 0 is now warned of; a frames estimate's map brings the level
+    it was made at (black_level_used), and the true contrast then predicts better than a smaller one."""
+    out = tmp_path / "bl.aedat4"
+    run("simulate", "scene:texture", "--size", "64x48", "--duration", "6s", "--seed", "3", "--speed", "200",
+        "--aps-rate", "25", "--aps-exposure", "10ms", "--aps-black-level", "30", "-o", out)
+
+    def score(*options):
+        done = run("metrics", "reconstruction", out, *options, "--json")
+        return json.loads(done.stdout), done.stderr.decode()
+
+    (small, said), (right, _) = score("--contrast", "0.12"), score("--contrast", "0.2")
+    assert "never reads below" in said and "--black-level" in said and small["frames_floor_dn"] >= 30
+    assert small["black_level_from"] == "default" and small["rmse"] < right["rmse"]  # (the bias the warning names)
+    (small, said), (right, _) = score("--contrast", "0.12", "--black-level", "30"), score("--contrast", "0.2",
+                                                                                         "--black-level", "30")
+    assert "never reads below" not in said and right["rmse"] < small["rmse"]
+    estimate = tmp_path / "bl.h5"
+    run("estimate", out, "--method", "frames", "-o", estimate)
+    with h5py.File(estimate) as f:
+        used = float(f.attrs["black_level_used"])
+    mapped, said = score("--thresholds", estimate)
+    assert mapped["black_level_from"] == "thresholds" and mapped["black_level"] == pytest.approx(used)
+    assert abs(used - 30) < 6 and "never reads below" not in said
+
+
 @pytest.mark.parametrize("name", ["davis346_lab_frames.aedat4", "davis346_street_frames.aedat4"])
 def test_metrics_reconstruction_runs_on_the_real_davis_recordings(name):
     """The two DAVIS346 recordings: every pair of consecutive frames scored, most pixels compared."""
