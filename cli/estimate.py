@@ -366,7 +366,8 @@ def estimate_one(input, output, *, reading, parameters, slicing=None
                                           "(attribute partial)")
             else:
                 attributes = {**result.attributes, "input": stream.name, **_part_of_the_stream(stream, estimator)}
-                for said in ("disagreement", "brightness_dependence", "black_level_fitted", "polarity_balance"):
+                for said in ("disagreement", "brightness_dependence", "black_level_fitted", "black_level_disagrees",
+                              "polarity_balance"):
                     if said in attributes:
                         log.warning(f"{stream.name}: {attributes[said]}")
                 if getattr(stream, "transform", None) is not None and stream.transform.moves_pixels:

@@ -85,6 +85,20 @@ dark), so it is fitted. Left at 0, a black level of 16 DN made 99.7 % of the val
 AUTO_FIT_MIN_DN = 6.0
 """The black level fitted because it was not said (:data:`FRAMES_FLOOR_DN`) replaces the default 0 only from this
 many DN: the fit is approximate (2-5 DN), and a bright scene's frames have a floor with no black level in it."""
+BLACK_LEVEL_FIT_SLACK_DN = 3.0
+"""A black level given (``--black-level B``) is checked when the first frame never reads below ``B`` plus
+:data:`FRAMES_FLOOR_DN` (the level cannot be seen in the frames' dark pixels): the level is fitted over ``B``,
+``B + 8``, ... up to the floor; each pixel's fit takes the bias that the fitted level's excess over ``B`` implies,
+less this slack for the fit's own error, times the pixel's mean ``1 / signal``, and an excess of
+:data:`AUTO_FIT_MIN_DN` or more is said. The fit read 0-2.3 DN high on evtools' simulator (a slack of 1 DN left no
+pixel valid with 16 given for 16 over 6 s), 0.5-12 DN low on the independent generator (64 x 48, 5 s, 10-20 ms
+exposures, 13 draws): so the check catches a level given 16 DN or more too low, 12 in four draws of five. Unchecked, 0 given for
+frames holding a 16 DN black level left 79 % of the pixels valid with 99.8 % of them more than 10 % off, and 8 given
+45 % of them (evtools' simulator, a QA sweep), where the brightness slope could not tell (+1.3, +7.1 DN); checked,
+both are refused (no pixel valid, the level found named)."""
+CHECK_STEP_DN = 8.0
+"""The candidates' spacing when a black level given is checked (:data:`BLACK_LEVEL_FIT_SLACK_DN`): twice the fit's,
+half the cost (the test's zero crossing is interpolated between them)."""
 HOLD_EVENTS = 1 << 22
 """Events held until the frames around them are known (a frame's packet may follow later events in a file); beyond
 this many, they are counted and a frame that then arrives too late for them is left out (counted)."""
@@ -232,6 +246,9 @@ class FrameThresholdEstimator:
         if not fitted and not (isinstance(black_level, (int, float)) and math.isfinite(black_level)
                                and 0 <= black_level < 65535):
             raise EstimationError(f"the black level must be a DN from 0, or 'fit', not {black_level!r}")
+        # a level given as a number: the maps' level, checked against the frames when their floor is far above it
+        self.black_level_said = None if fitted or self.black_level_auto else float(black_level)
+        self.black_level_checked = False
         if interval_us is not None and interval_us <= 0:
             raise EstimationError("the interval must be positive")
         self.width, self.height = width, height
@@ -321,9 +338,28 @@ class FrameThresholdEstimator:
             self._set_candidates(BLACK_LEVELS)
             self._set_online_candidates()
 
+    def _check_given(self, image: np.ndarray) -> None:
+        """A black level given: the first frame's floor at or above it plus :data:`FRAMES_FLOOR_DN` has the level
+        fitted from it upwards too, as a check (:data:`BLACK_LEVEL_FIT_SLACK_DN`)."""
+        given = self.black_level_said
+        self.frames_floor_dn = frames_floor(image)
+        levels = [given + CHECK_STEP_DN * k for k in range(len(BLACK_LEVELS))
+                  if given + CHECK_STEP_DN * k <= self.frames_floor_dn]
+        if self.frames_floor_dn >= given + FRAMES_FLOOR_DN and len(levels) > 1:
+            logging.getLogger("evtools").info(
+                f"the first frame never reads below {self.frames_floor_dn:g} DN, {self.frames_floor_dn - given:g} "
+                f"above the black level given: the level is checked by fitting it over {len(levels)} candidates, "
+                "which costs the frame pass several times")
+            self.black_level_checked = True
+            self._set_candidates(levels)
+            self._set_online_candidates()
+
     @property
     def parameters(self) -> dict[str, Any]:
-        black_level = float(self.candidates[0]) if self.black_level_given else "fitted"
+        if self.black_level_said is not None:
+            black_level = self.black_level_said
+        else:
+            black_level = float(self.candidates[0]) if self.black_level_given else "fitted"
         return {"method": "frames", "black_level": black_level, "black_level_given": not self.black_level_auto,
                 "min_events": self.min_events, "max_fit": self.max_fit,
                 **({"interval_us": self.interval_us, "forget_us": self.forget_us} if self.interval_us else {})}
@@ -446,8 +482,11 @@ class FrameThresholdEstimator:
             return
         self._forget(frame.exposure_end_us)
         image = np.ascontiguousarray(frame.image)
-        if self.black_level_auto and self.frames_floor_dn is None:
-            self._check_floor(image)
+        if self.frames_floor_dn is None:
+            if self.black_level_auto:
+                self._check_floor(image)
+            elif self.black_level_said is not None:
+                self._check_given(image)
         height, width = image.shape
         x0, y0 = frame.offset_x, frame.offset_y
         if (x0, y0, width, height) == (0, 0, self.width, self.height):
@@ -457,20 +496,21 @@ class FrameThresholdEstimator:
         levels = np.iinfo(image.dtype).max + 1
         log_exposure = math.log(max(frame.exposure_us, 1) * 1e-6)
         for index, black in enumerate(self.candidates):
+            checking = self.black_level_checked and index > 0  # (a check's candidate: its test's pixels alone)
             frame_sums(image, x0, y0, self.width, self.counts, self.marks, self.exposures,
                        self._log_table(index, levels), float(black), log_exposure, MAX_EXPOSURE_EVENTS,
                        float(SATURATED_DN), self.sums[index], self.runs[index], self.run_counts[index],
                        self.half_sums[index], self.sample_step, self.inverse_sums[index], self.new_counts[index],
                        self.saturated if index == 0 else self.saturated[:0], self.weight, self.event_times,
-                       self.time_sums[index], self.run_times[index])
-            if self.short is not None:
+                       self.time_sums[index], self.run_times[index], checking)
+            if self.short is not None and not checking:
                 short = self.short
                 frame_sums(image, x0, y0, self.width, self.counts, self.marks, self.exposures,
                            self._log_table(index, levels), float(black), log_exposure, MAX_EXPOSURE_EVENTS,
                            float(SATURATED_DN), short["sums"][index], short["runs"][index], short["run_counts"][index],
                            short["half"], 0, short["inverse_sums"][index], short["new_counts"][index],
                            self.saturated[:0], short["weight"], self.event_times, short["time_sums"][index],
-                           short["run_times"][index])
+                           short["run_times"][index], False)
         self.frames_used += 1
         if self.interval_us is not None:
             self._snapshot_maps(frame.exposure_end_us)
@@ -612,7 +652,21 @@ class FrameThresholdEstimator:
         """The maps from the sums so far (``fits``: :meth:`_fit_all`)."""
         fit, black_level = self._black_level(fits)
         said = {}
-        if self.black_level_auto and len(fits) > 1:  # (not said, and the frames' floor was high: fitted)
+        if self.black_level_checked:  # (given, and the frames' floor far above it: fitted as a check)
+            fitted, fit, black_level = black_level, fits[0], self.black_level_said
+            said["black_level_fitted_dn"] = fitted
+            excess = fitted - black_level - BLACK_LEVEL_FIT_SLACK_DN
+            if excess > 0:  # (else the map is the unchecked one, bit for bit)
+                fit = {**fit, "fit": np.sqrt(fit["fit"] ** 2 + (excess * fit["mean_inverse"]) ** 2)}
+            if fitted - black_level >= AUTO_FIT_MIN_DN:
+                at_least = "at least " if self.black_level_unsure else ""
+                said["black_level_disagrees"] = (
+                    f"the frames' black level looks about {fitted:.0f} DN ({at_least}"
+                    f"{fitted - black_level:.0f} DN above the {black_level:g} given: frames not black-subtracted, as "
+                    "jAER and libcaer give them?); each pixel's fit includes the bias it implies; give the camera's "
+                    "level, or --black-level fit")
+            self.black_level_unsure = False
+        elif self.black_level_auto and len(fits) > 1:  # (not said, and the frames' floor was high: fitted)
             said["black_level_fitted_dn"] = black_level
             if black_level < AUTO_FIT_MIN_DN:
                 fit, black_level, self.black_level_unsure = fits[0], 0.0, False
@@ -707,12 +761,13 @@ class FrameThresholdEstimator:
         """Why no pixel of an estimate (its ``attributes``) is valid, in one line: the events and the frames
         disagreeing when they do, else the reason most pixels have (the command line's error when no map has a valid
         pixel, as every method's; the estimate itself keeps every reason in its ``invalid_*`` attributes)."""
-        for said in ("disagreement", "brightness_dependence"):
+        for said in ("disagreement", "brightness_dependence", "black_level_disagrees"):
             if said in attributes:
                 return f"no pixel could be estimated by frames: {attributes[said]}"
         reasons = {
             "no_frames": "saw no frame", "saturated": "are saturated in most frames",
-            "few_frames": f"have fewer than {MIN_FRAMES} frames to fit", "few_events": f"have fewer than {self.min_events} events",
+            "few_frames": f"have fewer than {MIN_FRAMES} frames to fit",
+            "few_events": f"have fewer than {self.min_events} events",
             "one_polarity": "have fewer than 2 events of a polarity",
             "singular": "have frames and events that do not determine the thresholds",
             "out_of_range": "come out beyond 0.01-5 log units", "does_not_fit": "do not fit the model",
@@ -966,7 +1021,8 @@ class FrameScaledEstimator:
                       "scale_off": scales[1], "scale_error": scale_error, "scale_pixels": int(both.sum()),
                       "black_level": self.frames.parameters["black_level"], "frames": self.frames.frames_used,
                       **{key: by_frames.attributes[key] for key in ("black_level_used", "frames_floor_dn",
-                                                                    "black_level_fitted") if key in by_frames.attributes},
+                                                                    "black_level_fitted", "black_level_disagrees")
+                         if key in by_frames.attributes},
                       "on_median": relative.attributes["on_median"] * scales[0],
                       "off_median": relative.attributes["off_median"] * scales[1],
                       "not_observable": NOT_OBSERVABLE_WITH_FRAMES}

@@ -750,7 +750,7 @@ def fold_runs(sums, runs, run_counts, time_sums, run_times):  # pragma: no cover
 @kernel
 def frame_sums(image, x0, y0, width, counts, marks, exposure, log_dn, black, log_exposure, max_events,
                saturated_dn, sums, runs, run_counts, half, sample_step, inverse_sums, new_counts,
-               saturated, weight, times, time_sums, run_times):  # pragma: no cover - compiled
+               saturated, weight, times, time_sums, run_times, sampled_only):  # pragma: no cover - compiled
     """One APS frame (``image``, its corner at ``x0, y0`` on a sensor ``width`` wide) into the frames method's
     per-pixel least-squares sums (see :class:`evtools.estimation_frames.FrameThresholdEstimator`), for one black
     level: a pixel that fired at most ``max_events`` times during the exposure (``marks``: see
@@ -762,7 +762,9 @@ def frame_sums(image, x0, y0, width, counts, marks, exposure, log_dn, black, log
     number, sum y, sum y^2; ``run_counts``: its A and B, -1 before any) and folded into ``sums`` when the counts
     change (``new_counts`` counts those frames) or by :func:`fold_runs`: three sums a frame instead of ten. With
     ``sample_step`` (0: none), every ``sample_step``-th pixel also adds the frame to ``half[0 or 1]``, by whether its
-    count level is above its mean so far. ``saturated`` (unless empty) counts the frames in which a pixel is. The
+    count level is above its mean so far, and with ``sampled_only`` the other pixels are skipped (a black level only
+    checked: its test needs the sampled pixels alone). ``saturated`` (unless empty) counts the frames in which a
+    pixel is. The
     frame weighs ``weight`` in ``sums``, ``runs``, ``inverse_sums`` and ``new_counts`` (onEI's forgetting: see
     ``FrameThresholdEstimator._forget``), 1 in ``half``.
 
@@ -784,6 +786,8 @@ def frame_sums(image, x0, y0, width, counts, marks, exposure, log_dn, black, log
                 k += 1
             sampled = offset == 0
             offset += 1
+            if sampled_only and not sampled:
+                continue
             value = image[row, column]
             if tally and value >= saturated_dn:
                 saturated[i] += 1

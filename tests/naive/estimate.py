@@ -263,17 +263,20 @@ def naive_polarity_counts(events, width: int, height: int) -> dict:
 
 def naive_frame_sums(image, x0, y0, width, counts, fired, black, log_exposure, max_events, min_signal,
                      saturated_dn, sums, half, sample_step, inverse_sums, new_counts, last_state, saturated,
-                     weight=1.0) -> None:
+                     weight=1.0, sampled_only=False) -> None:
     """The frames method's sums for one frame, pixel by pixel in plain Python (see
     ``evtools._kernels.estimate.frame_sums``), every sum added at every frame: a pixel of the frame (``image``, its
     corner at ``x0, y0``) counts in ``saturated`` when it is; a usable one (at most ``max_events`` events in its
     exposure: ``fired[i]``, not saturated, at least ``min_signal`` above black) adds (1, A, -B, y, A^2, B^2, -AB,
     Ay, -By, y^2) to ``sums``, with A, B its ``counts`` at the exposure's middle, and 1 / (DN - black) to
     ``inverse_sums``; with ``sample_step``, every such pixel also to ``half[side]`` by its level against its mean
-    so far. The frame weighs ``weight`` in ``sums``, ``inverse_sums`` and ``new_counts`` (1 in ``half``)."""
+    so far, and with ``sampled_only`` no other pixel adds anything. The frame weighs ``weight`` in ``sums``,
+    ``inverse_sums`` and ``new_counts`` (1 in ``half``)."""
     for row in range(image.shape[0]):
         for column in range(image.shape[1]):
             i = (y0 + row) * width + x0 + column
+            if sampled_only and i % sample_step != 0:
+                continue
             dn = float(image[row][column])
             saturated[i] += dn >= saturated_dn
             if fired[i] > max_events or dn >= saturated_dn or dn - black < min_signal:
@@ -305,13 +308,16 @@ def naive_count_times(events, origin_us: int) -> dict:
 
 
 def naive_frame_time_sums(image, x0, y0, width, counts, times, fired, black, max_events, min_signal, saturated_dn,
-                          time_sums, weight=1.0) -> None:
+                          time_sums, weight=1.0, only_every=0) -> None:
     """onEI's event-time sums for one frame, pixel by pixel in plain Python (see
     ``evtools._kernels.estimate.frame_sums`` with time sums): a usable pixel (as :func:`naive_frame_sums` has it) adds
-    (z_on, A z_on, -B z_on, z_off, A z_off, -B z_off), with z its event-time sums and A, B its counts."""
+    (z_on, A z_on, -B z_on, z_off, A z_off, -B z_off), with z its event-time sums and A, B its counts; with
+    ``only_every``, only every such pixel (by index)."""
     for row in range(image.shape[0]):
         for column in range(image.shape[1]):
             i = (y0 + row) * width + x0 + column
+            if only_every and i % only_every != 0:
+                continue
             dn = float(image[row][column])
             if fired[i] > max_events or dn >= saturated_dn or dn - black < min_signal:
                 continue
