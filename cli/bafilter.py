@@ -131,6 +131,10 @@ def bafilter(inputs, reading, output, jobs, scheduler, as_json, methods, preset,
         raise click.UsageError(str(error)) from None
     if (hot_pixels_path or save_hot_pixels) and "hotpixel" not in methods:
         raise click.UsageError("--hot-pixels and --save-hot-pixels need --method hotpixel")
+    learning = [name for name in ("learn_us", "hot_ratio", "hot_rate_hz", "hot_min_events") if name in given]
+    if hot_pixels_path and learning:  # (a list given learns nothing: they were accepted and ignored, a QA sweep)
+        raise click.UsageError(f"{', '.join('--' + name.replace('_', '-') for name in learning)}: nothing is learned "
+                               "with --hot-pixels FILE (the list is the hot pixels)")
     if save_hot_pixels == STDIO and output in (None, STDIO):
         raise click.UsageError("--save-hot-pixels - and the events cannot both go to stdout; give -o FILE")
     pairs = plan(inputs, output, ".aedat4", check=lambda pairs: check_compression(compression, pairs))

@@ -38,6 +38,10 @@ def _labels_for(truth: str, name: str) -> np.ndarray:
         raise DenoiseMetricsError(f"{truth}: {len(labels):,} labels but {name} has {n_events:,} events (give the "
                                   "truth file written with that stream)")
     check_labelled(truth, fingerprint, seen, name)
+    for undefined, none_of in (("FPR (and roc's AUC)", not np.any(labels != 0)), ("TPR", not np.any(labels == 0))):
+        if none_of and len(labels):  # (the rate a null in the report stands for: said, not left to guess)
+            what = "noise (shot, leak, hot)" if undefined.startswith("FPR") else "signal"
+            log.warning(f"{truth}: no event of {name} is labelled {what}: the {undefined} is undefined (null)")
     return labels
 
 
@@ -208,6 +212,8 @@ def roc(noisy, truth, methods, sweep, preset, weights, polarity_maps, settings, 
     evtools metrics roc noisy.aedat4 --truth t.h5 --method baf --method stcf --sweep dt-us=1000,3000,10000,30000
     """
     name, values = sweep
+    if name in settings:  # (the sweep's values were used, and "held" reported the --set one: a QA sweep)
+        raise click.UsageError(f"{name.replace('_', '-')} is both swept (--sweep) and held (--set): give it once")
     for chain in methods:
         try:
             stages = parse_methods(chain)
@@ -230,6 +236,10 @@ def roc(noisy, truth, methods, sweep, preset, weights, polarity_maps, settings, 
                 BAFilter(width, height, chain, preset=preset, check=False,
                          **_point_params(settings, name, value, weights, polarity_maps, stages))
             except BAFilterError as error:
+                if settings:  # (a held value may be the bad one: both named, not the sweep alone)
+                    held = ", ".join(f"{key.replace('_', '-')}={number}" for key, number in settings.items())
+                    raise click.UsageError(f"--method {chain} with {name.replace('_', '-')}={value} and --set "
+                                           f"{held}: {error}") from None
                 raise click.BadParameter(f"{name.replace('_', '-')}={value}: {error}", param_hint="--sweep") \
                     from None
     figure_path(plot, "--plot", (noisy, truth, weights))

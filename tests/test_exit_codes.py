@@ -201,6 +201,8 @@ def test_a_radius_wider_than_the_sensor_is_the_sensor():
     (["-m", "baf", "--k", "3"], "--k do(es) not apply to --method baf (--preset evtools)"),
     (["-m", "stcf", "--window", "9", "--learn-us", "5"], "--window, --learn-us do(es) not apply to --method stcf"),
     (["--preset", "dv", "-m", "orderN"], "--preset dv has no method orderN (it has baf)"),
+    (["-m", "hotpixel", "--hot-pixels", str(STEP), "--learn-us", "5000"],  # (learned nothing, silently)
+     "--learn-us: nothing is learned with --hot-pixels FILE"),
 ])
 def test_filter_options_no_chosen_method_uses_are_usage_errors(tmp_path, args, message):
     """(`-m baf --k 3` ran baf as if --k were not given; a preset without the method was a data error)"""
@@ -289,6 +291,8 @@ def test_one_grammar_usage_mistakes_exit_2_and_bad_files_exit_1_each_in_one_line
     ["simulate", "scene:nope", "-o", "{out}/s.aedat4"],
     ["bafilter", str(STEP), "--method", "foo", "-o", "{out}/b.aedat4"],
     ["metrics", "reconstruction", str(STEP), "--truth", str(TRUTH), "--plot", "{out}/x.xyz"],
+    ["bafilter", str(STEP), "-m", "stcf", "--polarity-maps", "--any-polarity", "-o", "{out}/b.aedat4"],  # (was 1)
+    ["simulate", "scene:flicker", "--aps-rate", "50", "--aps-exposure", "20ms", "-o", "{out}/s.aedat4"],  # (was 1)
 ])
 def test_the_same_kind_of_mistake_gets_the_same_exit_code(tmp_path, args):
     """Issue 39: an output whose extension names nothing and an unknown scene or method are all usage mistakes

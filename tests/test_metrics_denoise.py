@@ -263,6 +263,22 @@ def test_roc_checks_every_points_filter_before_any_work(noisy):
                          (["--method", "stcf", "--weights", str(truth), "--sweep", "k=1,2"],
                           "--weights applies to --method mlpf"),
                          (["--method", "baf", "--polarity-maps", "--sweep", "dt-us=1000"],
-                          "--polarity-maps applies to --method stcf")):
+                          "--polarity-maps applies to --method stcf"),
+                         (["--method", "stcf", "--sweep", "dt-us=1000", "--set", "dt-us=5000"],  # (held said 5000,
+                          "dt-us is both swept (--sweep) and held (--set)"),                  # every point ran 1000)
+                         (["--method", "stcf,dwf", "--sweep", "dt-us=1000", "--set", "window=0"],  # (blamed --sweep)
+                          "--set window=0: window must be")):
         result = run("metrics", "roc", path, "--truth", truth, *args, check=False)
         assert result.returncode == 2 and needle in result.stderr.decode(), result.stderr
+
+
+def test_a_truth_without_noise_says_why_the_fpr_and_auc_are_null(tmp_path):
+    """A QA sweep: a truth with no noise label gave `fpr: null` / `auc: null`, exit 0, without a word."""
+    clean, truth = tmp_path / "clean.aedat4", tmp_path / "clean.h5"
+    run("simulate", "scene:bars", "--size", "32x24", "--duration", "300ms", "--leak-rate-hz", "0",
+        "--shot-noise-rate-hz", "0", "--truth", truth, "-o", clean)
+    done = run("metrics", "roc", clean, "--truth", truth, "-m", "baf", "--sweep", "dt-us=1000,5000", "--json")
+    assert json.loads(done.stdout)["methods"][0]["auc"] is None
+    assert "no event of" in done.stderr.decode() and "labelled noise" in done.stderr.decode()
+    done = run("metrics", "denoise", clean, "--truth", truth, "--input", clean, "--json")
+    assert json.loads(done.stdout)["fpr"] is None and "the FPR (and roc's AUC) is undefined" in done.stderr.decode()

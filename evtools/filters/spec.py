@@ -16,7 +16,7 @@ from typing import Any, Callable, ClassVar
 import numpy as np
 
 from evtools._kernels.bafilter import NEVER
-from evtools.errors import EvtoolsError
+from evtools.errors import EvtoolsError, UsageMistake
 from evtools.events import EVENT_DTYPE, MAX_TIME_US, empty_events, record_words
 
 PRESETS = ("evtools", "dv", "jaer")
@@ -29,6 +29,10 @@ and 1), a switch, MLPF weights (a path or :class:`evtools.mlpf.Weights`), a per-
 
 class BAFilterError(EvtoolsError, ValueError):
     """A bad filter parameter or method name."""
+
+
+class BAFilterSettingsError(BAFilterError, UsageMistake):
+    """Filter parameters that do not go together (polarity maps without polarity): a usage error (exit 2)."""
 
 
 @dataclass(frozen=True)

@@ -7,7 +7,7 @@ import numpy as np
 
 from evtools._kernels import bafilter as kernels
 from evtools.filters.baf import DT_US
-from evtools.filters.spec import BAFilterError, Filter, Param
+from evtools.filters.spec import BAFilterSettingsError, Filter, Param
 
 
 RADIUS = Param("radius", "int", "neighbourhood radius r, window (2r+1)^2", 1, 10)
@@ -34,7 +34,7 @@ class Stcf(Filter):
     @classmethod
     def prepare(cls, q, width, height):
         if q.get("polarity_maps") and not q["polarity"]:
-            raise BAFilterError("polarity maps count neighbours of the event's polarity: they cannot go with "
+            raise BAFilterSettingsError("polarity maps count neighbours of the event's polarity: they cannot go with "
                                 "polarity off")
         return q
 
