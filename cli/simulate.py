@@ -20,6 +20,7 @@ from evtools.cli.options import (FINITE, Duration, FiniteRange, Microseconds, ae
                                  merged_alias, serve_early,
                                  check_compression, compression_option, input_format_option, reading_options)
 from evtools.cli.progress import with_progress
+from evtools.errors import EvtoolsError
 from evtools.events import CHUNK_EVENTS, StreamInfo, join, parse_sensor_size
 from evtools.noise import NOISE_DEFAULTS, NoiseInjector
 from evtools.simulation import (
@@ -79,6 +80,11 @@ def open_source(source: str, size, duration, fps, timestamps, scene_options) -> 
         raise SimulationError(f"{source}: no such file or folder (a scene is given as scene:NAME)")
     if timestamps is not None and not os.path.isdir(source):
         raise click.UsageError("--timestamps applies to image folders only")
+    if fps and os.path.isdir(source) and (timestamps is not None or os.path.isfile(os.path.join(source,
+                                                                                                TIMESTAMPS_FILE))):
+        # (one of the two was ignored without a word: a QA sweep)
+        raise click.UsageError(f"--frame-rate and the folder's timestamps ({timestamps or TIMESTAMPS_FILE}) both time "
+                               "the images: give one")
     return open_frames(source, fps, size, timestamps)
 
 
@@ -285,6 +291,11 @@ def simulate(source, output, output_format, truth, truth_frame_rate, input_forma
         raise click.UsageError(f"{', '.join('--' + n.replace('_us', '').replace('_', '-') for n in aps)} require "
                                "--aps-rate")
     size = merged_alias("--size", size, "--sensor-size", sensor_size)
+    if size is not None:  # (a size no sensor has is a usage error, as convert's --sensor-size: was exit 1)
+        try:
+            parse_sensor_size(size)
+        except EvtoolsError as error:
+            raise click.BadParameter(str(error), param_hint="'--size'") from None
     fps = options["frame_rate"] = merged_alias("--frame-rate", options["frame_rate"], "--fps", fps)
     given = {name: value for name, value in options.items() if value is not None}
     if is_event_stream(source, input_format):
@@ -338,6 +349,7 @@ def simulate(source, output, output_format, truth, truth_frame_rate, input_forma
     with create_events(output, info, format=output_format, compression=compression, inputs=inputs) as writer:
         if truth is None:
             _run(simulator, frames, writer, None, counts, aps=_Aps(sensor, None) if sensor else None)
+            writer.cut = frames.was_cut  # (a video broken off: its events are a cut stream)
         else:
             with create_truth(truth) as truth_writer:
                 _start_truth(truth_writer, simulator, frames, preset)
@@ -345,7 +357,8 @@ def simulate(source, output, output_format, truth, truth_frame_rate, input_forma
                 _run(simulator, frames, writer, truth_writer, counts,
                      _LogFrames(truth_writer, frames, rate_hz) if rate_hz else None,
                      _Aps(sensor, truth_writer) if sensor else None)
-                _mark_cut(truth_writer, False, inputs)
+                writer.cut = frames.was_cut
+                _mark_cut(truth_writer, frames.was_cut, inputs)
                 if simulator.drift_origin_us is not None:  # (the truth's maps are the thresholds at this time)
                     truth_writer.write_attributes({"thres_drift_origin_us": simulator.drift_origin_us})
     _report(source, output, counts, as_json)

@@ -4,10 +4,12 @@ frame rate, read as luma frames ``(t_us, height x width)`` on the 0-255 scale (`
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import os
 import re
+import sys
 from dataclasses import dataclass, field
 from typing import Any, Iterator
 
@@ -42,6 +44,7 @@ class FrameSource:
     frames: Iterator[tuple[int, np.ndarray]]
     count: int | None = None
     attributes: dict[str, Any] = field(default_factory=dict)
+    was_cut: bool = False  # set once read: the source ended before the frames it declares (a video broken off)
 
 
 def read_image(path: str) -> np.ndarray:
@@ -88,18 +91,37 @@ def _resize(frame: np.ndarray, size: tuple[int, int] | None) -> np.ndarray:
     return cv2.resize(frame.astype(np.float32, copy=False), size, interpolation=cv2.INTER_AREA)
 
 
+@contextlib.contextmanager
+def _stderr_silenced():
+    """File descriptor 2 sent to /dev/null for the block (C libraries' own lines on broken files), then restored."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(os.devnull, "wb") as null:
+            os.dup2(null.fileno(), 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
 def video_source(path: str, fps: float | None, size: str | None) -> FrameSource:
-    """A video file read with OpenCV; frame times from its frame rate (or ``fps``)."""
-    # FFmpeg prints its own complaints about broken files on stderr (read when OpenCV first uses it): errors are
-    # ours to report, in one line
+    """A video file read with OpenCV; frame times from the container's (each frame's presentation time, relative to
+    the first: variable frame rates, dropped frames), or from ``fps`` when given. Where the container's times do
+    not increase, the frame rate takes over from there (said once). A video that ends before the frames it
+    declares is said and marked cut (``was_cut``): a copy broken off read as a shorter, whole one."""
+    # FFmpeg prints its complaints about broken files on stderr (its level read when OpenCV first uses it), and
+    # OpenCV's own AVI parser with a plain fprintf: errors are ours to report, in one line
     os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
     import cv2
 
     note_input(path)
-    capture = cv2.VideoCapture(path)
+    with _stderr_silenced():
+        capture = cv2.VideoCapture(path)
     if not capture.isOpened():
         raise VideoError(f"{path}: cannot read it as a video (OpenCV could not open it)")
-    ok, first = capture.read()
+    with _stderr_silenced():
+        ok, first = capture.read()
     if not ok or first is None:
         capture.release()
         raise VideoError(f"{path}: cannot read a frame from this video")
@@ -112,21 +134,39 @@ def video_source(path: str, fps: float | None, size: str | None) -> FrameSource:
     height, width = first.shape
     parse_sensor_size(f"{width}x{height}")
     count = int(capture.get(cv2.CAP_PROP_FRAME_COUNT) or 0) or None
+    start_ms = float(capture.get(cv2.CAP_PROP_POS_MSEC) or 0.0)
 
     def frames():
+        t_us, by_rate = 0, bool(fps)  # (--frame-rate overrides the container's times)
         try:
             yield 0, first
             index = 1
             while True:
-                ok, frame = capture.read()
+                with _stderr_silenced():
+                    ok, frame = capture.read()
                 if not ok or frame is None:
-                    return
-                yield round(index * 1e6 / rate), _resize(_luma(frame, path), target)
+                    break
+                if not by_rate:
+                    stamp_us = round((float(capture.get(cv2.CAP_PROP_POS_MSEC)) - start_ms) * 1000)
+                    if stamp_us > t_us:
+                        t_us = stamp_us
+                    else:
+                        by_rate = True
+                        log.warning(f"{path}: the container's frame times stop increasing at frame {index}: "
+                                    f"timed by the frame rate ({rate:g} fps) from there")
+                if by_rate:
+                    t_us = round(index * 1e6 / rate) if fps else t_us + round(1e6 / rate)
+                yield t_us, _resize(_luma(frame, path), target)
                 index += 1
+            if count is not None and index < count - 1:  # (the declared count may be an estimate: one is slack)
+                source.was_cut = True
+                log.warning(f"{path}: the video ends after {index:,} of the {count:,} frames it declares (a copy "
+                            "broken off?): the events are marked cut")
         finally:
             capture.release()
 
-    return FrameSource(path, width, height, frames(), count, {"video": os.path.basename(path), "fps": rate})
+    source = FrameSource(path, width, height, frames(), count, {"video": os.path.basename(path), "fps": rate})
+    return source
 
 
 def _natural_key(name: str):
@@ -134,8 +174,9 @@ def _natural_key(name: str):
 
 
 def read_timestamps_us(path: str) -> np.ndarray:
-    """One time per line in seconds (blank lines and ``#`` comments skipped), as microseconds."""
-    times = []
+    """One time per line in seconds (blank lines and ``#`` comments skipped), as microseconds: the line's first
+    field (rpg's ``t image``); a first column counting 0, 1, 2... beside more fields is frame numbers, refused."""
+    times, more_fields = [], True
     note_input(path)
     try:
         with open(path, encoding="utf-8") as file:
@@ -143,6 +184,7 @@ def read_timestamps_us(path: str) -> np.ndarray:
                 text = line.split("#", 1)[0].strip()
                 if not text:
                     continue
+                more_fields &= len(text.replace(",", " ").split()) > 1
                 try:
                     value = float(text.split()[0].rstrip(","))
                 except ValueError:
@@ -154,6 +196,10 @@ def read_timestamps_us(path: str) -> np.ndarray:
         raise VideoError(f"{path}: cannot read timestamps ({error.strerror})") from None
     except UnicodeDecodeError:
         raise VideoError(f"{path}: not a text file of timestamps") from None
+    counting = len(times) > 2 and times[0] in (0, 1) and np.array_equal(np.diff(times), np.ones(len(times) - 1))
+    if counting and more_fields:
+        raise VideoError(f"{path}: its first column counts {times[0]:g}, {times[1]:g}, {times[2]:g}... (frame numbers, "
+                         "read as seconds): give one time in seconds per line, or the time first (t image)")
     if len(times) > 1 and np.median(np.diff(times)) > 60:  # (microseconds read as seconds: days of leak noise)
         log.warning(
             f"{path}: the frames are {np.median(np.diff(times)):,.0f} s apart (median): timestamps are read as "

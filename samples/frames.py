@@ -87,7 +87,7 @@ def accuracy(estimate, on, off, unsaturated):
 
 def prediction(events, frames, width, height, on, off):
     """metrics reconstruction's scores (no truth file) for events and frames with thresholds on, off."""
-    scorer = FramePrediction(width, height, on, off)
+    scorer = FramePrediction(width, height, on, off, black_level=0.0)  # (the generator's frames: black 0)
     scorer.process(events)
     scorer.add_frames(frames)
     return scorer.scores()

@@ -547,6 +547,15 @@ def test_image_folder_with_timestamps(tmp_path):
     (folder / "timestamps.txt").write_text("\n".join(str(1_000_000 + 10_000 * i) for i in range(5)) + "\n")
     warned = run("simulate", folder, "--preset", "clean", "-o", out, check=False).stderr
     assert b"the frames are 10,000 s apart (median): timestamps are read as seconds" in warned
+    # (QA sweep: a first column of frame numbers was read as seconds, and --frame-rate beside timestamps ignored)
+    (folder / "timestamps.txt").write_text("".join(f"{i} {0.01 * i}\n" for i in range(5)))
+    assert_clean_error(run("simulate", folder, "-o", out, check=False), "timestamps.txt: its first column counts 0, "
+                       "1, 2... (frame numbers")
+    for given in ([], ["--timestamps", folder / "timestamps.txt"]):
+        done = run("simulate", folder, *given, "--frame-rate", "10", "-o", out, check=False)
+        assert done.returncode == 2 and b"both time the images: give one" in done.stderr
+    done = run("simulate", "scene:bars", "--size", "0x10", "-o", out, check=False)  # (was exit 1, no option named)
+    assert done.returncode == 2 and b"Invalid value for '--size': sensor width 0" in done.stderr
 
 
 def test_normalised_frames_from_python_are_warned(caplog):
@@ -583,8 +592,7 @@ def test_float_images_keep_intensities_above_white(tmp_path):
 
 def test_cli_bad_inputs_give_one_line_errors(tmp_path):
     out = tmp_path / "out.aedat4"
-    assert_clean_error(run("simulate", "scene:flicker", "--size", "0x10", "-o", out, check=False), "width 0")
-    for option, value in (("--shot-noise-rate-hz", "-2"), ("--seed", "-1")):  # out of range: usage errors (2)
+    for option, value in (("--shot-noise-rate-hz", "-2"), ("--seed", "-1"), ("--size", "0x10")):  # usage errors (2)
         refused = run("simulate", "scene:static", option, value, "-o", out, check=False)
         assert refused.returncode == 2 and option.encode() in refused.stderr and b"Traceback" not in refused.stderr
     assert_clean_error(
@@ -708,3 +716,63 @@ def test_bars_reaching_level_0_never_go_below_it(min_level, max_level):
     frames = [frame for _, frame in bars_scene(8, 6, 20_000, min_level=min_level, max_level=max_level)]
     low, high = min(min_level, max_level), max(min_level, max_level)
     assert min(float(f.min()) for f in frames) >= low and max(float(f.max()) for f in frames) <= high
+
+
+class _Capture:
+    """A stand-in for cv2.VideoCapture: ``stamps_ms`` are the container's frame times (CAP_PROP_POS_MSEC after each
+    read), ``declared`` its frame count, 10 fps its nominal rate."""
+
+    def __init__(self, stamps_ms, declared):
+        self.stamps, self.declared, self.read_frames = stamps_ms, declared, 0
+
+    def isOpened(self):
+        return True
+
+    def read(self):
+        if self.read_frames == len(self.stamps):
+            return False, None
+        self.read_frames += 1
+        return True, np.full((4, 6, 3), 40 * self.read_frames, np.uint8)
+
+    def get(self, prop):
+        return {cv2.CAP_PROP_FPS: 10.0, cv2.CAP_PROP_FRAME_COUNT: float(self.declared),
+                cv2.CAP_PROP_POS_MSEC: self.stamps[self.read_frames - 1] if self.read_frames else 0.0}[prop]
+
+    def release(self):
+        pass
+
+
+@pytest.mark.parametrize("stamps_ms, declared, fps, expected_us, cut", [
+    ([0, 40, 80, 280, 320], 5, None, [0, 40_000, 80_000, 280_000, 320_000], False),  # variable rate: its own times
+    ([500, 540, 580], 3, None, [0, 40_000, 80_000], False),                         # relative to the first frame
+    ([0, 40, 80, 280], 4, 25.0, [0, 40_000, 80_000, 120_000], False),               # --frame-rate overrides them
+    ([0, 40, 40, 0], 4, None, [0, 40_000, 140_000, 240_000], False),                # not increasing: the rate (10 fps)
+    ([0, 100, 200], 10, None, [0, 100_000, 200_000], True),                         # 3 of 10 frames: broken off
+])
+def test_video_frames_take_the_containers_times_and_a_broken_video_is_cut(monkeypatch, caplog, stamps_ms, declared,
+                                                                          fps, expected_us, cut):
+    """A QA sweep: frames were timed index / nominal fps, so a variable-frame-rate video (0, 40, 80, 280 ms) put the
+    80-280 ms change at 80-120 ms and everything after it 200 ms early, and a copy broken off after 3 of its 10
+    frames read as a whole, shorter video."""
+    from evtools.formats import video
+
+    monkeypatch.setattr(cv2, "VideoCapture", lambda path: _Capture(stamps_ms, declared))
+    monkeypatch.setattr(video, "note_input", lambda path: None)
+    source = video.video_source("clip.mp4", fps, None)
+    assert [t for t, _ in source.frames] == expected_us
+    assert source.was_cut == cut and ("ends after 3 of the 10 frames" in caplog.text) == cut
+    assert ("stop increasing at frame 2" in caplog.text) == (stamps_ms == [0, 40, 40, 0])
+
+
+def test_a_broken_video_is_one_line_even_where_opencv_prints_its_own(tmp_path):
+    """A QA sweep: OpenCV's AVI parser printed `Unexpected element. Expected: LIST. Got: JUNK.` before evtools' own
+    error, so the error was two lines (even with -q)."""
+    video = tmp_path / "flick.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 25, (64, 48))
+    for i in range(10):
+        writer.write(np.full((48, 64, 3), 50 if i % 2 else 200, np.uint8))
+    writer.release()
+    broken = tmp_path / "broken.avi"
+    broken.write_bytes(video.read_bytes()[:5000])
+    assert_clean_error(run("-q", "simulate", broken, "-o", tmp_path / "x.aedat4", check=False), "broken.avi",
+                       "cannot read it as a video")
