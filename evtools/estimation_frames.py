@@ -274,7 +274,11 @@ class FrameThresholdEstimator:
         self.counted_before_us = -math.inf  # every event earlier than this is counted (and no later one)
         self.last_t_us: int | None = None
         self.events = 0
+        # frames beyond the events' span (events cut at the start or the end while the APS ran on): the counts
+        # there are not known, so only the frame next to the span on each side is used (its interval to the
+        # events holds none: a stream that starts or ends without events between it and the frame)
         self.frames_used = self.frames_late = self.frames_outside = self.frames_beyond_events = 0
+        self.frames_after_events = False
         self.t_frame_us: int | None = None  # the last frame used (online forgetting)
         self.weight = 1.0  # onEI: the weight of a frame added now (see _forget)
         self.next_map_us: int | None = None
@@ -436,13 +440,23 @@ class FrameThresholdEstimator:
             frame = self.pending[0]
             if known_us <= frame.exposure_end_us:  # a later event may still belong to its exposure
                 return
-            if self.last_t_us is None or not (self.origin_us <= frame.exposure_end_us
-                                              and frame.exposure_begin_us <= self.last_t_us):
-                # its exposure outside the events' span: the counts there are not known (events cut at the start
-                # or the end, the frames' stream longer)
+            if self.last_t_us is None:  # (no event at all)
                 self.frames_beyond_events += 1
                 self.pending.popleft()
                 continue
+            if frame.exposure_end_us < self.origin_us:  # before the events: only the last such frame is used
+                if len(self.pending) == 1 and not final:  # (whether another follows is not known yet)
+                    return
+                if self.pending[1].exposure_end_us < self.origin_us:
+                    self.frames_beyond_events += 1
+                    self.pending.popleft()
+                    continue
+            elif frame.exposure_begin_us > self.last_t_us:  # after them (known at the end): only the first
+                if self.frames_after_events:
+                    self.frames_beyond_events += 1
+                    self.pending.popleft()
+                    continue
+                self.frames_after_events = True
             self._count_before(frame.exposure_begin_us)
             if self.exposures == np.iinfo(np.int32).max:  # the marks start again (after 2^31 frames)
                 self.marks[:, 0] = -1
@@ -534,6 +548,8 @@ class FrameThresholdEstimator:
         self.t_frame_us = t_us
 
     def _snapshot_maps(self, t_us: int) -> None:
+        if self.last_t_us is not None and t_us > self.last_t_us:  # (the frame after the events: the final map's)
+            return
         if self.next_map_us is None:
             self.next_map_us = t_us + self.interval_us
         while t_us >= self.next_map_us:
@@ -740,11 +756,6 @@ class FrameThresholdEstimator:
         """The maps from everything so far (the stream's end: its held events and frames used); raises
         :class:`EstimationError` when the stream had no frames."""
         self._advance(final=True)
-        if self.frames_used == 0 and self.frames_beyond_events:
-            raise EstimationError(f"none of the {self.frames_beyond_events:,} APS frames lies within the events' time "
-                                  + ("span" if self.last_t_us is None else
-                                     f"span ({self.origin_us:,} to {self.last_t_us:,} us)")
-                                  + ": are the frames on the events' clock, or the events cut?")
         if self.frames_used == 0:
             raise EstimationError("no APS frames: --method frames needs a recording with frames (a DAVIS camera's, "
                                   "or simulate --aps-rate); --method natural estimates from events alone")
