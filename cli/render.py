@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import contextlib
 import itertools
 import logging
 import os
@@ -27,6 +26,7 @@ from evtools.render import (
 from evtools.formats import open_events
 from evtools.formats.io import STDIO, atomic_path, output_stream, same_file
 from evtools.formats.thresholds import read_thresholds
+from evtools.formats.video import quiet_stderr
 from evtools.transform import sliced
 
 log = logging.getLogger("evtools")
@@ -354,7 +354,7 @@ def _open_video(temporary: str, output: str, extension: str, fps: float, size: t
 
     codecs = VIDEO_FOURCC[extension]
     for codec in codecs:
-        with _quiet_stderr():
+        with quiet_stderr():
             writer = cv2.VideoWriter(temporary, cv2.CAP_FFMPEG, cv2.VideoWriter_fourcc(*codec), fps, size)
         if writer.isOpened():
             return writer, codec
@@ -430,23 +430,6 @@ class _VideoFrames:
 
     def close(self) -> None:
         self.writer.release()
-
-
-@contextlib.contextmanager
-def _quiet_stderr():
-    """FFmpeg prints to the process's stderr (fd 2) while OpenCV probes codecs: silenced for that moment only."""
-    try:
-        saved = os.dup(2)
-    except OSError:
-        yield
-        return
-    try:
-        with open(os.devnull, "wb") as null:
-            os.dup2(null.fileno(), 2)
-        yield
-    finally:
-        os.dup2(saved, 2)
-        os.close(saved)
 
 
 def _render_map(path: str, output: str, value_range, colormap=None) -> None:

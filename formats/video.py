@@ -92,10 +92,15 @@ def _resize(frame: np.ndarray, size: tuple[int, int] | None) -> np.ndarray:
 
 
 @contextlib.contextmanager
-def _stderr_silenced():
-    """File descriptor 2 sent to /dev/null for the block (C libraries' own lines on broken files), then restored."""
+def quiet_stderr():
+    """File descriptor 2 sent to /dev/null for the block, then restored: FFmpeg's and OpenCV's own lines (codec
+    probes, broken files) are not ours to print; evtools reports its errors in one line."""
     sys.stderr.flush()
-    saved = os.dup(2)
+    try:
+        saved = os.dup(2)
+    except OSError:
+        yield
+        return
     try:
         with open(os.devnull, "wb") as null:
             os.dup2(null.fileno(), 2)
@@ -116,11 +121,11 @@ def video_source(path: str, fps: float | None, size: str | None) -> FrameSource:
     import cv2
 
     note_input(path)
-    with _stderr_silenced():
+    with quiet_stderr():
         capture = cv2.VideoCapture(path)
     if not capture.isOpened():
         raise VideoError(f"{path}: cannot read it as a video (OpenCV could not open it)")
-    with _stderr_silenced():
+    with quiet_stderr():
         ok, first = capture.read()
     if not ok or first is None:
         capture.release()
@@ -142,7 +147,7 @@ def video_source(path: str, fps: float | None, size: str | None) -> FrameSource:
             yield 0, first
             index = 1
             while True:
-                with _stderr_silenced():
+                with quiet_stderr():
                     ok, frame = capture.read()
                 if not ok or frame is None:
                     break

@@ -39,6 +39,7 @@ from evtools.correction import correct_thresholds  # noqa: E402
 from evtools.estimation import EstimationError, estimate_thresholds  # noqa: E402
 from evtools.events import make_events  # noqa: E402
 from evtools.filters import ba_filter  # noqa: E402
+from evtools.metrics import thresholds as thresholds_metrics  # noqa: E402
 from evtools.metrics.thresholds import fit_calibration  # noqa: E402
 from tests.naive.texture import count_error, crossings, smooth_field, texture_signal  # noqa: E402
 
@@ -93,8 +94,8 @@ def correction_rows(name: str) -> list[str]:
 
 
 def rank_correlation(a: np.ndarray, b: np.ndarray) -> float:
-    ranks = [np.argsort(np.argsort(v)) for v in (a, b)]
-    return float(np.corrcoef(*ranks)[0, 1]) if len(a) > 2 else float("nan")
+    """Spearman's (ties at their average rank, as metrics thresholds has it); NaN for fewer than 3 pixels."""
+    return thresholds_metrics.rank_correlation(a, b) if len(a) > 2 else float("nan")
 
 
 def oracle_rank_correlation(fit: np.ndarray, seed: int, draws: int = 20) -> float:

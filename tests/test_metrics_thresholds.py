@@ -7,7 +7,7 @@ import json
 import cv2
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from evtools.metrics.thresholds import ThresholdMetricsError, fit_calibration, threshold_errors
@@ -207,3 +207,21 @@ def test_thresholds_marked_valid_but_not_positive_count_as_invalid(tmp_path):
     assert "3 pixels marked valid hold a threshold that is not finite and positive" in result.stderr.decode()
     direct = threshold_errors(estimate_on, off, np.ones(on.shape, bool), on, off)
     assert direct["valid_pixels"] == on.size - 3
+
+
+@settings(max_examples=60, deadline=None)
+@given(pairs=st.lists(st.tuples(st.integers(0, 6), st.floats(0, 1, allow_nan=False)), min_size=3, max_size=40),
+       seed=st.integers(0, 2**32 - 1))
+def test_rank_correlation_is_spearmans_with_ties_at_their_average_rank(pairs, seed):
+    """A QA sweep: ties (a fit takes few distinct values) were ranked by the pixels' order, so the same maps flipped
+    gave -0.109 and +0.058 where Spearman's is -0.027. Against the textbook definition, in any order."""
+    from evtools.metrics.thresholds import rank_correlation
+    from tests.naive import naive_spearman
+
+    a = np.array([p[0] for p in pairs], float)
+    b = np.array([p[1] for p in pairs])
+    assume(len(set(a.tolist())) > 1 and len(set(b.tolist())) > 1)
+    expected = naive_spearman(a, b)
+    order = np.random.default_rng(seed).permutation(len(a))
+    assert rank_correlation(a, b) == pytest.approx(expected, abs=1e-9)
+    assert rank_correlation(a[order], b[order]) == pytest.approx(expected, abs=1e-9)

@@ -595,3 +595,19 @@ def aedat3_with_frames(events, frames, width: int, height: int) -> bytes:
         for t, x, y, p in zip(chunk["t"].tolist(), chunk["x"].tolist(), chunk["y"].tolist(), chunk["p"].tolist()):
             out.append(struct.pack("<Ii", 1 | (int(p) << 1) | (y << 2) | (x << 17), t))
     return b"".join(out)
+
+
+def naive_spearman(a, b) -> float:
+    """Spearman's rank correlation by its textbook definition: each value's rank is 1 + the number of values below
+    it + half the number of others equal to it (ties share the mean rank), then Pearson's correlation of the ranks,
+    in plain Python."""
+    def ranks(values):
+        return [1 + sum(w < v for w in values) + (sum(w == v for w in values) - 1) / 2 for v in values]
+
+    ra, rb = ranks(list(a)), ranks(list(b))
+    n = len(ra)
+    ma, mb = sum(ra) / n, sum(rb) / n
+    cov = sum((x - ma) * (y - mb) for x, y in zip(ra, rb))
+    va = sum((x - ma) ** 2 for x in ra)
+    vb = sum((y - mb) ** 2 for y in rb)
+    return cov / (va * vb) ** 0.5
