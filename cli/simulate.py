@@ -80,11 +80,6 @@ def open_source(source: str, size, duration, fps, timestamps, scene_options) -> 
         raise SimulationError(f"{source}: no such file or folder (a scene is given as scene:NAME)")
     if timestamps is not None and not os.path.isdir(source):
         raise click.UsageError("--timestamps applies to image folders only")
-    if fps and os.path.isdir(source) and (timestamps is not None or os.path.isfile(os.path.join(source,
-                                                                                                TIMESTAMPS_FILE))):
-        # (one of the two was ignored without a word: a QA sweep)
-        raise click.UsageError(f"--frame-rate and the folder's timestamps ({timestamps or TIMESTAMPS_FILE}) both time "
-                               "the images: give one")
     return open_frames(source, fps, size, timestamps)
 
 

@@ -15,6 +15,7 @@ from typing import Any, Iterator
 
 import numpy as np
 
+from evtools.errors import UsageMistake
 from evtools.events import parse_sensor_size
 from evtools.formats.errors import FormatError
 from evtools.inputs import note_input
@@ -28,6 +29,10 @@ TIMESTAMPS_FILE = "timestamps.txt"
 
 class VideoError(FormatError):
     """A video or an image folder that cannot be read as frames."""
+
+
+class VideoTimingError(VideoError, UsageMistake):
+    """Two timings given for one image folder: a usage error (exit 2)."""
 
 
 @dataclass
@@ -219,8 +224,11 @@ def folder_source(folder: str, timestamps: str | None, fps: float | None, size: 
     names = sorted((n for n in os.listdir(folder) if n.lower().endswith(IMAGE_EXTENSIONS)), key=_natural_key)
     if not names:
         raise VideoError(f"{folder}: no images in this folder ({', '.join(IMAGE_EXTENSIONS[:5])}, ...)")
-    if timestamps is None and os.path.isfile(os.path.join(folder, TIMESTAMPS_FILE)) and not fps:
+    if timestamps is None and os.path.isfile(os.path.join(folder, TIMESTAMPS_FILE)):
         timestamps = os.path.join(folder, TIMESTAMPS_FILE)
+    if timestamps is not None and fps:  # (one was ignored without a word: a QA sweep)
+        raise VideoTimingError(f"{folder}: a frame rate and the images' timestamps ({timestamps}) both time the "
+                               "images: give one")
     if timestamps is not None:
         times = read_timestamps_us(timestamps)
         if len(times) != len(names):

@@ -58,6 +58,10 @@ def test_fit_calibration_by_its_definitions():
     assert result["beyond_two_fits"] == pytest.approx(7 / 19)
     assert fit_calibration(est_on, est_off, valid, np.full((4, 5), np.nan), true_on, true_off) is None
     assert threshold_errors(est_on, est_off, valid, true_on, true_off)["off_by_10_percent"] == pytest.approx(10 / 19)
+    negative = est_on.copy()  # (a threshold not positive is no estimate: left out here as by threshold_errors)
+    negative.flat[[3, 4]] = -0.05
+    assert fit_calibration(negative, est_off, valid, fit, true_on, true_off)["pixels"] == 18 - 2
+    assert threshold_errors(negative, est_off, valid, true_on, true_off)["on"]["pixels"] == 19 - 2
 
 
 def test_wrong_size_is_an_error():

@@ -554,6 +554,9 @@ def test_image_folder_with_timestamps(tmp_path):
     for given in ([], ["--timestamps", folder / "timestamps.txt"]):
         done = run("simulate", folder, *given, "--frame-rate", "10", "-o", out, check=False)
         assert done.returncode == 2 and b"both time the images: give one" in done.stderr
+    (folder / "timestamps.txt").write_text("\n".join(str(1.0 + 0.01 * i) for i in range(5)) + "\n")
+    with pytest.raises(evtools.EvtoolsError, match="both time the images"):  # (Python took the rate, silently)
+        evtools.simulate(str(folder), frame_rate=25)
     done = run("simulate", "scene:bars", "--size", "0x10", "-o", out, check=False)  # (was exit 1, no option named)
     assert done.returncode == 2 and b"Invalid value for '--size': sensor width 0" in done.stderr
 

@@ -15,6 +15,7 @@ import numpy as np
 
 from evtools._kernels.bafilter import match_subsequence
 from evtools.errors import EvtoolsError
+from evtools.events import StreamChecker, StreamInfo, as_chunk
 
 __all__ = ["LABEL_NAMES", "DenoiseMatcher", "DenoiseScore", "roc_auc", "esr", "EsrMeter"]
 
@@ -42,8 +43,15 @@ class DenoiseMatcher:
         self.inputs_seen = self.outputs_seen = 0
 
     def add_input(self, events: np.ndarray, labels: np.ndarray) -> None:
-        if len(events) != len(labels):
-            raise DenoiseMetricsError(f"{len(events)} events but {len(labels)} labels")
+        """The next events of the noisy stream (any layout :func:`evtools.events.as_chunk` takes) and their labels,
+        one of 0 (signal), 1 (leak), 2 (shot), 3 (hot) per event (another was scored as nothing: a QA sweep)."""
+        events, labels = as_chunk(events, "input"), np.asarray(labels)
+        if labels.ndim != 1 or len(events) != len(labels):
+            raise DenoiseMetricsError(f"{len(events)} events but labels of shape {labels.shape}")
+        if len(labels) and (labels.dtype.kind not in "iub" or labels.min() < 0 or labels.max() > 3):
+            raise DenoiseMetricsError(f"labels are 0 (signal), 1 (leak), 2 (shot) or 3 (hot), one per event: got "
+                                      f"{labels.dtype} values from {labels.min()} to {labels.max()}")
+        labels = labels.astype(np.uint8, copy=False)
         self.total += np.bincount(labels, minlength=256)
         self.inputs_seen += len(events)
         if len(events):
@@ -51,6 +59,7 @@ class DenoiseMatcher:
         self._match()
 
     def add_output(self, events: np.ndarray) -> None:
+        events = as_chunk(events, "output")
         self.outputs_seen += len(events)
         if len(events):
             self._outputs.append(events)
@@ -157,8 +166,10 @@ class EsrMeter:
         self.counts = np.zeros(self.n_pixels, dtype=np.int64)
         self.filled = 0
         self.values: list[float] = []
+        self._checker = StreamChecker(StreamInfo(width, height))  # (off the sensor: counted on the wrong pixel)
 
     def add(self, chunk: np.ndarray) -> None:
+        chunk = self._checker.check(chunk)
         while len(chunk):
             take = min(self.slice_events - self.filled, len(chunk))
             part = chunk[:take]

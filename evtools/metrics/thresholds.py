@@ -110,8 +110,8 @@ def fit_calibration(estimated_on, estimated_off, valid, fit, true_on, true_off) 
     if fit.shape != true_on.shape:
         raise ThresholdMetricsError("the fit map must have the shape of the thresholds")
     worst = _worst_error(est_on, est_off, true_on, true_off)
-    with np.errstate(invalid="ignore"):
-        usable = valid.astype(bool) & np.isfinite(worst) & np.isfinite(fit) & (fit > 0)
+    with np.errstate(invalid="ignore"):  # (a threshold not positive is not an estimate: as threshold_errors has it)
+        usable = valid.astype(bool) & np.isfinite(worst) & np.isfinite(fit) & (fit > 0) & (est_on > 0) & (est_off > 0)
     if not usable.any():
         return None
     error, predicted = worst[usable], fit[usable]

@@ -19,7 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from evtools.errors import EvtoolsError
+from evtools.errors import EvtoolsError, InvalidEventsError
+from evtools.events import as_chunk
 
 __all__ = ["UniformityError", "Edge", "detect_edges", "edges_from_starts", "edge_uniformity", "pixel_levels"]
 
@@ -55,6 +56,25 @@ class Edge:
     """The stream ends while the edge is still active (:func:`detect_edges`): its counts are partial."""
 
 
+def _time_ordered(events, name: str = "events") -> np.ndarray:
+    """``events`` as EVENT_DTYPE (another layout converted by name, see :func:`evtools.events.as_chunk`), refused when
+    time goes backwards (the edges are found by searching the times: unsorted, a count CV of 6.45 for 0.17, a QA
+    sweep)."""
+    events = as_chunk(events, name)
+    backwards = np.flatnonzero(np.diff(events["t"]) < 0)
+    if len(backwards):
+        raise InvalidEventsError(f"{name}: time goes backwards at event {int(backwards[0]) + 1} "
+                                 f"({int(events['t'][backwards[0] + 1])} us after {int(events['t'][backwards[0]])})")
+    return events
+
+
+def _on_width(events: np.ndarray, width: int) -> None:
+    """Every x below ``width`` (a pixel is ``y * width + x``: one beyond would count as the next row's)."""
+    if len(events) and int(events["x"].max()) >= width:
+        k = int(np.argmax(events["x"] >= width))
+        raise InvalidEventsError(f"events: event {k} at x={int(events['x'][k])} lies beyond the width {width}")
+
+
 def _pixel_count(events: np.ndarray) -> int:
     """How many pixels the events come from."""
     return len(np.unique(events["y"].astype(np.int64) * 65536 + events["x"]))
@@ -81,6 +101,7 @@ def detect_edges(events: np.ndarray, bin_us: int = BIN_US, quiet_us: int = QUIET
     is left out when there is none (a moving scene has no edge at all); so does the candidate after such a stray
     burst when it turns back to that edge's polarity.
     """
+    events = _time_ordered(events)
     if len(events) == 0:
         raise UniformityError("the stream has no events: no edge to measure")
     t = events["t"]
@@ -130,6 +151,7 @@ def detect_edges(events: np.ndarray, bin_us: int = BIN_US, quiet_us: int = QUIET
 def edges_from_starts(events: np.ndarray, starts_us, end_us: int | None = None) -> list[Edge]:
     """Edges starting at the given times, each ending where the next starts (the last at ``end_us``, default just
     after the stream's last event)."""
+    events = _time_ordered(events)
     starts = [int(s) for s in starts_us]
     if not starts:
         raise UniformityError("give at least one edge time")
@@ -163,6 +185,10 @@ def edge_uniformity(events: np.ndarray, width: int, edges: list[Edge], reference
     ``summary`` (means over the edges, those cut left out unless every edge is) and the stream's per-pixel
     polarity balance ``(ON - OFF) / (ON + OFF)`` (mean and std over responding pixels).
     """
+    if reference is not None:
+        reference = _time_ordered(reference, "reference")
+    events = _time_ordered(events)
+    _on_width(events, width)
     responding = np.unique(events["y"].astype(np.int64) * width + events["x"]) if len(events) else np.empty(0, int)
     if len(responding) == 0:
         raise UniformityError("the stream has no events: nothing to measure")
@@ -221,6 +247,8 @@ def _window(events: np.ndarray, edge: Edge) -> np.ndarray:
 def pixel_levels(events: np.ndarray, width: int, edge: Edge, step: float = 1.0) -> dict[int, tuple[np.ndarray,
                                                                                                    np.ndarray]]:
     """Per pixel, the cumulative level (``step`` per event, signed) against time over ``edge``: (t_us, level)."""
+    events = _time_ordered(events)
+    _on_width(events, width)
     window = events[np.searchsorted(events["t"], edge.start_us): np.searchsorted(events["t"], edge.end_us)]
     pixel = window["y"].astype(np.int64) * width + window["x"]
     out = {}
