@@ -387,6 +387,8 @@ def simulate(source: str | os.PathLike | Iterable[tuple[int, np.ndarray]] = "fli
         logging.getLogger("evtools").warning(
             "the first frame's intensities lie within 0-1, but simulate takes 0-255 (white 255): normalised frames "
             "are simulated as a very dark scene; multiply them by 255")
+    if first_frame.ndim not in (2, 3):  # (unpacking its shape raised Python's own ValueError)
+        raise EvtoolsError(f"a frame is an image, height x width: the first is of shape {first_frame.shape}")
     frame_height, frame_width = first_frame.shape[:2]
     simulator = DvsSimulator(frame_width, frame_height, **parameters)
     events, labels = run_simulator(simulator, itertools.chain([first], frames))

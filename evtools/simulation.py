@@ -14,6 +14,7 @@ H. Rebecq, D. Gehrig, D. Scaramuzza, "ESIM: an Open Event Camera Simulator", Con
 
 from __future__ import annotations
 
+import inspect
 import math
 from typing import Any, Callable, Iterable, Iterator
 
@@ -438,17 +439,22 @@ class DvsSimulator:
             )
         if times.ndim != 1 or len(times) != len(frames):
             raise SimulationError(f"{len(frames)} frames need as many times, got {times.size}")
+        if times.size and times.dtype.kind not in "iuf":  # (a string raised numpy's own TypeError)
+            raise SimulationError(f"frame times must be numbers (microseconds), got {times.dtype} values")
         if times.size and not np.issubdtype(times.dtype, np.integer):
             if not np.all(np.isfinite(times)):
                 raise SimulationError("frame times must be finite")
             times = np.round(times)
+        if times.size and (times.max() > MAX_TIME_US or times.min() < -MAX_TIME_US):  # (2**63 wrapped to -2**63)
+            raise SimulationError(f"frame time {times.max() if times.max() > MAX_TIME_US else times.min()} us is "
+                                  f"beyond the +-{MAX_TIME_US} us evtools' times hold")
         times = times.astype(np.int64)
         if frames.dtype != np.uint8 and frames.size:  # (one inf pixel made a run grow to 24 GB; NaN a fake burst)
             possible = (np.isfinite(frames) if np.issubdtype(frames.dtype, np.floating) else True) & (frames >= 0)
             if not np.all(possible):
-                k, y, x = np.argwhere(~possible)[0]
-                raise SimulationError(f"frame {k} has intensity {frames[k, y, x]} at x={x}, y={y}: intensities must "
-                                      "be finite and not negative")
+                k, y, x = np.argwhere(~possible)[0]  # (named by its time: its index here is within one batch)
+                raise SimulationError(f"the frame at {int(times[k])} us has intensity {frames[k, y, x]} at x={x}, "
+                                      f"y={y}: intensities must be finite and not negative")
         # 8-bit frames (video) stay 8-bit: the kernel takes their lin-log from a table of the 256 levels
         dtype = np.uint8 if frames.dtype == np.uint8 else np.float32
         pieces = []  # with lanes: each frame's events, the lanes' rows in order
@@ -864,9 +870,14 @@ SCENES: dict[str, Callable[..., Iterator[tuple[int, np.ndarray]]]] = {
 
 
 def scene_frames(name: str, width: int, height: int, duration_us: int, **options) -> Iterator[tuple[int, np.ndarray]]:
-    """The frames ``(t_us, float32 frame)`` of the built-in scene ``name`` (see :data:`SCENES`)."""
+    """The frames ``(t_us, float32 frame)`` of the built-in scene ``name`` (see :data:`SCENES`); an option the scene
+    does not have is refused naming the ones it has (it raised Python's own TypeError)."""
     make = scene_maker(name)
     check_sensor_size(width, height)
+    accepted = [key for key in inspect.signature(make).parameters if key not in ("width", "height", "duration_us")]
+    unknown = sorted(set(options) - set(accepted))
+    if unknown:
+        raise SimulationUsageError(f"scene {name} has no option {', '.join(unknown)} (it has {', '.join(accepted)})")
     return make(width, height, duration_us, **options)
 
 

@@ -686,8 +686,24 @@ def test_a_frame_with_an_impossible_intensity_is_refused(bad):
     burst of events. Now refused, naming the frame and the pixel."""
     frames = np.full((3, 4, 5), 100.0, np.float32)
     frames[1, 2, 3] = bad
-    with pytest.raises(SimulationError, match="frame 1 has intensity .* at x=3, y=2"):
+    with pytest.raises(SimulationError, match="the frame at 1000 us has intensity .* at x=3, y=2"):
         DvsSimulator(5, 4, seed=0).process(np.arange(3) * 1000, frames)
+    pieces = [(t, frames[k]) for k, t in enumerate(range(0, 3000, 1000))]  # (a frame at a time: was "frame 0")
+    with pytest.raises(SimulationError, match="the frame at 1000 us has intensity"):
+        evtools.simulate(pieces)
+
+
+def test_frame_times_and_shapes_that_cannot_be_are_refused_in_one_line():
+    """A QA sweep: a frame time of 2**63 was said as -9223372036854775808 (wrapped), a string time and a 1-D frame
+    raised Python's own errors."""
+    image = np.full((4, 5), 100.0)
+    for frames, said in (([(0, image), (2**63, image)], "frame time 9223372036854775808 us is beyond"),
+                         ([(0, image), ("5", image)], "frame times must be numbers"),
+                         ([(0, np.zeros(5))], "a frame is an image, height x width")):
+        with pytest.raises(evtools.EvtoolsError, match=said):
+            evtools.simulate(frames)
+    with pytest.raises(evtools.EvtoolsError, match=r"scene flicker has no option periodd \(it has .*period_s"):
+        evtools.simulate("flicker", scene={"periodd": 1})
 
 
 @pytest.mark.parametrize("scene", ["flicker", "gradient", "bars", "step", "static", "texture"])
