@@ -100,7 +100,8 @@ def _resize(frame: np.ndarray, size: tuple[int, int] | None) -> np.ndarray:
 def quiet_stderr():
     """File descriptor 2 sent to /dev/null for the block, then restored: FFmpeg's and OpenCV's own lines (codec
     probes, broken files) are not ours to print; evtools reports its errors in one line."""
-    sys.stderr.flush()
+    if sys.stderr is not None:
+        sys.stderr.flush()
     try:
         saved = os.dup(2)
     except OSError:
