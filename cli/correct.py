@@ -15,7 +15,7 @@ from evtools.cli.progress import process_stream
 from evtools.correction import CORRECT_DEFAULTS, MAX_WINDOW_US, MODES, CorrectionError, ThresholdCorrector
 from evtools.events import MAX_THRESHOLD, MAX_TIME_US
 from evtools.formats import create_events, open_events
-from evtools.formats.thresholds import open_thresholds, per_map
+from evtools.formats.thresholds import camera_of, open_thresholds, per_map
 from evtools.transform import on_sliced_sensor, sliced
 
 log = logging.getLogger("evtools")
@@ -84,6 +84,16 @@ def correct(inputs, reading, output, jobs, scheduler, as_json, thresholds_path,
     run(correct_one, pairs, options, jobs, scheduler, as_json)
 
 
+def _check_camera(map_camera, stream_source, thresholds_path: str, name: str) -> None:
+    """Warn when the map was estimated on another camera than the stream's (both named by DV's source, model and
+    serial, e.g. DAVIS346_00000104): a pixel's thresholds are its own camera's (another camera's map was applied
+    without a word, a QA sweep)."""
+    stream_camera = camera_of(stream_source)
+    if map_camera and stream_camera and str(map_camera) != stream_camera:
+        log.warning(f"{thresholds_path}: its thresholds were estimated on camera {map_camera}, but {name} was "
+                    f"recorded by {stream_camera}: each pixel's thresholds are its own camera's")
+
+
 def correct_one(input, output, *, reading, thresholds_path, target, mode, hold_us,
                 max_gap_us, tau_us, start_us, compression=None, slicing=None) -> Outcome:
     """Correct one file: its :class:`Outcome` (events in and out); ``slicing``: the shared slicing options
@@ -91,6 +101,8 @@ def correct_one(input, output, *, reading, thresholds_path, target, mode, hold_u
     # (a series' maps stay in its file, read as the stream reaches them)
     with open_thresholds(thresholds_path) as thresholds, open_events(input, reading) as opened:
         thresholds.check_size(opened.info.width, opened.info.height, thresholds_path)  # the file's sensor
+        _check_camera(thresholds.attributes.get("camera"), opened.info.metadata.get("source"), thresholds_path,
+                      opened.name)
         stream = sliced(opened, slicing)
         on_sensor = partial(on_sliced_sensor, stream)
         thresholds = replace(thresholds, **{name: per_map(getattr(thresholds, name), on_sensor)

@@ -35,7 +35,7 @@ from evtools.formats import open_events
 from evtools.formats.io import STDIO, same_file
 from evtools import interrupt
 from evtools.errors import EvtoolsError
-from evtools.formats.thresholds import ThresholdMap, series_file, write_thresholds
+from evtools.formats.thresholds import ThresholdMap, camera_of, series_file, write_thresholds
 
 log = logging.getLogger("evtools")
 
@@ -365,7 +365,9 @@ def estimate_one(input, output, *, reading, parameters, slicing=None
                                           f"made up to {maps_file.last_t_us:,} us are written to {output} "
                                           "(attribute partial)")
             else:
-                attributes = {**result.attributes, "input": stream.name, **_part_of_the_stream(stream, estimator)}
+                camera = camera_of(opened.info.metadata.get("source"))  # (correct says when it meets another)
+                attributes = {**result.attributes, "input": stream.name, **({"camera": camera} if camera else {}),
+                              **_part_of_the_stream(stream, estimator)}
                 for said in ("disagreement", "brightness_dependence", "black_level_fitted", "black_level_disagrees",
                               "polarity_balance"):
                     if said in attributes:

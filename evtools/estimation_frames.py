@@ -450,9 +450,10 @@ class FrameThresholdEstimator:
                 self.pending.popleft()
                 continue
             if frame.exposure_end_us < self.origin_us:  # before the events: only the last such frame is used
-                if len(self.pending) == 1 and not final:  # (whether another follows is not known yet)
-                    return
-                if self.pending[1].exposure_end_us < self.origin_us:
+                if len(self.pending) == 1 and not final:  # (whether another follows is not known yet; past
+                    if self.held_events <= HOLD_EVENTS:  # HOLD_EVENTS waiting it is used now: held in bounded memory)
+                        return
+                elif len(self.pending) > 1 and self.pending[1].exposure_end_us < self.origin_us:
                     self.frames_beyond_events += 1
                     self.pending.popleft()
                     continue
@@ -1020,6 +1021,8 @@ class FrameScaledEstimator:
                 raise
             raise EstimationError("no APS frames: --nominal frames takes the scale from a DAVIS recording's frames; "
                                   "give --nominal as a number (log units) for a recording without them") from None
+        if "black_level_disagrees" in by_frames.attributes:  # (the frames' scale is as wrong as their thresholds)
+            raise EstimationError(f"the frames give no scale: {by_frames.attributes['black_level_disagrees']}")
         both = relative.usable() & by_frames.valid
         if both.sum() < MIN_SCALE_PIXELS:
             raise EstimationError(f"the frames give no scale: {int(both.sum())} pixels are estimated by both the "

@@ -61,7 +61,8 @@ class EventStream:
         self.reader = reader
         self.info: StreamInfo = reader.info
         self.info.format = format_name
-        hint = " (the size the file states: a damaged file?)" if source.size_stated else \
+        hint = " (the size the file states: a damaged file, or --sensor-size if it states a wrong one)" \
+            if source.size_stated else \
             " (give the right --sensor-size)"
         self.checker = StreamChecker(self.info, self.name, hint) if check else None
         self.cut: FormatError | None = None  # a network stream's error, raised on closing (see _chunks)

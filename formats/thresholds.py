@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 import os
+import re
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -22,6 +23,15 @@ from evtools.formats.io import output_stream
 from evtools.inputs import note_input
 from evtools.formats.hdf5 import attribute, check_global_heaps
 from evtools.formats.hdf5 import attributes as hdf5_attributes
+
+
+_CAMERA = re.compile(r"[A-Za-z][A-Za-z0-9]*_[A-Za-z0-9]+")
+
+
+def camera_of(source) -> str | None:
+    """The camera a stream's ``source`` names, as DV writes it (model and serial: ``DAVIS346_00000104``), or None
+    (a simulation, a file without it): a thresholds map keeps it as ``camera``, and ``correct`` compares them."""
+    return source if isinstance(source, str) and _CAMERA.fullmatch(source) else None
 
 
 @dataclass

@@ -10,6 +10,7 @@ import math
 import os
 import re
 import sys
+import threading
 from dataclasses import dataclass, field
 from typing import Any, Iterator
 
@@ -96,24 +97,30 @@ def _resize(frame: np.ndarray, size: tuple[int, int] | None) -> np.ndarray:
     return cv2.resize(frame.astype(np.float32, copy=False), size, interpolation=cv2.INTER_AREA)
 
 
+_QUIET = threading.Lock()
+_NUMBER = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?")
+
+
 @contextlib.contextmanager
 def quiet_stderr():
     """File descriptor 2 sent to /dev/null for the block, then restored: FFmpeg's and OpenCV's own lines (codec
-    probes, broken files) are not ours to print; evtools reports its errors in one line."""
-    if sys.stderr is not None:
-        sys.stderr.flush()
-    try:
-        saved = os.dup(2)
-    except OSError:
-        yield
-        return
-    try:
-        with open(os.devnull, "wb") as null:
-            os.dup2(null.fileno(), 2)
-        yield
-    finally:
-        os.dup2(saved, 2)
-        os.close(saved)
+    probes, broken files) are not ours to print; evtools reports its errors in one line. One block at a time across
+    threads (two overlapping would restore each other's /dev/null)."""
+    with _QUIET:
+        if sys.stderr is not None:
+            sys.stderr.flush()
+        try:
+            saved = os.dup(2)
+        except OSError:
+            yield
+            return
+        try:
+            with open(os.devnull, "wb") as null:
+                os.dup2(null.fileno(), 2)
+            yield
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
 
 
 def video_source(path: str, fps: float | None, size: str | None) -> FrameSource:
@@ -195,7 +202,8 @@ def read_timestamps_us(path: str) -> np.ndarray:
                 text = line.split("#", 1)[0].strip()
                 if not text:
                     continue
-                more_fields &= len(text.replace(",", " ").split()) > 1
+                fields = text.replace(",", " ").split()  # (a number after the first: "index seconds"; rpg's
+                more_fields &= len(fields) > 1 and _NUMBER.fullmatch(fields[1]) is not None  # "t image" is fine)
                 try:
                     value = float(text.split()[0].rstrip(","))
                 except ValueError:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import h5py
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -16,6 +17,7 @@ from evtools.events import EVENT_DTYPE, join, make_events
 from evtools.simulation import DvsSimulator
 from evtools.metrics.uniformity import detect_edges, edge_uniformity, edges_from_starts
 from evtools.formats.thresholds import ThresholdMap, read_thresholds, write_thresholds
+from tests.conftest import data_file
 from tests.helpers import assert_clean_error, assert_same_events, cut, random_events, read_all, run
 from tests.naive.correct import STEP, carried_naive, correct_naive
 
@@ -1016,3 +1018,18 @@ def test_a_target_away_from_the_estimates_while_pixels_pass_on_is_said(seed, sca
     away = max(abs(np.median(on[valid]) / np.float32(target) - 1), abs(np.median(off[valid]) / np.float32(target) - 1))
     said = any("the output mixes two scales" in record.getMessage() for record in caplog.records)
     assert said == bool((~valid).any() and away > 0.15)
+
+
+def test_a_map_of_another_camera_is_said(tmp_path):
+    """A QA sweep: the DAVIS346 lab recording's map (camera DAVIS346_00000104) corrected the street recording
+    (DAVIS346_00000002) without a word. A map keeps the camera its stream names (DV's model and serial) and correct
+    says when the stream's is another; a map of the same camera, or of a stream that names none, says nothing."""
+    lab, street = data_file("davis346_lab_frames.aedat4"), data_file("davis346_street_frames.aedat4")
+    thresholds = tmp_path / "lab.h5"
+    run("-q", "estimate", lab, "--method", "natural", "--max-fit", "inf", "--min-events", "1", "-o", thresholds)
+    with h5py.File(thresholds) as f:
+        assert f.attrs["camera"] == "DAVIS346_00000104"
+    said = run("correct", street, "--thresholds", thresholds, "-o", tmp_path / "s.aedat4").stderr.decode()
+    assert "estimated on camera DAVIS346_00000104, but" in said and "DAVIS346_00000002" in said, said
+    said = run("correct", lab, "--thresholds", thresholds, "-o", tmp_path / "l.aedat4").stderr.decode()
+    assert "estimated on camera" not in said

@@ -173,7 +173,7 @@ def test_the_metrics_take_other_layouts_and_refuse_unordered_or_off_sensor_event
     shuffled = events[np.lexsort((events["t"], events["x"], events["y"]))]
     with pytest.raises(evtools.InvalidEventsError, match="time goes backwards"):
         edge_uniformity(shuffled, 32, edges)
-    with pytest.raises(evtools.InvalidEventsError, match="beyond the width 16"):
+    with pytest.raises(evtools.InvalidEventsError, match="outside a sensor 16 wide"):
         edge_uniformity(events, 16, edges)
     with pytest.raises(DenoiseMetricsError, match="labels are 0"):
         DenoiseMatcher().add_input(events, np.full(len(events), 4, np.uint8))

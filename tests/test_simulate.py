@@ -551,6 +551,8 @@ def test_image_folder_with_timestamps(tmp_path):
     (folder / "timestamps.txt").write_text("".join(f"{i} {0.01 * i}\n" for i in range(5)))
     assert_clean_error(run("simulate", folder, "-o", out, check=False), "timestamps.txt: its first column counts 0, "
                        "1, 2... (frame numbers")
+    (folder / "timestamps.txt").write_text("".join(f"{i} frame_{i}.png\n" for i in range(5)))  # (rpg's t image, 1 fps)
+    run("simulate", folder, "--preset", "clean", "-o", out)
     for given in ([], ["--timestamps", folder / "timestamps.txt"]):
         done = run("simulate", folder, *given, "--frame-rate", "10", "-o", out, check=False)
         assert done.returncode == 2 and b"both time the images: give one" in done.stderr

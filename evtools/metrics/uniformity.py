@@ -70,9 +70,11 @@ def _time_ordered(events, name: str = "events") -> np.ndarray:
 
 def _on_width(events: np.ndarray, width: int) -> None:
     """Every x below ``width`` (a pixel is ``y * width + x``: one beyond would count as the next row's)."""
-    if len(events) and int(events["x"].max()) >= width:
-        k = int(np.argmax(events["x"] >= width))
-        raise InvalidEventsError(f"events: event {k} at x={int(events['x'][k])} lies beyond the width {width}")
+    outside = (events["x"] >= width) | (events["x"] < 0) | (events["y"] < 0)
+    if outside.any():
+        k = int(np.argmax(outside))
+        raise InvalidEventsError(f"events: event {k} at (x={int(events['x'][k])}, y={int(events['y'][k])}) lies "
+                                 f"outside a sensor {width} wide")
 
 
 def _pixel_count(events: np.ndarray) -> int:
