@@ -762,6 +762,9 @@ class FrameThresholdEstimator:
         """The maps from everything so far (the stream's end: its held events and frames used); raises
         :class:`EstimationError` when the stream had no frames."""
         self._advance(final=True)
+        if self.frames_used == 0 and self.frames_beyond_events:
+            raise EstimationError(f"{self.frames_beyond_events:,} APS frames but no event during them: nothing to "
+                                  "estimate from")
         if self.frames_used == 0:
             raise EstimationError("no APS frames: --method frames needs a recording with frames (a DAVIS camera's, "
                                   "or simulate --aps-rate); --method natural estimates from events alone")

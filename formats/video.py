@@ -176,7 +176,8 @@ def video_source(path: str, fps: float | None, size: str | None) -> FrameSource:
                     t_us = round(index * 1e6 / rate) if fps else t_us + round(1e6 / rate)
                 yield t_us, _resize(_luma(frame, path), target)
                 index += 1
-            if count is not None and index < count - 1:  # (the declared count may be an estimate: one is slack)
+            if count is not None and index < count - max(1, count // 50):  # (a declared count may be an estimate:
+                # some containers' is their duration times their frame rate; 2 % is slack)
                 source.was_cut = True
                 log.warning(f"{path}: the video ends after {index:,} of the {count:,} frames it declares (a copy "
                             "broken off?): the events are marked cut")

@@ -285,6 +285,10 @@ def test_a_frame_before_the_events_waiting_for_the_next_holds_bounded_memory(dav
         estimator.process(events[start:start + 2_000])
         most = max(most, estimator.held_events)
     assert most <= 5_000 + 2_000 and estimator.frames_used == 1
+    frames_only = FrameThresholdEstimator(W, H)  # (frames and no event: was "no APS frames")
+    frames_only.add_frames(frames[:5])
+    with pytest.raises(EstimationError, match="5 APS frames but no event during them"):
+        frames_only.result()
 
 
 def test_online_frames_maps_beyond_the_memory_bound_are_refused(davis, monkeypatch):
