@@ -381,13 +381,13 @@ def test_a_scale_from_frames_with_a_fitted_black_level_carries_its_error(tmp_pat
     run("simulate", "scene:texture", "--size", "64x48", "--duration", "6s", "--seed", "3", "--speed", "200",
         "--aps-rate", "25", "--aps-exposure", "10ms", "--aps-black-level", "30", "--truth", truth, "-o", out)
     errors = {}
-    for given in ([], ["--black-level", "30"]):
-        estimate = tmp_path / f"n{len(given)}.h5"
-        run("-q", "estimate", out, "--method", "natural", "--nominal", "frames", *given, "-o", estimate)
+    for level in ([], ["--black-level", "30"]):
+        estimate = tmp_path / f"n{len(level)}.h5"
+        run("-q", "estimate", out, "--method", "natural", "--nominal", "frames", *level, "-o", estimate)
         report = json.loads(run("metrics", "thresholds", estimate, "--truth", truth, "--json").stdout)
         with h5py.File(estimate) as f:
-            errors[bool(given)] = float(f.attrs["scale_error"])
-        if not given:
+            errors[bool(level)] = float(f.attrs["scale_error"])
+        if not level:
             bias = max(abs(report["on"]["bias"]), abs(report["off"]["bias"]))
             assert bias < 2 * errors[False], (bias, errors)
     assert errors[False] > 0.02 and errors[True] < 0.01, errors
