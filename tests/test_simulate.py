@@ -553,8 +553,8 @@ def test_image_folder_with_timestamps(tmp_path):
                        "1, 2... (frame numbers")
     (folder / "timestamps.txt").write_text("".join(f"{i} frame_{i}.png\n" for i in range(5)))  # (rpg's t image, 1 fps)
     run("simulate", folder, "--preset", "clean", "-o", out)
-    for given in ([], ["--timestamps", folder / "timestamps.txt"]):
-        done = run("simulate", folder, *given, "--frame-rate", "10", "-o", out, check=False)
+    for timing in ([], ["--timestamps", folder / "timestamps.txt"]):
+        done = run("simulate", folder, *timing, "--frame-rate", "10", "-o", out, check=False)
         assert done.returncode == 2 and b"both time the images: give one" in done.stderr
     (folder / "timestamps.txt").write_text("\n".join(str(1.0 + 0.01 * i) for i in range(5)) + "\n")
     with pytest.raises(evtools.EvtoolsError, match="both time the images"):  # (Python took the rate, silently)
