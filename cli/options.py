@@ -15,7 +15,8 @@ from evtools.events import MAX_TIME_US, parse_sensor_size
 from evtools.formats.registry import BY_NAME
 
 
-def _sensor_size(ctx, param, value):
+def sensor_size_value(ctx, param, value):
+    """A ``WxH`` option's value as ``(width, height)``; a size no sensor has is a usage error (exit 2)."""
     if value is None:
         return None
     try:
@@ -258,7 +259,7 @@ input_format_option = click.option(
     help="Input format; default: recognised by magic bytes, then by extension.",
 )
 sensor_size_option = click.option(
-    "--sensor-size", callback=_sensor_size, metavar="WxH", default=None,
+    "--sensor-size", callback=sensor_size_value, metavar="WxH", default=None,
     help="Sensor size, for files that do not store it (CSV, DSEC without attributes); overrides the file's.",
 )
 aedat2_layout_option = click.option(

@@ -17,10 +17,9 @@ import numpy as np
 from evtools import interrupt
 from evtools.aps import APS_DEFAULTS, ApsSensor
 from evtools.cli.options import (FINITE, Duration, FiniteRange, Microseconds, aedat2_layout_option, echo_json,
-                                 merged_alias, serve_early,
+                                 merged_alias, sensor_size_value, serve_early,
                                  check_compression, compression_option, input_format_option, reading_options)
 from evtools.cli.progress import with_progress
-from evtools.errors import EvtoolsError
 from evtools.events import CHUNK_EVENTS, StreamInfo, join, parse_sensor_size
 from evtools.noise import NOISE_DEFAULTS, NoiseInjector
 from evtools.simulation import (
@@ -51,7 +50,8 @@ DEFAULT_DURATION_US = 1_000_000
 # -- frame sources -----------------------------------------------------------------------------------------------
 
 
-def scene_source(name: str, size: str | None, duration_us: int | None, options: dict[str, Any]) -> FrameSource:
+def scene_source(name: str, size: tuple[int, int] | None, duration_us: int | None,
+                 options: dict[str, Any]) -> FrameSource:
     make = scene_maker(name)
     width, height = parse_sensor_size(size or DEFAULT_SCENE_SIZE)
     duration_us = duration_us or DEFAULT_DURATION_US
@@ -179,10 +179,10 @@ def _float_option(name: str, help: str, low: float | None = 0.0, high: float | N
               help="Frame sources: also store the true log intensity (`log_frames`, `log_frame_t_us`) in --truth "
                    "at this rate, for `metrics reconstruction` [default: 100; 0: none].")
 @input_format_option
-@click.option("--sensor-size", "sensor_size", metavar="WxH", default=None, hidden=True,
+@click.option("--sensor-size", "sensor_size", callback=sensor_size_value, metavar="WxH", default=None, hidden=True,
               help="The same as --size (kept for older scripts).")
 @aedat2_layout_option
-@click.option("--size", metavar="WxH", default=None,
+@click.option("--size", callback=sensor_size_value, metavar="WxH", default=None,  # (out of range: exit 2)
               help=f"Sensor size of a scene (default {DEFAULT_SCENE_SIZE}); for a video or images: resize to it; "
                    "for an event stream that does not store it: its size.")
 @click.option("--duration", type=Duration(), metavar="TIME", default=None,
@@ -286,11 +286,6 @@ def simulate(source, output, output_format, truth, truth_frame_rate, input_forma
         raise click.UsageError(f"{', '.join('--' + n.replace('_us', '').replace('_', '-') for n in aps)} require "
                                "--aps-rate")
     size = merged_alias("--size", size, "--sensor-size", sensor_size)
-    if size is not None:  # (a size no sensor has is a usage error, as convert's --sensor-size: was exit 1)
-        try:
-            parse_sensor_size(size)
-        except EvtoolsError as error:
-            raise click.BadParameter(str(error), param_hint="'--size'") from None
     fps = options["frame_rate"] = merged_alias("--frame-rate", options["frame_rate"], "--fps", fps)
     given = {name: value for name, value in options.items() if value is not None}
     if is_event_stream(source, input_format):

@@ -98,7 +98,6 @@ def _resize(frame: np.ndarray, size: tuple[int, int] | None) -> np.ndarray:
 
 
 _QUIET = threading.Lock()
-_NUMBER = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?")
 
 
 @contextlib.contextmanager
@@ -192,6 +191,14 @@ def _natural_key(name: str):
     return [int(part) if part.isdigit() else part.lower() for part in re.split(r"(\d+)", name)]
 
 
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
 def read_timestamps_us(path: str) -> np.ndarray:
     """One time per line in seconds (blank lines and ``#`` comments skipped), as microseconds: the line's first
     field (rpg's ``t image``); a first column counting 0, 1, 2... beside more fields is frame numbers, refused."""
@@ -204,7 +211,7 @@ def read_timestamps_us(path: str) -> np.ndarray:
                 if not text:
                     continue
                 fields = text.replace(",", " ").split()  # (a number after the first: "index seconds"; rpg's
-                more_fields &= len(fields) > 1 and _NUMBER.fullmatch(fields[1]) is not None  # "t image" is fine)
+                more_fields &= len(fields) > 1 and _is_number(fields[1])  # "t image" is fine)
                 try:
                     value = float(text.split()[0].rstrip(","))
                 except ValueError:
