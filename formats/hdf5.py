@@ -424,8 +424,9 @@ class Hdf5Reader:
                                 (values.dtype.kind == "f" and not np.isfinite(values).all())):
                 raise FormatError(f"{self.name}: event {field} coordinates outside 0..32767 between events {start} "
                                   f"and {stop} (a damaged file?)")
-            if values.dtype.kind == "f" and len(values) and np.any(values != np.floor(values)):
-                k = int(np.argmax(values != np.floor(values)))  # (a pixel's coordinate is whole: refused, not cut)
+            fractional = np.flatnonzero(values != np.floor(values)) if values.dtype.kind == "f" else ()
+            if len(fractional):  # (a pixel's coordinate is whole: refused, not cut)
+                k = int(fractional[0])
                 raise FormatError(f"{self.name}: event {field} coordinate {values[k].item()!r} (event {start + k}) "
                                   "is not a whole pixel")
         out = self._recycled.take(stop - start)
