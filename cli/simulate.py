@@ -3,7 +3,6 @@ labelled noise added to an event stream."""
 
 from __future__ import annotations
 
-import inspect
 import logging
 import math
 import os
@@ -33,6 +32,7 @@ from evtools.simulation import (
     SimulationError,
     SimulationUsageError,
     scene_maker,
+    scene_options,
 )
 from evtools.formats import create_events, open_events, stop_cut
 from evtools.frames import FrameRelay
@@ -55,7 +55,7 @@ def scene_source(name: str, size: tuple[int, int] | None, duration_us: int | Non
     make = scene_maker(name)
     width, height = parse_sensor_size(size or DEFAULT_SCENE_SIZE)
     duration_us = duration_us or DEFAULT_DURATION_US
-    accepted = inspect.signature(make).parameters
+    accepted = scene_options(name)
     for key in options:
         if key not in accepted:
             option = "--" + _SCENE_OPTIONS[key].replace("_", "-")

@@ -874,11 +874,18 @@ def scene_frames(name: str, width: int, height: int, duration_us: int, **options
     does not have is refused naming the ones it has (it raised Python's own TypeError)."""
     make = scene_maker(name)
     check_sensor_size(width, height)
-    accepted = [key for key in inspect.signature(make).parameters if key not in ("width", "height", "duration_us")]
+    accepted = scene_options(name)
     unknown = sorted(set(options) - set(accepted))
     if unknown:
         raise SimulationUsageError(f"scene {name} has no option {', '.join(unknown)} (it has {', '.join(accepted)})")
     return make(width, height, duration_us, **options)
+
+
+def scene_options(name: str) -> dict[str, inspect.Parameter]:
+    """The options of the built-in scene ``name`` (its generator's parameters after the size and duration), with
+    their defaults."""
+    parameters = inspect.signature(scene_maker(name)).parameters
+    return {key: value for key, value in parameters.items() if key not in ("width", "height", "duration_us")}
 
 
 def scene_maker(name: str) -> Callable[..., Iterator[tuple[int, np.ndarray]]]:
