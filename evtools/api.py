@@ -115,8 +115,8 @@ def write(path: str | os.PathLike, events: np.ndarray, info: StreamInfo, frames=
     events : ndarray of EVENT_DTYPE
     info : StreamInfo, (width, height) or "WxH"
     frames : sequence of evtools.Frame
-        APS frames to write among the events, each after the events before the end of its exposure (AEDAT 4.0;
-        other formats store none and say so). ``info.metadata["frame_size"]`` gives the frame stream's size;
+        APS frames to write among the events, each after the events before the end of its exposure (AEDAT 4.0 and
+        HDF5; other formats store none and say so). ``info.metadata["frame_size"]`` gives the frame stream's size;
         without it, the sensor's.
     **options
         ``format`` (aedat4, aedat2, hdf5, csv, txt), ``compression`` (AEDAT 4.0: lz4, zstd, none; HDF5: the
@@ -188,25 +188,13 @@ class _CheckedSink:
             self.sink.write(self.checker.check(chunk))
 
     def write_frame(self, frame) -> None:
-        """The frame, once it is one the readers take back: a 2-D gray uint8 or uint16 image within the frame
-        stream's size, its exposure in order and after the frame before it (unchecked, AEDAT 4.0 stored a colour
-        image as a damaged packet, floats cut to 0 or 1 and large integers wrapped, silently)."""
-        image = np.asarray(frame.image)
-        name = f"frame {self.frames} (t {frame.t_us} us)"
-        if image.ndim != 2 or image.dtype not in (np.uint8, np.uint16):
-            raise InvalidEventsError(f"{name} is a {image.dtype} array of shape {image.shape}; frames are 2-D gray "
-                                     "uint8 or uint16: convert it first (to gray; one within 0-1 times 255)")
-        width, height = self.frame_size
-        if frame.offset_x < 0 or frame.offset_y < 0 or frame.offset_x + image.shape[1] > width or \
-                frame.offset_y + image.shape[0] > height:
-            raise InvalidEventsError(f"{name} is {image.shape[1]} x {image.shape[0]} at ({frame.offset_x}, "
-                                     f"{frame.offset_y}), outside the {width} x {height} frame stream")
-        if frame.exposure_end_us < frame.exposure_begin_us:
-            raise InvalidEventsError(f"{name} ends its exposure ({frame.exposure_end_us} us) before it begins "
-                                     f"({frame.exposure_begin_us} us)")
-        if self.last_frame_us is not None and frame.order_us < self.last_frame_us:
-            raise InvalidEventsError(f"{name} ends its exposure at {frame.order_us} us, before the frame before it "
-                                     f"({self.last_frame_us} us): frames are written in time order")
+        """The frame, once it is one the readers take back (:func:`evtools.frames.frame_problem`; unchecked, AEDAT 4.0
+        stored a colour image as a damaged packet, floats cut to 0 or 1 and large integers wrapped, silently)."""
+        from evtools.frames import frame_problem
+
+        problem = frame_problem(frame, self.frame_size, self.last_frame_us)
+        if problem:
+            raise InvalidEventsError(f"frame {self.frames} (t {frame.t_us} us) {problem}")
         self.last_frame_us = frame.order_us
         self.frames += 1
         self.sink.write_frame(frame)

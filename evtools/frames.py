@@ -78,6 +78,33 @@ class Frame:
         return (self.t_us, self.begin_us, self.end_us, self.exposure_begin_us, self.exposure_end_us)
 
 
+def frame_problem(frame: Frame, frame_size: tuple[int, int] | None, last_order_us: int | None) -> str | None:
+    """What is wrong with ``frame`` as the next frame of a stream, as the end of a sentence that begins with its
+    name ("is a float64 array..."), or None: the one set of checks of the writer (``evtools.write``) and of every
+    reader, so a file written is one its readers take back and a file read is one the writer takes. A frame is a
+    non-empty 2-D gray uint8 or uint16 image within the frame stream of ``frame_size`` (width, height; None:
+    unbounded above), its exposure not ending before it begins, its :attr:`Frame.order_us` not before the frame
+    before it (``last_order_us``; None: the first)."""
+    image = frame.image
+    if not isinstance(image, np.ndarray) or image.ndim != 2 or image.dtype not in (np.uint8, np.uint16):
+        image = np.asarray(image)
+        return (f"is a {image.dtype} array of shape {image.shape}; frames are 2-D gray uint8 or uint16: convert it "
+                "first (to gray; one within 0-1 times 255)")
+    if image.size == 0:
+        return f"has an empty image ({image.shape[1]} x {image.shape[0]})"
+    width, height = frame_size if frame_size else (np.inf, np.inf)
+    if frame.offset_x < 0 or frame.offset_y < 0 or frame.offset_x + image.shape[1] > width or \
+            frame.offset_y + image.shape[0] > height:
+        return (f"is {image.shape[1]} x {image.shape[0]} at ({frame.offset_x}, {frame.offset_y}), outside the "
+                f"{width} x {height} frame stream")
+    if frame.exposure_end_us < frame.exposure_begin_us:
+        return f"ends its exposure ({frame.exposure_end_us} us) before it begins ({frame.exposure_begin_us} us)"
+    if last_order_us is not None and frame.order_us < last_order_us:
+        return (f"ends its exposure at {frame.order_us} us, before the frame before it ({last_order_us} us): frames "
+                "go back in time")
+    return None
+
+
 def gray(pixels: np.ndarray, order: str = "BGR") -> tuple[np.ndarray, str | None]:
     """``(image, layout)``: a 2-D gray image from ``pixels`` (height x width, or x channels: 1, 3 or 4 in the
     colour ``order`` of the format, DV's and OpenCV's BGR, libcaer's RGB, alpha last), colour converted by OpenCV's

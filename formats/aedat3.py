@@ -28,7 +28,7 @@ from typing import BinaryIO, Iterator
 import numpy as np
 
 from evtools.events import EVENT_DTYPE, StreamInfo
-from evtools.frames import Frame, gray
+from evtools.frames import Frame, frame_problem, gray
 from evtools.formats.errors import FormatError
 from evtools.formats.io import MAX_PACKET_BYTES, Source, ends_cut, read_at_most, resolve_sensor_size, size_scan
 from evtools.formats.registry import ReadOptions
@@ -107,9 +107,9 @@ class Aedat3Reader:
             metadata={"version": text[0][2:], "sources": sources, "skipped_packets": self.skipped_packets,
                       "invalid_events": 0},
         )
-        frame_size = self._first_frame_size() if source.seekable else None
-        if frame_size is not None:
-            self.info.metadata["frame_size"] = frame_size
+        first_extent = self._first_frame_size() if source.seekable else None
+        if first_extent is not None:  # (the APS covers the sensor: a first frame of a region lies within it)
+            self.info.metadata["frame_size"] = (max(first_extent[0], width), max(first_extent[1], height))
 
     def _packets(self, stream: BinaryIO, offset: int, skipped: dict[int, int], frames=None) -> Iterator[np.ndarray]:
         """(events, invalid count) of each polarity packet from ``offset`` (where ``stream`` is) to the end; the
@@ -182,16 +182,18 @@ class Aedat3Reader:
             times = [int(base | value) for value in (frame_start, frame_end, exposure_start, exposure_end)]
             frames.append(Frame(image, (times[2] + times[3]) // 2, times[2], times[3], times[0], times[1], x0, y0,
                                 {"converted_from": layout} if layout else {}))
+        frame_size = self.info.metadata.get("frame_size", (self.info.width, self.info.height))
         for frame in frames:
-            if self.frames_read and frame.order_us < self._last_frame_us:
-                raise FormatError(f"{where}: a frame ends its exposure at {frame.order_us} us, before the frame "
-                                  f"before it ({self._last_frame_us} us): frames go back in time")
+            problem = frame_problem(frame, frame_size, self._last_frame_us if self.frames_read else None)
+            if problem:
+                raise FormatError(f"{where}: a frame {problem}")
             self._last_frame_us = frame.order_us
             self.frames_read += 1
         return frames
 
     def _first_frame_size(self) -> tuple[int, int] | None:
-        """The size of the first frame (a file: its packet headers scanned, the stream put back), or None."""
+        """The extent (offset + size) of the first frame (a file: its packet headers scanned, the stream put back), or
+        None."""
         stream = self.source.stream
         position, offset = stream.tell(), self.header_bytes
         file_bytes = os.fstat(stream.fileno()).st_size if hasattr(stream, "fileno") else float("inf")

@@ -32,7 +32,7 @@ from evtools import interrupt
 
 from evtools._kernels.aedat4 import PAYLOAD_MASK  # (a kernel module imports no numba until a kernel compiles)
 from evtools.events import EVENT_DTYPE, StreamInfo
-from evtools.frames import FORMAT_BGR, FORMAT_BGRA, FORMAT_GRAY, FORMAT_GRAY16, Frame, gray
+from evtools.frames import FORMAT_BGR, FORMAT_BGRA, FORMAT_GRAY, FORMAT_GRAY16, Frame, frame_problem, gray
 from evtools.formats import io as formats_io
 from evtools.formats.errors import FormatError
 from evtools.formats.io import MAX_PACKET_BYTES, Source, ends_cut
@@ -528,15 +528,10 @@ class Aedat4Reader:
     def _take_frame(self, body: bytes, offset: int) -> None:
         """A frame packet: decoded (at once: frames are few) and queued for :meth:`EventStream.take_frames`."""
         frame = _parse_frame(self._decompressed(body, offset), self.name, offset)
-        size_stated = self.info.metadata["frame_size"]
-        if frame.offset_x < 0 or frame.offset_y < 0 or frame.offset_x + frame.width > size_stated[0] or \
-                frame.offset_y + frame.height > size_stated[1]:
-            raise FormatError(f"{self.name}: frame packet at byte {offset} is {frame.width} x {frame.height} at "
-                              f"({frame.offset_x}, {frame.offset_y}), outside the {size_stated[0]} x "
-                              f"{size_stated[1]} frame stream")
-        if self.frames_read and frame.order_us < self._last_frame_us:
-            raise FormatError(f"{self.name}: frame packet at byte {offset} ends its exposure at {frame.order_us} us, "
-                              f"before the frame before it ({self._last_frame_us} us): frames go back in time")
+        last_us = self._last_frame_us if self.frames_read else None
+        problem = frame_problem(frame, self.info.metadata["frame_size"], last_us)
+        if problem:
+            raise FormatError(f"{self.name}: frame packet at byte {offset} {problem}")
         self._last_frame_us = frame.order_us
         self.frames.append(frame)
         self.frames_read += 1

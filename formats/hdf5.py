@@ -26,7 +26,7 @@ import numpy as np
 
 from evtools._kernels.ecf import MAX_BLOCK_EVENTS, decode_ecf
 from evtools.events import EVENT_DTYPE, StreamInfo, record_words, second_words
-from evtools.frames import Frame
+from evtools.frames import Frame, frame_problem
 from evtools.formats.errors import FormatError
 from evtools.formats.io import Recycled, Source, resolve_sensor_size
 from evtools.formats.prophesee import header_size
@@ -302,7 +302,8 @@ class Hdf5Reader:
         self.info = StreamInfo(width, height, "hdf5", metadata)
 
     def _open_frames(self) -> None:
-        """APS frames: evtools' ``frames/`` (``images`` N x H x W, and the five times and offsets per frame, us) or
+        """APS frames: evtools' ``frames/`` (``images`` N x H x W, and the five times and offsets per frame, us;
+        attributes ``width`` and ``height``: the frame stream's size, else the frames' extent) or
         event_utils' ``images/image*`` datasets (attribute ``timestamp`` in seconds; no exposure stored). Their times
         are read now, their images as the events pass them."""
         h5py = _h5py()
@@ -329,12 +330,20 @@ class Hdf5Reader:
             self._frame_columns = {"t_us": t_us, "exposure_begin_us": t_us, "exposure_end_us": t_us}
         else:
             return
-        self._frame_times = self._frame_columns["exposure_end_us"]
+        end_us = self._frame_columns["exposure_end_us"]
+        self._frame_times = np.where(end_us != 0, end_us, self._frame_columns.get("t_us", end_us))  # Frame.order_us
         if (np.diff(self._frame_times) < 0).any():
             raise FormatError(f"{self.name}: the frames' times go backwards")
-        first = self._frame_images(0) if len(self._frame_times) else None
-        if first is not None:
-            self.info_frame_size = (first.shape[1], first.shape[0])
+        if not len(end_us):
+            return
+        stated = [attribute(group, key, source=self.name) for key in ("width", "height")] \
+            if isinstance(group, h5py.Group) and "width" in group.attrs and "height" in group.attrs else None
+        if stated is not None:
+            self.info_frame_size = (int(stated[0]), int(stated[1]))
+        else:  # (files before the size was stored: the frames' extent)
+            shape = self._frame_images(0).shape
+            self.info_frame_size = (int(np.max(self._frame_columns.get("offset_x", 0))) + shape[1],
+                                    int(np.max(self._frame_columns.get("offset_y", 0))) + shape[0])
 
     def _frames_until(self, t_us: float) -> None:
         """Queue the frames whose exposure ended at or before ``t_us`` (all of them: ``inf``)."""
@@ -342,15 +351,15 @@ class Hdf5Reader:
             return
         stop = int(np.searchsorted(self._frame_times, t_us, "right"))
         for k in range(self._next_frame, stop):
-            image = np.asarray(self._frame_images(k))
-            if image.ndim != 2 or image.dtype not in (np.uint8, np.uint16):
-                raise FormatError(f"{self.name}: frame {k} is a {image.dtype} array of shape {image.shape}; frames "
-                                  "are 2-D gray uint8 or uint16")
             column = {name: int(values[k]) for name, values in self._frame_columns.items()}
-            self.frames.append(Frame(image, column.get("t_us", column["exposure_end_us"]),
-                                     column.get("exposure_begin_us", column["exposure_end_us"]),
-                                     column["exposure_end_us"], column.get("begin_us", 0), column.get("end_us", 0),
-                                     column.get("offset_x", 0), column.get("offset_y", 0)))
+            frame = Frame(np.asarray(self._frame_images(k)), column.get("t_us", column["exposure_end_us"]),
+                          column.get("exposure_begin_us", column["exposure_end_us"]), column["exposure_end_us"],
+                          column.get("begin_us", 0), column.get("end_us", 0), column.get("offset_x", 0),
+                          column.get("offset_y", 0))
+            problem = frame_problem(frame, self.info_frame_size, int(self._frame_times[k - 1]) if k else None)
+            if problem:
+                raise FormatError(f"{self.name}: frame {k} {problem}")
+            self.frames.append(frame)
             self.frames_read += 1
         self._next_frame = max(self._next_frame, stop)
 
@@ -647,13 +656,16 @@ class Hdf5Writer:
         self.ms_written = 0
         self.filters = filters
         self.frame_datasets: dict | None = None  # frames/, made at the first frame
+        self.frame_size = info.metadata.get("frame_size") or (info.width, info.height)
 
     def write_frame(self, frame: Frame) -> None:
         """An APS frame into ``frames/``: ``images`` (N x H x W, one HDF5 chunk a frame) and per frame its five times
-        (us, absolute) and offset; every frame of a file has one size and pixel type."""
+        (us, absolute) and offset, the frame stream's size as the group's ``width`` and ``height``; every frame of a
+        file has one size and pixel type."""
         try:
             if self.frame_datasets is None:
                 group = self.file.create_group("frames")
+                group.attrs["width"], group.attrs["height"] = (np.int64(side) for side in self.frame_size)
                 image = frame.image
                 self.frame_datasets = {"images": group.create_dataset(
                     "images", shape=(0, *image.shape), maxshape=(None, *image.shape), dtype=image.dtype,

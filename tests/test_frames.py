@@ -15,7 +15,7 @@ import evtools
 from evtools.events import join
 from evtools.frames import Frame
 from tests.conftest import data_file
-from tests.helpers import assert_clean_error, assert_same_events, random_events, run
+from tests.helpers import assert_clean_error, assert_same_events, make_events, random_events, run
 
 RECORDINGS = ["davis346_lab_frames.aedat4", "davis346_street_frames.aedat4"]
 
@@ -251,6 +251,7 @@ def test_write_refuses_frames_its_readers_would_refuse_or_mangle(tmp_path, suffi
         "shape (12, 16, 3)": [dataclasses.replace(frames[0], image=np.stack([image] * 3, -1))],
         "outside the 16 x 12 frame stream": [dataclasses.replace(frames[0], offset_x=1)],
         "before it begins": [dataclasses.replace(frames[0], exposure_begin_us=frames[0].exposure_end_us + 1)],
+        "has an empty image (16 x 0)": [dataclasses.replace(frames[0], image=image[:0])],
     }
     for said, given_frames in bad.items():
         with pytest.raises(evtools.InvalidEventsError, match=re.escape(said)):
@@ -290,6 +291,53 @@ def test_bad_frames_are_one_line_errors_naming_the_file(tmp_path):
                       + aedat4._frame_body(big))
     done = run("info", large, check=False)
     assert done.returncode == 1 and "outside the 16 x 12 frame stream" in done.stderr.decode()
+    # an exposure that ends before it begins: refused by the reader as by the writer (read, it could not be written)
+    reversed_exposure = Frame(frames[0].image, 5, 9, 5)
+    body = aedat4._frame_body(reversed_exposure)
+    reversed_path = tmp_path / "reversed.aedat4"
+    reversed_path.write_bytes(data[:head_end] + np.array([1, len(body)], "<i4").tobytes() + body)
+    done = run("info", reversed_path, check=False)
+    assert done.returncode == 1 and "reversed.aedat4: frame packet at byte" in done.stderr.decode() and \
+        "ends its exposure (5 us) before it begins (9 us)" in done.stderr.decode()
+
+
+@pytest.mark.parametrize("suffix", [".aedat4", ".h5"])
+def test_a_region_of_interest_frame_reads_back_and_writes_again(tmp_path, suffix):
+    """A frame of a region (4 x 4 at (8, 6) of a 16 x 12 sensor) keeps its frame stream's size through HDF5 as
+    through AEDAT 4.0 (HDF5 stored no size and read the first image's, 4 x 4: the file read back could not be
+    written again, its frame outside its own frame stream)."""
+    events = random_events(300, 16, 12, seed=4)
+    region = Frame(np.arange(16, dtype=np.uint8).reshape(4, 4), 1000, 900, 1100, offset_x=8, offset_y=6)
+    path = tmp_path / f"roi{suffix}"
+    evtools.write(path, events, evtools.StreamInfo(16, 12), frames=[region])
+    back, info, frames = evtools.read(path, frames=True)
+    assert info.metadata["frame_size"] == (16, 12) and len(frames) == 1 and frames[0].same_as(region)
+    again = tmp_path / f"again{suffix}"
+    evtools.write(again, back, info, frames=frames)
+    assert evtools.read(again, frames=True)[2][0].same_as(region)
+
+
+def test_hdf5_frames_without_an_exposure_are_read_by_their_time(tmp_path):
+    """A frame whose exposure end is unknown (0) is placed by its time, as :attr:`Frame.order_us` and the other
+    readers place it (HDF5 placed it by the 0: a frame of unknown exposure between two known ones was "going
+    backwards", and every such frame was read with the first chunk of events, at 0.13 s instead of 2.5 s)."""
+    rng = np.random.default_rng(5)
+    events = make_events(np.sort(rng.integers(0, 3_000_000, 20_000)), rng.integers(0, 16, 20_000),
+                         rng.integers(0, 12, 20_000), rng.integers(0, 2, 20_000))
+    frames = [Frame(np.full((12, 16), 1, np.uint8), 1_000_000, 0, 0),
+              Frame(np.full((12, 16), 2, np.uint8), 2_000_000, 1_990_000, 2_010_000),
+              Frame(np.full((12, 16), 3, np.uint8), 2_500_000, 0, 0)]
+    path = tmp_path / "s.h5"
+    evtools.write(path, events, evtools.StreamInfo(16, 12), frames=frames)
+    with evtools.open(path, chunk_events=1000) as stream:
+        taken = []  # (frame time, the last event read before it was taken)
+        last_us = -1
+        for chunk in stream:
+            taken += [(frame.order_us, last_us) for frame in stream.take_frames()]
+            last_us = int(chunk["t"][-1])
+        taken += [(frame.order_us, last_us) for frame in stream.take_frames()]
+    assert [t for t, _ in taken] == [1_000_000, 2_010_000, 2_500_000]
+    assert all(t - 400_000 < before_us <= t for t, before_us in taken), taken
 
 
 def test_render_draws_the_events_over_the_latest_aps_frame(tmp_path):
