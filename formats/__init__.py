@@ -44,6 +44,8 @@ CUT_NOTE = "written from a cut input: the events after the cut are missing"
 """What an output of a cut input says of itself (HDF5's ``cut`` attribute, a text file's last comment line)."""
 STOPPED_NOTE = "written by a run stopped by {} before its input's end: the events after the stop are missing"
 """What an output of a run stopped early (Ctrl-C, SIGTERM) says of itself: it is a cut stream too."""
+FAILED_NOTE = "written by a run that failed before its input's end: the events after the failure are missing"
+"""What a CSV or text output that went out (standard output, a pipe) says of itself when its run fails."""
 log = logging.getLogger("evtools")
 
 
@@ -324,9 +326,22 @@ class _NamedWriter:
         _named(self.target, mark, note)
 
     def abort(self) -> None:
-        """Release the writer without marking the stream's end (its ``abort``), or close it (formats without an
-        end mark)."""
-        _named(self.target, getattr(self.writer, "abort", self.writer.close))
+        """The run failed: release the writer without marking the stream's end (its ``abort``: AEDAT 4.0 ends
+        without its end mark, so what went out reads as cut), or, for a format whose end is no mark, say the cut
+        where what went out stays (standard output, a pipe, a FIFO, a socket; a file's temporary is deleted): CSV
+        and text by their cut comment (:data:`FAILED_NOTE`; they ended as if whole, and the next stage of a pipe
+        took them as whole), AEDAT 2.0 and RAW, which have nowhere to say it, by a warning."""
+        if hasattr(self.writer, "abort"):
+            _named(self.target, self.writer.abort)
+            return
+        stays = self.live or self.target == "<stdout>"
+        if stays and hasattr(self.writer, "mark_cut"):
+            _named(self.target, self.writer.mark_cut, FAILED_NOTE)
+            return
+        _named(self.target, self.writer.close)
+        if stays:
+            log.warning(f"{self.target}: the events that went out are a cut stream, unmarked ({self.description} has "
+                        "nowhere to say so)")
 
 
 def check_compression(fmt, compression: str | None, target: str) -> None:

@@ -292,6 +292,27 @@ def test_a_stage_whose_input_was_cut_does_not_end_its_output_as_whole(tmp_path, 
     _no_temporaries(tmp_path)
 
 
+@pytest.mark.parametrize("fmt", ["csv", "txt", "aedat2"])
+def test_a_stage_whose_input_was_cut_says_so_in_a_text_stream_that_went_out(tmp_path, stream, fmt):
+    """A stage that fails after its events went out as CSV or text (standard output, a pipe) ends them with the cut
+    comment, so the next stage marks its output cut (they ended as if whole: the next stage wrote a whole-looking
+    HDF5 file of half the events, exit 0); AEDAT 2.0, with nowhere to say it, is said on stderr."""
+    output = tmp_path / "x.h5"
+    size = stream[0].stat().st_size
+    script = (f"head -c {size // 2} {stream[0]} | {EVTOOLS} convert - --format {fmt} "
+              f"| {EVTOOLS} convert - --sensor-size 64x48 -o {output}; "
+              "echo ${PIPESTATUS[@]}")
+    done = subprocess.run(["bash", "-c", script], capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert done.stdout.split() == ["0", "1", "0"] and "Traceback" not in done.stderr, done.stderr
+    events, info = evtools.read(output)
+    assert len(events) > 0
+    if fmt == "aedat2":
+        assert "the events that went out are a cut stream, unmarked (AEDAT 2.0" in done.stderr
+        assert not info.metadata.get("cut")
+    else:
+        assert "written by a run that failed before its input's end" in done.stderr and info.metadata.get("cut")
+
+
 def test_a_replaced_output_keeps_its_permissions_and_a_read_only_one_is_not_replaced(tmp_path, stream):
     """Issue 37 item 11: -o over a 0600 file left 0644; over a 0444 file replaced it without a word."""
     private, locked = tmp_path / "private.aedat4", tmp_path / "locked.aedat4"
