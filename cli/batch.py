@@ -16,6 +16,7 @@ import contextlib
 import logging
 import os
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Any, Callable, NamedTuple
@@ -259,15 +260,32 @@ def _result_of(future, name: str) -> tuple:
         return "error", f"{name}: its worker failed ({error})", 0.0
 
 
+def _exit_with_parent(parent_pid: int) -> None:
+    """A worker whose command died (``kill -9``, the OOM killer: no stop reached it) stops as if stopped: the file
+    under way ends marked cut (a SIGTERM to itself), none is started, and the worker exits once idle (it went on
+    through every file after the command had gone, then waited forever, holding the caller's stdout open)."""
+    import signal
+
+    while os.getppid() == parent_pid:
+        time.sleep(PARENT_CHECK_S)
+    os.kill(os.getpid(), signal.SIGTERM)
+    while _busy:
+        time.sleep(PARENT_CHECK_S)
+    os._exit(128 + signal.SIGTERM)
+
+
 def run_one(one: Callable[..., Outcome], input: str, output: str, options: dict[str, Any]) -> tuple:
     """``("ok", Outcome, seconds)``, ``("cut", Outcome, seconds)`` (a stop ended the file's reading: its output
     is marked cut), ``("stopped", None, 0)`` (a stop came before the file was started: no output) or ``("error",
     message, seconds)``: a worker never raises for a bad file (the batch goes on)."""
     from evtools import interrupt
 
+    global _busy
+
     if interrupt.received() is not None:
         return "stopped", None, 0.0
     start = time.perf_counter()
+    _busy = True
     try:
         outcome = one(input, output, **options)
         stopped = interrupt.received() is not None and not interrupt.every_stream_whole()
@@ -281,14 +299,23 @@ def run_one(one: Callable[..., Outcome], input: str, output: str, options: dict[
         return "error", f"{where}{error.strerror or error}", time.perf_counter() - start
     except MemoryError:
         return "error", f"{input}: out of memory", time.perf_counter() - start
+    finally:
+        _busy = False
+
+
+PARENT_CHECK_S = 0.2
+"""How often a batch's worker looks whether the command that started it still runs."""
+_busy = False  # a worker is running a file (run_one)
 
 
 def _quiet_worker() -> None:
     """Workers report through the summary, not line by line: warnings and errors only; a stop signal ends the file
-    under way and starts no other (:func:`evtools.interrupt.install_in_worker`)."""
+    under way and starts no other (:func:`evtools.interrupt.install_in_worker`); a worker outlives no command
+    (:func:`_exit_with_parent`)."""
     from evtools import interrupt
 
     interrupt.install_in_worker()
+    threading.Thread(target=_exit_with_parent, args=(os.getppid(),), name="evtools-parent-watch", daemon=True).start()
     logger = logging.getLogger("evtools")
     if not logger.handlers:
         handler = logging.StreamHandler(sys.stderr)

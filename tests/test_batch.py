@@ -3,6 +3,7 @@ while the others complete, and no input ever overwritten."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 from pathlib import Path
 
@@ -183,6 +184,52 @@ def test_a_stop_ends_the_batch_where_it_is_and_says_what_each_file_got(tmp_path,
         assert output.exists() == (state != "stopped"), (name, state)
         if state != "stopped":
             assert json.loads(run("info", output, "--json").stdout)["cut"] == (state == "cut"), (name, state)
+
+
+def test_workers_stop_with_a_command_that_was_killed(tmp_path):
+    """A QA sweep: `kill -9` of the command (the OOM killer, a supervisor signalling one PID) left its workers
+    running every remaining file under its final name, then waiting forever with the caller's stdout open. Now a
+    worker whose command has gone stops as a stopped one does: its file ends marked cut, no file is started, and it
+    exits."""
+    import signal
+    import subprocess
+    import sys
+
+    recording, info = evtools.read(data_file("dvs128_walk.aedat"))
+    span = int(recording["t"][-1] - recording["t"][0]) + 1
+    source = tmp_path / "source.aedat4"
+    evtools.write(source, np.concatenate([recording] + [_shifted(recording, k * span) for k in range(1, 4)]), info)
+    folder = tmp_path / "in"
+    folder.mkdir()
+    for k in range(40):
+        (folder / f"c{k:02d}.aedat4").symlink_to(source)
+    out = tmp_path / "out"
+    process = subprocess.Popen([str(Path(sys.executable).parent / "evtools"), "bafilter", *sorted(map(str,
+                               folder.iterdir())), "-o", str(out), "--jobs", "2"],
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        wait_until(lambda: out.exists() and any(p.suffix == ".aedat4" for p in out.iterdir()), "a first output")
+        workers = [int(pid) for pid in subprocess.run(["pgrep", "-P", str(process.pid)], capture_output=True,
+                                                      text=True).stdout.split()]
+        assert workers
+        process.send_signal(signal.SIGKILL)
+        process.wait(timeout=60)
+
+        def gone(pid: int) -> bool:
+            try:
+                os.kill(pid, 0)
+            except ProcessLookupError:
+                return True
+            return False
+
+        wait_until(lambda: all(gone(pid) for pid in workers), "the workers to exit")
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(process.pid, signal.SIGKILL)
+    outputs = sorted(p for p in out.iterdir() if p.suffix == ".aedat4")
+    assert 0 < len(outputs) < 40 and not [p for p in out.iterdir() if p.suffix != ".aedat4"]
+    for output in outputs:  # whole, or marked cut: readable either way
+        run("info", output, "--json")
 
 
 def _shifted(events, by_us):
