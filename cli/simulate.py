@@ -3,6 +3,7 @@ labelled noise added to an event stream."""
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import os
@@ -325,9 +326,7 @@ def simulate(source, output, output_format, truth, truth_frame_rate, input_forma
     parameters = model_parameters(preset, options)
     frames = open_source(source, size, duration, fps, timestamps, scene_options)
     simulator = _build(DvsSimulator, frames.width, frames.height, seed=seed, **parameters)
-    if truth is not None and output not in (None, "-"):
-        if os.path.abspath(truth) == os.path.abspath(output) or same_file(truth, output):
-            raise SimulationError("--truth and -o name the same file; give two different files")
+    _check_truth_path(truth, output, source)
     description = f"evtools simulate {frames.name} seed={simulator.seed}"
     info = StreamInfo(frames.width, frames.height, metadata={"source": description})
     inputs = (source,) if not source.startswith("scene:") else ()
@@ -336,22 +335,32 @@ def simulate(source, output, output_format, truth, truth_frame_rate, input_forma
     if aps:
         sensor = _build(ApsSensor, frames.width, frames.height, aps.pop("aps_rate_hz"), seed=simulator.seed, **aps)
         info.metadata["frame_size"] = (frames.width, frames.height)
-    with create_events(output, info, format=output_format, compression=compression, inputs=inputs) as writer:
-        if truth is None:
+    with _outputs(truth, output, info, output_format, compression, inputs) as (writer, truth_writer):
+        if truth_writer is None:
             _run(simulator, frames, writer, None, counts, aps=_Aps(sensor, None) if sensor else None)
             writer.cut = frames.was_cut  # (a video broken off: its events are a cut stream)
         else:
-            with create_truth(truth) as truth_writer:
-                _start_truth(truth_writer, simulator, frames, preset)
-                rate_hz = TRUTH_FRAME_RATE_HZ if truth_frame_rate is None else truth_frame_rate
-                _run(simulator, frames, writer, truth_writer, counts,
-                     _LogFrames(truth_writer, frames, rate_hz) if rate_hz else None,
-                     _Aps(sensor, truth_writer) if sensor else None)
-                writer.cut = frames.was_cut
-                _mark_cut(truth_writer, frames.was_cut, inputs)
-                if simulator.drift_origin_us is not None:  # (the truth's maps are the thresholds at this time)
-                    truth_writer.write_attributes({"thres_drift_origin_us": simulator.drift_origin_us})
+            _start_truth(truth_writer, simulator, frames, preset)
+            rate_hz = TRUTH_FRAME_RATE_HZ if truth_frame_rate is None else truth_frame_rate
+            _run(simulator, frames, writer, truth_writer, counts,
+                 _LogFrames(truth_writer, frames, rate_hz) if rate_hz else None,
+                 _Aps(sensor, truth_writer) if sensor else None)
+            writer.cut = frames.was_cut
+            _mark_cut(truth_writer, frames.was_cut, inputs)
+            if simulator.drift_origin_us is not None:  # (the truth's maps are the thresholds at this time)
+                truth_writer.write_attributes({"thres_drift_origin_us": simulator.drift_origin_us})
     _report(source, output, counts, as_json)
+
+
+@contextlib.contextmanager
+def _outputs(truth, output, info, output_format, compression, inputs):
+    """``(events writer, truth writer or None)``: the truth file is completed only after the events are (a failed
+    events output, a full disk or a closed pipe, left a complete truth file of events that no output held)."""
+    with contextlib.ExitStack() as stack:
+        truth_writer = stack.enter_context(create_truth(truth)) if truth is not None else None
+        writer = stack.enter_context(create_events(output, info, format=output_format, compression=compression,
+                                                   inputs=inputs))
+        yield writer, truth_writer
 
 
 def _start_truth(truth: TruthWriter, simulator: DvsSimulator, frames: FrameSource, preset: str | None) -> None:
@@ -509,29 +518,28 @@ def _inject_into(source, output, written_as, truth, preset, seed, parameters, re
         info = StreamInfo(width, height, metadata={"source": f"evtools simulate {stream.name} seed={injector.seed}"})
         if "frame_size" in stream.info.metadata:  # (an AEDAT 4.0 output declares its frame stream up front)
             info.metadata["frame_size"] = stream.info.metadata["frame_size"]
-        with create_events(output, info, format=output_format, compression=compression, inputs=(source,)) as writer:
-            if truth is None:
+        with _outputs(truth, output, info, output_format, compression, (source,)) as (writer, truth_writer):
+            if truth_writer is None:
                 _run_injector(injector, stream, writer, None, counts)
                 writer.cut = getattr(stream, "was_cut", False)  # (a cut input's output says so too)
                 return
-            with create_truth(truth) as truth_writer:
-                truth_writer.write_maps({"hot_pixels": injector.hot_pixels,
-                                         "leak_rate_hz": injector.leak_rate_map_hz.astype(np.float32)})
-                truth_writer.write_attributes({
-                    **injector.parameters,
-                    "width": width,
-                    "height": height,
-                    "source": stream.name,
-                    "source_kind": "events",
-                    "source_format": stream.info.format,
-                    "preset": preset or "",
-                    "labels": ", ".join(f"{code} {name}" for code, name in LABELS.items()),
-                })
-                first, last = _run_injector(injector, stream, writer, truth_writer, counts)
-                writer.cut = getattr(stream, "was_cut", False)
-                _mark_cut(truth_writer, writer.cut, (source,))
-                if first is not None:  # the noise spans the input's events, these two times included
-                    truth_writer.write_attributes({"t_first_us": first, "t_last_us": last})
+            truth_writer.write_maps({"hot_pixels": injector.hot_pixels,
+                                     "leak_rate_hz": injector.leak_rate_map_hz.astype(np.float32)})
+            truth_writer.write_attributes({
+                **injector.parameters,
+                "width": width,
+                "height": height,
+                "source": stream.name,
+                "source_kind": "events",
+                "source_format": stream.info.format,
+                "preset": preset or "",
+                "labels": ", ".join(f"{code} {name}" for code, name in LABELS.items()),
+            })
+            first, last = _run_injector(injector, stream, writer, truth_writer, counts)
+            writer.cut = getattr(stream, "was_cut", False)
+            _mark_cut(truth_writer, writer.cut, (source,))
+            if first is not None:  # the noise spans the input's events, these two times included
+                truth_writer.write_attributes({"t_first_us": first, "t_last_us": last})
 
 
 def _run_injector(injector: NoiseInjector, stream, writer, truth: TruthWriter | None, counts) -> tuple[int, int]:

@@ -381,6 +381,31 @@ def test_a_truth_file_on_a_full_disk_names_it(small_disk, tmp_path):
     assert sorted(os.listdir(small_disk)) == ["filler"]
 
 
+@pytest.mark.parametrize("source", ["scene", "events", "video"])
+def test_a_failed_simulation_leaves_no_truth_file_and_never_overwrites_its_input(tmp_path, stream, source):
+    """A QA sweep: `simulate --truth t.h5 -o /dev/full` failed (exit 1) and left a complete t.h5 of events that no
+    output held (a Makefile rule then took it as up to date); the truth file is now completed only after the events.
+    And a video's --truth naming the video was not refused (events inputs were)."""
+    import cv2
+
+    video = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 25, (64, 48))
+    for i in range(10):
+        writer.write(np.full((48, 64, 3), 50 if i % 2 else 200, np.uint8))
+    writer.release()
+    given = {"scene": ["scene:bars", "--size", "64x48", "--duration", "1s"], "events": [stream[0]],
+             "video": [video]}[source]
+    truth = tmp_path / "t.h5"
+    for output in (["-o", "/dev/full"], ["--format", "csv", "-o", "/dev/full"]):
+        done = run("simulate", *given, "--truth", truth, *output, check=False)
+        assert done.returncode == 1 and "No space left on device" in done.stderr.decode() and not truth.exists()
+    if source != "scene":
+        before = given[0].read_bytes()
+        done = run("simulate", *given, "--truth", given[0], "-o", tmp_path / "x.aedat4", check=False)
+        assert_clean_error(done, "--truth would overwrite the input")
+        assert given[0].read_bytes() == before and not (tmp_path / "x.aedat4").exists()
+
+
 @pytest.mark.parametrize("name", ["convert", "bafilter", "correct"])
 def test_a_cut_file_input_gives_an_output_that_reads_as_cut(tmp_path, stream, name):
     """Issue 37 item 2, its file half: a file whose end mark is missing is read with a warning; the output of a
