@@ -48,7 +48,8 @@ def _target(ctx, param, value):
                    "of the runs on both sides meet (exact on log-linear ramps); "
                    "exponential: turns, and where a run slows down the exponential approach through its last three "
                    "events, with the tail the pixel no longer fires for (a photoreceptor low-pass after a step); "
-                   "highpass: turns plus a decay of the carried level over rests.")
+                   "highpass: turns plus a decay of the carried level over rests. foh, step and highpass are kept "
+                   "for comparison: each can make a stream worse than no correction (README).")
 @click.option("--hold-us", type=Microseconds(maximum_us=MAX_WINDOW_US), default=CORRECT_DEFAULTS["hold_us"],
               show_default=True,
               help="All but foh: a gap longer than this is a rest (held constant, no interpolation).")

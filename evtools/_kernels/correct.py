@@ -13,7 +13,8 @@ Where the line of event j starts (``mode``):
 - ``MODE_STEP`` (1): as FOH when the gap is at most ``hold_us``; over a longer gap (a rest) the signal is held
   constant until ``t_j``, so every crossing of event j is at ``t_j`` (the report's step-aware variant);
 - ``MODE_HIGHPASS`` (2): as STEP, and over a rest the carried ``level`` decays by ``exp(-(gap - hold_us) /
-  tau_us)``, so the level error that inexact thresholds add with every event is forgotten at every rest.
+  tau_us)`` (after a reversed run's excess, which came before the rest), so the level error that inexact
+  thresholds add with every event is forgotten at every rest.
 
 With ``turns`` (on in the ``turns`` and ``highpass`` modes of the corrector) the reconstruction is also
 
@@ -504,20 +505,21 @@ def correct_events(words, start, width, state, status, use, target_on, target_of
             row.pending_us = 0
             status[pixel] = sign
         elif mode != MODE_FOH and gap > hold_us:  # a rest: held, everything at t_b
-            if mode == MODE_HIGHPASS:
-                a = a * math.exp(-(gap - hold_us) / tau_us)
+            forget = math.exp(-(gap - hold_us) / tau_us) if mode == MODE_HIGHPASS else 1.0
             if turns and last == -sign:
                 # a reversal over a rest: the run went on by its expected excess (:func:`_run_excess`) at its slope
                 # (at once when unknown: a step), never earlier than three windows before t_b (the latency with
-                # turns: what is released ends there at the latest), and came back just before t_b
+                # turns: what is released ends there at the latest), and came back just before t_b; highpass
+                # forgets the level over the rest, after the run's excess (forgotten first, the excess crossed no
+                # level where the pixel's threshold was just below the target: one event lost an edge)
                 excess = _run_excess(row, not on, curves)
                 latency = 3.0 * window_us
                 reached = -min(float(gap) - 0.5 * max(row.interval_us, 0.0), latency)
                 a, n = _segment(a, excess, max(-float(gap), -latency), reached, t_b, xy, target_on, target_off, out_t,
                                 out_w, n)
-                a, n = _segment(a, d - excess, 0.0, 0.0, t_b, xy, target_on, target_off, out_t, out_w, n)
+                a, n = _segment(a * forget, d - excess, 0.0, 0.0, t_b, xy, target_on, target_off, out_t, out_w, n)
             else:
-                a, n = _segment(a, d, 0.0, 0.0, t_b, xy, target_on, target_off, out_t, out_w, n)
+                a, n = _segment(a * forget, d, 0.0, 0.0, t_b, xy, target_on, target_off, out_t, out_w, n)
             row.interval_us = 0.0
             row.pending_us = 0
             status[pixel] = sign

@@ -263,16 +263,18 @@ def correct_naive(events, on, off, target_on, target_off, mode=FOH, hold_us=100_
             gap = t - last[pixel]
             before = polarity.get(pixel)
             if mode != FOH and gap > hold_us:  # a rest: held, everything at t
-                if mode == HIGHPASS:
-                    level[pixel] = level.get(pixel, 0.0) * math.exp(-(gap - hold_us) / tau_us)
+                forget = math.exp(-(gap - hold_us) / tau_us) if mode == HIGHPASS else 1.0
                 if turns and before is not None and before != p:
                     # the run's excess, reached at its slope after its last event (but not earlier than three
-                    # windows before t), held, and back at t
+                    # windows before t), held (highpass: the level then forgotten over the rest), and back at t
                     beyond = run_excess(pixel)
                     begin = max(-float(gap), -3.0 * window)
                     reached = -min(gap - 0.5 * max(interval.get(pixel, 0), 0), 3.0 * window)
-                    draw(pixel, [(begin, 0.0), (reached, beyond), (0.0, 0.0), (0.0, step - beyond)], t)
+                    draw(pixel, [(begin, 0.0), (reached, beyond)], t)
+                    level[pixel] *= forget
+                    draw(pixel, [(0.0, 0.0), (0.0, step - beyond)], t)
                 else:
+                    level[pixel] = level.get(pixel, 0.0) * forget
                     draw(pixel, [(0.0, 0.0), (0.0, step)], t)
                 interval[pixel] = 0
                 previous[pixel] = 0
