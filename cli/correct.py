@@ -7,6 +7,7 @@ from dataclasses import replace
 from functools import partial
 
 import click
+import numpy as np
 
 from evtools.cli.batch import Outcome, batch_options, plan, run
 from evtools.cli.options import (MICROSECONDS, Microseconds, check_compression, compression_option,
@@ -95,6 +96,25 @@ def _check_camera(map_camera, stream_source, thresholds_path: str, name: str) ->
                     f"recorded by {stream_camera}: each pixel's thresholds are its own camera's")
 
 
+class _EndBound:
+    """The corrector's output within ``--end``: a run's excess and a tail re-sampled after a pixel's last event lie
+    up to 3 tau beyond it (the output ran 200 ms past the slice, so corrected windows overlapped end to end)."""
+
+    def __init__(self, corrector: ThresholdCorrector, transform) -> None:
+        self.corrector, self.transform = corrector, transform
+        self.released_us = corrector.released_us
+
+    def _within(self, parts):
+        for part in parts:
+            yield part[:int(np.searchsorted(part["t"], self.transform.end_us(), "left"))]
+
+    def process_parts(self, chunk):
+        return self._within(self.corrector.process_parts(chunk))
+
+    def flush_parts(self):
+        return self._within(self.corrector.flush_parts())
+
+
 def correct_one(input, output, *, reading, thresholds_path, target, mode, hold_us,
                 max_gap_us, tau_us, start_us, compression=None, slicing=None) -> Outcome:
     """Correct one file: its :class:`Outcome` (events in and out); ``slicing``: the shared slicing options
@@ -117,8 +137,11 @@ def correct_one(input, output, *, reading, thresholds_path, target, mode, hold_u
             )
         except CorrectionError as error:
             raise CorrectionError(f"{thresholds_path}: {error}") from None
+        transform = getattr(stream, "transform", None)
+        processor = _EndBound(corrector, transform) if transform is not None and transform.end is not None \
+            else corrector
         with create_events(output, stream.info, compression=compression, inputs=(input, thresholds_path)) as writer:
-            events_in, events_out = process_stream(stream, corrector, writer, f"correcting {stream.name}")
+            events_in, events_out = process_stream(stream, processor, writer, f"correcting {stream.name}")
     unknown = int((~corrector.usable).sum())
     if unknown:
         log.info(f"correct: {unknown:,} of {corrector.usable.size:,} pixels have no usable threshold estimate: their "

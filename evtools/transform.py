@@ -85,6 +85,10 @@ class Transform:
             f"event ({(self.last_us - self.first_us) / 1e6:.6g} s after its first, at {self.last_us:,} us): no event "
             "is kept")
 
+    def end_us(self) -> float:
+        """The slice's end as a stream time (inf: none, or no event seen yet to resolve a relative one against)."""
+        return np.inf if self.end is None or self.first_us is None else self.end.resolve(self.first_us)
+
     def _bounds(self) -> tuple[float, float]:
         return (-np.inf if self.start is None else self.start.resolve(self.first_us),
                 np.inf if self.end is None else self.end.resolve(self.first_us))

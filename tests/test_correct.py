@@ -700,6 +700,28 @@ def test_cli_matches_the_library_and_reports_bad_input(tmp_path, step):
     assert_clean_error(run("correct", source, "--thresholds", tmp_path / "none.h5", check=False), "none.h5")
 
 
+@pytest.mark.parametrize("mode", ["exponential", "turns"])
+def test_a_slice_bounds_the_output_too(tmp_path, mode):
+    """A QA sweep: `correct --start 1s --end 2s` wrote events up to 200 ms past the slice's end (a run's excess and
+    a re-sampled tail lie after a pixel's last event), so corrected windows joined end to end overlapped. The
+    output now keeps `start <= t < end` as the slice does; within it, it is the whole stream's correction of the
+    slice."""
+    source, truth = tmp_path / "tex.aedat4", tmp_path / "t.h5"
+    run("simulate", "scene:texture", "--size", "32x24", "--duration", "3s", "--seed", "1", "--truth", truth,
+        "-o", source)
+    first_us = int(read_all(source)[1]["t"][0])
+    out = tmp_path / "w.aedat4"
+    run("correct", source, "--thresholds", truth, "--start", "1s", "--end", "2s", "--mode", mode, "-o", out)
+    t = read_all(out)[1]["t"]
+    assert len(t) and t[0] >= first_us + 1_000_000 and t[-1] < first_us + 2_000_000
+    whole = tmp_path / "whole.aedat4"  # the slice corrected without the bound, then cut: the same events
+    sliced_in = tmp_path / "slice.aedat4"
+    run("convert", source, "--start", "1s", "--end", "2s", "-o", sliced_in)
+    run("correct", sliced_in, "--thresholds", truth, "--mode", mode, "-o", whole)
+    unbounded = read_all(whole)[1]
+    assert_same_events(read_all(out)[1], unbounded[unbounded["t"] < first_us + 2_000_000])
+
+
 def test_a_target_that_would_flood_the_output_is_refused(tmp_path):
     """correct --target 1e-9 once grew to 24 GB: a target more than MAX_EVENTS_PER_EVENT times below the largest
     threshold is refused up front, naming the ratio; a small but sane target still runs."""
