@@ -148,6 +148,9 @@ def correct_one(input, output, *, reading, thresholds_path, target, mode, hold_u
                  "events are passed on as they are")
     log.info(f"correct {mode}: {events_in:,} events in, {events_out:,} out (target {corrector.target_on:.4g} ON, "
              f"{corrector.target_off:.4g} OFF)")
+    if events_in and not events_out:
+        log.warning(f"correct: {stream.name}: {events_in:,} events in, none out: the target is above every change its "
+                    "pixels saw")
     change = events_out / events_in - 1 if events_in else 0.0
     return Outcome(events_in, events_out, {"events_change": round(change, 6)}, f"{100 * change:+.1f} % events",
                    stream.was_cut)

@@ -64,6 +64,11 @@ MAX_EVENTS_PER_EVENT = 100
 """A target this many times smaller than the largest pixel threshold is refused: each input event would create about
 that many events (a target of 1e-9 once grew a 2,560-event run to 24 GB)."""
 
+FEW_EVENTS_RATIO = 5
+"""A target this many times larger than the largest pixel threshold is said: every pixel then keeps at most about a
+fifth of its events (``--target 2`` on a 0.2 camera, or a map in other units, emptied the stream with one info
+line, a QA sweep), a coarser sensor than anyone asks for by design."""
+
 LANES = 2
 """The pixels are re-sampled in two lanes, the even and the odd sensor rows (any scene's events split about
 evenly), each with its own queue of waiting pixels and its own reorder buffer (:class:`_Lane`), so that the lanes
@@ -294,6 +299,12 @@ class ThresholdCorrector:
                 f"target {self.target_on:.4g} / {self.target_off:.4g} (ON / OFF) is {ratio:,.0f} times smaller than the "
                 f"largest thresholds ({largest_on:.4g} / {largest_off:.4g}): one input event could create about "
                 f"{ratio:,.0f} events, more than the {MAX_EVENTS_PER_EVENT} allowed; give a larger target")
+        coarser = min(self.target_on / largest_on, self.target_off / largest_off)
+        if coarser > FEW_EVENTS_RATIO:
+            logging.getLogger("evtools").warning(
+                f"target {self.target_on:.4g} / {self.target_off:.4g} (ON / OFF) is {coarser:,.3g} times the largest "
+                f"thresholds ({largest_on:.4g} / {largest_off:.4g}): every pixel keeps at most about 1/{coarser:,.3g} "
+                "of its events (a map in other units?)")
         self.mode = mode
         self.turns = (mode in ("turns", "highpass", "exponential")) if turns is None else bool(turns)
         self.curves = (mode == "exponential") if curves is None else bool(curves)

@@ -722,6 +722,26 @@ def test_a_slice_bounds_the_output_too(tmp_path, mode):
     assert_same_events(read_all(out)[1], unbounded[unbounded["t"] < first_us + 2_000_000])
 
 
+def test_a_target_far_above_the_thresholds_is_said(tmp_path, caplog):
+    """A QA sweep: `--target 2` on a 0.2 camera (or a map in other units) emptied the stream with one info line,
+    exit 0, while a target 100 times too small is refused. A target more than FEW_EVENTS_RATIO times the largest
+    thresholds is now a warning, and an empty output of a non-empty input is said; a coarser target within that
+    ratio is not."""
+    from evtools.correction import FEW_EVENTS_RATIO, ThresholdCorrector
+
+    on = np.full((2, 3), 0.2, np.float32)
+    with caplog.at_level("WARNING", logger="evtools"):
+        ThresholdCorrector(3, 2, on, on, target=0.2 * (FEW_EVENTS_RATIO - 0.5))
+    assert "times the largest thresholds" not in caplog.text
+    with caplog.at_level("WARNING", logger="evtools"):
+        ThresholdCorrector(3, 2, on * 1e-3, on * 1e-3, target=0.2)
+    assert "is 1e+03 times the largest thresholds" in caplog.text
+    source, truth = tmp_path / "s.aedat4", tmp_path / "t.h5"
+    run("simulate", *STEP, "--duration", "1s", "--truth", truth, "-o", source)
+    said = run("correct", source, "--thresholds", truth, "--target", "3", "-o", tmp_path / "c.aedat4").stderr.decode()
+    assert "times the largest thresholds" in said and "events in, none out" in said
+
+
 def test_a_target_that_would_flood_the_output_is_refused(tmp_path):
     """correct --target 1e-9 once grew to 24 GB: a target more than MAX_EVENTS_PER_EVENT times below the largest
     threshold is refused up front, naming the ratio; a small but sane target still runs."""
