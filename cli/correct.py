@@ -141,7 +141,10 @@ def correct_one(input, output, *, reading, thresholds_path, target, mode, hold_u
         processor = _EndBound(corrector, transform) if transform is not None and transform.end is not None \
             else corrector
         with create_events(output, stream.info, compression=compression, inputs=(input, thresholds_path)) as writer:
-            events_in, events_out = process_stream(stream, processor, writer, f"correcting {stream.name}")
+            try:
+                events_in, events_out = process_stream(stream, processor, writer, f"correcting {stream.name}")
+            except CorrectionError as error:  # (what only the stream can show: the start after its first event)
+                raise CorrectionError(f"{stream.name}: {error}") from None
     unknown = int((~corrector.usable).sum())
     if unknown:
         log.info(f"correct: {unknown:,} of {corrector.usable.size:,} pixels have no usable threshold estimate: their "

@@ -374,8 +374,9 @@ class ThresholdCorrector:
         self._started = True
         self._first_us = t_first
         if self.start_us is not None and self.start_us > t_first:  # (was taken as the first event's, silently)
-            raise CorrectionError(f"start_us ({self.start_us} us) is after the stream's first event ({t_first} us): "
-                                  "the sensor started before it; give an earlier time or none")
+            raise CorrectionError(f"the sensor's start ({self.start_us} us: start_us, --start-us) is after the "
+                                  f"stream's first event ({t_first} us): the sensor started before it; give an "
+                                  "earlier time or none")
         if self.turns:
             origin = t_first if self.start_us is None else self.start_us
             self._state["last_us"][self._use] = origin

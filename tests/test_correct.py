@@ -767,10 +767,23 @@ def test_a_start_after_the_first_event_is_refused():
     events = make_events([100, 200], [0, 1], [0, 0], [1, 1])
     on = off = np.full((1, 2), 0.2, np.float32)
     assert len(correct_thresholds(events, 2, 1, on, off, target=0.2, start_us=100)) == 2
-    with pytest.raises(CorrectionError, match=r"start_us \(101 us\) is after the stream's first event \(100 us\)"):
+    with pytest.raises(CorrectionError, match=r"start \(101 us: start_us, --start-us\) is after the stream's first "
+                       r"event \(100 us\)"):
         correct_thresholds(events, 2, 1, on, off, target=0.2, start_us=101)
     with pytest.raises(CorrectionError, match=r"start_us must be a whole number of microseconds within"):
         correct_thresholds(events, 2, 1, on, off, target=0.2, start_us=1 << 63)
+
+
+def test_a_start_after_the_first_event_names_the_file_and_the_option(tmp_path):
+    """A QA sweep: `correct a.aedat4 b.aedat4 --start-us 5000 -o out/` said `start_us (5000 us) is after...` once
+    per input, naming neither the file nor the option."""
+    source, truth = tmp_path / "a.aedat4", tmp_path / "t.h5"
+    run("simulate", *STEP, "--duration", "1s", "--truth", truth, "-o", source)
+    first_us = int(read_all(source)[1]["t"][0])
+    done = run("correct", source, "--thresholds", truth, "--start-us", str(first_us + 1), "-o",
+               tmp_path / "c.aedat4", check=False)
+    assert_clean_error(done, "a.aedat4: the sensor's start", "--start-us")
+    assert not (tmp_path / "c.aedat4").exists()
 
 
 def test_thresholds_that_break_the_consistency_rule_and_backward_series_are_refused(tmp_path):
