@@ -129,9 +129,11 @@ def plan(inputs: tuple[str, ...], output: str | None, suffix: str,
     folder = Path(output)
     if folder.exists() and not folder.is_dir():
         raise click.UsageError(f"-o {output}: with several inputs -o names a folder, and this is a file")
-    if not folder.exists() and from_extension(str(folder)) is not None:  # (made silently: a QA sweep)
-        log.warning(f"-o {output}: with several inputs -o names a folder, made now with that name; give each "
-                    "input its own run to write one file each (evtools does not merge recordings)")
+    if not folder.exists() and from_extension(str(folder)) is not None and not output.endswith(os.sep):
+        # (made silently, then with a warning and exit 0: a script that meant one file got a folder, QA sweeps)
+        raise click.UsageError(f"-o {output}: with several inputs -o names a folder, and this names a recording; "
+                               "give each input its own run to write one file each (evtools does not merge "
+                               f"recordings), or end it with / for a folder of that name ({output}/)")
     pairs, seen = [], {}
     for name in inputs:
         target = folder / (Path(name).stem + suffix)

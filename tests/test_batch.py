@@ -256,14 +256,18 @@ def test_a_cut_input_is_said_in_the_json_and_the_table(tmp_path):
     assert "input cut: output cut" in table
 
 
-def test_a_batch_folder_named_like_a_recording_is_said(tmp_path):
-    """A QA sweep: `-o merged.aedat4` with several inputs silently made a folder of that name. It still does (as
-    documented), with a warning that evtools does not merge recordings."""
+def test_a_batch_folder_named_like_a_recording_is_a_usage_error(tmp_path):
+    """QA sweeps: `-o merged.aedat4` with several inputs silently made a folder of that name, then did so with a
+    warning and exit 0 (a script that meant one file got a folder). It is now a usage error (exit 2, nothing made)
+    unless the name ends with / (a folder asked for) or the folder exists."""
     files = _recordings(tmp_path / "in", count=2)
-    result = run("bafilter", *files, "-o", tmp_path / "merged.aedat4")
-    assert (tmp_path / "merged.aedat4").is_dir() and "names a folder, made now" in result.stderr.decode()
+    result = run("bafilter", *files, "-o", tmp_path / "merged.aedat4", check=False)
+    assert result.returncode == 2 and "this names a recording" in result.stderr.decode()
+    assert not (tmp_path / "merged.aedat4").exists()
+    run("bafilter", *files, "-o", f"{tmp_path / 'merged.aedat4'}/")
+    assert (tmp_path / "merged.aedat4").is_dir()
     again = run("bafilter", *files, "-o", tmp_path / "merged.aedat4")  # (an existing folder: nothing to say)
-    assert "made now" not in again.stderr.decode()
+    assert again.returncode == 0 and len(list((tmp_path / "merged.aedat4").iterdir())) == 2
 
 
 def _dying_one(input, output, **options):
