@@ -66,6 +66,22 @@ class StreamInfo:
         return (self.width, self.height)
 
 
+LABEL_NAMES = ("signal", "leak", "shot", "hot")
+"""The per-event noise labels by code (``simulate --truth``'s ``label``: 0 signal, 1 leak, 2 shot, 3 hot pixel)."""
+
+
+def label_problem(labels: np.ndarray) -> str | None:
+    """What is wrong with per-event noise labels, or None: the one check of a truth file's labels and of labels given
+    in Python. One whole number per event from 0 to 3 (a 7 vanished from every count, -1 scored a held-out AUC of
+    1.0; booleans are refused: True would count as leak)."""
+    if labels.ndim != 1 or labels.dtype.kind not in "iu":
+        return f"labels must be one whole number per event (1-D integers), not {labels.dtype} of shape {labels.shape}"
+    if len(labels) and (labels.min() < 0 or labels.max() >= len(LABEL_NAMES)):
+        return (f"labels must be 0 (signal), 1 (leak), 2 (shot) or 3 (hot pixel); found {int(labels.min())} to "
+                f"{int(labels.max())}")
+    return None
+
+
 def check_sensor_size(width: int, height: int) -> None:
     """Raise :class:`InvalidEventsError` unless ``1 <= width, height <= 32767`` and the sensor has at most
     :data:`MAX_SENSOR_PIXELS` pixels (per-pixel maps of a larger one would take tens of gigabytes)."""

@@ -28,7 +28,8 @@ import numpy as np
 from evtools._kernels.pixel import LABEL_HOT, LABEL_LEAK, LABEL_SHOT, LABEL_SIGNAL
 from evtools.events import (CHUNK_EVENTS, EVENT_DTYPE, StreamChecker, StreamInfo, check_sensor_size, empty_events,
                             join, make_events)
-from evtools.simulation import SimulationError, _check_fraction, _check_nonnegative, check_noise_rates, leak_rates
+from evtools.simulation import (SimulationError, _check_fraction, _check_nonnegative, check_noise_rates, leak_rates,
+                                resolve_seed)
 
 __all__ = ["BLOCK_US", "NOISE_DEFAULTS", "NoiseInjector", "inject_noise"]
 
@@ -47,14 +48,6 @@ rates spread over 0.5 decade, as in DND21 (docs/algorithms.md section 3)."""
 
 _NO_EVENT_US = np.iinfo(np.int64).max
 _EMPTY_LABELS = np.empty(0, dtype=np.uint8)
-
-
-def _resolve_seed(seed) -> int:
-    if seed is None:
-        return int(np.random.SeedSequence().entropy % (1 << 63))
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise SimulationError(f"seed must be an integer >= 0, got {seed!r}")
-    return int(seed)
 
 
 class NoiseInjector:
@@ -118,7 +111,7 @@ class NoiseInjector:
         self.width, self.height = int(width), int(height)
         if isinstance(block_us, bool) or not isinstance(block_us, (int, np.integer)) or block_us < 1:
             raise SimulationError(f"block_us must be a whole number of microseconds >= 1, got {block_us!r}")
-        self.seed = _resolve_seed(seed)
+        self.seed = resolve_seed(seed)
         self.block_us = int(block_us)
         self.parameters: dict[str, Any] = {
             "shot_noise_rate_hz": _check_nonnegative("shot_noise_rate_hz", shot_noise_rate_hz),

@@ -109,6 +109,15 @@ def lin_log(intensity) -> np.ndarray:
         return np.where(intensity <= LIN_LOG_KNEE, intensity * LIN_LOG_SLOPE, np.log(np.maximum(intensity, 1.0)))
 
 
+def resolve_seed(seed) -> int:
+    """A random generator's seed: a whole number >= 0 (True is refused, not taken as 1), or None for a fresh one."""
+    if seed is None:
+        return int(np.random.SeedSequence().entropy % (1 << 63))
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise SimulationError(f"seed must be an integer >= 0, got {seed!r}")
+    return int(seed)
+
+
 def _check_nonnegative(name: str, value: float) -> float:
     number = float(value)
     if not number >= 0.0 or math.isinf(number):
@@ -294,11 +303,7 @@ class DvsSimulator:
         if refractory != int(refractory) or refractory > MAX_TIME_US:
             raise SimulationError(f"refractory_us must be a whole number of microseconds up to 2^62, got "
                                   f"{refractory_us}")
-        if seed is None:
-            seed = int(np.random.SeedSequence().entropy % (1 << 63))
-        if not isinstance(seed, (int, np.integer)) or seed < 0:
-            raise SimulationError(f"seed must be an integer >= 0, got {seed!r}")
-        self.seed = int(seed)
+        self.seed = resolve_seed(seed)
         self.parameters: dict[str, Any] = {
             "pos_thres": float(pos_thres),
             "neg_thres": float(neg_thres),

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from evtools import interrupt
+from evtools.events import label_problem
 from evtools.formats.errors import FormatError
 from evtools.formats.io import output_stream
 from evtools.inputs import note_input
@@ -384,15 +385,15 @@ def read_labels(path: str) -> tuple[np.ndarray, str | None]:
             raise FormatError(
                 f"{path}: no dataset label (per-event labels are written by `evtools simulate ... --truth FILE`)"
             )
-        if dataset.ndim != 1 or not np.issubdtype(dataset.dtype, np.integer):
-            raise FormatError(f"{path}: label must be one whole number per event (a 1-D integer dataset), not "
+        if dataset.ndim != 1 or dataset.dtype.kind not in "iu":  # (before the read: its values are checked below)
+            raise FormatError(f"{path}: labels must be one whole number per event (1-D integers), not "
                               f"{dataset.dtype} of shape {dataset.shape}")
         try:
             labels = dataset[()]
         except OSError as error:
             raise FormatError(f"{path}: cannot read the labels ({error})") from None
-        if len(labels) and (labels.min() < 0 or labels.max() > 3):
-            raise FormatError(f"{path}: labels must be 0 (signal), 1 (leak), 2 (shot) or 3 (hot pixel); found "
-                              f"{int(labels.min())} to {int(labels.max())}")
+        problem = label_problem(labels)
+        if problem:
+            raise FormatError(f"{path}: {problem}")
         fingerprint = h5.attrs.get("events_fingerprint")
         return labels.astype(np.uint8), None if fingerprint is None else _text(fingerprint)

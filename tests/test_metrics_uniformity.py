@@ -175,8 +175,10 @@ def test_the_metrics_take_other_layouts_and_refuse_unordered_or_off_sensor_event
         edge_uniformity(shuffled, 32, edges)
     with pytest.raises(evtools.InvalidEventsError, match="outside a sensor 16 wide"):
         edge_uniformity(events, 16, edges)
-    with pytest.raises(DenoiseMetricsError, match="labels are 0"):
+    with pytest.raises(DenoiseMetricsError, match=r"labels must be 0 \(signal\)"):
         DenoiseMatcher().add_input(events, np.full(len(events), 4, np.uint8))
+    with pytest.raises(DenoiseMetricsError, match="one whole number per event"):  # (True would count as leak)
+        DenoiseMatcher().add_input(events, np.ones(len(events), bool))
     off = events.copy()
     off["x"][5] = 40
     with pytest.raises(evtools.InvalidEventsError, match="outside the 32x24 sensor"):

@@ -487,6 +487,12 @@ def test_bad_parameters_raise_clear_errors():
         DvsSimulator(10, 10, hot_pixel_fraction=1.5)
     with pytest.raises(ValueError, match="width"):
         DvsSimulator(0, 10)
+    from evtools.noise import NoiseInjector
+
+    for model in (DvsSimulator, NoiseInjector):  # (the simulator took True as seed 1, the injector refused it)
+        for seed in (True, -1, 1.5, "3"):
+            with pytest.raises(SimulationError, match="seed must be an integer >= 0"):
+                model(10, 10, seed=seed)
     simulator = DvsSimulator(10, 10)
     simulator.process(0, np.zeros((10, 10)))
     with pytest.raises(SimulationError, match="increase"):

@@ -15,11 +15,9 @@ import numpy as np
 
 from evtools._kernels.bafilter import match_subsequence
 from evtools.errors import EvtoolsError
-from evtools.events import StreamChecker, StreamInfo, as_chunk
+from evtools.events import LABEL_NAMES, StreamChecker, StreamInfo, as_chunk, label_problem
 
 __all__ = ["LABEL_NAMES", "DenoiseMatcher", "DenoiseScore", "roc_auc", "esr", "EsrMeter"]
-
-LABEL_NAMES = ("signal", "leak", "shot", "hot")
 
 
 class DenoiseMetricsError(EvtoolsError, ValueError):
@@ -48,9 +46,9 @@ class DenoiseMatcher:
         events, labels = as_chunk(events, "input"), np.asarray(labels)
         if labels.ndim != 1 or len(events) != len(labels):
             raise DenoiseMetricsError(f"{len(events)} events but labels of shape {labels.shape}")
-        if len(labels) and (labels.dtype.kind not in "iub" or labels.min() < 0 or labels.max() > 3):
-            raise DenoiseMetricsError(f"labels are 0 (signal), 1 (leak), 2 (shot) or 3 (hot), one per event: got "
-                                      f"{labels.dtype} values from {labels.min()} to {labels.max()}")
+        problem = label_problem(labels) if len(labels) else None
+        if problem:
+            raise DenoiseMetricsError(problem)
         labels = labels.astype(np.uint8, copy=False)
         self.total += np.bincount(labels, minlength=256)
         self.inputs_seen += len(events)
