@@ -510,14 +510,16 @@ def correct_events(words, start, width, state, status, use, target_on, target_of
                 # a reversal over a rest: the run went on by its expected excess (:func:`_run_excess`) at its slope
                 # (at once when unknown: a step), never earlier than three windows before t_b (the latency with
                 # turns: what is released ends there at the latest), and came back just before t_b; highpass
-                # forgets the level over the rest, after the run's excess (forgotten first, the excess crossed no
-                # level where the pixel's threshold was just below the target: one event lost an edge)
+                # forgets the level over the rest after the run's excess (forgotten first, the excess crossed no
+                # level where the pixel's threshold was just below the target: one event lost an edge), the excess
+                # with it, so that t_b's level is the forgotten level plus d, as without a turn
                 excess = _run_excess(row, not on, curves)
                 latency = 3.0 * window_us
                 reached = -min(float(gap) - 0.5 * max(row.interval_us, 0.0), latency)
                 a, n = _segment(a, excess, max(-float(gap), -latency), reached, t_b, xy, target_on, target_off, out_t,
                                 out_w, n)
-                a, n = _segment(a * forget, d - excess, 0.0, 0.0, t_b, xy, target_on, target_off, out_t, out_w, n)
+                a, n = _segment(a * forget, d - excess * forget, 0.0, 0.0, t_b, xy, target_on, target_off, out_t,
+                                out_w, n)
             else:
                 a, n = _segment(a * forget, d, 0.0, 0.0, t_b, xy, target_on, target_off, out_t, out_w, n)
             row.interval_us = 0.0

@@ -272,7 +272,7 @@ def correct_naive(events, on, off, target_on, target_off, mode=FOH, hold_us=100_
                     reached = -min(gap - 0.5 * max(interval.get(pixel, 0), 0), 3.0 * window)
                     draw(pixel, [(begin, 0.0), (reached, beyond)], t)
                     level[pixel] *= forget
-                    draw(pixel, [(0.0, 0.0), (0.0, step - beyond)], t)
+                    draw(pixel, [(0.0, 0.0), (0.0, step - beyond * forget)], t)
                 else:
                     level[pixel] = level.get(pixel, 0.0) * forget
                     draw(pixel, [(0.0, 0.0), (0.0, step)], t)
