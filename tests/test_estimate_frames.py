@@ -587,6 +587,12 @@ def test_metrics_reconstruction_warns_of_a_black_level_left_in_the_frames(tmp_pa
     mapped, said = score("--thresholds", estimate)
     assert mapped["black_level_from"] == "thresholds" and mapped["black_level"] == pytest.approx(used)
     assert abs(used - 30) < 6 and "never reads below" not in said
+    # a level that is not a number is refused (FramePrediction(black_level="fit"), the estimator's, scored with 0)
+    from evtools.metrics.frames import FramePrediction, ReconstructionError
+
+    for level in ("fit", -1, float("nan"), True):
+        with pytest.raises(ReconstructionError, match="black level must be a number"):
+            FramePrediction(4, 3, 0.2, 0.2, black_level=level)
 
 
 @pytest.mark.parametrize("name", ["davis346_lab_frames.aedat4", "davis346_street_frames.aedat4"])

@@ -32,6 +32,9 @@ class FramePrediction(FrameThresholdEstimator):
 
     def __init__(self, width: int, height: int, contrast_on, contrast_off, *, black_level: float | None = None,
                  check: bool = True) -> None:
+        if black_level is not None and (isinstance(black_level, (str, bool)) or not np.isfinite(black_level)
+                                        or black_level < 0):  # ("fit", the estimator's, scored with 0: a review)
+            raise ReconstructionError(f"black level must be a number of DN >= 0 (or None: 0), got {black_level!r}")
         super().__init__(width, height, black_level=black_level, check=check)
         pixels = width * height
         self.theta_on = np.broadcast_to(np.asarray(contrast_on, np.float64), (height, width)).reshape(pixels)
