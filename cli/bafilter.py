@@ -18,7 +18,7 @@ from evtools.filters.chain import checked_parameters
 from evtools.filters.registry import option_help, parameters
 from evtools.formats import create_events, open_events
 from evtools.formats.hotpixels import HotPixelsError, read_hot_pixels, write_hot_pixels
-from evtools.formats.io import STDIO, same_file
+from evtools.formats.io import STDIO, same_file, same_target
 from evtools.transform import on_sliced_sensor, sliced
 
 log = logging.getLogger("evtools")
@@ -29,9 +29,9 @@ def _check_hot_pixels_target(path: str, input: str, output: str | None) -> None:
     if path == STDIO:
         if output in (None, STDIO):
             raise HotPixelsError("--save-hot-pixels - and the events cannot both go to stdout; give -o FILE")
-    elif input != STDIO and same_file(path, input):
+    elif same_file(path, input):
         raise HotPixelsError(f"{path}: the hot-pixel list would overwrite the input; choose another --save-hot-pixels")
-    elif output not in (None, STDIO) and (os.path.abspath(path) == os.path.abspath(output) or same_file(path, output)):
+    elif same_target(path, output):
         raise HotPixelsError(f"{path}: the hot-pixel list and the events would share a file; choose another "
                              "--save-hot-pixels")
 

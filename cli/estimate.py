@@ -32,7 +32,7 @@ from evtools.estimation import (
 from evtools.estimation_frames import DEFAULT_MAX_FRAME_FIT, FrameScaledEstimator, FrameThresholdEstimator
 from evtools.events import MAX_SENSOR_SIDE, MAX_THRESHOLD
 from evtools.formats import open_events
-from evtools.formats.io import STDIO, same_file
+from evtools.formats.io import same_file
 from evtools import interrupt
 from evtools.errors import EvtoolsError
 from evtools.formats.thresholds import ThresholdMap, camera_of, series_file, write_thresholds
@@ -320,7 +320,7 @@ def estimate_one(input, output, *, reading, parameters, slicing=None
     Online, the maps go to the file as they are made (:func:`series_file`: no bound on the run's length but the
     disk's), and a run that stops midway keeps them: on an error in the stream, or a stop signal between maps, the
     file is complete, with the attributes ``partial``, ``stopped_by`` and ``stopped_at_us``."""
-    if input != STDIO and same_file(output, input):
+    if same_file(output, input):
         raise EstimationError(f"{output}: the thresholds file would overwrite the input; choose another -o")
     online = parameters.get("interval_us") is not None
     failure = sink = None

@@ -209,10 +209,10 @@ def figure_path(path: str | None, param_hint: str, inputs=()) -> str | None:
     if path is None:
         return None
     from evtools.formats.figures import FigureError, figure_format
-    from evtools.formats.io import STDIO, same_file
+    from evtools.formats.io import same_file
 
     for named in inputs:
-        if named is not None and os.fspath(named) != STDIO and same_file(path, os.fspath(named)):
+        if same_file(path, named):
             raise click.BadParameter(f"{path} is an input of this command ({named}): a picture would replace it; "
                                      "choose another file", param_hint=param_hint)
     try:

@@ -171,7 +171,7 @@ def render(ctx, input, reading, output, window_us, start, end, scale, fps,
     check_time_span(start, end)
     if extension in IMAGE_EXTENSIONS:
         _refuse(ctx, {"fps": "--frame-rate"}, "applies to video outputs (.mp4, .avi) only")
-    if input != STDIO and same_file(output, input):
+    if same_file(output, input):
         raise RenderError(f"{output}: output would overwrite the input; choose another -o")
     with open_events(input, reading) as opened:
         stream = sliced(opened, {"end": end})  # events from --end on are neither drawn nor read
@@ -205,7 +205,7 @@ def _render_rate(input: str, output: str, reading) -> None:
     from evtools.plots import RateCounter, rate_figure
 
     figure_path(output, "-o")
-    if input != STDIO and same_file(output, input):
+    if same_file(output, input):
         raise RenderError(f"{output}: output would overwrite the input; choose another -o")
     with open_events(input, reading) as stream:
         counter = RateCounter(stream.info.width, stream.info.height)

@@ -37,7 +37,7 @@ from evtools.simulation import (
 )
 from evtools.formats import create_events, open_events, stop_cut
 from evtools.frames import FrameRelay
-from evtools.formats.io import STDIO, HEAD_BYTES, same_file
+from evtools.formats.io import STDIO, HEAD_BYTES, same_file, same_target
 from evtools.formats.registry import FORMATS, detect
 from evtools.formats.truth import TruthWriter, create_truth
 from evtools.formats.video import TIMESTAMPS_FILE, FrameSource, open_frames, read_image
@@ -482,9 +482,9 @@ def _mark_cut(truth: TruthWriter, input_cut: bool, inputs: tuple[str, ...]) -> N
 def _check_truth_path(truth: str | None, output: str | None, source: str) -> None:
     if truth is None:
         return
-    if output not in (None, STDIO) and (os.path.abspath(truth) == os.path.abspath(output) or same_file(truth, output)):
+    if same_target(truth, output):
         raise SimulationError("--truth and -o name the same file; give two different files")
-    if source != STDIO and same_file(truth, source):
+    if same_file(truth, source):
         raise SimulationError(f"{truth}: --truth would overwrite the input; choose another file")
 
 

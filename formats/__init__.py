@@ -440,7 +440,7 @@ def create_events(
     fmt = output_format(path, format)
     if path is not None and os.fspath(path) != STDIO:
         for input_path in inputs:
-            if input_path and input_path != STDIO and same_file(os.fspath(path), input_path):
+            if input_path and same_file(path, input_path):
                 raise FormatError(f"{path}: output would overwrite the input; choose another -o")
     target = "<stdout>" if path is None or os.fspath(path) == STDIO else os.fspath(path)
     check_compression(fmt, compression, target)

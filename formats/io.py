@@ -416,12 +416,21 @@ def size_scan(reader) -> Iterator[None]:
         reader.scanning = False
 
 
-def same_file(a: str, b: str) -> bool:
-    """True if paths ``a`` and ``b`` name the same existing file."""
+def same_file(a, b) -> bool:
+    """True if paths ``a`` and ``b`` name the same existing file (standard input or output, ``-``, is none)."""
+    if a is None or b is None or STDIO in (os.fspath(a), os.fspath(b)):
+        return False
     try:
         return os.path.samefile(a, b)
     except OSError:
         return False
+
+
+def same_target(a, b) -> bool:
+    """True if two outputs ``a`` and ``b`` would be one file: :func:`same_file`, or one path where none exists yet."""
+    if a is None or b is None or STDIO in (os.fspath(a), os.fspath(b)):
+        return False
+    return os.path.abspath(a) == os.path.abspath(b) or same_file(a, b)
 
 
 @contextlib.contextmanager
