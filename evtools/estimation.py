@@ -195,6 +195,9 @@ description offline was refused, online it gave every map at half the true thres
 shorter than that is checked at its end, as offline."""
 PERIOD_FACTORS = (0.96, 0.98, 0.99, 1.01, 1.02, 1.04)
 """stimulus: the description check estimates the stream again with the period times each of these."""
+RISE_SHIFTS = (-0.2, -0.1, -0.05, 0.05, 0.1, 0.2)
+"""stimulus: ... and with the rise fraction plus each of these (within 0.02-0.98): a rise of 0.6 for 0.5 called every
+pixel valid, ON 10 % low and OFF 15 % high (a QA sweep)."""
 DESCRIPTION_BETTER = 1 / math.sqrt(2.0)
 """The description check refuses when another description's median deviation is below this times the given one's (the
 simulated 32 x 24 flicker, levels 50,200: ideal pixels 0.001 at the true levels, 0.02-0.1 at low levels 25-100; with
@@ -529,7 +532,8 @@ class ThresholdEstimator:
         # the description check: the same estimate on a sample of rows, as described and with other levels and
         # periods (:meth:`_check_description`)
         self._probe_rows = 0
-        self._probes: dict[tuple[str, float], ThresholdEstimator] = {}  # ("levels", log ratio scale) or ("period", x)
+        self._probes: dict[tuple[str, float], ThresholdEstimator] = {}  # ("levels", log ratio scale), ("period", x),
+        # or ("rise", shift)
         if method == "stimulus" and math.isfinite(self.max_fit):  # (online: until DESCRIPTION_CHECK_PERIODS)
             self._probe_rows = max(1, math.ceil(width * height / DESCRIPTION_CHECK_PIXELS))
             rows = math.ceil(height / self._probe_rows)
@@ -546,6 +550,9 @@ class ThresholdEstimator:
                         self._probes[("levels", k)] = probe(replace(stimulus, low=stimulus.high / math.exp(log_ratio * k)))
             for factor in PERIOD_FACTORS:
                 self._probes[("period", factor)] = probe(replace(stimulus, period_us=stimulus.period_us * factor))
+            for shift in RISE_SHIFTS:
+                if 0.02 <= stimulus.rise + shift <= 0.98:
+                    self._probes[("rise", shift)] = probe(replace(stimulus, rise=stimulus.rise + shift))
 
     @property
     def parameters(self) -> dict[str, Any]:
@@ -713,14 +720,20 @@ class ThresholdEstimator:
                          if s.wavelength_px else "")
                 problems.append(f"a period near {s.period_us * factor / 1e3:.4g} ms{speed} fits them better "
                                 f"({math.sqrt(periods[factor]):.3f})")
+        rises = {shift: square for (kind, shift), square in squares.items() if kind == "rise"}
+        if rises:
+            shift = min(rises, key=rises.get)
+            if rises[shift] < DESCRIPTION_BETTER**2 * given_square:
+                problems.append(f"a rise near {s.rise + shift:.3g} of the period fits them better "
+                                f"({math.sqrt(rises[shift]):.3f}; a wrong rise moves ON and OFF apart)")
         if problems:
             timing = ("--stimulus-speed, --stimulus-wavelength (the period: wavelength / speed)" if s.wavelength_px
                       else "--stimulus-period")
             raise DescriptionError(
                 f"the events do not fit the described stimulus (levels {s.low:g}, {s.high:g}, period "
-                f"{s.period_us / 1e3:.4g} ms: median deviation {math.sqrt(given_square):.3f}); "
-                f"{'; '.join(problems)}: check --stimulus-levels, {timing}, or give --max-fit inf to take the "
-                "estimates as they are")
+                f"{s.period_us / 1e3:.4g} ms, rise {s.rise:g}: median deviation {math.sqrt(given_square):.3f}); "
+                f"{'; '.join(problems)}: check --stimulus-levels, {timing}, --stimulus-rise, or give --max-fit inf "
+                "to take the estimates as they are")
 
     def _snapshot(self, t_us: int) -> None:
         """Online: the maps as they stand at ``t_us`` (invalid where nothing is known yet), then every sum decays

@@ -542,6 +542,25 @@ def test_a_wrong_stimulus_period_is_refused_not_called_valid(seed, wrong, log):
         assert abs(named - period_us) < abs(period_us * wrong - period_us)
 
 
+@settings(max_examples=10, deadline=None)
+@given(seed=st.integers(0, 10**6), rise=st.floats(0.35, 0.65), wrong=st.sampled_from([-0.15, -0.1, 0.1, 0.15]))
+def test_a_wrong_stimulus_rise_is_refused_not_called_valid(seed, rise, wrong):
+    """A QA sweep: a rise of 0.6 for 0.5 called every pixel valid, ON 10 % low and OFF 15 % high (median fit 0.035);
+    0.4, 0.7 and 0.3 alike. On ideal pixels under log triangles of a random rise (per-pixel phases), the true rise
+    gives exact values and a rise 0.1-0.15 off is refused, naming a rise nearer the truth."""
+    period_us = 400_000
+    events, on, off = _ideal_triangles(seed, period_us, phases=True, rise=rise)
+    stimulus = Stimulus.log_triangle(1.5, period_us, rise=rise)
+    right = estimate_thresholds(events, 8, 6, "stimulus", stimulus=stimulus)
+    assert right.valid.mean() > 0.9 and np.abs(right.on / on - 1)[right.valid].max() < 0.01
+    with pytest.raises(EstimationError) as refused:
+        estimate_thresholds(events, 8, 6, "stimulus", stimulus=replace(stimulus, rise=rise + wrong))
+    message = str(refused.value)
+    assert "do not fit the described stimulus" in message and "--stimulus-rise" in message
+    named = float(message.split("a rise near ")[1].split(" of the period")[0])
+    assert abs(named - rise) < abs(wrong)
+
+
 def test_a_natural_scene_is_no_stimulus(tmp_path, dvxplorer_events):
     """A real street scene, denoised as a calibration would be: not one pixel is claimed to fit the default flicker."""
     path = tmp_path / "street.aedat4"
