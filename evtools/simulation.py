@@ -15,6 +15,7 @@ H. Rebecq, D. Gehrig, D. Scaramuzza, "ESIM: an Open Event Camera Simulator", Con
 from __future__ import annotations
 
 import inspect
+import logging
 import math
 from typing import Any, Callable, Iterable, Iterator
 
@@ -60,6 +61,10 @@ DEAD_PIXEL_THRESHOLD = 100.0
 
 MIN_THRESHOLD_FACTOR = 0.05
 """A drift never takes a threshold below 5 % of its first value."""
+
+LOWPASS_MAX_STEP = 0.2
+"""The longest frame interval, in low-pass time constants, that is said nothing of: the per-frame update ``eps =
+min(1, dt / tau)`` is then within 10 % of a true single pole's ``1 - exp(-dt / tau)``."""
 
 DEFAULT_PARAMETERS: dict[str, Any] = {
     "pos_thres": 0.2,
@@ -336,6 +341,7 @@ class DvsSimulator:
         self._shot_draws = np.zeros(n, dtype=np.uint64)
         self._hot_draws = np.zeros(n, dtype=np.uint64)
         self._t_us: int | None = None  # time of the last frame seen
+        self._said_lowpass = False  # (frames too far apart for the low-pass: said once)
         # the rows in lanes (PARALLEL_PIXELS), each advanced on its own thread into its own output columns
         lanes = 2 if n >= PARALLEL_PIXELS else 1
         rows = [self.height * k // lanes for k in range(lanes + 1)]
@@ -471,6 +477,7 @@ class DvsSimulator:
                 continue
             if t1 <= self._t_us:
                 raise SimulationError(f"frame times must increase: frame at {t1} us after one at {self._t_us} us")
+            self._check_lowpass_step(t1 - self._t_us)
             drift = self.parameters["thres_drift_per_s"]
             if drift != 0.0:  # thresholds at the interval's middle, (1 + drift * t) times those at the start
                 factor = drift_factor(drift, (self._t_us + t1) / 2 - self._t0_us)
@@ -497,6 +504,22 @@ class DvsSimulator:
             return self._sorted(pieces[0])
         return self._sorted([np.concatenate(parts) for parts in zip(*pieces)] if pieces else
                             [column[:0] for column in self._lanes[0].columns])
+
+    def _check_lowpass_step(self, interval_us: int) -> None:
+        """Say once when frames come too far apart for the low-pass: it moves by ``eps = min(1, dt / tau)`` a frame
+        (v2e's update; at full intensity, and less below), which is a single pole of time constant ``tau`` only for
+        ``dt`` well below it; at ``dt >= tau`` it does nothing (an 8 Hz cutoff on 30 fps video: the events came at
+        the unfiltered ramp's times, silently, a QA sweep)."""
+        cutoff_hz = self.parameters["cutoff_hz"]
+        if self._said_lowpass or not cutoff_hz or interval_us * 1e-6 * 2 * math.pi * cutoff_hz <= LOWPASS_MAX_STEP:
+            return
+        self._said_lowpass = True
+        tau_ms = 1e3 / (2 * math.pi * cutoff_hz)
+        logging.getLogger("evtools").warning(
+            f"frames {interval_us / 1e3:g} ms apart are coarse for the {cutoff_hz:g} Hz low-pass (time constant "
+            f"{tau_ms:.3g} ms; it moves min(1, dt / tau) a frame, as v2e's): its time constant is off by more than "
+            f"10 % (nothing is filtered from dt >= tau); give frames at most {tau_ms * LOWPASS_MAX_STEP:.3g} ms "
+            "apart (a faster scene --fps, an interpolated video) or a lower --cutoff-hz")
 
     def _advance(self, lane: "_PixelLane", frame: np.ndarray, t1: int) -> None:
         """Advance ``lane``'s pixels to ``frame`` at ``t1``, appending their events to its columns."""

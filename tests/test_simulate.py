@@ -803,3 +803,24 @@ def test_a_broken_video_is_one_line_even_where_opencv_prints_its_own(tmp_path):
     broken.write_bytes(video.read_bytes()[:5000])
     assert_clean_error(run("-q", "simulate", broken, "-o", tmp_path / "x.aedat4", check=False), "broken.avi",
                        "cannot read it as a video")
+
+
+def test_frames_too_far_apart_for_the_low_pass_are_said(caplog):
+    """A QA sweep: the low-pass moves min(1, dt / tau) a frame (v2e's update), so at 30 fps an 8 Hz cutoff (tau
+    19.9 ms) filtered nothing, silently. Frames more than LOWPASS_MAX_STEP time constants apart are now said once;
+    the scenes' default 1 ms frames under the noisy preset's 30 Hz are not."""
+    from evtools.simulation import LOWPASS_MAX_STEP
+
+    frames = np.full((20, 4, 4), 100.0)
+    tau_us = 1e6 / (2 * np.pi * 8)
+    for step_us, said in ((int(tau_us * LOWPASS_MAX_STEP) - 1, False), (33_333, True)):
+        caplog.clear()
+        with caplog.at_level("WARNING", logger="evtools"):
+            simulator = DvsSimulator(4, 4, cutoff_hz=8, fixed_cutoff=True, seed=1)
+            simulator.process(np.arange(20) * step_us, frames)
+            simulator.process(np.arange(20, 40) * step_us, frames)
+        assert caplog.text.count("coarse for the 8 Hz low-pass") == int(said), (step_us, caplog.text)
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="evtools"):
+        DvsSimulator(4, 4, cutoff_hz=30, seed=1).process(np.arange(20) * 1000, frames)
+    assert "coarse" not in caplog.text
