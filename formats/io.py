@@ -427,10 +427,11 @@ def same_file(a, b) -> bool:
 
 
 def same_target(a, b) -> bool:
-    """True if two outputs ``a`` and ``b`` would be one file: :func:`same_file`, or one path where none exists yet."""
+    """True if two outputs ``a`` and ``b`` would be one file: :func:`same_file`, or one path where none exists yet
+    (symbolic links followed: a link to a file not made yet and that file's name are one output, a QA sweep)."""
     if a is None or b is None or STDIO in (os.fspath(a), os.fspath(b)):
         return False
-    return os.path.abspath(a) == os.path.abspath(b) or same_file(a, b)
+    return os.path.realpath(a) == os.path.realpath(b) or same_file(a, b)
 
 
 @contextlib.contextmanager

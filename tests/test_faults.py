@@ -399,6 +399,12 @@ def test_a_failed_simulation_leaves_no_truth_file_and_never_overwrites_its_input
     for output in (["-o", "/dev/full"], ["--format", "csv", "-o", "/dev/full"]):
         done = run("simulate", *given, "--truth", truth, *output, check=False)
         assert done.returncode == 1 and "No space left on device" in done.stderr.decode() and not truth.exists()
+    link = tmp_path / "link.h5"  # a link to a file not made yet and that file's name are one output (a QA sweep)
+    link.symlink_to(tmp_path / "same.h5")
+    for truth_name, output_name in ((tmp_path / "same.h5", link), (link, tmp_path / "same.h5")):
+        done = run("simulate", *given, "--truth", truth_name, "-o", output_name, check=False)
+        assert done.returncode == 1 and "--truth and -o name the same file" in done.stderr.decode(), done.stderr
+        assert not (tmp_path / "same.h5").exists()
     if source != "scene":
         before = given[0].read_bytes()
         done = run("simulate", *given, "--truth", given[0], "-o", tmp_path / "x.aedat4", check=False)
