@@ -15,7 +15,7 @@ import click
 import numpy as np
 
 from evtools import interrupt
-from evtools.aps import APS_DEFAULTS, ApsSensor
+from evtools.aps import APS_DEFAULTS, MAX_APS_RATE_HZ, ApsSensor
 from evtools.cli.options import (FINITE, Duration, FiniteRange, Microseconds, aedat2_layout_option, echo_json,
                                  merged_alias, sensor_size_value, serve_early,
                                  check_compression, compression_option, input_format_option, reading_options)
@@ -228,13 +228,14 @@ def _float_option(name: str, help: str, low: float | None = 0.0, high: float | N
 @click.option("--profile", type=click.Choice(FLICKER_PROFILES), default=None,
               help="flicker: the wave is linear in intensity (default) or in log intensity.")
 @click.option("--phase", type=FINITE, default=None, help="flicker: the wave's phase at time 0, periods (0 = valley).")
-@click.option("--phase-spread", type=FINITE, default=None, metavar="PERIODS",
+@click.option("--phase-spread", type=FiniteRange(min=0), default=None, metavar="PERIODS",
               help="flicker: delay each pixel by its own random fraction of PERIODS periods (default 0).")
 @click.option("--speed", type=FINITE, default=None,
               help="gradient, bars, texture: speed in pixels per second (default 50).")
 @click.option("--image", type=click.Path(dir_okay=False), default=None, metavar="FILE",
               help="texture: any image file (PNG, JPEG, ...) as the texture, in place of the built-in one.")
-@click.option("--wavelength", type=FINITE, default=None, help="gradient: rise-and-fall length, pixels (default 64).")
+@click.option("--wavelength", type=FiniteRange(min=0, min_open=True), default=None,
+              help="gradient: rise-and-fall length, pixels (default 64).")
 @click.option("--bar-width", type=FiniteRange(min=0, min_open=True), default=None,
               help="bars: bar width, pixels (default 8).")
 @click.option("--orientation", type=click.Choice(["vertical", "horizontal"]), default=None, help="bars: direction.")
@@ -244,7 +245,8 @@ def _float_option(name: str, help: str, low: float | None = 0.0, high: float | N
               help="Scene's brightest intensity, 0-255 (default 200).")
 @click.option("--level", type=FiniteRange(0, 255), default=None, help="static: intensity, 0-255 (default 128).")
 @compression_option
-@click.option("--aps-rate", "aps_rate_hz", type=FiniteRange(min=0, min_open=True), default=None, metavar="HZ",
+@click.option("--aps-rate", "aps_rate_hz", type=FiniteRange(min=0, max=MAX_APS_RATE_HZ, min_open=True), default=None,
+              metavar="HZ",
               help="Also record APS frames (a DAVIS camera's intensity images) at this rate, into the output with "
                    "the events (AEDAT 4.0 or HDF5) and, with --truth, their true log intensity (`aps/`).")
 @click.option("--aps-exposure", "aps_exposure_us", type=Duration(minimum_us=1), default=None, metavar="TIME",
@@ -284,8 +286,8 @@ def simulate(source, output, output_format, truth, truth_frame_rate, input_forma
     aps = {name: options.pop(name) for name in ("aps_rate_hz", *APS_DEFAULTS)}
     aps = {name: value for name, value in aps.items() if value is not None}
     if aps and "aps_rate_hz" not in aps:
-        raise click.UsageError(f"{', '.join('--' + n.replace('_us', '').replace('_', '-') for n in aps)} require "
-                               "--aps-rate")
+        named = [f"--{n.replace('_us', '').replace('_', '-')}" for n in aps]
+        raise click.UsageError(f"{', '.join(named)} {'requires' if len(named) == 1 else 'require'} --aps-rate")
     size = merged_alias("--size", size, "--sensor-size", sensor_size)
     fps = options["frame_rate"] = merged_alias("--frame-rate", options["frame_rate"], "--fps", fps)
     given = {name: value for name, value in options.items() if value is not None}

@@ -436,14 +436,15 @@ def same_target(a, b) -> bool:
 
 @contextlib.contextmanager
 def output_stream(path: str | os.PathLike | None, *, binary_name: str, needs_seek: bool = False,
-                  text: bool = False) -> Iterator[BinaryIO]:
+                  text: bool = False, option: str = "-o") -> Iterator[BinaryIO]:
     """Open an output for binary writing: a file written atomically, or stdout for ``-``/None.
 
     A file is written to a temporary name beside the target and renamed only when the block ends without an
     error, so an interrupted run never leaves a half-written file under the real name; a symbolic link keeps
     pointing where it did (its target is replaced). A FIFO, a socket or a device (``/dev/null``, a terminal) is
     written directly, never renamed over. A binary stream is never written to a terminal (``text``: CSV and text
-    may be, to look at). ``needs_seek`` formats (HDF5) cannot go to stdout or to a FIFO.
+    may be, to look at). ``needs_seek`` formats (HDF5) cannot go to stdout or to a FIFO. ``option`` names the
+    command-line option the path came from, in messages (``--truth``).
     """
     path = STDIO if path is None else os.fspath(path)
     if path.startswith(TCP_PREFIX):
@@ -454,7 +455,7 @@ def output_stream(path: str | os.PathLike | None, *, binary_name: str, needs_see
             server.close()
         return
     if path == STDIO:
-        _check_stream_target(None, "stdout", binary_name, needs_seek, text)
+        _check_stream_target(None, "stdout", binary_name, needs_seek, text, option)
         sys.stdout.flush()
         if isinstance(sys.stdout.buffer, io.BufferedWriter) or not _has_descriptor(sys.stdout):
             yield sys.stdout.buffer  # (or a test runner's or notebook's stdout: no descriptor to write whole)
@@ -482,7 +483,7 @@ def output_stream(path: str | os.PathLike | None, *, binary_name: str, needs_see
         except OSError as error:
             raise FormatError(f"{path}: cannot open for writing ({error.strerror})") from None
         try:
-            _check_stream_target(stream, path, binary_name, needs_seek, text)
+            _check_stream_target(stream, path, binary_name, needs_seek, text, option)
             yield stream
         except BaseException:
             with contextlib.suppress(OSError):  # (the body's error is the one to report)
@@ -518,16 +519,17 @@ def _has_descriptor(stream) -> bool:
     return True
 
 
-def _check_stream_target(stream, name: str, binary_name: str, needs_seek: bool, text: bool = False) -> None:
+def _check_stream_target(stream, name: str, binary_name: str, needs_seek: bool, text: bool = False,
+                         option: str = "-o") -> None:
     """Refuse binary on a terminal, and a format that seeks on stdout (``stream`` None) or on anything live: choices
     of the command line (exit 2)."""
     if not text and (sys.stdout if stream is None else stream).isatty():
         raise OutputCannotTakeFormat(f"refusing to write binary {binary_name} to a terminal"
-                                     f"{'' if stream is None else f' ({name})'}: give -o FILE or pipe into another "
-                                     "command")
+                                     f"{'' if stream is None else f' ({name})'}: give {option} FILE or pipe into "
+                                     "another command")
     if needs_seek and (stream is None or is_live(stream)):
         raise OutputCannotTakeFormat(f"{binary_name} cannot be written to {name} (it needs a seekable file): give "
-                                     "-o FILE")
+                                     f"{option} FILE")
 
 
 @contextlib.contextmanager

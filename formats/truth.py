@@ -139,8 +139,8 @@ def create_truth(path: str) -> Iterator[TruthWriter]:
     import h5py
 
     try:
-        with output_stream(path, binary_name="HDF5", needs_seek=True) as stream, interrupt.deferred(), \
-                h5py.File(stream, "w") as h5:
+        with output_stream(path, binary_name="HDF5", needs_seek=True, option="--truth") as stream, \
+                interrupt.deferred(), h5py.File(stream, "w") as h5:
             yield TruthWriter(h5)
     except (FormatError, BrokenPipeError):
         raise

@@ -824,3 +824,19 @@ def test_frames_too_far_apart_for_the_low_pass_are_said(caplog):
     with caplog.at_level("WARNING", logger="evtools"):
         DvsSimulator(4, 4, cutoff_hz=30, seed=1).process(np.arange(20) * 1000, frames)
     assert "coarse" not in caplog.text
+
+
+def test_out_of_range_scene_and_aps_values_are_usage_errors(tmp_path):
+    """A QA sweep: --phase-spread -1, --wavelength 0 and --aps-rate 2e6 were errors (exit 1) where every other value
+    out of its range is a usage error (exit 2); `--aps-exposure` alone said "require"; `--truth -` said "give -o
+    FILE" of the truth's option."""
+    out = tmp_path / "x.aedat4"
+    for scene, option, said in (("flicker", ["--phase-spread", "-1"], "'--phase-spread'"),
+                                ("gradient", ["--wavelength", "0"], "'--wavelength'"),
+                                ("flicker", ["--aps-rate", "2000000"], "'--aps-rate'"),
+                                ("flicker", ["--aps-exposure", "5ms"], "--aps-exposure requires --aps-rate"),
+                                ("flicker", ["--truth", "-"], "give --truth FILE")):
+        done = run("simulate", f"scene:{scene}", "--size", "4x4", "--duration", "100ms", *option, "-o", out,
+                   check=False)
+        assert done.returncode == 2 and said in done.stderr.decode(), (option, done.stderr)
+        assert not out.exists()
