@@ -9,6 +9,7 @@ import math
 import os
 import re
 import sys
+import time
 from typing import Any, Iterator
 
 import click
@@ -281,6 +282,7 @@ def simulate(source, output, output_format, truth, truth_frame_rate, input_forma
     evtools simulate video.mp4 --preset noisy --seed 1 | evtools info -
     evtools simulate recording.aedat4 --shot-noise-rate-hz 5 --leak-rate-hz 0.2 --truth t.h5 -o noisy.aedat4
     """
+    started = time.perf_counter()
     compression = options.pop("compression")
     check_compression(compression, [(source, output)], output_format)
     aps = {name: options.pop(name) for name in ("aps_rate_hz", *APS_DEFAULTS)}
@@ -309,7 +311,8 @@ def simulate(source, output, output_format, truth, truth_frame_rate, input_forma
         parameters["leak_spread_decades"] = NOISE_DEFAULTS["leak_spread_decades"]
         parameters.update({key: value for key, value in given.items()})
         reading = reading_options(format=input_format, sensor_size=sensor_size, aedat2_layout=aedat2_layout)
-        _inject(source, output, (output_format, compression), truth, preset, seed, parameters, reading, as_json)
+        _inject(source, output, (output_format, compression), truth, preset, seed, parameters, reading, as_json,
+                started)
         return
     for name, value in (("--input-format", input_format), ("--aedat2-layout", aedat2_layout)):
         if value is not None:
@@ -351,7 +354,7 @@ def simulate(source, output, output_format, truth, truth_frame_rate, input_forma
             _mark_cut(truth_writer, frames.was_cut, inputs)
             if simulator.drift_origin_us is not None:  # (the truth's maps are the thresholds at this time)
                 truth_writer.write_attributes({"thres_drift_origin_us": simulator.drift_origin_us})
-    _report(source, output, counts, as_json)
+    _report(source, output, counts, as_json, started)
 
 
 @contextlib.contextmanager
@@ -490,18 +493,23 @@ def _check_truth_path(truth: str | None, output: str | None, source: str) -> Non
         raise SimulationError(f"{truth}: --truth would overwrite the input; choose another file")
 
 
-def _inject(source, output, written_as, truth, preset, seed, parameters, reading, as_json) -> None:
+def _inject(source, output, written_as, truth, preset, seed, parameters, reading, as_json, started) -> None:
     counts = np.zeros(len(LABELS), np.int64)
     _inject_into(source, output, written_as, truth, preset, seed, parameters, reading, counts)
-    _report(source, output, counts, as_json)
+    _report(source, output, counts, as_json, started, events_in=int(counts[0]))  # (label 0: the input's events)
 
 
-def _report(source: str, output: str | None, counts: np.ndarray, as_json: bool) -> None:
+def _report(source: str, output: str | None, counts: np.ndarray, as_json: bool, started: float,
+            events_in: int | None = None) -> None:
     """The one-line summary on stderr (not with -q); with --json, the same as JSON (on stdout when the events go
-    to a file, else on stderr)."""
+    to a file, else on stderr), with the other commands' keys (``input``, ``output``, ``seconds``; an event
+    stream's noise: ``events_in`` and ``events_out`` too)."""
     per_label = {name: int(counts[code]) for code, name in LABELS.items()}
-    summary = {"command": "simulate", "source": source, "output": output or STDIO, "events": int(counts.sum()),
+    summary = {"command": "simulate", "input": source, "output": output or STDIO, "events": int(counts.sum()),
                **per_label}
+    if events_in is not None:
+        summary.update(events_in=events_in, events_out=summary["events"])
+    summary["seconds"] = round(time.perf_counter() - started, 6)
     if as_json:
         echo_json(summary, err=output in (None, STDIO))
         return

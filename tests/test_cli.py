@@ -378,6 +378,14 @@ def test_json_counts_of_the_stream_commands(tmp_path):
                                "-o", tmp_path / "c.aedat4", "--json").stdout)
     assert simulated["events"] == simulated["signal"] + simulated["leak"] + simulated["shot"] + simulated["hot"]
     assert simulated["events"] == len(read_all(tmp_path / "c.aedat4")[1])
+    # the other commands' keys (a QA sweep: simulate said "source" and no seconds), and an event stream's noise
+    # counts its events in and out
+    noisy = json.loads(run("simulate", tmp_path / "c.aedat4", "--shot-noise-rate-hz", "5", "-o", tmp_path / "d.aedat4",
+                           "--json").stdout)
+    for counts in (simulated, noisy):
+        assert {"command", "input", "output", "seconds"} <= counts.keys() and "source" not in counts
+    assert noisy["input"] == str(tmp_path / "c.aedat4") and noisy["events_in"] == simulated["events"]
+    assert noisy["events_out"] == noisy["events"] == len(read_all(tmp_path / "d.aedat4")[1])
     batch = json.loads(run("convert", source, samples / "flicker.aedat4", "-o", tmp_path / "many", "--json").stdout)
     assert [f["events_in"] for f in batch["files"]] == [14_811, 19_382] and batch["failed"] == 0
 
