@@ -24,7 +24,7 @@ from typing import Any, Callable, NamedTuple
 import click
 
 from evtools.errors import EvtoolsError
-from evtools.formats.io import STDIO, same_file
+from evtools.formats.io import STDIO, TCP_PREFIX, same_file
 from evtools.formats.registry import from_extension
 
 log = logging.getLogger("evtools")
@@ -124,6 +124,8 @@ def plan(inputs: tuple[str, ...], output: str | None, suffix: str,
         raise click.UsageError(f"-o {output} is a folder: name the output file of stdin")
     if output is None or output == STDIO:
         raise click.UsageError(f"{len(inputs)} inputs need -o FOLDER (each output is named after its input)")
+    if output.startswith(TCP_PREFIX):  # (a folder tcp:/HOST:PORT/ was made, and nothing served: a QA sweep)
+        raise click.UsageError(f"-o {output}: a network output serves one stream; give one input, or -o FOLDER")
     if STDIO in inputs:
         raise click.UsageError("stdin (-) can be the only input")
     folder = Path(output)

@@ -32,7 +32,7 @@ from evtools.estimation import (
 from evtools.estimation_frames import DEFAULT_MAX_FRAME_FIT, FrameScaledEstimator, FrameThresholdEstimator
 from evtools.events import MAX_SENSOR_SIDE, MAX_THRESHOLD
 from evtools.formats import open_events
-from evtools.formats.io import same_file
+from evtools.formats.io import TCP_PREFIX, same_file
 from evtools import interrupt
 from evtools.errors import EvtoolsError
 from evtools.formats.thresholds import ThresholdMap, camera_of, series_file, write_thresholds
@@ -216,6 +216,9 @@ def estimate(inputs, reading, output, jobs, scheduler, as_json,
         if stimulus.wavelength_px and stimulus_phase == "given" and moved:  # (the delay is the camera's column's)
             raise click.UsageError("--stimulus-phase given delays the camera's columns, which --crop (from a column "
                                    "other than 0), --flip-x and --transpose move: use --stimulus-phase fit")
+    if output is not None and output.startswith(TCP_PREFIX):  # (before any work: the map is HDF5)
+        raise click.UsageError(f"-o {output}: the thresholds map is HDF5, a file (it cannot be served on a network "
+                               "output); give -o FILE")
     pairs = plan(inputs, output, ".h5", second_is_output=False)
     options = dict(reading=reading,
                    parameters=dict(method=method, nominal=nominal, segment_us=segment_us, stimulus=stimulus,

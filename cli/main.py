@@ -47,7 +47,8 @@ def _timeout(ctx, param, value):
     if value is not None:
         from evtools.cli.options import LIVE_OPTIONS, Duration
 
-        seconds = Duration(minimum_us=1000).convert(value, param, ctx) / 1e6
+        # (up to a year: a socket's timeout is a C time; 1e10 s overflowed it into a traceback, a QA sweep)
+        seconds = Duration(minimum_us=1000, maximum_us=365 * 86_400_000_000).convert(value, param, ctx) / 1e6
         ctx.meta.setdefault(LIVE_OPTIONS, {}).update(connect_timeout_s=seconds, read_timeout_s=seconds)
     return value
 

@@ -38,7 +38,7 @@ from evtools.simulation import (
 )
 from evtools.formats import create_events, open_events, stop_cut
 from evtools.frames import FrameRelay
-from evtools.formats.io import STDIO, HEAD_BYTES, same_file, same_target
+from evtools.formats.io import STDIO, HEAD_BYTES, TCP_PREFIX, same_file, same_target
 from evtools.formats.registry import FORMATS, detect
 from evtools.formats.truth import TruthWriter, create_truth
 from evtools.formats.video import TIMESTAMPS_FILE, FrameSource, open_frames, read_image
@@ -283,6 +283,9 @@ def simulate(source, output, output_format, truth, truth_frame_rate, input_forma
     evtools simulate recording.aedat4 --shot-noise-rate-hz 5 --leak-rate-hz 0.2 --truth t.h5 -o noisy.aedat4
     """
     started = time.perf_counter()
+    if truth is not None and truth.startswith(TCP_PREFIX):  # (before any work, and before -o is made)
+        raise click.UsageError(f"--truth {truth}: the truth is HDF5, a file (it cannot be served on a network "
+                               "output); give --truth FILE")
     compression = options.pop("compression")
     check_compression(compression, [(source, output)], output_format)
     aps = {name: options.pop(name) for name in ("aps_rate_hz", *APS_DEFAULTS)}

@@ -807,8 +807,20 @@ class Aedat4Writer:
                 return local.compressor.compress(data)
 
             self.compress = compress
+        network = getattr(stream, "network", False)
+        if network and (info.metadata.get("frame_size") or info.metadata.get("side_streams")):
+            # DV's NetworkWriter serves one stream, and dv's NetworkReader takes one from the header: with IMU or
+            # triggers declared beside the events it took theirs and failed on the events (a QA sweep)
+            left = [what for key, what in (("frame_size", "APS frames"), ("side_streams", "IMU and trigger streams"))
+                    if info.metadata.get(key)]
+            logging.getLogger("evtools").warning(
+                f"a network output serves the events alone, as DV's does (dv's NetworkReader reads one stream): the "
+                f"input's {' and '.join(left)} are left out; write a file to keep them")
+            info = StreamInfo(info.width, info.height, info.format, {
+                key: value for key, value in info.metadata.items() if key not in ("frame_size", "side_streams")})
+        self.network = network
         header = _ioheader(self.code, _description(info, self.code))
-        first_line = b"" if getattr(stream, "network", False) else MAGIC  # a network stream has none
+        first_line = b"" if network else MAGIC  # a network stream has none
         stream.write(first_line + struct.pack("<I", len(header)) + header)
         self.pending: list[np.ndarray] = []
         self.held = 0
@@ -858,8 +870,8 @@ class Aedat4Writer:
     def write_frame(self, frame: Frame) -> None:
         """An APS frame, as one ``FRME`` packet (after the events written before it; the events held for the
         current packet stay held, so that packets hold a fixed number of events whatever the frames)."""
-        if not self.frames:  # the header went out before the input's frames were known (an AEDAT 3.1 pipe)
-            self.frames_left_out += 1
+        if not self.frames:  # the header went out before the input's frames were known (an AEDAT 3.1 pipe), or a
+            self.frames_left_out += not self.network  # network output, which serves the events alone (said)
             return
         self._packet(FRAME_STREAM_ID, _frame_body(frame))
 

@@ -9,10 +9,12 @@ import io
 import logging
 import os
 import stat
+import struct
 import sys
 import termios
 import threading
 import time
+from collections import deque
 from queue import Empty, Full, Queue
 from typing import BinaryIO, Iterable, Iterator
 
@@ -234,16 +236,106 @@ def _connect(name: str, timeout_s: float):
     return connection
 
 
+def _unacknowledged_bytes(sock) -> int:
+    """Bytes sent on ``sock`` that its peer's system has not acknowledged yet (Linux: the send queue)."""
+    return struct.unpack("i", fcntl.ioctl(sock.fileno(), termios.TIOCOUTQ, b"\0\0\0\0"))[0]
+
+
+class _Client:
+    """One connection of a :class:`TcpServer`: its own thread sends what is queued, in order, so that a client that
+    stops reading holds up no one else (a blocking send under the server's lock froze every client, and the
+    stage, for 5 s: a QA sweep). A client whose send stalls :attr:`TcpServer.SEND_TIMEOUT_S`, or that falls
+    :attr:`TcpServer.MAX_BEHIND_BYTES` behind, is dropped; at the end its stream is ended, ours first."""
+
+    def __init__(self, sock, served: list) -> None:
+        self.sock, self.served = sock, served  # served: [bytes received, whole stream so far, dropped]
+        self.queue: deque = deque()
+        self.behind = 0  # bytes queued, not sent yet
+        self.ending = False
+        self.sent = threading.Event()  # everything queued was sent (or the client dropped): its hang-up begins
+        self.changed = threading.Condition()
+        self.thread = threading.Thread(target=self._send_all, name="evtools-tcp-client", daemon=True)
+        self.thread.start()
+
+    def put(self, data: bytes) -> bool:
+        """Queue ``data``; False when the client is (now) dropped."""
+        with self.changed:
+            if self.served[2]:
+                return False
+            if self.behind + len(data) > TcpServer.MAX_BEHIND_BYTES:
+                self._drop()
+                return False
+            self.queue.append(data)
+            self.behind += len(data)
+            self.changed.notify()
+        return True
+
+    def end(self) -> None:
+        """Send what is queued, then end the stream (:meth:`_hang_up`)."""
+        with self.changed:
+            self.ending = True
+            self.changed.notify()
+
+    def _drop(self) -> None:
+        self.served[2] = True
+        self.queue.clear()
+        self.sent.set()
+        with contextlib.suppress(OSError):
+            self.sock.close()
+
+    def _send_all(self) -> None:
+        while True:
+            with self.changed:
+                while not self.queue and not self.ending and not self.served[2]:
+                    self.changed.wait()
+                if self.served[2]:
+                    return
+                if not self.queue:  # ending, everything sent
+                    self.sent.set()
+                    break
+                data = self.queue.popleft()
+            try:
+                self.sock.sendall(data)
+            except OSError:  # gone, or stalled: dropped
+                with self.changed:
+                    self._drop()
+                return
+            with self.changed:
+                self.behind -= len(data)
+                self.served[0] += len(data)
+        self._hang_up()
+
+    def _hang_up(self) -> None:
+        """Ends the client's stream so that it gets every byte sent: our end first, then its end (a close with
+        unread bytes from the client would reset the connection and could drop the last packets in flight); the
+        server closes the socket of a client that has not closed by its deadline."""
+        import socket
+
+        try:  # (dv-processing's NetworkReader drops the bytes that arrive with the stream's end: the end waits
+            while _unacknowledged_bytes(self.sock):  # until the client's system has them all, within HANG_UP_S)
+                time.sleep(0.005)
+            self.sock.shutdown(socket.SHUT_WR)
+            while self.sock.recv(1 << 16):
+                pass
+        except OSError:
+            pass
+        self.sock.close()
+
+
 class TcpServer:
     """A binary output that serves ``tcp://HOST:PORT`` (``tcp://:PORT``: every interface) the way dv-processing's
     ``NetworkWriter`` does: every client that connects gets the stream's header (the first write) as soon as there
-    is one and then what is written from the next ``flush()`` on, whole packets only; a client that goes away (or stalls for
-    :data:`SEND_TIMEOUT_S`) is dropped and the server goes on. ``network`` tells the AEDAT 4.0 writer to leave out
-    the file's first line, as network streams do. At the end it says how many clients got how much, and warns when
-    none connected (the stream went to nobody)."""
+    is one and then what is written from the next ``flush()`` on, whole packets only; each client is sent to by its
+    own thread (:class:`_Client`), and one that goes away, stalls for :data:`SEND_TIMEOUT_S` or falls
+    :data:`MAX_BEHIND_BYTES` behind is dropped while the server goes on. ``network`` tells the AEDAT 4.0 writer to
+    leave out the file's first line, as network streams do. At the end every client gets the rest of its stream
+    (as long as it reads) and then its end, the server waiting at most :data:`HANG_UP_S` in all for the clients to
+    close; it says how many clients got how much, and warns when none connected (the stream went to nobody)."""
 
     network = True
     SEND_TIMEOUT_S = 5.0
+    MAX_BEHIND_BYTES = 64 << 20
+    HANG_UP_S = 2.0  # (was 5 s a client, one after another, and without end for a client that kept sending)
 
     def __init__(self, name: str) -> None:
         import socket
@@ -256,26 +348,31 @@ class TcpServer:
             raise FormatError(f"{name}: cannot listen ({error.strerror or error})") from None
         self.header: bytes | None = None
         self.pending = bytearray()
-        self.clients: list = []
+        self.clients: list[_Client] = []
         self.arrived: list = []  # accepted before the header was written: they get it when it is
         self.packets_sent = 0  # flushes that sent data: a client joined at 0 gets the whole stream
-        self.served: dict = {}  # client -> [bytes received, whole stream so far, dropped]
+        self.served: dict = {}  # socket -> [bytes received, whole stream so far, dropped]
         self.lock = threading.Lock()
         threading.Thread(target=self._accept, name="evtools-tcp-accept", daemon=True).start()
 
     def _accept(self) -> None:
         while True:
             try:
-                client, _ = self.listener.accept()
+                sock, _ = self.listener.accept()
             except OSError:  # the listener was closed
                 return
-            client.settimeout(self.SEND_TIMEOUT_S)
+            sock.settimeout(self.SEND_TIMEOUT_S)
             with self.lock:  # the header now (clients wait for it), packets from the next flush on
-                self.served[client] = [0, self.packets_sent == 0, False]
+                self.served[sock] = [0, self.packets_sent == 0, False]
                 if self.header is None:
-                    self.arrived.append(client)
-                elif self._send(client, self.header):
-                    self.clients.append(client)
+                    self.arrived.append(sock)
+                else:
+                    self._join(sock)
+
+    def _join(self, sock) -> None:
+        client = _Client(sock, self.served[sock])
+        if client.put(self.header):
+            self.clients.append(client)
 
     def write(self, data) -> int:
         data = memoryview(data).cast("B")  # bytes or an array's buffer
@@ -283,7 +380,8 @@ class TcpServer:
             with self.lock:  # sensor size before the first events, which may be long in coming)
                 self.header = bytes(data)
                 arrived, self.arrived = self.arrived, []
-                self.clients += [client for client in arrived if self._send(client, self.header)]
+                for sock in arrived:
+                    self._join(sock)
         else:
             self.pending += data
         return len(data)
@@ -292,29 +390,33 @@ class TcpServer:
         data, self.pending = bytes(self.pending), bytearray()
         with self.lock:
             if data:
-                self.clients = [client for client in self.clients if self._send(client, data)]
+                self.clients = [client for client in self.clients if client.put(data)]
                 self.packets_sent += 1
-
-    def _send(self, client, data: bytes) -> bool:
-        try:
-            client.sendall(data)
-            self.served[client][0] += len(data)
-            return True
-        except OSError:  # gone or stalled: drop it
-            client.close()
-            self.served[client][2] = True
-            return False
 
     def isatty(self) -> bool:
         return False
 
     def close(self) -> None:
+        import socket
+
         self.flush()
         self.listener.close()
         with self.lock:
-            for client in self.clients + self.arrived:
-                self._hang_up(client)
+            clients, arrived = self.clients, self.arrived
             self.clients, self.arrived = [], []
+        for sock in arrived:  # (no header came: nothing to send)
+            sock.close()
+        for client in clients:
+            client.end()
+        for client in clients:  # (a client that reads gets its stream whole however slowly; one that stalls for
+            client.sent.wait()  # SEND_TIMEOUT_S is dropped by its own send)
+        deadline = time.monotonic() + self.HANG_UP_S
+        for client in clients:
+            client.thread.join(max(0.0, deadline - time.monotonic()))
+            if client.thread.is_alive():  # still sending, or the client has not closed: cut off now (a shutdown
+                with contextlib.suppress(OSError):  # wakes the thread's blocked send or receive; a close would not)
+                    client.sock.shutdown(socket.SHUT_RDWR)
+                client.sock.close()
         self._report()
 
     def _report(self) -> None:
@@ -326,20 +428,6 @@ class TcpServer:
                  for sent, whole, dropped in self.served.values()]
         count = len(self.served)
         log.info(f"{self.name}: served {count} client{'s' if count > 1 else ''}: {', '.join(parts)}")
-
-    def _hang_up(self, client) -> None:
-        """Ends a client's stream so that it gets every byte sent: our end first, then its end (a close with
-        unread bytes from the client would reset the connection and could drop the last packets in flight)."""
-        import socket
-
-        try:
-            client.shutdown(socket.SHUT_WR)
-            client.settimeout(self.SEND_TIMEOUT_S)
-            while client.recv(1 << 16):
-                pass
-        except OSError:
-            pass
-        client.close()
 
 
 LISTENING: dict[str, TcpServer] = {}
@@ -448,6 +536,9 @@ def output_stream(path: str | os.PathLike | None, *, binary_name: str, needs_see
     """
     path = STDIO if path is None else os.fspath(path)
     if path.startswith(TCP_PREFIX):
+        if needs_seek:  # (h5py was handed the server: a traceback, a QA sweep)
+            raise OutputCannotTakeFormat(f"{binary_name} cannot be served on a network output ({path}): it needs a "
+                                         f"seekable file; give {option} FILE")
         server = LISTENING.pop(path, None) or TcpServer(path)
         try:
             yield server

@@ -4,6 +4,7 @@ servers give one-line errors naming the address."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import socket
@@ -413,3 +414,183 @@ def test_a_client_waiting_for_the_header_gets_it_before_any_event(tmp_path):
         stage.wait()
         if client is not None:
             client.close()
+
+
+def test_a_client_that_stops_reading_holds_up_no_one():
+    """A QA sweep: the server sent to its clients one after another, blocking, under its lock: a client that never
+    reads froze every other client and the stage for 5 s (a 5 s replay took 8.2 s). Each client now has its own
+    sender: the reading client gets all of a large flush while the stalled one is still connected."""
+    from evtools.formats.io import TcpServer
+    from tests.helpers import wait_until
+
+    server = TcpServer(f"tcp://127.0.0.1:{_free_port()}")
+    port = server.listener.getsockname()[1]
+    stalled = socket.socket()
+    stalled.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+    stalled.connect(("127.0.0.1", port))
+    wait_until(lambda: len(server.served) == 1, "the stalled client to be accepted")
+    healthy = socket.create_connection(("127.0.0.1", port))
+    wait_until(lambda: len(server.served) == 2, "the reading client to be accepted")
+    header, payload = b"H" * 10, b"x" * (16 << 20)  # far beyond what the stalled client's buffers take
+    server.write(header)
+    received = []
+
+    def read() -> None:
+        while sum(map(len, received)) < len(header) + len(payload):
+            part = healthy.recv(1 << 20)
+            if not part:
+                return
+            received.append(part)
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    server.write(payload)
+    server.flush()
+    wait_until(lambda: sum(map(len, received)) == len(header) + len(payload), "the reading client's stream")
+    assert not any(dropped for _, _, dropped in server.served.values())  # (the stalled one is still there)
+    server.close()
+    assert b"".join(received) == header + payload
+    stalled.close()
+    healthy.close()
+
+
+def test_a_client_that_keeps_sending_does_not_keep_the_server_from_ending():
+    """A QA sweep: at its end the server drained each client until it closed, 5 s a client one after another (3
+    idle viewers: 17 s to stop), and without end for a client that sent a byte a second. It now ends every
+    client's stream at once and waits at most HANG_UP_S in all."""
+    from evtools.formats.io import TcpServer
+    from tests.helpers import wait_until
+
+    server = TcpServer(f"tcp://127.0.0.1:{_free_port()}")
+    port = server.listener.getsockname()[1]
+    chatty = socket.create_connection(("127.0.0.1", port))
+    idle = [socket.create_connection(("127.0.0.1", port)) for _ in range(3)]
+    wait_until(lambda: len(server.served) == 4, "the clients to be accepted")
+    server.write(b"H" * 10)
+    server.write(b"x" * 1000)
+    server.flush()
+    talking = threading.Event()
+
+    def talk() -> None:
+        with contextlib.suppress(OSError):
+            while not talking.is_set():
+                chatty.sendall(b".")
+                time.sleep(0.05)
+
+    threading.Thread(target=talk, daemon=True).start()
+    received = []
+
+    def read() -> None:  # (while the server ends: a close with the client's bytes unread resets the connection)
+        with contextlib.suppress(OSError):
+            while part := chatty.recv(1 << 16):
+                received.append(part)
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    wait_until(lambda: sum(map(len, received)) == 1010, "the chatty client's stream")
+    closed = threading.Event()
+    threading.Thread(target=lambda: (server.close(), closed.set()), daemon=True).start()
+    try:
+        wait_until(closed.is_set, "the server to end while a client keeps sending")
+    finally:
+        talking.set()
+    reader.join(60)
+    assert b"".join(received) == b"H" * 10 + b"x" * 1000  # (its stream whole, then ended)
+    for sock in (chatty, *idle):
+        sock.close()
+
+
+def _connected_to(port: int) -> bool:
+    """Whether a connection to the local ``port`` is established (Linux's /proc/net/tcp: a state, not a time)."""
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        with contextlib.suppress(OSError), open(table) as file:
+            for line in file.readlines()[1:]:
+                local, state = line.split()[1], line.split()[3]
+                if state == "01" and int(local.split(":")[1], 16) == port:
+                    return True
+    return False
+
+
+DV_CLIENT = """
+import sys, time
+import numpy as np
+import dv_processing as dv
+port, out = int(sys.argv[1]), sys.argv[2]
+deadline = time.monotonic() + 60
+while True:
+    try:
+        reader = dv.io.NetworkReader("127.0.0.1", port)  # (waits for the header; holds its process's GIL)
+        break
+    except RuntimeError:
+        if time.monotonic() > deadline:
+            raise
+        time.sleep(0.05)
+pieces = []
+while True:
+    running = reader.isRunning()
+    batch = reader.getNextEventBatch()
+    if batch is not None and len(batch):
+        pieces.append(batch.numpy())
+    elif not running:
+        break
+    else:
+        time.sleep(0.001)
+a = np.concatenate(pieces)
+np.savez(out, t=a["timestamp"], x=a["x"], y=a["y"], p=a["polarity"], size=np.array(reader.getEventResolution()))
+"""
+
+
+def test_a_dv_client_reads_the_served_events_of_a_recording_with_imu_and_triggers(tmp_path):
+    """A QA sweep: serving a DV recording with IMU and trigger streams declared them in the network header, and dv's
+    NetworkReader, which reads one stream, took the IMU's type and failed on the first event packet. A network
+    output serves the events alone, as DV's does, and says what it leaves out."""
+    from tests.conftest import data_file
+    from tests.helpers import wait_until
+
+    recording = data_file("dvxplorer_sample.aedat4")
+    events, info = evtools.read(recording)
+    fifo = tmp_path / "in.fifo"
+    os.mkfifo(fifo)
+    port = _free_port()
+    stage = subprocess.Popen([EVTOOLS[0], "convert", str(fifo), "-o", f"tcp://127.0.0.1:{port}"],
+                             stderr=subprocess.PIPE, text=True, env=_environment(), cwd=ROOT)
+    client = subprocess.Popen([sys.executable, "-c", DV_CLIENT, str(port), str(tmp_path / "got.npz")],
+                              stderr=subprocess.PIPE, text=True)
+    try:
+        wait_until(lambda: _connected_to(port), "the dv client to connect (it then waits for the header)")
+        with open(fifo, "wb") as feed:
+            feed.write(recording.read_bytes())
+        assert stage.wait(timeout=60) == 0
+        assert client.wait(timeout=60) == 0, client.stderr.read()
+        stderr = stage.stderr.read()
+    finally:
+        for process in (stage, client):
+            process.kill()
+            process.wait()
+    got = np.load(tmp_path / "got.npz")
+    assert tuple(got["size"]) == (info.width, info.height)
+    assert_same_events(evtools.make_events(got["t"], got["x"], got["y"], got["p"]), events)
+    assert "serves the events alone" in stderr and "IMU and trigger streams are left out" in stderr, stderr
+
+
+def test_outputs_a_network_cannot_carry_are_usage_errors(tmp_path):
+    """A QA sweep: `estimate -o tcp://` and `simulate --truth tcp://` handed h5py the server (a traceback, and
+    simulate's -o lost), several inputs with `-o tcp://` made a folder `tcp:/HOST:PORT/` and served nothing (exit
+    0), and `--timeout 1e10s` overflowed the socket's timeout (a traceback). Each is now a usage error, nothing
+    written."""
+    samples = ROOT / "samples"
+    port = _free_port()
+    cases = [
+        (["estimate", samples / "flicker.aedat4", "--method", "stimulus", "-o", f"tcp://127.0.0.1:{port}"],
+         "the thresholds map is HDF5"),
+        (["simulate", "scene:step", "--duration", "100ms", "--size", "8x8", "-o", tmp_path / "x.aedat4", "--truth",
+          f"tcp://127.0.0.1:{port}"], "the truth is HDF5"),
+        (["convert", samples / "step.aedat4", samples / "flicker.aedat4", "-o", f"tcp://127.0.0.1:{port}"],
+         "a network output serves one stream"),
+        (["--timeout", "1e10s", "info", f"tcp://127.0.0.1:{port}"], "must be at most"),
+    ]
+    for argv, said in cases:
+        done = subprocess.run([EVTOOLS[0], *map(str, argv)], capture_output=True, text=True, env=_environment(),
+                              cwd=tmp_path, timeout=60)
+        assert done.returncode == 2 and said in done.stderr and "Traceback" not in done.stderr, (argv, done.stderr)
+    assert list(tmp_path.iterdir()) == []
