@@ -519,7 +519,7 @@ class DvsSimulator:
             f"frames {interval_us / 1e3:g} ms apart are coarse for the {cutoff_hz:g} Hz low-pass (time constant "
             f"{tau_ms:.3g} ms; it moves min(1, dt / tau) a frame, as v2e's): its time constant is off by more than "
             f"10 % (nothing is filtered from dt >= tau); give frames at most {tau_ms * LOWPASS_MAX_STEP:.3g} ms "
-            "apart (a faster scene --fps, an interpolated video) or a lower --cutoff-hz")
+            "apart (a faster --frame-rate, an interpolated video) or a lower --cutoff-hz")
 
     def _advance(self, lane: "_PixelLane", frame: np.ndarray, t1: int) -> None:
         """Advance ``lane``'s pixels to ``frame`` at ``t1``, appending their events to its columns."""

@@ -342,8 +342,13 @@ class TcpServer:
 
         self.name = name
         host, port = tcp_address(name)
-        try:
-            self.listener = socket.create_server((host, port), reuse_port=False)
+        try:  # (an IPv6 address, and every interface of both families for tcp://:PORT: a QA sweep)
+            if ":" in host:
+                self.listener = socket.create_server((host, port), family=socket.AF_INET6)
+            elif not host and socket.has_dualstack_ipv6():
+                self.listener = socket.create_server(("", port), family=socket.AF_INET6, dualstack_ipv6=True)
+            else:
+                self.listener = socket.create_server((host, port))
         except OSError as error:
             raise FormatError(f"{name}: cannot listen ({error.strerror or error})") from None
         self.header: bytes | None = None

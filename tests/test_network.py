@@ -594,3 +594,34 @@ def test_outputs_a_network_cannot_carry_are_usage_errors(tmp_path):
                               cwd=tmp_path, timeout=60)
         assert done.returncode == 2 and said in done.stderr and "Traceback" not in done.stderr, (argv, done.stderr)
     assert list(tmp_path.iterdir()) == []
+
+
+def _ipv6_loopback() -> bool:
+    try:
+        with socket.socket(socket.AF_INET6) as probe:
+            probe.bind(("::1", 0))
+        return True
+    except OSError:
+        return False
+
+
+@pytest.mark.skipif(not _ipv6_loopback(), reason="this machine has no IPv6 loopback")
+def test_a_network_output_listens_on_ipv6_too():
+    """A QA sweep: `-o tcp://[::1]:PORT` could not listen (the address family was not given), and `tcp://:PORT`
+    ("every interface") listened on IPv4 alone."""
+    from evtools.formats.io import TcpServer
+    from tests.helpers import wait_until
+
+    for name, client_host in ((f"tcp://[::1]:{_free_port()}", "::1"), (f"tcp://:{_free_port()}", "::1"),
+                              (f"tcp://:{_free_port()}", "127.0.0.1")):
+        server = TcpServer(name)
+        port = int(name.rsplit(":", 1)[1])
+        client = socket.create_connection((client_host, port), timeout=60)
+        wait_until(lambda: len(server.served) == 1, f"{client_host} to be accepted by {name}")
+        server.write(b"header")
+        server.close()
+        received = b""
+        while part := client.recv(1 << 16):
+            received += part
+        assert received == b"header", name
+        client.close()
