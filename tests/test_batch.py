@@ -152,18 +152,10 @@ def test_a_stop_ends_the_batch_where_it_is_and_says_what_each_file_got(tmp_path,
     import subprocess
     import sys
 
-    recording, info = evtools.read(data_file("dvs128_walk.aedat"))
-    span = int(recording["t"][-1] - recording["t"][0]) + 1
-    tiled = np.concatenate([recording] + [_shifted(recording, k * span) for k in range(1, 4)])
-    source = tmp_path / "source.aedat4"
-    evtools.write(source, tiled, info)
-    folder = tmp_path / "in"
-    folder.mkdir()
-    for k in range(40):
-        (folder / f"c{k:02d}.aedat4").symlink_to(source)
+    inputs = _forty_walks(tmp_path)
     out = tmp_path / "out"
-    process = subprocess.Popen([str(Path(sys.executable).parent / "evtools"), "bafilter", *sorted(map(str,
-                               folder.iterdir())), "-o", str(out), "--jobs", "2", "--json"],
+    process = subprocess.Popen([str(Path(sys.executable).parent / "evtools"), "bafilter", *inputs, "-o", str(out),
+                                "--jobs", "2", "--json"],
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=to_group)
     try:
         wait_until(lambda: out.exists() and any(p.suffix == ".aedat4" for p in out.iterdir()), "a first output")
@@ -195,17 +187,10 @@ def test_workers_stop_with_a_command_that_was_killed(tmp_path):
     import subprocess
     import sys
 
-    recording, info = evtools.read(data_file("dvs128_walk.aedat"))
-    span = int(recording["t"][-1] - recording["t"][0]) + 1
-    source = tmp_path / "source.aedat4"
-    evtools.write(source, np.concatenate([recording] + [_shifted(recording, k * span) for k in range(1, 4)]), info)
-    folder = tmp_path / "in"
-    folder.mkdir()
-    for k in range(40):
-        (folder / f"c{k:02d}.aedat4").symlink_to(source)
+    inputs = _forty_walks(tmp_path)
     out = tmp_path / "out"
-    process = subprocess.Popen([str(Path(sys.executable).parent / "evtools"), "bafilter", *sorted(map(str,
-                               folder.iterdir())), "-o", str(out), "--jobs", "2"],
+    process = subprocess.Popen([str(Path(sys.executable).parent / "evtools"), "bafilter", *inputs, "-o", str(out),
+                                "--jobs", "2"],
                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     try:
         wait_until(lambda: out.exists() and any(p.suffix == ".aedat4" for p in out.iterdir()), "a first output")
@@ -230,6 +215,19 @@ def test_workers_stop_with_a_command_that_was_killed(tmp_path):
     assert 0 < len(outputs) < 40 and not [p for p in out.iterdir() if p.suffix != ".aedat4"]
     for output in outputs:  # whole, or marked cut: readable either way
         run("info", output, "--json")
+
+
+def _forty_walks(tmp_path) -> list[str]:
+    """Forty inputs (links to the DVS128 walk repeated four times end to end: a batch that takes a while)."""
+    recording, info = evtools.read(data_file("dvs128_walk.aedat"))
+    span = int(recording["t"][-1] - recording["t"][0]) + 1
+    source = tmp_path / "source.aedat4"
+    evtools.write(source, np.concatenate([recording] + [_shifted(recording, k * span) for k in range(1, 4)]), info)
+    folder = tmp_path / "in"
+    folder.mkdir()
+    for k in range(40):
+        (folder / f"c{k:02d}.aedat4").symlink_to(source)
+    return sorted(map(str, folder.iterdir()))
 
 
 def _shifted(events, by_us):
