@@ -96,6 +96,12 @@ def test_sweepable_parameters_come_from_the_declarations():
 
 def test_the_readme_table_is_the_declarations():
     assert markdown_table() in (ROOT / "README.md").read_text()
+    # the command the README names prints it, and nothing else (`-m evtools.filters.registry` drew runpy's warning)
+    import subprocess
+    import sys
+
+    printed = subprocess.run([sys.executable, "-m", "evtools.filters"], capture_output=True, text=True, timeout=60)
+    assert printed.returncode == 0 and printed.stdout.strip() == markdown_table().strip() and not printed.stderr
 
 
 def test_the_api_signature_lists_every_parameter_and_its_docs_name_only_methods_that_exist():

@@ -126,7 +126,3 @@ def document(target, *leading: str, methods: str = "methods") -> None:
     head, examples = doc.split("    Examples\n") if "    Examples\n" in doc else (doc, None)
     doc = head.rstrip() + "\n\n" + _parameters_doc()
     target.__doc__ = doc if examples is None else doc + "\n    Examples\n" + examples
-
-
-if __name__ == "__main__":  # the README's table: python -m evtools.filters.registry
-    print(markdown_table())
