@@ -89,7 +89,9 @@ class EventStream:
         # a live evtools stream (it promised an end mark) is read on after a stop, for its writer's end: with the
         # mark it was whole, without it cut (the stage upstream was reading a file: the outputs say so); a writer
         # still going after STOP_DRAIN_SECONDS was not stopped, and the stop is the stream's end, as a camera's
-        drains = self.source.live and getattr(self.reader, "expects_end_mark", False)
+        # (not a network input: the stop does not reach its server, which goes on; reading on was a second lost,
+        # and a cut warned of that the outputs did not carry, a QA sweep)
+        drains = self.source.live and not self.source.network and getattr(self.reader, "expects_end_mark", False)
         return read_ahead(self._chunks(), READ_AHEAD, STOP_DRAIN_SECONDS if drains else 0.0)
 
     def take_frames(self) -> list:

@@ -553,6 +553,8 @@ class Aedat4Reader:
                    "packet: it was cut (the writer killed or the copy broken off), events may be missing")
         if self.source.live and interrupt.received() is None:  # (stopped too: the outputs are marked cut instead)
             raise FormatError(message)
+        if self.source.network and interrupt.received() is not None:  # (its end came from this command's stop: a
+            return  # network input's server is not stopped with it, and its stop is its end, as a camera's)
         logging.getLogger("evtools").warning(message)
         self.cut_file = True  # (a stage's output then ends without the end mark too: see EventStream.was_cut)
 

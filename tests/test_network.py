@@ -625,3 +625,34 @@ def test_a_network_output_listens_on_ipv6_too():
             received += part
         assert received == b"header", name
         client.close()
+
+
+def test_a_stop_ends_a_network_input_at_once_and_is_no_cut(tmp_path):
+    """A QA sweep: Ctrl-C on a command reading another evtools' `-o tcp://` read on for a second (as for a pipe,
+    whose writer the same Ctrl-C stops) although the server goes on, and most runs warned that the stream ended
+    without its end mark, "cut", while the output said it was whole. A network input's stop is its end."""
+    from tests.helpers import wait_until
+
+    events, _ = evtools.simulate("bars", size=(WIDTH, HEIGHT), duration_us=20_000_000, seed=5)
+    recording = tmp_path / "bars.aedat4"
+    evtools.write(recording, events, evtools.StreamInfo(WIDTH, HEIGHT))
+    port = _free_port()
+    server = subprocess.Popen([EVTOOLS[0], "convert", str(recording), "--realtime", "-o", f"tcp://127.0.0.1:{port}"],
+                              stderr=subprocess.PIPE, text=True, env=_environment(), cwd=ROOT)
+    client = None
+    try:
+        _wait_for_server(port, server)
+        output = tmp_path / "out.aedat4"
+        client = subprocess.Popen([EVTOOLS[0], "bafilter", f"tcp://127.0.0.1:{port}", "-o", str(output)],
+                                  stderr=subprocess.PIPE, text=True, env=_environment(), cwd=ROOT)
+        wait_until(lambda: _connected_to(port) and client.poll() is None, "the client to connect")
+        client.send_signal(signal.SIGINT)
+        assert client.wait(timeout=60) == 130
+        stderr = client.stderr.read()
+    finally:
+        for process in (client, server):
+            if process is not None:
+                process.kill()
+                process.wait()
+    assert "end mark" not in stderr and "Traceback" not in stderr, stderr
+    assert not evtools.read(output)[1].metadata.get("cut"), stderr
