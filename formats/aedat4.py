@@ -100,6 +100,10 @@ def _table_fields(buffer: memoryview, table: int) -> tuple[int, ...]:
     return tuple(table + offset if offset else 0 for offset in offsets)
 
 
+MAX_HEADER_BYTES = 16 << 20
+"""The largest AEDAT 4.0 header read (its XML describes a few streams in a few kB)."""
+
+
 def _parse_ioheader(data: bytes, name: str) -> tuple[int, int, str]:
     buffer = memoryview(data)
     try:
@@ -303,6 +307,9 @@ class Aedat4Reader:
             raise FormatError(f"{self.name}: not an AEDAT 4.0 file (magic {magic[:14]!r})")
         header_size = self._read_exact(4, "header length")
         (length,) = struct.unpack("<I", header_size)
+        if length > MAX_HEADER_BYTES:  # (a network input waited out --timeout for it, then said "sends nothing")
+            raise FormatError(f"{self.name}: its header says it holds {length:,} bytes, more than any AEDAT 4.0 "
+                              f"header's ({MAX_HEADER_BYTES:,}: a few kB of XML): not an AEDAT 4.0 stream, or damaged")
         code, self.data_position, description = _parse_ioheader(self._read_exact(length, "header"), self.name)
         self.position = len(magic) + 4 + length
         self.decompress = _decompressor(code, self.name)

@@ -78,6 +78,7 @@ class _NetworkRaw(io.RawIOBase):
 
     def __init__(self, name: str, connection, timeout_s: float) -> None:
         self._name, self._raw, self._timeout_s = name, connection.makefile("rb", buffering=0), timeout_s
+        self._received = 0  # bytes read: a reset before any is no stream cut (a QA sweep: it said "mid-stream")
         connection.settimeout(timeout_s)
 
     def readable(self) -> bool:
@@ -88,12 +89,17 @@ class _NetworkRaw(io.RawIOBase):
 
     def readinto(self, buffer) -> int:
         try:
-            return self._raw.readinto(buffer)
+            n = self._raw.readinto(buffer)
         except TimeoutError:
+            waited = "sends nothing" if not self._received else "stopped sending"
             raise FormatError(f"{self._name}: no data for {self._timeout_s:g} s; the server is connected but "
-                              "sends nothing (--timeout sets how long to wait)") from None
+                              f"{waited} (--timeout sets how long to wait)") from None
         except ConnectionResetError:
+            if not self._received:
+                raise FormatError(f"{self._name}: the server reset the connection before sending anything") from None
             raise FormatError(f"{self._name}: the server reset the connection mid-stream (the stream is cut)") from None
+        self._received += n or 0
+        return n
 
     def close(self) -> None:
         self._raw.close()

@@ -286,7 +286,7 @@ def test_a_server_that_sends_nothing_or_resets_is_an_error_naming_it():
     from evtools.formats import open_events
     from evtools.formats.errors import FormatError
 
-    for behaviour in ("silent", "reset"):
+    for behaviour in ("silent", "reset", "reset at once"):
         finished = threading.Event()
         listener = socket.socket()
         listener.bind(("127.0.0.1", 0))
@@ -295,8 +295,9 @@ def test_a_server_that_sends_nothing_or_resets_is_an_error_naming_it():
 
         def serve():
             client, _ = listener.accept()
-            if behaviour == "reset":
-                client.send(b"#!AER-DAT4.0\r\n" + bytes(20))  # a header's start, then a reset (RST)
+            if behaviour.startswith("reset"):
+                if behaviour == "reset":
+                    client.send(b"#!AER-DAT4.0\r\n" + bytes(20))  # a header's start, then a reset (RST)
                 client.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
                 client.close()
             else:
@@ -306,7 +307,9 @@ def test_a_server_that_sends_nothing_or_resets_is_an_error_naming_it():
 
         thread = threading.Thread(target=serve, daemon=True)
         thread.start()
-        with pytest.raises(FormatError, match="no data for 0.5 s" if behaviour == "silent" else "reset|cut|ends"):
+        said = {"silent": "no data for 0.5 s; the server is connected but sends nothing", "reset": "reset|cut|ends",
+                "reset at once": "reset the connection before sending anything"}[behaviour]  # (not "mid-stream")
+        with pytest.raises(FormatError, match=said):
             with open_events(f"tcp://127.0.0.1:{port}", read_timeout_s=0.5) as stream:
                 for _ in stream:
                     pass
@@ -656,3 +659,34 @@ def test_a_stop_ends_a_network_input_at_once_and_is_no_cut(tmp_path):
                 process.wait()
     assert "end mark" not in stderr and "Traceback" not in stderr, stderr
     assert not evtools.read(output)[1].metadata.get("cut"), stderr
+
+
+def test_a_header_of_impossible_length_is_damage_at_once():
+    """A QA sweep: an AEDAT 4.0 header whose length field said 1 GiB made a network input wait out --timeout for it,
+    then say the server "sends nothing". A length no header has is damage, said at once."""
+    from evtools.formats import open_events
+    from evtools.formats.errors import FormatError
+
+    listener = socket.socket()
+    listener.bind(("127.0.0.1", 0))
+    listener.listen(1)
+    port = listener.getsockname()[1]
+    finished = threading.Event()
+
+    def serve():
+        client, _ = listener.accept()
+        client.sendall(struct.pack("<I", 1 << 30) + struct.pack("<I", 16) + b"IOHE" + bytes(500))
+        finished.wait(60)  # silent after it: the old reader waited for the rest until its timeout
+        client.close()
+        listener.close()
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    try:
+        with pytest.raises(FormatError, match="its header says it holds 1,073,741,824 bytes"):
+            with open_events(f"tcp://127.0.0.1:{port}", read_timeout_s=60) as stream:
+                for _ in stream:
+                    pass
+    finally:
+        finished.set()
+        thread.join(5)
