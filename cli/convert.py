@@ -13,7 +13,7 @@ from evtools.formats import create_events, open_events
 from evtools.formats.io import paced
 from evtools.formats.registry import FORMATS, by_name
 from evtools.frames import FrameRelay
-from evtools.transform import SlicedStream, Transform
+from evtools.transform import SlicedStream, transform_of
 
 log = logging.getLogger("evtools")
 
@@ -65,7 +65,7 @@ def convert_one(input, output, *, reading, output_format, compression, speed=Non
     events_in = events_out = 0
     stopped = False
     with open_events(input, reading) as stream:
-        transform = Transform(stream.info, **slicing) if slicing else None
+        transform = transform_of(stream, slicing) if slicing else None
         with create_events(
             output, transform.info if transform else stream.info, format=output_format, compression=compression,
             aedat2_layout=reading.aedat2_layout, inputs=(input,),

@@ -237,7 +237,7 @@ def network_names(ctx, param, value):
 
 
 input_argument = click.argument("input", default="-", metavar="[IN]", callback=network_names,
-                                type=click.Path(dir_okay=False, allow_dash=True))
+                                type=click.Path(allow_dash=True))  # (a folder: an RPG or DSEC dataset)
 
 
 def serve_early(ctx, param, value):

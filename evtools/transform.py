@@ -224,7 +224,16 @@ def sliced(stream, slicing: dict | None):
     them) asks for nothing, else a :class:`SlicedStream`."""
     if not slicing or not any(slicing.values()):
         return stream
-    return SlicedStream(stream, Transform(stream.info, **slicing))
+    return SlicedStream(stream, transform_of(stream, slicing))
+
+
+def transform_of(stream, slicing: dict) -> Transform:
+    """The :class:`Transform` of ``slicing`` on ``stream``'s sensor; an error names the stream (a crop outside its
+    sensor: which input, with several)."""
+    try:
+        return Transform(stream.info, **slicing)
+    except TransformError as error:
+        raise TransformError(f"{stream.name}: {error}") from None
 
 
 def on_sliced_sensor(stream, values: np.ndarray) -> np.ndarray:

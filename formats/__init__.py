@@ -14,7 +14,7 @@ import numpy as np
 
 from evtools import interrupt
 from evtools.events import StreamChecker, StreamInfo, concatenate, parse_sensor_size
-from evtools.formats.errors import FormatError, StreamReadAgain, UnknownOutputFormat
+from evtools.formats.errors import FormatError, OutputCannotTakeFormat, StreamReadAgain, UnknownOutputFormat
 from evtools.formats.io import (
     STDIO,
     STOP_DRAIN_SECONDS,
@@ -382,8 +382,10 @@ def output_format(path: str | os.PathLike | None, format: str | None):
             written = ", ".join(ext for f in FORMATS if f.writer is not None for ext in f.extensions)
             raise UnknownOutputFormat(f"{path}: cannot tell the output format from the extension: end the name "
                                       f"with one of {written} (convert and simulate also take --format)")
-    if fmt.writer is None:
-        raise FormatError(f"{fmt.description} cannot be written (read-only format)")
+    if fmt.writer is None:  # (a choice on the command line: a usage mistake, exit 2, naming the output)
+        target = "<stdout>" if path is None or os.fspath(path) == STDIO else os.fspath(path)
+        raise OutputCannotTakeFormat(f"{target}: {fmt.description} is read, not written; choose another extension "
+                                     "or --format")
     return fmt
 
 

@@ -125,7 +125,7 @@ FORMATS: tuple[Format, ...] = (
            compressions=("none", "zstd", "gzip", "lzf")),
     Format("prophesee", "Prophesee EVT 2.0 / 2.1 / 3.0 RAW (written as EVT 2.0)", (".raw",), _is_prophesee,
            "evtools.formats.prophesee:PropheseeRawReader", "evtools.formats.prophesee:Evt2Writer"),
-    Format("csv", "CSV with a header (t,x,y,p)", (".csv",), lambda h: _is_text(h, b","),
+    Format("csv", "CSV (t,x@W,y@H,on header)", (".csv",), lambda h: _is_text(h, b","),
            "evtools.formats.text:CsvReader", "evtools.formats.text:CsvWriter"),
     Format("txt", "text t x y p, t in seconds (rpg events.txt, v2e)", (".txt",), lambda h: _is_text(h, b" "),
            "evtools.formats.text:TxtReader", "evtools.formats.text:TxtWriter"),

@@ -512,3 +512,16 @@ def test_python_may_write_back_a_file_it_read(tmp_path):
     events, info = evtools.read(path)
     evtools.write(path, events[:1], info)
     assert len(evtools.read(path)[0]) == 1
+
+
+def test_an_output_format_that_is_only_read_and_a_crop_off_the_sensor_name_the_file(tmp_path):
+    """A QA sweep: `-o y.aedat3` said "AEDAT 3.1 ... cannot be written" with exit 1 and no file named (an unknown
+    extension is a usage error naming it), and a crop outside the sensor named no input (with several, which?)."""
+    samples = Path(__file__).resolve().parents[1] / "samples"
+    done = run("convert", samples / "step.aedat4", "-o", tmp_path / "y.aedat3", check=False)
+    assert done.returncode == 2 and f"{tmp_path / 'y.aedat3'}: AEDAT 3.1" in done.stderr.decode()
+    assert "is read, not written" in done.stderr.decode() and not (tmp_path / "y.aedat3").exists()
+    for command in ("convert", "bafilter"):
+        done = run(command, samples / "step.aedat4", "--crop", "300,230,21,10", "-o", tmp_path / "c.aedat4",
+                   check=False)
+        assert_clean_error(done, "step.aedat4: crop 300,230,21,10 is not inside the 32x24 sensor")

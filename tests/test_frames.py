@@ -395,6 +395,13 @@ def test_an_rpg_folder_is_read_with_its_images_as_frames(tmp_path):
     run("bafilter", tmp_path / "rpg1", "-o", tmp_path / "kept.aedat4")
     assert len(evtools.read(tmp_path / "kept.aedat4", frames=True)[2]) == 4
     assert '"count": 4' in run("info", tmp_path / "rpg1", "--json").stdout.decode()
+    # every command that reads one stream takes the folder (render refused it as "a directory", exit 2: a QA sweep)
+    run("render", tmp_path / "rpg1", "--aps", "-o", tmp_path / "overlay.png")
+    import cv2
+
+    assert cv2.imread(str(tmp_path / "overlay.png")) is not None
+    measured = run("metrics", "uniformity", tmp_path / "rpg1", "--json", check=False)
+    assert measured.returncode != 2 and b"is a directory" not in measured.stderr, measured.stderr
 
 
 def test_bad_rpg_folders_are_one_line_errors(tmp_path):
