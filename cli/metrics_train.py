@@ -207,9 +207,12 @@ def train_denoiser(recordings, truths, noise_rate_hz, leak_rate_hz, output, patc
     if interrupt.received() is not None:  # (a model of part of the recordings, unmarked, once went out as whole; an
         raise interrupt.StopReading  # early stop said "too few labelled events", exit 1: a QA sweep): no weights
     features, signal, check = (np.concatenate([part[i] for part in parts]) for i in range(3))
-    with _epochs_shown(epochs) as shown:
-        weights, report = train(features, signal.astype(np.float64), check, patch=patch, tau_us=tau_us or 0,
-                                tau_scale=tau_scale, hidden=hidden, seed=seed, epochs=epochs, on_epoch=shown)
+    try:
+        with _epochs_shown(epochs) as shown:
+            weights, report = train(features, signal.astype(np.float64), check, patch=patch, tau_us=tau_us or 0,
+                                    tau_scale=tau_scale, hidden=hidden, seed=seed, epochs=epochs, on_epoch=shown)
+    except MlpfError as error:  # (what the recordings gave: "too few labelled events" named none, a QA sweep)
+        raise MlpfError(f"{', '.join(recordings)}: {error}") from None
     weights.info = {"inputs": " ".join(os.path.basename(n) for n in recordings), "seed": str(seed),
                     "labels": "truth" if truths else "self", "validation_auc": f"{report.validation_auc:.4f}",
                     "epochs": str(report.epochs)}

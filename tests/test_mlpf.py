@@ -452,3 +452,16 @@ def test_training_stopped_while_reading_makes_no_weights(tmp_path, labelled):
         process.kill()
     assert process.returncode == 130 and b"Traceback" not in stderr, stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["big.aedat4", "t.h5"]  # (no weights, no temporary)
+
+
+def test_training_on_too_little_names_the_recording(tmp_path):
+    """A QA sweep: train-denoiser on a 2-event file said "too few labelled events to train (0) and check (0)",
+    naming no file; no weights are written."""
+    import evtools
+    from tests.helpers import assert_clean_error, run
+
+    two = tmp_path / "two.aedat4"
+    evtools.write(two, evtools.from_columns([0, 1000], [1, 2], [1, 2], [1, 0]), evtools.StreamInfo(8, 8))
+    done = run("metrics", "train-denoiser", two, "--noise-rate-hz", "5", "-o", tmp_path / "w.npz", check=False)
+    assert_clean_error(done, "two.aedat4: too few labelled events")
+    assert not (tmp_path / "w.npz").exists()
