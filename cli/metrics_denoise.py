@@ -294,13 +294,15 @@ def roc(noisy, truth, methods, sweep, preset, weights, polarity_maps, settings, 
 def esr(input, reading, slice_events, as_json):
     """E-MLB's event structural ratio per slice of IN and its mean, MESR (higher is better; no labels needed).
 
-    Full slices only; a stream shorter than one slice is one slice.
+    Full slices only; a stream shorter than one slice is one slice (fewer than two events: no ESR, said).
     """
     with open_events(input, reading) as stream:
         meter = EsrMeter(stream.info.width, stream.info.height, slice_events)
         for chunk in with_progress(stream, stream, f"measuring {stream.name}"):
             meter.add(chunk)
         result = {"file": stream.name, **meter.finish()}
+    if result["mesr"] is None or not np.isfinite(result["mesr"]):  # (null and exit 0 said nothing: a QA sweep)
+        log.warning(f"{result['file']}: no ESR: a slice needs two events or more, and the stream has fewer")
     if wants_json(as_json):
         echo_json(_clean(result), indent=2)
         return

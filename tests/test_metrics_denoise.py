@@ -132,7 +132,13 @@ def test_issue_auc_claims(noisy, tmp_path):
 def test_cli_esr_and_bad_sweep(noisy):
     path, truth = noisy["dvxplorer_sample"]
     result = json.loads(run("metrics", "esr", path).stdout)
-    assert result["slices"] > 3 and result["mesr"] > 0
+    assert result["slices"] > 3 and result["mesr"] > 0 and b"no ESR" not in run("metrics", "esr", path).stderr
+    import evtools
+
+    one = path.parent / "one_event.aedat4"  # (no ESR, null and exit 0, said nothing: a QA sweep)
+    evtools.write(one, evtools.from_columns([5], [1], [1], [1]), evtools.StreamInfo(8, 8))
+    done = run("metrics", "esr", one)
+    assert json.loads(done.stdout)["mesr"] is None and b"one_event.aedat4: no ESR" in done.stderr
     bad = run("metrics", "roc", path, "--truth", truth, "--method", "baf", "--sweep", "speed=1", check=False)
     assert bad.returncode == 2 and b"cannot sweep" in bad.stderr
 
