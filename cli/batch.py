@@ -264,6 +264,11 @@ def _result_of(future, name: str) -> tuple:
         return "error", f"{name}: its worker failed ({error})", 0.0
 
 
+PARENT_CHECK_S = 0.2
+"""How often a batch's worker looks whether the command that started it still runs."""
+_busy = False  # a worker is running a file (run_one)
+
+
 def _exit_with_parent(parent_pid: int) -> None:
     """A worker whose command died (``kill -9``, the OOM killer: no stop reached it) stops as if stopped: the file
     under way ends marked cut (a SIGTERM to itself), none is started, and the worker exits once idle (it went on
@@ -305,11 +310,6 @@ def run_one(one: Callable[..., Outcome], input: str, output: str, options: dict[
         return "error", f"{input}: out of memory", time.perf_counter() - start
     finally:
         _busy = False
-
-
-PARENT_CHECK_S = 0.2
-"""How often a batch's worker looks whether the command that started it still runs."""
-_busy = False  # a worker is running a file (run_one)
 
 
 def _quiet_worker() -> None:
