@@ -339,7 +339,11 @@ class Hdf5Reader:
         stated = [attribute(group, key, source=self.name) for key in ("width", "height")] \
             if isinstance(group, h5py.Group) and "width" in group.attrs and "height" in group.attrs else None
         if stated is not None:
-            self.info_frame_size = (int(stated[0]), int(stated[1]))
+            try:
+                self.info_frame_size = (int(stated[0]), int(stated[1]))
+            except (TypeError, ValueError):
+                raise FormatError(f"{self.name}: frames/ states a frame size of {stated[0]} x {stated[1]}, not "
+                                  "two whole numbers (a damaged file?)") from None
         else:  # (files before the size was stored: the frames' extent)
             shape = self._frame_images(0).shape
             self.info_frame_size = (int(np.max(self._frame_columns.get("offset_x", 0))) + shape[1],

@@ -315,6 +315,12 @@ def test_a_region_of_interest_frame_reads_back_and_writes_again(tmp_path, suffix
     again = tmp_path / f"again{suffix}"
     evtools.write(again, back, info, frames=frames)
     assert evtools.read(again, frames=True)[2][0].same_as(region)
+    if suffix == ".h5":  # a stated size that is no number is damage, one line
+        import h5py
+
+        with h5py.File(again, "r+") as f:
+            f["frames"].attrs["width"] = "abc"
+        assert_clean_error(run("info", again, check=False), "again.h5: frames/ states a frame size of abc x 12")
 
 
 def test_hdf5_frames_without_an_exposure_are_read_by_their_time(tmp_path):
