@@ -64,7 +64,7 @@ MIN_THRESHOLD_FACTOR = 0.05
 
 LOWPASS_MAX_STEP = 0.2
 """The longest frame interval, in low-pass time constants, that is said nothing of: the per-frame update ``eps =
-min(1, dt / tau)`` is then within 10 % of a true single pole's ``1 - exp(-dt / tau)``."""
+min(1, dt / tau)`` is then within about 10 % of a true single pole's ``1 - exp(-dt / tau)`` (10.3 % at 0.2)."""
 
 DEFAULT_PARAMETERS: dict[str, Any] = {
     "pos_thres": 0.2,
