@@ -19,22 +19,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from evtools.correction import correct_thresholds  # noqa: E402
 from evtools.events import make_events  # noqa: E402
-from tests.naive.ideal_pixel import ideal_events  # noqa: E402
+from tests.naive.ideal_pixel import ideal_columns  # noqa: E402
 
 TARGET = float(np.float32(0.2))
 WIDTH, HEIGHT = 3, 2
 
 
 def stream(waves, thresholds):
-    t, x, y, p = [], [], [], []
-    for i, (corners, theta) in enumerate(zip(waves, thresholds)):
-        for when, polarity in ideal_events(corners, theta, theta):
-            t.append(int(np.floor(when + 0.5)))
-            x.append(i % WIDTH)
-            y.append(i // WIDTH)
-            p.append(polarity)
-    order = np.argsort(t, kind="stable")
-    return make_events(np.array(t, np.int64)[order], np.array(x)[order], np.array(y)[order], np.array(p)[order])
+    return make_events(*ideal_columns(waves, [(theta, theta) for theta in thresholds], WIDTH))
 
 
 def count_error(events, ideal):

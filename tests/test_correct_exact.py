@@ -22,7 +22,7 @@ from hypothesis import strategies as st
 
 from evtools.correction import correct_thresholds
 from evtools.events import make_events
-from tests.naive.ideal_pixel import ideal_events, step_response_events, triangle_corners
+from tests.naive.ideal_pixel import ideal_columns, step_response_events, triangle_corners
 
 TARGET = float(np.float32(0.2))
 TOLERANCE_US = 10
@@ -31,15 +31,7 @@ WIDTH = 3
 
 def stream(waves, thresholds):
     """Events of all pixels (pixel i at x = i % WIDTH, y = i // WIDTH), times rounded to whole us."""
-    t, x, y, p = [], [], [], []
-    for i, (corners, (on, off)) in enumerate(zip(waves, thresholds)):
-        for when, polarity in ideal_events(corners, on, off):
-            t.append(int(np.floor(when + 0.5)))
-            x.append(i % WIDTH)
-            y.append(i // WIDTH)
-            p.append(polarity)
-    order = np.argsort(t, kind="stable")
-    return make_events(np.array(t, np.int64)[order], np.array(x)[order], np.array(y)[order], np.array(p)[order])
+    return make_events(*ideal_columns(waves, thresholds, WIDTH))
 
 
 def match(mine, theirs):

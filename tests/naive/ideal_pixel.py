@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 
 def triangle_corners(start_us, end_us, base, amplitude, rise_us, fall_us, phase):
     """Corners (t_us, level) of a triangle wave from ``base`` up to ``base + amplitude`` in ``rise_us`` and back
@@ -91,3 +93,17 @@ def step_response_events(edges, end_us, tau_us, level0, theta_on, theta_off):
                 events.append((crossing(reference), False))
         value = target + (value - target) * math.exp(-(t_next - t_edge) / tau_us)
     return events
+
+
+def ideal_columns(waves, thresholds, width):
+    """(t, x, y, p) arrays of ideal pixels watching ``waves`` (corner lists) with ``thresholds`` ((on, off) per pixel),
+    pixel i at x = i % width, y = i // width, times rounded to whole microseconds, in time order (stable)."""
+    t, x, y, p = [], [], [], []
+    for i, (corners, (on, off)) in enumerate(zip(waves, thresholds)):
+        for when, polarity in ideal_events(corners, on, off):
+            t.append(int(np.floor(when + 0.5)))
+            x.append(i % width)
+            y.append(i // width)
+            p.append(polarity)
+    order = np.argsort(t, kind="stable")
+    return np.array(t, np.int64)[order], np.array(x, int)[order], np.array(y, int)[order], np.array(p, bool)[order]
